@@ -1,0 +1,277 @@
+"""From observations to the optimal pose: candidates from every minimal
+subset, ranking by the two-way reprojection objective, Levenberg-Marquardt
+refinement and the covariance.
+
+An observation ``k`` says: the camera of robot ``side[k]`` (0 = p, 1 = q)
+sees, along the unit ray ``bearings[k]`` of its own frame, the marker whose
+position in the *other* robot's frame is ``points[k]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+from numba import njit
+
+from ..errors import DegenerateGeometryError, InputError, NoSolutionError, TooFewObservationsError
+from .geometry import Pose
+from .minimal import solve_minimal_kernel
+from .refine import MODE_BEARING, MODE_PIXEL, information, lm_refine, cost, tangent_bases
+
+__all__ = ["Observations", "Solution", "estimate", "minimal_subsets"]
+
+_PER_SUBSET = 16
+# Subsets beyond this many are sampled (deterministically): with many
+# markers, a few dozen minimal problems already contain a good start.
+MAX_SUBSETS = 60
+# Relative condition number of J^T J beyond which the pose is not isolated.
+_MAX_COND = 1e12
+
+
+@dataclass
+class Observations:
+    """Observations between robots p and q in solver form.
+
+    ``pixels``/``cameras`` are only needed for the pixel objective.
+    """
+
+    side: np.ndarray
+    points: np.ndarray
+    bearings: np.ndarray
+    pixels: np.ndarray | None = None
+    K: tuple[np.ndarray, np.ndarray] | None = None
+    dist: tuple[np.ndarray, np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        self.side = np.ascontiguousarray(self.side, dtype=np.int64)
+        self.points = np.ascontiguousarray(self.points, dtype=float).reshape(-1, 3)
+        self.bearings = np.ascontiguousarray(self.bearings, dtype=float).reshape(-1, 3)
+        n = self.side.shape[0]
+        if self.points.shape[0] != n or self.bearings.shape[0] != n:
+            raise InputError("observations: side, points and bearings differ in length")
+        if not (np.all(np.isfinite(self.points)) and np.all(np.isfinite(self.bearings))):
+            raise InputError("observations contain NaN or inf")
+        norms = np.linalg.norm(self.bearings, axis=1)
+        if np.any(norms < 1e-12):
+            raise InputError("observations contain a zero-length bearing")
+        self.bearings = self.bearings / norms[:, None]
+        if n < 3:
+            raise TooFewObservationsError(f"{n} marker observations; at least three are needed")
+        if self.pixels is not None:
+            self.pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
+
+    @property
+    def mode(self) -> int:
+        return MODE_PIXEL if self.pixels is not None else MODE_BEARING
+
+    def kernel_args(self) -> tuple:
+        """Arguments shared by the residual kernels."""
+        basis = np.empty((len(self.side), 3, 3))
+        tangent_bases(self.bearings, basis)
+        if self.pixels is not None:
+            meas = self.pixels
+            Kp, Kq = self.K
+            dp, dq = self.dist
+        else:
+            meas = np.zeros((len(self.side), 2))
+            Kp = Kq = np.eye(3)
+            dp = dq = np.zeros(8)
+        return (self.side, self.points, meas, basis, Kp, dp, Kq, dq, self.mode)
+
+
+@dataclass
+class Solution:
+    """What :func:`estimate` found: the best pose and everything behind it."""
+
+    pose: Pose
+    cost: float
+    information: np.ndarray
+    candidates_R: np.ndarray
+    candidates_t: np.ndarray
+    candidate_costs: np.ndarray
+    n_obs: int
+    refined: bool = True
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def candidates(self) -> list[Pose]:
+        """Every distinct candidate pose, best first."""
+        return [Pose(R, t) for R, t in zip(self.candidates_R, self.candidates_t)]
+
+    def covariance(self, sigma: float) -> np.ndarray:
+        """6x6 covariance of (left rotation vector, translation)."""
+        return sigma**2 * np.linalg.inv(self.information)
+
+
+def minimal_subsets(side: np.ndarray, max_subsets: int = MAX_SUBSETS) -> np.ndarray:
+    """All 3-subsets of the observations (sampled when there are too many)."""
+    n = len(side)
+    combos = np.array(list(combinations(range(n), 3)), dtype=np.int64)
+    if len(combos) > max_subsets:
+        rng = np.random.default_rng(0)
+        # Prefer mixed subsets (both cameras observing): better conditioned.
+        mixed = np.array([len(set(side[c])) > 1 for c in combos])
+        order = np.concatenate([rng.permutation(np.flatnonzero(mixed)), rng.permutation(np.flatnonzero(~mixed))])
+        combos = combos[np.sort(order[:max_subsets])]
+    return np.ascontiguousarray(combos)
+
+
+@njit(cache=True)
+def minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc, tc):
+    """Solve every minimal subset; candidates into Rc/tc, returns the count.
+
+    With ``root_filter`` the paper's Section III-D filter is applied: the
+    range to an observed marker is at least the distance of the observer's
+    own markers (in the subset) from its camera.
+    """
+    sd = np.empty(3, dtype=np.int64)
+    b = np.empty((3, 3))
+    X = np.empty((3, 3))
+    Rs = np.empty((_PER_SUBSET, 3, 3))
+    ts = np.empty((_PER_SUBSET, 3))
+    rg = np.empty((_PER_SUBSET, 3))
+    nc = 0
+    for si in range(subsets.shape[0]):
+        for j in range(3):
+            k = subsets[si, j]
+            sd[j] = side[k]
+            b[j] = bearings[k]
+            X[j] = points[k]
+        ns = solve_minimal_kernel(sd, b, X, Rs, ts, rg)
+        for i in range(ns):
+            if root_filter:
+                ok = True
+                for j in range(3):
+                    for l in range(3):
+                        # marker of the observer of j, seen by the other camera
+                        if sd[l] != sd[j]:
+                            nx = np.sqrt(X[l, 0] ** 2 + X[l, 1] ** 2 + X[l, 2] ** 2)
+                            if rg[i, j] < nx:
+                                ok = False
+                if not ok:
+                    continue
+            if nc < Rc.shape[0]:
+                Rc[nc] = Rs[i]
+                tc[nc] = ts[i]
+                nc += 1
+    return nc
+
+
+@njit(cache=True)
+def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc, n_refine, max_iter,
+                       prefer_facing, order, costs, Rbest, tbest):
+    """Rank candidates (dedup, best first, into ``order``), refine the top
+    ``n_refine`` distinct ones, keep the best in Rbest/tbest.
+
+    Returns (number of distinct candidates, best refined cost).
+    """
+    key = np.empty(nc)
+    for i in range(nc):
+        c = cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc[i], tc[i])
+        costs[i] = c
+        k = c
+        if prefer_facing:
+            # Minimal problems: every root fits exactly; prefer the cameras
+            # facing each other (each optical centre in front of the other).
+            tz = tc[i, 2]
+            pz = -(Rc[i, 0, 2] * tc[i, 0] + Rc[i, 1, 2] * tc[i, 1] + Rc[i, 2, 2] * tc[i, 2])
+            if not (tz > 0.0 and pz > 0.0):
+                k = c + 1e300
+        key[i] = k
+    idx = np.argsort(key)
+    nd = 0
+    for ii in range(nc):
+        i = idx[ii]
+        if not np.isfinite(costs[i]):
+            continue
+        dup = False
+        for jj in range(nd):
+            j = order[jj]
+            dt = 0.0
+            nt = 0.0
+            dr = 0.0
+            for a in range(3):
+                dt += (tc[i, a] - tc[j, a]) ** 2
+                nt += tc[j, a] ** 2
+                for b in range(3):
+                    dr += (Rc[i, a, b] - Rc[j, a, b]) ** 2
+            if dt <= 1e-16 * (1.0 + nt) and dr <= 1e-16:
+                dup = True
+                break
+        if not dup:
+            order[nd] = i
+            nd += 1
+    best = np.inf
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    for jj in range(min(n_refine, nd)):
+        i = order[jj]
+        R[:, :] = Rc[i]
+        t[:] = tc[i]
+        if max_iter > 0:
+            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter)
+        else:
+            c = costs[i]
+        if c < best:
+            best = c
+            Rbest[:, :] = R
+            tbest[:] = t
+    return nd, best
+
+
+def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
+             root_filter: bool = False, extra_candidates: tuple[np.ndarray, np.ndarray] | None = None,
+             use_minimal: bool = True) -> Solution:
+    """The best pose T_qp for ``obs`` with all distinct candidates.
+
+    Raises NoSolutionError when no candidate keeps every marker in front of
+    the camera that saw it, DegenerateGeometryError when the best pose is
+    not isolated (singular information matrix).
+    """
+    args = obs.kernel_args()
+    n = len(obs.side)
+    Rc_list, tc_list = [], []
+    if use_minimal:
+        subsets = minimal_subsets(obs.side)
+        Rc = np.empty((len(subsets) * _PER_SUBSET, 3, 3))
+        tc = np.empty((len(subsets) * _PER_SUBSET, 3))
+        nc = minimal_candidates_kernel(obs.side, obs.points, obs.bearings, subsets, root_filter, Rc, tc)
+        Rc_list.append(Rc[:nc])
+        tc_list.append(tc[:nc])
+    if extra_candidates is not None:
+        Rc_list.append(np.asarray(extra_candidates[0], dtype=float).reshape(-1, 3, 3))
+        tc_list.append(np.asarray(extra_candidates[1], dtype=float).reshape(-1, 3))
+    Rc = np.ascontiguousarray(np.concatenate(Rc_list)) if Rc_list else np.empty((0, 3, 3))
+    tc = np.ascontiguousarray(np.concatenate(tc_list)) if tc_list else np.empty((0, 3))
+    nc = len(Rc)
+    order = np.empty(max(nc, 1), dtype=np.int64)
+    costs = np.empty(max(nc, 1))
+    Rbest = np.empty((3, 3))
+    tbest = np.empty(3)
+    nd, best = rank_refine_kernel(*args, Rc, tc, nc, n_refine if refine else 1, max_iter if refine else 0,
+                                  n == 3, order, costs, Rbest, tbest)
+    if nd == 0 or not np.isfinite(best):
+        raise NoSolutionError(
+            "no pose explains the observations: every solution puts a marker behind a camera"
+        )
+    H = np.empty((6, 6))
+    if not information(*args, Rbest, tbest, H):
+        raise NoSolutionError("the refined pose puts a marker behind a camera")
+    ev = np.linalg.eigvalsh(H)
+    if not ev[0] > ev[-1] / _MAX_COND:
+        raise DegenerateGeometryError(
+            "the observations do not determine an isolated pose (degenerate marker geometry)"
+        )
+    sel = order[:nd]
+    return Solution(
+        pose=Pose(Rbest, tbest),
+        cost=float(best),
+        information=H,
+        candidates_R=Rc[sel],
+        candidates_t=tc[sel],
+        candidate_costs=costs[sel],
+        n_obs=n,
+        refined=refine,
+    )

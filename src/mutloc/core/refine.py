@@ -1,0 +1,268 @@
+"""The two-way reprojection objective, its Levenberg-Marquardt minimiser on
+SE(3), and the pose covariance.
+
+Objective (paper, eq. proboptimization): the sum over both cameras of the
+squared distance between each observed marker and the projection of that
+marker under the pose.  Residuals are either pixels (through each camera's
+``K`` and OpenCV distortion, the maximum-likelihood objective for Gaussian
+detection noise) or, for ``solve_bearings``, the gnomonic tangent-plane error
+around each observed ray (radians to first order), which fits any central
+camera model.
+
+Parameters: a rotation vector applied on the *left* of ``R`` and a
+translation increment, ``R <- exp(dtheta) R``, ``t <- t + dt`` (SPEC), so the
+covariance ``sigma^2 (J^T J)^-1`` is directly in the published convention.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .camera import project_jac_kernel
+
+MODE_PIXEL = 0
+MODE_BEARING = 1
+
+
+@njit(cache=True)
+def tangent_bases(bearings, basis):
+    """For each unit bearing b write rows (e1, e2, b) with e1, e2 spanning b's
+    orthogonal complement."""
+    for i in range(bearings.shape[0]):
+        bx, by, bz = bearings[i, 0], bearings[i, 1], bearings[i, 2]
+        nb = np.sqrt(bx * bx + by * by + bz * bz)
+        bx /= nb
+        by /= nb
+        bz /= nb
+        # Cross with the axis least aligned with b.
+        if abs(bx) <= abs(by) and abs(bx) <= abs(bz):
+            ax, ay, az = 1.0, 0.0, 0.0
+        elif abs(by) <= abs(bz):
+            ax, ay, az = 0.0, 1.0, 0.0
+        else:
+            ax, ay, az = 0.0, 0.0, 1.0
+        e1x = by * az - bz * ay
+        e1y = bz * ax - bx * az
+        e1z = bx * ay - by * ax
+        n1 = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        e1x /= n1
+        e1y /= n1
+        e1z /= n1
+        basis[i, 0, 0] = e1x
+        basis[i, 0, 1] = e1y
+        basis[i, 0, 2] = e1z
+        basis[i, 1, 0] = by * e1z - bz * e1y
+        basis[i, 1, 1] = bz * e1x - bx * e1z
+        basis[i, 1, 2] = bx * e1y - by * e1x
+        basis[i, 2, 0] = bx
+        basis[i, 2, 1] = by
+        basis[i, 2, 2] = bz
+
+
+@njit(cache=True)
+def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac):
+    """Residuals (2N,) and optionally their Jacobian (2N, 6) at (R, t).
+
+    Returns False when a marker falls behind the camera observing it.
+    """
+    X = np.empty(3)
+    uv = np.empty(2)
+    Jp = np.empty((2, 3))
+    dX = np.empty((3, 6))
+    n = side.shape[0]
+    for i in range(n):
+        if side[i] == 0:
+            # p sees q's marker Q: X = R^T (Q - t).
+            d0 = pts[i, 0] - t[0]
+            d1 = pts[i, 1] - t[1]
+            d2 = pts[i, 2] - t[2]
+            for a in range(3):
+                X[a] = R[0, a] * d0 + R[1, a] * d1 + R[2, a] * d2
+            if want_jac:
+                # dX/dtheta = R^T [Q - t]x,  dX/dt = -R^T
+                for a in range(3):
+                    c0 = R[0, a]
+                    c1 = R[1, a]
+                    c2 = R[2, a]
+                    # row a of R^T times skew(d)
+                    dX[a, 0] = c1 * d2 - c2 * d1
+                    dX[a, 1] = c2 * d0 - c0 * d2
+                    dX[a, 2] = c0 * d1 - c1 * d0
+                    dX[a, 3] = -c0
+                    dX[a, 4] = -c1
+                    dX[a, 5] = -c2
+            K = Kp
+            dist = dp
+        else:
+            # q sees p's marker P: X = R P + t.
+            for a in range(3):
+                X[a] = R[a, 0] * pts[i, 0] + R[a, 1] * pts[i, 1] + R[a, 2] * pts[i, 2] + t[a]
+            if want_jac:
+                # dX/dtheta = -[R P]x, dX/dt = I
+                y0 = X[0] - t[0]
+                y1 = X[1] - t[1]
+                y2 = X[2] - t[2]
+                dX[0, 0] = 0.0
+                dX[0, 1] = y2
+                dX[0, 2] = -y1
+                dX[1, 0] = -y2
+                dX[1, 1] = 0.0
+                dX[1, 2] = y0
+                dX[2, 0] = y1
+                dX[2, 1] = -y0
+                dX[2, 2] = 0.0
+                for a in range(3):
+                    for c in range(3):
+                        dX[a, 3 + c] = 1.0 if a == c else 0.0
+            K = Kq
+            dist = dq
+        if mode == MODE_PIXEL:
+            if not project_jac_kernel(K, dist, X, uv, Jp):
+                return False
+            r[2 * i] = uv[0] - meas[i, 0]
+            r[2 * i + 1] = uv[1] - meas[i, 1]
+        else:
+            den = basis[i, 2, 0] * X[0] + basis[i, 2, 1] * X[1] + basis[i, 2, 2] * X[2]
+            if not den > 0.0:
+                return False
+            for k in range(2):
+                num = basis[i, k, 0] * X[0] + basis[i, k, 1] * X[1] + basis[i, k, 2] * X[2]
+                r[2 * i + k] = num / den
+                for a in range(3):
+                    Jp[k, a] = (basis[i, k, a] * den - num * basis[i, 2, a]) / (den * den)
+        if want_jac:
+            for k in range(2):
+                for c in range(6):
+                    J[2 * i + k, c] = Jp[k, 0] * dX[0, c] + Jp[k, 1] * dX[1, c] + Jp[k, 2] * dX[2, c]
+    return True
+
+
+@njit(cache=True)
+def cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t):
+    """Sum of squared residuals; inf if a marker is behind its observer."""
+    n = side.shape[0]
+    r = np.empty(2 * n)
+    J = np.empty((1, 6))
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, False):
+        return np.inf
+    return float(np.sum(r * r))
+
+
+@njit(cache=True)
+def _so3_exp_left(w, R, out):
+    th2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    th = np.sqrt(th2)
+    if th < 1e-8:
+        a = 1.0
+        b = 0.5
+    else:
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / th2
+    W = np.zeros((3, 3))
+    W[0, 1] = -w[2]
+    W[0, 2] = w[1]
+    W[1, 0] = w[2]
+    W[1, 2] = -w[0]
+    W[2, 0] = -w[1]
+    W[2, 1] = w[0]
+    E = np.eye(3) + a * W + b * (W @ W)
+    out[:, :] = E @ R
+
+
+@njit(cache=True)
+def _solve_spd(A, b, x):
+    """Cholesky solve of a small symmetric positive definite system."""
+    n = A.shape[0]
+    L = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    y = np.empty(n)
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return True
+
+
+@njit(cache=True)
+def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
+    """Levenberg-Marquardt on SE(3) from (R, t), updated in place.
+
+    Returns (final cost, iterations used).
+    """
+    n = side.shape[0]
+    r = np.empty(2 * n)
+    J = np.empty((2 * n, 6))
+    H = np.empty((6, 6))
+    g = np.empty(6)
+    A = np.empty((6, 6))
+    delta = np.empty(6)
+    Rn = np.empty((3, 3))
+    tn = np.empty(3)
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True):
+        return np.inf, 0
+    c = float(np.sum(r * r))
+    lam = 1e-4
+    it = 0
+    for it in range(1, max_iter + 1):
+        H[:, :] = J.T @ J
+        g[:] = J.T @ r
+        improved = False
+        for _ in range(12):
+            A[:, :] = H
+            for k in range(6):
+                A[k, k] += lam * (H[k, k] + 1e-12)
+            if not _solve_spd(A, -g, delta):
+                lam *= 10.0
+                continue
+            _so3_exp_left(delta[:3], R, Rn)
+            for k in range(3):
+                tn[k] = t[k] + delta[3 + k]
+            cn = cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn)
+            if cn <= c:
+                R[:, :] = Rn
+                t[:] = tn
+                dc = c - cn
+                c = cn
+                lam = max(lam * 0.1, 1e-12)
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            break
+        residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True)
+        step = 0.0
+        for k in range(6):
+            step += delta[k] * delta[k]
+        scale = 1.0 + np.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
+        if np.sqrt(step) < 1e-12 * scale or dc <= 1e-16 * (c + 1e-300):
+            break
+    return c, it
+
+
+@njit(cache=True)
+def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, H):
+    """J^T J (6x6) at (R, t) into H; False if a marker is behind a camera."""
+    n = side.shape[0]
+    r = np.empty(2 * n)
+    J = np.empty((2 * n, 6))
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True):
+        return False
+    H[:, :] = J.T @ J
+    return True

@@ -1,0 +1,141 @@
+"""The rig model: robots, each a camera plus markers in its camera frame.
+
+Pure data and validation; reading rig files lives in :mod:`mutloc.io.rig`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import RigError, ObservationError
+from .camera import Camera
+
+__all__ = ["Marker", "Robot", "Rig"]
+
+# Markers closer than this (metres) on one robot cannot be told apart.
+COINCIDENT_TOL_M = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class Marker:
+    """A fiducial marker; ``position`` is its centre in its robot's camera frame."""
+
+    name: str
+    robot: str
+    position: np.ndarray
+    color: tuple[int, int, int] | None = None
+    blink_hz: float | None = None
+    tag: Mapping[str, Any] | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        pos = np.asarray(self.position, dtype=float)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise RigError(f"marker {self.name!r} of robot {self.robot!r}: position must be 3 finite numbers")
+        object.__setattr__(self, "position", pos)
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"position": self.position.tolist()}
+        if self.color is not None:
+            d["color"] = list(self.color)
+        if self.blink_hz is not None:
+            d["blink_hz"] = self.blink_hz
+        if self.tag is not None:
+            d["tag"] = dict(self.tag)
+        d.update(self.extra)
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A robot: its camera and the markers it carries."""
+
+    name: str
+    camera: Camera
+    markers: Mapping[str, Marker]
+
+    def marker_positions(self, names: list[str] | None = None) -> np.ndarray:
+        names = list(self.markers) if names is None else names
+        return np.array([self.markers[n].position for n in names], dtype=float).reshape(-1, 3)
+
+
+class Rig:
+    """Several robots; marker names are unique over the whole rig."""
+
+    def __init__(self, robots: Mapping[str, Robot]):
+        if len(robots) < 1:
+            raise RigError("rig has no robots")
+        self.robots: dict[str, Robot] = dict(robots)
+        self._owner: dict[str, str] = {}
+        for rname, robot in self.robots.items():
+            for mname in robot.markers:
+                if mname in self._owner:
+                    raise RigError(
+                        f"duplicate marker name {mname!r} (robots {self._owner[mname]!r} and {rname!r})"
+                    )
+                self._owner[mname] = rname
+            names = list(robot.markers)
+            pos = robot.marker_positions(names)
+            for i in range(len(names)):
+                for j in range(i + 1, len(names)):
+                    if np.linalg.norm(pos[i] - pos[j]) < COINCIDENT_TOL_M:
+                        raise RigError(f"robot {rname!r}: markers {names[i]!r} and {names[j]!r} coincide")
+
+    def __repr__(self) -> str:
+        parts = ", ".join(f"{r}: {list(rb.markers)}" for r, rb in self.robots.items())
+        return f"Rig({parts})"
+
+    def robot(self, name: str) -> Robot:
+        try:
+            return self.robots[name]
+        except KeyError:
+            raise ObservationError(f"unknown robot {name!r} (rig has {sorted(self.robots)})") from None
+
+    def owner(self, marker: str) -> str:
+        """Name of the robot carrying ``marker``."""
+        from ..errors import UnknownMarkerError
+
+        try:
+            return self._owner[marker]
+        except KeyError:
+            raise UnknownMarkerError(f"unknown marker {marker!r}") from None
+
+    def marker(self, name: str) -> Marker:
+        return self.robots[self.owner(name)].markers[name]
+
+    def default_pair(self, source: str | None = None, target: str | None = None) -> tuple[str, str]:
+        """Resolve ``(source, target)``; both may be omitted for a two-robot rig."""
+        names = list(self.robots)
+        if source is None and target is None:
+            if len(names) != 2:
+                raise ObservationError(
+                    f"rig has {len(names)} robots: say which pair with source= and target="
+                )
+            return names[0], names[1]
+        if source is None or target is None:
+            known = target if source is None else source
+            self.robot(known)
+            others = [n for n in names if n != known]
+            if len(others) != 1:
+                raise ObservationError("rig has more than two robots: give both source and target")
+            return (others[0], known) if source is None else (known, others[0])
+        self.robot(source)
+        self.robot(target)
+        if source == target:
+            raise ObservationError(f"source and target are the same robot {source!r}")
+        return source, target
+
+    def to_dict(self) -> dict[str, Any]:
+        """The rig in rig-file form (cameras inline)."""
+        return {
+            "robots": {
+                rname: {
+                    "camera": robot.camera.to_dict(),
+                    "markers": {m.name: m.to_dict() for m in robot.markers.values()},
+                }
+                for rname, robot in self.robots.items()
+            }
+        }

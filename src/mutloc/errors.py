@@ -1,0 +1,64 @@
+"""Every exception mutloc raises on purpose.
+
+Library code raises only these (all subclasses of :class:`MutlocError`); the
+command line turns them into a one-line message and a non-zero exit status.
+Input errors are also ``ValueError`` so callers that already catch that keep
+working.
+"""
+
+from __future__ import annotations
+
+
+class MutlocError(Exception):
+    """Base class of all mutloc errors."""
+
+
+class InputError(MutlocError, ValueError):
+    """The caller's input is malformed: wrong shape, NaN/inf, missing keys."""
+
+
+class FileFormatError(InputError):
+    """A file cannot be read or does not have the expected structure."""
+
+
+class RigError(InputError):
+    """The rig description is invalid (bad camera, duplicate marker, ...)."""
+
+
+class ObservationError(InputError):
+    """Observations are invalid: unknown marker, self-observation, too few."""
+
+
+class UnknownMarkerError(ObservationError):
+    """An observation names a marker the rig does not have."""
+
+
+class TooFewObservationsError(ObservationError):
+    """Fewer than three marker observations between the two robots."""
+
+
+class GeometryError(MutlocError):
+    """The problem is well formed but geometrically unsolvable."""
+
+
+class DegenerateGeometryError(GeometryError):
+    """Coincident markers or a configuration with no isolated solution."""
+
+
+class NoSolutionError(GeometryError):
+    """No pose explains the observations (e.g. every solution puts a marker
+    behind a camera)."""
+
+
+__all__ = [
+    "MutlocError",
+    "InputError",
+    "FileFormatError",
+    "RigError",
+    "ObservationError",
+    "UnknownMarkerError",
+    "TooFewObservationsError",
+    "GeometryError",
+    "DegenerateGeometryError",
+    "NoSolutionError",
+]
