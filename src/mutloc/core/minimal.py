@@ -316,8 +316,15 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
     X = np.empty((3, 3))
     for i in range(3):
         sd[i] = side[order[i]]
-        b[i] = bearings[order[i]]
-        X[i] = points[order[i]]
+        nb = 0.0
+        for j in range(3):
+            nb += bearings[order[i], j] ** 2
+        nb = np.sqrt(nb)
+        if not nb > 0.0:
+            return 0
+        for j in range(3):
+            b[i, j] = bearings[order[i], j] / nb
+            X[i, j] = points[order[i], j]
     # Normalise lengths to the marker scale.
     L = 0.0
     for i in range(3):
@@ -410,3 +417,19 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
             ranges[nout, order[i]] = sols[j, i] * L
         nout += 1
     return nout
+
+
+def solve_minimal(side, bearings, points) -> tuple[np.ndarray, np.ndarray]:
+    """Every pose T_qp (x_q = R x_p + t) consistent with three observations.
+
+    ``side`` (3,): 0 if p saw the marker, 1 if q did; ``bearings`` (3, 3):
+    rays in the observer's frame; ``points`` (3, 3): the markers in their
+    owner's frame.  Returns ``R`` (k, 3, 3) and ``t`` (k, 3), k <= 8; only
+    poses that put each marker in front of its observer along its ray.
+    """
+    Rs = np.empty((16, 3, 3))
+    ts = np.empty((16, 3))
+    rg = np.empty((16, 3))
+    n = solve_minimal_kernel(np.asarray(side, dtype=np.int64), np.ascontiguousarray(bearings, dtype=float),
+                             np.ascontiguousarray(points, dtype=float), Rs, ts, rg)
+    return Rs[:n], ts[:n]
