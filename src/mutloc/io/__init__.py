@@ -1,0 +1,9 @@
+"""File formats: rig files, observation files, JSON results."""
+
+from __future__ import annotations
+
+from .observations import load_observations
+from .results import dumps_json, write_json
+from .rig import load_camera_file, load_rig, save_rig
+
+__all__ = ["load_rig", "save_rig", "load_camera_file", "load_observations", "write_json", "dumps_json"]

@@ -1,0 +1,442 @@
+"""Reading and writing rig files (YAML or JSON), see SPEC "Rig file".
+
+A camera is given inline (``{K, dist?, size?}``) or as a path, relative to the
+rig file's folder, to a calibration file: a ROS ``camera_info`` YAML (ROS 1
+``camera_matrix: {rows, cols, data}`` form or the ROS 2 message form
+``k``/``d``/``width``/``height``) or an OpenCV ``FileStorage`` calibration
+(YAML or XML, read with :class:`cv2.FileStorage`).
+
+Every problem raises a one-line error that says where it is (file, robot,
+key, marker): an unreadable or unparsable file raises FileFormatError, a
+well-formed file with wrong content raises RigError.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from ..core.camera import Camera
+from ..core.rig import Marker, Rig, Robot
+from ..errors import FileFormatError, MutlocError, RigError
+from ._files import (
+    PathLike,
+    as_float_array,
+    is_number,
+    is_path,
+    key_name,
+    load_file,
+    one_line,
+    parse_text,
+    read_text,
+    short,
+    to_builtin,
+)
+
+__all__ = ["load_rig", "save_rig", "load_camera_file", "rig_from_dict"]
+
+# Marker keys with a meaning; any other key is kept in Marker.extra.
+MARKER_KEYS = ("position", "color", "blink_hz", "tag")
+
+# Calibration-file key aliases, in order of preference.
+_K_KEYS = ("K", "camera_matrix", "cameraMatrix", "k", "intrinsic_matrix")
+_DIST_KEYS = ("dist", "distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "d", "distortion")
+_SIZE_KEYS = ("size", "image_size", "imageSize")
+_WH_KEYS = (("image_width", "image_height"), ("width", "height"))
+# Distortion models that are OpenCV's (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
+_PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "pinhole", "radtan", "none", "")
+
+
+# ---------------------------------------------------------------------------
+# public API
+# ---------------------------------------------------------------------------
+
+
+def load_rig(source: PathLike | Mapping[str, Any] | Rig, *, base_dir: PathLike | None = None) -> Rig:
+    """Load a rig from a YAML/JSON file path or from a dict in rig-file form.
+
+    Camera paths are resolved against the rig file's folder (for a dict:
+    ``base_dir``, default the current directory).  A :class:`Rig` is returned
+    unchanged.  Raises FileFormatError (unreadable/unparsable file) or RigError
+    (invalid content), each with a one-line message naming file, robot and key.
+    """
+    if isinstance(source, Rig):
+        return source
+    if is_path(source):
+        path = Path(source).expanduser()
+        where = str(source)
+        data = load_file(path, where, duplicate_error=RigError)
+        base = path.parent if base_dir is None else Path(base_dir)
+        return rig_from_dict(data, where=where, base_dir=base)
+    if isinstance(source, Mapping):
+        return rig_from_dict(source, where="rig", base_dir=Path.cwd() if base_dir is None else Path(base_dir))
+    raise RigError(f"rig must be a file path or a mapping with key 'robots' (rig-file form), got {type(source).__name__}")
+
+
+def save_rig(rig: Rig | Mapping[str, Any], path: PathLike) -> None:
+    """Write ``rig`` (cameras inline) to ``path``: JSON if it ends in ``.json``,
+    else YAML.  The file loads back with :func:`load_rig` to an equal rig."""
+    data = to_builtin(rig.to_dict() if isinstance(rig, Rig) else rig)
+    path = Path(path).expanduser()
+    if path.suffix.lower() == ".json":
+        text = json.dumps(data, indent=2) + "\n"
+    else:
+        text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, allow_unicode=True)
+    path.write_text(text, encoding="utf-8")
+
+
+def load_camera_file(path: PathLike, *, where: str | None = None) -> Camera:
+    """A :class:`Camera` from a calibration file: ROS ``camera_info`` YAML,
+    OpenCV ``FileStorage`` (YAML/XML/JSON), or a YAML/JSON ``{K, dist?, size?}``."""
+    p = Path(path).expanduser()
+    where = where if where is not None else f"camera file {str(path)!r}"
+    name = p.name.lower()
+    if name.endswith(".gz"):
+        if not p.is_file():
+            raise FileFormatError(f"{where}: cannot read file: No such file")
+        return _camera_from_mapping(_read_filestorage(p, where), where, in_file=True)
+    text = read_text(p, where)
+    head = text.lstrip()[:256]
+    opencv = (
+        name.endswith(".xml")
+        or head.startswith("%YAML:")
+        or head.startswith("<")
+        or "opencv-matrix" in text
+        or "opencv_storage" in head
+    )
+    if opencv:
+        data = _read_filestorage(p, where)
+    else:
+        data = parse_text(text, where, as_json=name.endswith(".json"), duplicate_error=FileFormatError)
+        if not isinstance(data, Mapping):
+            raise FileFormatError(
+                f"{where}: expected a camera calibration mapping (ROS camera_info or {{K, dist, size}}), "
+                f"got {type(data).__name__}"
+            )
+    return _camera_from_mapping(data, where, in_file=True)
+
+
+def rig_from_dict(data: Any, *, where: str = "rig", base_dir: PathLike | None = None) -> Rig:
+    """Build a :class:`Rig` from parsed rig-file data; ``where`` prefixes errors."""
+    base = Path.cwd() if base_dir is None else Path(base_dir)
+    if data is None:
+        raise RigError(f"{where}: empty rig (expected a mapping with key 'robots')")
+    if not isinstance(data, Mapping):
+        raise RigError(f"{where}: expected a mapping with key 'robots', got {type(data).__name__}")
+    if "robots" not in data:
+        raise RigError(f"{where}: missing key 'robots'")
+    robots_spec = data["robots"]
+    if not isinstance(robots_spec, Mapping):
+        raise RigError(f"{where}: 'robots' must be a mapping of robot name to {{camera, markers}}, "
+                       f"got {short(robots_spec)}")
+    if not robots_spec:
+        raise RigError(f"{where}: 'robots' is empty")
+
+    robots: dict[str, Robot] = {}
+    for rkey, rspec in robots_spec.items():
+        rname = key_name(rkey)
+        if rname is None:
+            raise RigError(f"{where}: robots: robot name must be a non-empty string, got {rkey!r}")
+        if rname in robots:
+            raise RigError(f"{where}: robot {rname!r} given twice")
+        robots[rname] = _robot(rname, rspec, where, base)
+
+    try:
+        return Rig(robots)
+    except MutlocError as exc:
+        raise type(exc)(f"{where}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------
+# robots and markers
+# ---------------------------------------------------------------------------
+
+
+def _robot(name: str, spec: Any, where: str, base: Path) -> Robot:
+    w = f"{where}: robot {name!r}"
+    if not isinstance(spec, Mapping):
+        raise RigError(f"{w}: must be a mapping with keys 'camera' and 'markers', got {short(spec)}")
+    for key in ("camera", "markers"):
+        if key not in spec:
+            raise RigError(f"{w}: missing key {key!r}")
+    camera = _camera(spec["camera"], f"{w}: camera", base)
+
+    mspec = spec["markers"]
+    if not isinstance(mspec, Mapping):
+        raise RigError(f"{w}: 'markers' must be a mapping of marker name to {{position, ...}}, got {short(mspec)}")
+    markers: dict[str, Marker] = {}
+    for mkey, mval in mspec.items():
+        mname = key_name(mkey)
+        if mname is None:
+            raise RigError(f"{w}: markers: marker name must be a non-empty string, got {mkey!r}")
+        if mname in markers:
+            raise RigError(f"{w}: marker {mname!r} given twice")
+        markers[mname] = _marker(mname, name, mval, f"{w}: marker {mname!r}")
+    return Robot(name=name, camera=camera, markers=markers)
+
+
+def _marker(name: str, robot: str, spec: Any, w: str) -> Marker:
+    if not isinstance(spec, Mapping):
+        raise RigError(f"{w}: must be a mapping with at least 'position', got {short(spec)}")
+    if "position" not in spec:
+        raise RigError(f"{w}: missing key 'position'")
+    pos = as_float_array(spec["position"])
+    if pos is None or pos.shape != (3,):
+        raise RigError(f"{w}: position must be 3 numbers [x, y, z] (metres), got {short(spec['position'])}")
+    if not np.all(np.isfinite(pos)):
+        raise RigError(f"{w}: position must be finite, got {short(spec['position'])}")
+
+    color = _color(spec.get("color"), w)
+    blink = _blink(spec.get("blink_hz"), w)
+    tag = _tag(spec.get("tag"), w)
+
+    extra: dict[str, Any] = {}
+    for k, v in spec.items():
+        if k in MARKER_KEYS:
+            continue
+        if not isinstance(k, str):
+            raise RigError(f"{w}: key {k!r} must be a string")
+        extra[k] = to_builtin(v)
+    try:
+        return Marker(name=name, robot=robot, position=pos, color=color, blink_hz=blink, tag=tag, extra=extra)
+    except MutlocError as exc:
+        raise type(exc)(f"{w}: {exc}") from None
+
+
+def _integral(x: Any) -> int | None:
+    """``x`` as an int if it is an integer (or an integral float), else None."""
+    if not is_number(x):
+        return None
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    f = float(x)
+    return int(f) if math.isfinite(f) and f.is_integer() else None
+
+
+def _color(value: Any, w: str) -> tuple[int, int, int] | None:
+    if value is None:
+        return None
+    items = list(value) if isinstance(value, (list, tuple, np.ndarray)) else None
+    ints = [_integral(x) for x in items] if items is not None else None
+    if ints is None or len(ints) != 3 or any(c is None or not 0 <= c <= 255 for c in ints):
+        raise RigError(f"{w}: color must be 3 integers [r, g, b] in 0..255, got {short(value)}")
+    return (ints[0], ints[1], ints[2])
+
+
+def _blink(value: Any, w: str) -> float | None:
+    if value is None:
+        return None
+    if not is_number(value) or not math.isfinite(float(value)) or not float(value) > 0:
+        raise RigError(f"{w}: blink_hz must be a finite number > 0, got {short(value)}")
+    return float(value)
+
+
+def _tag(value: Any, w: str) -> dict[str, Any] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise RigError(f"{w}: tag must be a mapping {{family, id, size}}, got {short(value)}")
+    for key in ("family", "id", "size"):
+        if key not in value:
+            raise RigError(f"{w}: tag: missing key {key!r}")
+    family = value["family"]
+    if not isinstance(family, str) or not family.strip():
+        raise RigError(f"{w}: tag: family must be a non-empty string (e.g. tag36h11), got {short(family)}")
+    tid = value["id"]
+    if not isinstance(tid, (int, np.integer)) or isinstance(tid, (bool, np.bool_)) or tid < 0:
+        raise RigError(f"{w}: tag: id must be a non-negative integer, got {short(tid)}")
+    size = value["size"]
+    if not is_number(size) or not math.isfinite(float(size)) or not float(size) > 0:
+        raise RigError(f"{w}: tag: size must be a finite number > 0 (metres), got {short(size)}")
+    out: dict[str, Any] = {"family": family, "id": int(tid), "size": float(size)}
+    for k, v in value.items():
+        if k not in out:
+            out[str(k)] = to_builtin(v)
+    return out
+
+
+# ---------------------------------------------------------------------------
+# cameras
+# ---------------------------------------------------------------------------
+
+
+def _camera(spec: Any, w: str, base: Path) -> Camera:
+    if isinstance(spec, str):
+        if not spec.strip():
+            raise RigError(f"{w}: camera file path is empty")
+        ref = Path(spec).expanduser()
+        path = ref if ref.is_absolute() else base / ref
+        cw = f"{w}: file {spec!r}" + ("" if ref.is_absolute() else f" ({path})")
+        return load_camera_file(path, where=cw)
+    if isinstance(spec, Mapping):
+        return _camera_from_mapping(spec, w, in_file=False)
+    raise RigError(
+        f"{w}: must be a mapping {{K, dist?, size?}} or a calibration file path, got {short(spec)}"
+    )
+
+
+def _first(d: Mapping[str, Any], keys: tuple[str, ...]) -> tuple[str | None, Any]:
+    for k in keys:
+        if k in d and d[k] is not None:
+            return k, d[k]
+    return None, None
+
+
+def _matrix(value: Any, w: str, what: str) -> np.ndarray:
+    """A numeric array from a list, nested list, ndarray, or a ``{rows, cols,
+    data}`` mapping (ROS camera_info / OpenCV JSON matrices)."""
+    if isinstance(value, Mapping):
+        if "data" not in value:
+            raise RigError(f"{w}: {what} must be a list or a {{rows, cols, data}} mapping, got keys {sorted(map(str, value))}")
+        arr = as_float_array(value["data"])
+        if arr is None:
+            raise RigError(f"{w}: {what}: data must be a list of numbers, got {short(value['data'])}")
+        arr = arr.ravel()
+        rows, cols = value.get("rows"), value.get("cols")
+        if rows is not None or cols is not None:
+            r, c = _integral(rows), _integral(cols)
+            if r is None or c is None or r < 0 or c < 0:
+                raise RigError(f"{w}: {what}: rows and cols must be integers, got rows={short(rows)}, cols={short(cols)}")
+            if r * c != arr.size:
+                raise RigError(f"{w}: {what}: rows x cols = {r} x {c} but data has {arr.size} numbers")
+            arr = arr.reshape(r, c)
+        return arr
+    arr = as_float_array(value)
+    if arr is None:
+        raise RigError(f"{w}: {what} must be numbers, got {short(value)}")
+    return arr
+
+
+def _camera_from_mapping(d: Mapping[str, Any], w: str, *, in_file: bool) -> Camera:
+    # distortion model (ROS camera_info): only OpenCV's pinhole model is supported
+    model = d.get("distortion_model")
+    if model is not None:
+        if not isinstance(model, str) or model.strip().lower() not in _PINHOLE_MODELS:
+            raise RigError(
+                f"{w}: distortion_model {model!r} is not supported "
+                f"(pinhole models only: plumb_bob, rational_polynomial)"
+            )
+
+    kkey, kval = _first(d, _K_KEYS)
+    if kkey is None:
+        if in_file:
+            raise FileFormatError(
+                f"{w}: no camera matrix found (looked for keys {', '.join(_K_KEYS)})"
+            )
+        raise RigError(f"{w}: missing key 'K'")
+    K = _matrix(kval, w, kkey)
+    if K.size == 9 and K.ndim <= 2 and K.shape in ((9,), (1, 9), (9, 1), (3, 3)):
+        K = K.reshape(3, 3)
+    else:
+        raise RigError(f"{w}: {kkey} must be a 3x3 matrix (or 9 numbers row by row), got {short(kval)}")
+    if not np.all(np.isfinite(K)):
+        raise RigError(f"{w}: {kkey} must be finite, got {short(K)}")
+
+    dkey, dval = _first(d, _DIST_KEYS)
+    dist: np.ndarray | None = None
+    if dkey is not None:
+        arr = _matrix(dval, w, dkey)
+        if arr.ndim == 2 and 1 in arr.shape:
+            arr = arr.ravel()
+        if arr.ndim != 1:
+            raise RigError(f"{w}: {dkey} must be a flat list of numbers, got {short(dval)}")
+        if not np.all(np.isfinite(arr)):
+            raise RigError(f"{w}: {dkey} must be finite, got {short(dval)}")
+        dist = arr if arr.size else None
+
+    size = _size(d, w)
+
+    try:
+        return Camera(K, dist=dist, size=size)
+    except MutlocError as exc:
+        msg = str(exc)
+        msg = msg[len("camera ") :] if msg.startswith("camera ") else msg
+        raise type(exc)(f"{w}: {msg}") from None
+    except (ValueError, TypeError) as exc:  # defensive: keep it one line and typed
+        raise RigError(f"{w}: {one_line(exc)}") from None
+
+
+def _size(d: Mapping[str, Any], w: str) -> tuple[int, int] | None:
+    skey, sval = _first(d, _SIZE_KEYS)
+    if skey is not None:
+        arr = _matrix(sval, w, skey).ravel()
+        wh = [_integral(x) for x in arr.tolist()]
+        if len(wh) != 2 or any(x is None or x <= 0 for x in wh):
+            raise RigError(f"{w}: {skey} must be two positive integers [width, height], got {short(sval)}")
+        return (wh[0], wh[1])
+    for wk, hk in _WH_KEYS:
+        if wk in d or hk in d:
+            if wk not in d or hk not in d:
+                raise RigError(f"{w}: {wk!r} and {hk!r} must be given together")
+            wv, hv = _integral(d[wk]), _integral(d[hk])
+            if wv is None or hv is None or wv < 0 or hv < 0:
+                raise RigError(
+                    f"{w}: {wk}/{hk} must be non-negative integers, got {short(d[wk])}/{short(d[hk])}"
+                )
+            if wv == 0 and hv == 0:  # ROS writes 0 x 0 when the size is unknown
+                return None
+            if wv == 0 or hv == 0:
+                raise RigError(f"{w}: image size must be positive, got {wv} x {hv}")
+            return (wv, hv)
+    return None
+
+
+def _read_filestorage(path: Path, where: str) -> dict[str, Any]:
+    """Top-level entries of an OpenCV FileStorage file as plain Python data."""
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:
+        cause = exc.__cause__ if isinstance(exc, SystemError) and exc.__cause__ is not None else exc
+        raise FileFormatError(f"{where}: not a valid OpenCV FileStorage file: {_cv_message(cause)}") from None
+    try:
+        if not fs.isOpened():
+            raise FileFormatError(f"{where}: cannot open as an OpenCV FileStorage file")
+        root = fs.root()
+        out: dict[str, Any] = {}
+        try:
+            for key in root.keys():
+                out[key] = _fs_value(root.getNode(key))
+        except (cv2.error, SystemError) as exc:
+            raise FileFormatError(f"{where}: cannot read OpenCV FileStorage entry: {_cv_message(exc)}") from None
+        return out
+    finally:
+        fs.release()
+
+
+def _fs_value(node: Any) -> Any:
+    if node.isMap():
+        keys = list(node.keys())
+        if {"rows", "cols", "data"} <= set(keys):
+            import cv2
+
+            try:
+                mat = node.mat()
+            except (cv2.error, SystemError):
+                mat = None
+            if mat is not None:
+                return np.asarray(mat)
+        return {k: _fs_value(node.getNode(k)) for k in keys}
+    if node.isSeq():
+        return [_fs_value(node.at(i)) for i in range(node.size())]
+    if node.isInt():
+        return int(node.real())
+    if node.isReal():
+        return float(node.real())
+    if node.isString():
+        return node.string()
+    return None
+
+
+def _cv_message(exc: BaseException) -> str:
+    msg = one_line(exc)
+    # "OpenCV(5.0.0) /path/file.cpp:681: error: (-212:Parsing error) parseValue in function '...'"
+    if "error:" in msg:
+        msg = msg.split("error:", 1)[1].strip()
+    return msg
