@@ -7,9 +7,12 @@ from dataclasses import dataclass, field
 from itertools import permutations, product
 from typing import Any, Mapping, Sequence
 
+import math
+
 import numpy as np
 from scipy.stats import chi2
 
+from .core.camera import _undistort_many as undistort_many
 from .core.estimate import Observations, Solution, estimate
 from .core.geometry import Pose, quaternion_xyzw_from_matrix, skew
 from .core.rig import Rig
@@ -53,7 +56,8 @@ class Estimate:
     pixel_sigma: float
     reprojection_rms_px: float
     markers_used: list[str]
-    candidates: list[Pose]
+    candidates_R: np.ndarray
+    candidates_t: np.ndarray
     identity_ambiguous: bool | None = None
     assignment: dict[str, dict[str, Any]] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
@@ -61,6 +65,11 @@ class Estimate:
     @property
     def pose(self) -> Pose:
         return Pose(self.R, self.t)
+
+    @property
+    def candidates(self) -> list[Pose]:
+        """Every distinct pose from the minimal subsets, best first."""
+        return [Pose(R, t) for R, t in zip(self.candidates_R, self.candidates_t)]
 
     @property
     def quaternion_xyzw(self) -> np.ndarray:
@@ -78,7 +87,8 @@ class Estimate:
             pixel_sigma=self.pixel_sigma,
             reprojection_rms_px=self.reprojection_rms_px,
             markers_used=list(self.markers_used),
-            candidates=[c.inverse() for c in self.candidates],
+            candidates_R=np.transpose(self.candidates_R, (0, 2, 1)),
+            candidates_t=-np.einsum("kji,kj->ki", self.candidates_R, self.candidates_t),
             identity_ambiguous=self.identity_ambiguous,
             assignment=self.assignment,
             extra=dict(self.extra),
@@ -103,19 +113,20 @@ class Estimate:
         return d
 
 
-def _pixel(value: Any, where: str) -> np.ndarray:
+def _pixel(value: Any, where: str) -> tuple[float, float]:
     try:
-        uv = np.asarray(value, dtype=float)
+        u, v = value
+        u = float(u)
+        v = float(v)
     except (TypeError, ValueError):
-        raise InputError(f"{where}: pixel must be two numbers, got {value!r}") from None
-    if uv.shape != (2,):
-        raise InputError(f"{where}: pixel must be two numbers [u, v], got shape {uv.shape}")
-    if not np.all(np.isfinite(uv)):
+        shape = np.shape(value) if not isinstance(value, (str, bytes)) else "a string"
+        raise InputError(f"{where}: pixel must be two numbers [u, v], got {shape if shape else repr(value)}") from None
+    if not (math.isfinite(u) and math.isfinite(v)):
         raise InputError(f"{where}: pixel is NaN or infinite")
-    return uv
+    return u, v
 
 
-def _check_in_image(rig: Rig, robot: str, uv: np.ndarray, where: str) -> None:
+def _check_in_image(rig: Rig, robot: str, uv: tuple[float, float], where: str) -> None:
     # Noise may push a detection just past the border; only a pixel far
     # outside (wrong camera, swapped u/v, wrong units) is an input error.
     cam = rig.robot(robot).camera
@@ -161,26 +172,27 @@ def _collect(rig: Rig, observations: Mapping[str, Any], source: str, target: str
     return named, anonymous
 
 
-def _build(rig: Rig, source: str, target: str, items: list[tuple[int, str, np.ndarray]]) -> Observations:
-    pair = (source, target)
-    cams = [rig.robot(source).camera, rig.robot(target).camera]
-    side = np.array([s for s, _, _ in items], dtype=np.int64)
+def _build(rig: Rig, source: str, target: str, items: list[tuple[int, str, Any]]) -> Observations:
+    cams = (rig.robot(source).camera, rig.robot(target).camera)
+    n = len(items)
+    side = np.fromiter((s for s, _, _ in items), dtype=np.int64, count=n)
     points = np.array([rig.marker(m).position for _, m, _ in items]).reshape(-1, 3)
-    pixels = np.array([uv for _, _, uv in items]).reshape(-1, 2)
-    bearings = np.empty((len(items), 3))
+    pixels = np.array([uv for _, _, uv in items], dtype=float).reshape(-1, 2)
+    bearings = np.empty((n, 3))
     for s in (0, 1):
-        sel = side == s
-        if np.any(sel):
-            bearings[sel] = cams[s].pixels_to_bearings(pixels[sel]).reshape(-1, 3)
-    del pair
-    return Observations(
-        side=side,
-        points=points,
-        bearings=bearings,
-        pixels=pixels,
-        K=(cams[0].K, cams[1].K),
-        dist=(cams[0].dist, cams[1].dist),
-    )
+        idx = np.flatnonzero(side == s)
+        if len(idx):
+            uv = np.ascontiguousarray(pixels[idx])
+            out = np.empty((len(idx), 3))
+            bad = undistort_many(cams[s].K, cams[s].dist, uv, out)
+            if bad >= 0:
+                _, name, (u, v) = items[idx[bad]]
+                raise ObservationError(
+                    f"observations[{(source, target)[s]!r}][{name!r}]: pixel ({u:.2f}, {v:.2f}) "
+                    "cannot be undistorted with this camera's calibration"
+                )
+            bearings[idx] = out
+    return Observations.trusted(side, points, bearings, pixels, (cams[0].K, cams[1].K), (cams[0].dist, cams[1].dist))
 
 
 def _assignments(rig: Rig, source: str, target: str, anonymous: dict[int, list[np.ndarray]]):
@@ -266,7 +278,8 @@ def localize(rig: Any, observations: Mapping[str, Any], source: str | None = Non
         pixel_sigma=float(pixel_sigma),
         reprojection_rms_px=float(np.sqrt(cost_best / n)),
         markers_used=[name for _, name, _ in items],
-        candidates=sol.candidates,
+        candidates_R=sol.candidates_R,
+        candidates_t=sol.candidates_t,
         identity_ambiguous=ambiguous,
         assignment=assignment,
     )

@@ -10,6 +10,7 @@ position in the *other* robot's frame is ``points[k]``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
@@ -62,6 +63,15 @@ class Observations:
         if self.pixels is not None:
             self.pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
 
+    @classmethod
+    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None) -> "Observations":
+        """Build without validation, for callers that already validated
+        (contiguous float arrays, unit bearings, at least three rows)."""
+        obj = cls.__new__(cls)
+        obj.side, obj.points, obj.bearings = side, points, bearings
+        obj.pixels, obj.K, obj.dist = pixels, K, dist
+        return obj
+
     @property
     def mode(self) -> int:
         return MODE_PIXEL if self.pixels is not None else MODE_BEARING
@@ -88,6 +98,7 @@ class Solution:
     pose: Pose
     cost: float
     information: np.ndarray
+    information_inv: np.ndarray
     candidates_R: np.ndarray
     candidates_t: np.ndarray
     candidate_costs: np.ndarray
@@ -102,11 +113,17 @@ class Solution:
 
     def covariance(self, sigma: float) -> np.ndarray:
         """6x6 covariance of (left rotation vector, translation)."""
-        return sigma**2 * np.linalg.inv(self.information)
+        return sigma**2 * self.information_inv
 
 
 def minimal_subsets(side: np.ndarray, max_subsets: int = MAX_SUBSETS) -> np.ndarray:
     """All 3-subsets of the observations (sampled when there are too many)."""
+    return _subsets(tuple(side.tolist()), max_subsets)
+
+
+@lru_cache(maxsize=256)
+def _subsets(side_t: tuple[int, ...], max_subsets: int) -> np.ndarray:
+    side = np.array(side_t)
     n = len(side)
     combos = np.array(list(combinations(range(n), 3)), dtype=np.int64)
     if len(combos) > max_subsets:
@@ -160,6 +177,21 @@ def minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc, 
 
 
 @njit(cache=True)
+def _same_basin(Ra, ta, Rb, tb):
+    """Starts this close (3 degrees, 5% of the range) to an optimum already
+    found converge to it; refining them again is wasted time."""
+    tr = 0.0
+    dt = 0.0
+    nt = 0.0
+    for a in range(3):
+        dt += (ta[a] - tb[a]) ** 2
+        nt += tb[a] ** 2
+        for b in range(3):
+            tr += Ra[a, b] * Rb[a, b]
+    return tr > 1.0 + 2.0 * np.cos(np.radians(3.0)) and dt < 0.0025 * nt
+
+
+@njit(cache=True)
 def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc, n_refine, max_iter,
                        prefer_facing, order, costs, Rbest, tbest):
     """Rank candidates (dedup, best first, into ``order``), refine the top
@@ -208,6 +240,13 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
     t = np.empty(3)
     for jj in range(min(n_refine, nd)):
         i = order[jj]
+        # A runner-up whose start is far worse than the optimum found so far
+        # lies in another basin only if the problem is badly conditioned;
+        # refining it then is cheap insurance, otherwise wasted time.
+        if jj > 0 and costs[i] > 25.0 * best + 1e-12:
+            break
+        if jj > 0 and _same_basin(Rc[i], tc[i], Rbest, tbest):
+            continue
         R[:, :] = Rc[i]
         t[:] = tc[i]
         if max_iter > 0:
@@ -219,6 +258,22 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
             Rbest[:, :] = R
             tbest[:] = t
     return nd, best
+
+
+@njit(cache=True)
+def _inverse_checked(H, max_cond, out):
+    """Inverse of the symmetric information matrix; False if its condition
+    number exceeds ``max_cond`` (the pose is not isolated)."""
+    ev, V = np.linalg.eigh(H)
+    if not ev[0] > ev[-1] / max_cond:
+        return False
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += V[i, k] * V[j, k] / ev[k]
+            out[i, j] = s
+    return True
 
 
 def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
@@ -243,8 +298,11 @@ def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_i
     if extra_candidates is not None:
         Rc_list.append(np.asarray(extra_candidates[0], dtype=float).reshape(-1, 3, 3))
         tc_list.append(np.asarray(extra_candidates[1], dtype=float).reshape(-1, 3))
-    Rc = np.ascontiguousarray(np.concatenate(Rc_list)) if Rc_list else np.empty((0, 3, 3))
-    tc = np.ascontiguousarray(np.concatenate(tc_list)) if tc_list else np.empty((0, 3))
+    if len(Rc_list) == 1:
+        Rc, tc = Rc_list[0], tc_list[0]
+    else:
+        Rc = np.ascontiguousarray(np.concatenate(Rc_list)) if Rc_list else np.empty((0, 3, 3))
+        tc = np.ascontiguousarray(np.concatenate(tc_list)) if tc_list else np.empty((0, 3))
     nc = len(Rc)
     order = np.empty(max(nc, 1), dtype=np.int64)
     costs = np.empty(max(nc, 1))
@@ -257,10 +315,10 @@ def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_i
             "no pose explains the observations: every solution puts a marker behind a camera"
         )
     H = np.empty((6, 6))
+    Hinv = np.empty((6, 6))
     if not information(*args, Rbest, tbest, H):
         raise NoSolutionError("the refined pose puts a marker behind a camera")
-    ev = np.linalg.eigvalsh(H)
-    if not ev[0] > ev[-1] / _MAX_COND:
+    if not _inverse_checked(H, _MAX_COND, Hinv):
         raise DegenerateGeometryError(
             "the observations do not determine an isolated pose (degenerate marker geometry)"
         )
@@ -269,6 +327,7 @@ def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_i
         pose=Pose(Rbest, tbest),
         cost=float(best),
         information=H,
+        information_inv=Hinv,
         candidates_R=Rc[sel],
         candidates_t=tc[sel],
         candidate_costs=costs[sel],

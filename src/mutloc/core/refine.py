@@ -139,18 +139,27 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
 
 
 @njit(cache=True)
+def _cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, False):
+        return np.inf
+    c = 0.0
+    for k in range(r.shape[0]):
+        c += r[k] * r[k]
+    return c
+
+
+@njit(cache=True)
 def cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t):
     """Sum of squared residuals; inf if a marker is behind its observer."""
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((1, 6))
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, False):
-        return np.inf
-    return float(np.sum(r * r))
+    return _cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J)
 
 
 @njit(cache=True)
 def _so3_exp_left(w, R, out):
+    """out = exp([w]x) @ R (Rodrigues, written out: no BLAS for 3x3)."""
     th2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
     th = np.sqrt(th2)
     if th < 1e-8:
@@ -159,15 +168,23 @@ def _so3_exp_left(w, R, out):
     else:
         a = np.sin(th) / th
         b = (1.0 - np.cos(th)) / th2
-    W = np.zeros((3, 3))
-    W[0, 1] = -w[2]
-    W[0, 2] = w[1]
-    W[1, 0] = w[2]
-    W[1, 2] = -w[0]
-    W[2, 0] = -w[1]
-    W[2, 1] = w[0]
-    E = np.eye(3) + a * W + b * (W @ W)
-    out[:, :] = E @ R
+    x, y, z = w[0], w[1], w[2]
+    e00 = 1.0 - b * (y * y + z * z)
+    e11 = 1.0 - b * (x * x + z * z)
+    e22 = 1.0 - b * (x * x + y * y)
+    e01 = -a * z + b * x * y
+    e10 = a * z + b * x * y
+    e02 = a * y + b * x * z
+    e20 = -a * y + b * x * z
+    e12 = -a * x + b * y * z
+    e21 = a * x + b * y * z
+    for j in range(3):
+        r0 = R[0, j]
+        r1 = R[1, j]
+        r2 = R[2, j]
+        out[0, j] = e00 * r0 + e01 * r1 + e02 * r2
+        out[1, j] = e10 * r0 + e11 * r1 + e12 * r2
+        out[2, j] = e20 * r0 + e21 * r1 + e22 * r2
 
 
 @njit(cache=True)
@@ -201,6 +218,23 @@ def _solve_spd(A, b, x):
 
 
 @njit(cache=True)
+def _normal_equations(J, r, H, g):
+    """H = J^T J and g = J^T r without a BLAS call (tiny matrices)."""
+    m = J.shape[0]
+    for a in range(6):
+        s = 0.0
+        for k in range(m):
+            s += J[k, a] * r[k]
+        g[a] = s
+        for b in range(a + 1):
+            s = 0.0
+            for k in range(m):
+                s += J[k, a] * J[k, b]
+            H[a, b] = s
+            H[b, a] = s
+
+
+@njit(cache=True)
 def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
     """Levenberg-Marquardt on SE(3) from (R, t), updated in place.
 
@@ -215,15 +249,19 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
     delta = np.empty(6)
     Rn = np.empty((3, 3))
     tn = np.empty(3)
+    r2 = np.empty(2 * n)
     if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True):
         return np.inf, 0
-    c = float(np.sum(r * r))
+    c = 0.0
+    for k in range(2 * n):
+        c += r[k] * r[k]
     lam = 1e-4
     it = 0
     for it in range(1, max_iter + 1):
-        H[:, :] = J.T @ J
-        g[:] = J.T @ r
+        _normal_equations(J, r, H, g)
         improved = False
+        small = False
+        scale = 1.0 + np.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
         for _ in range(12):
             A[:, :] = H
             for k in range(6):
@@ -231,10 +269,18 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             if not _solve_spd(A, -g, delta):
                 lam *= 10.0
                 continue
+            step = 0.0
+            for k in range(3):
+                step += delta[k] ** 2 + (delta[3 + k] / scale) ** 2
+            # Near the optimum a Gauss-Newton step this small changes
+            # nothing measurable: stop instead of probing lambda upwards.
+            if np.sqrt(step) < 1e-12:
+                small = True
+                break
             _so3_exp_left(delta[:3], R, Rn)
             for k in range(3):
                 tn[k] = t[k] + delta[3 + k]
-            cn = cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn)
+            cn = _cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J)
             if cn <= c:
                 R[:, :] = Rn
                 t[:] = tn
@@ -242,17 +288,12 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
                 c = cn
                 lam = max(lam * 0.1, 1e-12)
                 improved = True
+                small = np.sqrt(step) < 1e-9 or dc <= 1e-14 * c
                 break
             lam *= 10.0
-        if not improved:
+        if not improved or small:
             break
         residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True)
-        step = 0.0
-        for k in range(6):
-            step += delta[k] * delta[k]
-        scale = 1.0 + np.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
-        if np.sqrt(step) < 1e-12 * scale or dc <= 1e-16 * (c + 1e-300):
-            break
     return c, it
 
 
@@ -264,5 +305,6 @@ def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, H):
     J = np.empty((2 * n, 6))
     if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True):
         return False
-    H[:, :] = J.T @ J
+    g = np.empty(6)
+    _normal_equations(J, r, H, g)
     return True

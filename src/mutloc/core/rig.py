@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import RigError, ObservationError
+from ..errors import ObservationError, RigError, UnknownMarkerError
 from .camera import Camera
 
 __all__ = ["Marker", "Robot", "Rig"]
@@ -96,8 +96,6 @@ class Rig:
 
     def owner(self, marker: str) -> str:
         """Name of the robot carrying ``marker``."""
-        from ..errors import UnknownMarkerError
-
         try:
             return self._owner[marker]
         except KeyError:
