@@ -43,9 +43,11 @@ MAX_CANDIDATES = 12
 # Smallest |z| (of a unit vector) accepted after alignment: below it the
 # normalized point is too far out for the five-point solver to be trusted.
 _MIN_Z = 1e-3
-# Two poses closer than this (rotation in Frobenius norm, translation
-# relative to its length) are one candidate.
-_DEDUP_TOL = 1e-6
+# Candidates from different five-subsets of noisy data are the same pose up
+# to noise; closer than this (rotation angle, translation relative to its
+# length) they would refine to the same optimum, so only the better is kept.
+_SAME_ROT_DEG = 2.0
+_SAME_T_REL = 0.03
 
 
 def _hemisphere_directions(m: int = 400) -> np.ndarray:
@@ -240,12 +242,16 @@ def essential_candidates(side: np.ndarray, points: np.ndarray, bearings: np.ndar
         return empty
 
     order = np.argsort(pose_residuals(side, points, bearings, Rs, ts), kind="stable")
+    cos_same = 1.0 + 2.0 * np.cos(np.radians(_SAME_ROT_DEG))
     keep: list[int] = []
     for i in order:
-        dup = any(np.linalg.norm(Rs[i] - Rs[j]) < _DEDUP_TOL
-                  and np.linalg.norm(ts[i] - ts[j]) < _DEDUP_TOL * (1.0 + np.linalg.norm(ts[j]))
-                  for j in keep)
-        if not dup:
+        if not keep:
+            keep.append(int(i))
+            continue
+        K = np.array(keep)
+        same = ((np.einsum("kij,ij->k", Rs[K], Rs[i]) > cos_same)
+                & (np.linalg.norm(ts[K] - ts[i], axis=1) < _SAME_T_REL * np.linalg.norm(ts[K], axis=1)))
+        if not np.any(same):
             keep.append(int(i))
             if len(keep) >= max_candidates:
                 break
