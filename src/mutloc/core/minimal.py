@@ -344,6 +344,12 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
     _pair_coeffs(sd, b, Xn, 1, 2, f12)
     poly = np.empty(9)
     _univariate(f01, f02, f12, poly)
+    if n0 == 0 or n0 == 3:
+        # P3P is symmetric under s -> -s: the polynomial is even and its odd
+        # coefficients are pure rounding noise that would smear the tightly
+        # clustered roots of a distant triangle.
+        for i in range(1, 9, 2):
+            poly[i] = 0.0
     cand = np.empty(16)
     nr, nn = real_roots(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL)
     sols = np.empty((24, 3))
@@ -379,7 +385,7 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
             s[0] = tmp[i, 0]
             s[1] = tmp[i, 1]
             s[2] = tmp[i, 2]
-            err = _newton_polish(f01, f02, f12, s, 4)
+            err = _newton_polish(f01, f02, f12, s, 12)
             if err > _ACCEPT_TOL or s[0] <= 0.0 or s[1] <= 0.0 or s[2] <= 0.0:
                 continue
             dup = False

@@ -103,3 +103,92 @@ def random_layout(rng: np.random.Generator, n_p: int = 2, n_q: int = 2, distance
         if scene.all_in_front():
             return scene
     raise RuntimeError("could not sample a valid random layout")
+
+
+def _rot_y(angles: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angles), np.sin(angles)
+    R = np.zeros(angles.shape + (3, 3))
+    R[..., 0, 0] = c
+    R[..., 0, 2] = s
+    R[..., 1, 1] = 1.0
+    R[..., 2, 0] = -s
+    R[..., 2, 2] = c
+    return R
+
+
+def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(w.reshape(-1, 3)).as_matrix().reshape(w.shape[:-1] + (3, 3))
+
+
+def batch_scenes(rng: np.random.Generator, n: int, kind: str = "usual", n_p: int = 2, n_q: int = 2,
+                 distance: tuple[float, float] = (0.5, 5.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` random scenes at once: (R (n,3,3), t (n,3), markers_p (n,n_p,3), markers_q (n,n_q,3)).
+
+    ``kind``: ``"usual"`` (facing cameras, yaw up to 20 degrees, markers left
+    and right), ``"facing"`` (exactly 180 degrees, symmetric markers) or
+    ``"random"`` (random layouts within 0.3 m; every marker in front of the
+    camera that sees it).
+    """
+    d = rng.uniform(*distance, size=n)
+    if kind in ("usual", "facing"):
+        base = np.resize(USUAL_MARKERS, (max(n_p, n_q), 3))
+        base[2:, 1] += 0.1 * np.arange(1, max(n_p, n_q) - 1)[:, None].ravel() if max(n_p, n_q) > 2 else 0.0
+        mp = np.broadcast_to(base[:n_p], (n, n_p, 3)).copy()
+        mq = np.broadcast_to(base[:n_q], (n, n_q, 3)).copy()
+        if kind == "facing":
+            R = np.broadcast_to(_rot_y(np.array(np.pi)), (n, 3, 3)).copy()
+            t = np.zeros((n, 3))
+            t[:, 2] = d
+            return R, t, mp, mq
+        mp += rng.normal(scale=0.02, size=mp.shape)
+        mq += rng.normal(scale=0.02, size=mq.shape)
+        yaw = np.radians(20.0)
+        Rp = _rot_y(np.pi + rng.uniform(-yaw, yaw, n)) @ _rotvec_to_matrix(rng.normal(scale=np.radians(3.0), size=(n, 3)))
+        Rq = _rot_y(-rng.uniform(-yaw, yaw, n))
+        t0 = np.stack([rng.uniform(-0.2, 0.2, n) * d, np.zeros(n), d], axis=1)
+        return Rq @ Rp, np.einsum("nij,nj->ni", Rq, t0), mp, mq
+    if kind != "random":
+        raise ValueError(f"unknown scene kind {kind!r}")
+    out_R, out_t, out_p, out_q = [], [], [], []
+    have = 0
+    while have < n:
+        m = 2 * (n - have) + 16
+        mp = rng.uniform(-0.3, 0.3, size=(m, n_p, 3))
+        mq = rng.uniform(-0.3, 0.3, size=(m, n_q, 3))
+        dd = rng.uniform(*distance, size=m)
+        dirq = rng.normal(size=(m, 3))
+        dirq[:, 2] = np.abs(dirq[:, 2]) + 1.0
+        dirq /= np.linalg.norm(dirq, axis=1, keepdims=True)
+        t = dd[:, None] * dirq
+        look = -dirq + rng.normal(scale=0.3, size=(m, 3))
+        look /= np.linalg.norm(look, axis=1, keepdims=True)
+        x = np.cross(rng.normal(size=(m, 3)), look)
+        x /= np.linalg.norm(x, axis=1, keepdims=True)
+        y = np.cross(look, x)
+        R = np.stack([x, y, look], axis=2)
+        in_q = np.einsum("mij,mkj->mki", R, mp) + t[:, None, :]
+        in_p = np.einsum("mji,mkj->mki", R, mq - t[:, None, :])
+        ok = np.all(in_q[..., 2] > 0, axis=1) & np.all(in_p[..., 2] > 0, axis=1)
+        out_R.append(R[ok]), out_t.append(t[ok]), out_p.append(mp[ok]), out_q.append(mq[ok])
+        have += int(ok.sum())
+    cat = lambda parts: np.concatenate(parts)[:n]  # noqa: E731
+    return cat(out_R), cat(out_t), cat(out_p), cat(out_q)
+
+
+def batch_minimal_problems(R: np.ndarray, t: np.ndarray, markers_p: np.ndarray, markers_q: np.ndarray,
+                           n_seen_by_p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimal problems from :func:`batch_scenes`: p sees the first
+    ``n_seen_by_p`` of q's markers, q sees the first ``3 - n_seen_by_p`` of p's.
+
+    Returns (side (3,), bearings (n,3,3), points (n,3,3)).
+    """
+    k = n_seen_by_p
+    in_p = np.einsum("nji,nkj->nki", R, markers_q[:, :k] - t[:, None, :])
+    in_q = np.einsum("nij,nkj->nki", R, markers_p[:, : 3 - k]) + t[:, None, :]
+    bearings = np.concatenate([in_p, in_q], axis=1)
+    bearings /= np.linalg.norm(bearings, axis=2, keepdims=True)
+    points = np.concatenate([markers_q[:, :k], markers_p[:, : 3 - k]], axis=1)
+    side = np.array([0] * k + [1] * (3 - k), dtype=np.int64)
+    return side, np.ascontiguousarray(bearings), np.ascontiguousarray(points)
