@@ -119,8 +119,10 @@ def _eight_point(xp: np.ndarray, xq: np.ndarray) -> np.ndarray | None:
     """Linear least-squares E from eight or more unit line pairs, projected onto the essential manifold."""
     M = (xq[:, :, None] * xp[:, None, :]).reshape(-1, 9)
     _, sv, Vt = np.linalg.svd(M)
-    if sv[-1] > 0.0 and sv[-2] < 1e-12 * sv[0]:
-        return None  # null space of dimension >= 2: not determined
+    # With exactly eight rows the ninth singular value is an implicit zero.
+    sv = np.concatenate([sv, np.zeros(9 - len(sv))])
+    if sv[7] <= 1e-12 * sv[0]:
+        return None  # null space of dimension >= 2: E not determined
     U, _, Wt = np.linalg.svd(Vt[-1].reshape(3, 3))
     return U @ np.diag([1.0, 1.0, 0.0]) @ Wt
 
@@ -211,7 +213,8 @@ def essential_candidates(side: np.ndarray, points: np.ndarray, bearings: np.ndar
     n = side.shape[0]
     if n < 5 or points.shape[0] != n or bearings.shape[0] != n:
         return empty
-    bearings = bearings / np.linalg.norm(bearings, axis=1, keepdims=True)
+    # A zero ray stays zero and so fails the range test below.
+    bearings = bearings / np.maximum(np.linalg.norm(bearings, axis=1, keepdims=True), 1e-300)
 
     s0 = (side == 0)[:, None]
     xp = np.where(s0, bearings, points)
