@@ -38,10 +38,26 @@ def _abs_horner(c, n, x):
 
 
 @njit(cache=True)
-def _bracketed_root(c, n, dc, a, b, fa, fb, rtol):
-    """Root of ``c`` (degree n, derivative ``dc``) in [a, b] where it changes
-    sign: Newton from the regula-falsi point, bisection as a safeguard."""
-    x = a + (b - a) * fa / (fa - fb)
+def _bracketed_root(c, n, dc, ddc, a, b, fa, fb, rtol, a_crit, b_crit):
+    """Root of ``c`` (degree n, derivatives ``dc``, ``ddc``) in [a, b] where
+    it changes sign; safeguarded Newton.
+
+    An end that is a critical point (p' = 0) starts Newton from the Taylor
+    quadratic there, ``a + sqrt(2 |p(a) / p''(a)|)``: far better than the
+    regula-falsi point in the wide outer brackets, where Newton on a
+    high-degree polynomial would otherwise creep in linearly.
+    """
+    x = np.nan
+    if a_crit and n >= 2:
+        f2 = _horner(ddc, n - 2, a)
+        if f2 != 0.0:
+            x = a + np.sqrt(abs(2.0 * fa / f2))
+    if not (a < x < b) and b_crit and n >= 2:
+        f2 = _horner(ddc, n - 2, b)
+        if f2 != 0.0:
+            x = b - np.sqrt(abs(2.0 * fb / f2))
+    if not (a < x < b):
+        x = a + (b - a) * fa / (fa - fb)
     if not (a < x < b):
         x = 0.5 * (a + b)
     for _ in range(100):
@@ -115,7 +131,11 @@ def real_roots(c, lo, hi, roots, near_tol, rtol=1e-13, crit_rtol=1e-7):
             b = crit[j] if j < ncrit else hi
             fb = _horner(D[k], deg, b)
             if (fa < 0.0 and fb > 0.0) or (fa > 0.0 and fb < 0.0):
-                cur[nroot] = _bracketed_root(D[k], deg, D[k + 1], a, b, fa, fb, rtol if k == 0 else crit_rtol)
+                if deg == 1:
+                    cur[nroot] = -D[k, 0] / D[k, 1]
+                else:
+                    cur[nroot] = _bracketed_root(D[k], deg, D[k + 1], D[min(k + 2, n)], a, b, fa, fb,
+                                                 rtol if k == 0 else crit_rtol, j > 0, j < ncrit)
                 nroot += 1
             elif fb == 0.0 and j < ncrit:
                 cur[nroot] = b
