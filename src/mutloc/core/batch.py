@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from ..errors import InputError
-from .minimal import solve_minimal_kernel
+from .minimal import WORK_SIZE, solve_minimal_ws
 
 __all__ = ["BatchResult", "iter_solve_minimal", "solve_minimal_batch", "MAX_SOLUTIONS"]
 
@@ -44,8 +44,10 @@ def _solve_many(side, bearings, points, Rs, ts, counts):
     buf_R = np.empty((16, 3, 3))
     buf_t = np.empty((16, 3))
     buf_r = np.empty((16, 3))
+    ws = np.empty(WORK_SIZE)
+    iws = np.empty(6, dtype=np.int64)
     for i in range(bearings.shape[0]):
-        n = solve_minimal_kernel(side, bearings[i], points[i], buf_R, buf_t, buf_r)
+        n = solve_minimal_ws(side, bearings[i], points[i], buf_R, buf_t, buf_r, ws, iws)
         n = min(n, Rs.shape[1])
         for j in range(n):
             Rs[i, j] = buf_R[j]

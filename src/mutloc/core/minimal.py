@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .polynomial import real_roots
+from .polynomial import WORK_SIZE as _ROOT_WORK, real_roots_ws
 
 MAX_SOLUTIONS = 8
 # Relative residual of the distance equations for an accepted solution.
@@ -111,7 +111,7 @@ def _quad_roots(a, b, c, out):
 
 
 @njit(cache=True)
-def _univariate(f01, f02, f12, poly):
+def _univariate(f01, f02, f12, poly, ws):
     """Degree-8 polynomial in s2 whose roots are the s2 of all solutions."""
     A01, B01, C01, D01, E01, F01 = f01[0], f01[1], f01[2], f01[3], f01[4], f01[5]
     A02, B02, C02, D02, E02, F02 = f02[0], f02[1], f02[2], f02[3], f02[4], f02[5]
@@ -120,17 +120,20 @@ def _univariate(f01, f02, f12, poly):
     # (quadratic in s1: b2, b1(s2), b0(s2)):  g = u^2 - v w  with
     # u = a2 b0 - b2 a0, v = a2 b1 - b2 a1, w = a1 b0 - b1 a0.
     # Bivariate arrays are indexed [power of s0, power of s2].
-    U = np.zeros((3, 3))
+    U = ws[0:9].reshape((3, 3))
+    U[:, :] = 0.0
     U[0, 2] = B01 * B12
     U[0, 1] = B01 * E12
     U[0, 0] = B01 * F12 - A12 * F01
     U[2, 0] = -A12 * A01
     U[1, 0] = -A12 * D01
-    V = np.zeros((2, 2))
+    V = ws[9:13].reshape((2, 2))
+    V[:, :] = 0.0
     V[0, 1] = B01 * C12
     V[0, 0] = B01 * D12 - A12 * E01
     V[1, 0] = -A12 * C01
-    W = np.zeros((4, 4))
+    W = ws[13:29].reshape((4, 4))
+    W[:, :] = 0.0
     W[1, 2] += C01 * B12
     W[1, 1] += C01 * E12
     W[1, 0] += C01 * F12
@@ -143,7 +146,8 @@ def _univariate(f01, f02, f12, poly):
     W[2, 0] -= D12 * A01
     W[1, 0] -= D12 * D01
     W[0, 0] -= D12 * F01
-    G = np.zeros((5, 5))
+    G = ws[29:54].reshape((5, 5))
+    G[:, :] = 0.0
     for i in range(3):
         for j in range(3):
             if U[i, j] != 0.0:
@@ -158,8 +162,13 @@ def _univariate(f01, f02, f12, poly):
                         if i + k < 5 and j + m < 5:
                             G[i + k, j + m] -= V[i, j] * W[k, m]
     # Reduce g (quartic in s0) modulo f02 = A02 s0^2 + e1(s2) s0 + e0(s2).
-    e1 = np.array([D02, C02])
-    e0 = np.array([F02, E02, B02])
+    e1 = ws[54:56]
+    e1[0] = D02
+    e1[1] = C02
+    e0 = ws[56:59]
+    e0[0] = F02
+    e0[1] = E02
+    e0[2] = B02
     for i in range(4, 1, -1):
         for j in range(5 - i):
             cf = G[i, j] / A02
@@ -285,8 +294,24 @@ def _absolute_orientation(Pp, Pq, Fp, Fq, R, t):
     return True
 
 
+# Scratch layout of solve_minimal_ws (floats).
+_WS_UNI = 0  # 59 for _univariate
+_WS_ROOT = 64  # root finder
+_WS_MAIN = _WS_ROOT + _ROOT_WORK
+WORK_SIZE = _WS_MAIN + 256
+
+
 @njit(cache=True)
 def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
+    """All poses T_qp consistent with three observations (allocating wrapper
+    of :func:`solve_minimal_ws`)."""
+    ws = np.empty(WORK_SIZE)
+    iws = np.empty(6, dtype=np.int64)
+    return solve_minimal_ws(side, bearings, points, Rs, ts, ranges, ws, iws)
+
+
+@njit(cache=True)
+def solve_minimal_ws(side, bearings, points, Rs, ts, ranges, ws, iws):
     """All poses T_qp consistent with three observations.
 
     side[k] is 0 when p observed marker k (bearing in p's frame, marker
@@ -301,7 +326,10 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
     for k in range(3):
         if side[k] == 0:
             n0 += 1
-    order = np.array([0, 1, 2])
+    order = iws[0:3]
+    order[0] = 0
+    order[1] = 1
+    order[2] = 2
     if n0 == 1 or n0 == 2:
         lone = 0 if n0 == 1 else 1
         j = 0
@@ -311,9 +339,10 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
             else:
                 order[j] = k
                 j += 1
-    sd = np.empty(3, dtype=np.int64)
-    b = np.empty((3, 3))
-    X = np.empty((3, 3))
+    sd = iws[3:6]
+    o = _WS_MAIN
+    b = ws[o : o + 9].reshape((3, 3))
+    X = ws[o + 9 : o + 18].reshape((3, 3))
     for i in range(3):
         sd[i] = side[order[i]]
         nb = 0.0
@@ -335,30 +364,33 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
                 L = max(L, d)
     if not L > 0.0 or not np.isfinite(L):
         return 0
-    Xn = X / L
-    f01 = np.empty(6)
-    f02 = np.empty(6)
-    f12 = np.empty(6)
+    Xn = ws[o + 18 : o + 27].reshape((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Xn[i, j] = X[i, j] / L
+    f01 = ws[o + 27 : o + 33]
+    f02 = ws[o + 33 : o + 39]
+    f12 = ws[o + 39 : o + 45]
     _pair_coeffs(sd, b, Xn, 0, 1, f01)
     _pair_coeffs(sd, b, Xn, 0, 2, f02)
     _pair_coeffs(sd, b, Xn, 1, 2, f12)
-    poly = np.empty(9)
-    _univariate(f01, f02, f12, poly)
+    poly = ws[o + 45 : o + 54]
+    _univariate(f01, f02, f12, poly, ws[_WS_UNI:_WS_ROOT])
     if n0 == 0 or n0 == 3:
         # P3P is symmetric under s -> -s: the polynomial is even and its odd
         # coefficients are pure rounding noise that would smear the tightly
         # clustered roots of a distant triangle.
         for i in range(1, 9, 2):
             poly[i] = 0.0
-    cand = np.empty(16)
-    nr, nn = real_roots(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL)
-    sols = np.empty((24, 3))
+    cand = ws[o + 54 : o + 70]
+    nr, nn = real_roots_ws(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-13, 1e-7, ws[_WS_ROOT:_WS_MAIN])
+    sols = ws[o + 70 : o + 142].reshape((24, 3))
     nsol = 0
-    q0 = np.empty(2)
-    q1 = np.empty(2)
-    s = np.empty(3)
-    tmp = np.empty((4, 3))
-    res = np.empty(4)
+    q0 = ws[o + 142 : o + 144]
+    q1 = ws[o + 144 : o + 146]
+    s = ws[o + 146 : o + 149]
+    tmp = ws[o + 149 : o + 161].reshape((4, 3))
+    res = ws[o + 161 : o + 165]
     for ir in range(nr + nn):
         s2 = cand[ir]
         # s0 from f02 (quadratic in s0 given s2), s1 from f01 given s0; the
@@ -400,10 +432,10 @@ def solve_minimal_kernel(side, bearings, points, Rs, ts, ranges):
                 sols[nsol] = s
                 nsol += 1
     # Poses from the three point pairs.
-    Pp = np.empty((3, 3))
-    Pq = np.empty((3, 3))
-    Fp = np.empty((3, 3))
-    Fq = np.empty((3, 3))
+    Pp = ws[o + 165 : o + 174].reshape((3, 3))
+    Pq = ws[o + 174 : o + 183].reshape((3, 3))
+    Fp = ws[o + 183 : o + 192].reshape((3, 3))
+    Fq = ws[o + 192 : o + 201].reshape((3, 3))
     nout = 0
     for j in range(nsol):
         if nout >= Rs.shape[0]:

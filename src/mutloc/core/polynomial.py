@@ -78,15 +78,26 @@ def _bracketed_root(c, n, dc, ddc, a, b, fa, fb, rtol, a_crit, b_crit):
     return x
 
 
+WORK_SIZE = (MAX_DEG + 1) * (MAX_DEG + 3)
+
+
 @njit(cache=True)
 def real_roots(c, lo, hi, roots, near_tol, rtol=1e-13, crit_rtol=1e-7):
+    """Real roots of ``sum(c[i] x**i)`` in (lo, hi); see :func:`real_roots_ws`."""
+    work = np.empty((c.shape[0]) * (c.shape[0] + 2))
+    return real_roots_ws(c, lo, hi, roots, near_tol, rtol, crit_rtol, work)
+
+
+@njit(cache=True)
+def real_roots_ws(c, lo, hi, roots, near_tol, rtol, crit_rtol, work):
     """Real roots of ``sum(c[i] x**i)`` in the open interval (lo, hi).
 
     Writes them increasing into ``roots`` and returns ``(n_roots, n_near)``:
     the first ``n_roots`` entries are sign-change roots, the next ``n_near``
     are critical points where ``|p| <= near_tol * sum(|c_i| |x|^i)`` without a
     sign change (numerically merged double roots).  ``roots`` needs room for
-    ``2 * degree`` values.
+    ``2 * degree`` values; ``work`` is scratch space of at least
+    ``(degree + 1) * (degree + 3)`` floats, so hot loops allocate nothing.
     """
     n = c.shape[0] - 1
     cmax = 0.0
@@ -99,28 +110,30 @@ def real_roots(c, lo, hi, roots, near_tol, rtol=1e-13, crit_rtol=1e-7):
     if n == 0:
         return 0, 0
     if lo >= 0.0:
-        # Upper bound on the positive roots (Kioustelidis): shrinks the
-        # outermost bracket, where Newton would otherwise crawl.
+        # Upper bound on the positive roots (Cauchy's, over the negative
+        # coefficients only); no positive root if there are none.
         lead = c[n]
         kb = 0.0
         for i in range(n):
             if c[i] * lead < 0.0:
-                kb = max(kb, abs(c[i] / lead) ** (1.0 / (n - i)))
+                kb = max(kb, abs(c[i] / lead))
         if kb == 0.0:
             return 0, 0
-        hi = min(hi, 2.0 * kb * (1.0 + 1e-12))
+        hi = min(hi, (1.0 + kb) * (1.0 + 1e-12))
         if hi <= lo:
             return 0, 0
     # D[k] holds the k-th derivative (degree n - k).
-    D = np.zeros((n + 1, n + 1))
+    m = n + 1
+    D = work[: m * m].reshape((m, m))
+    D[:, :] = 0.0
     for i in range(n + 1):
         D[0, i] = c[i] / cmax
     for k in range(1, n + 1):
         for i in range(n - k + 1):
             D[k, i] = D[k - 1, i + 1] * (i + 1)
-    crit = np.empty(n + 1)
+    crit = work[m * m : m * m + m]
     ncrit = 0
-    cur = np.empty(n + 1)
+    cur = work[m * m + m : m * m + 2 * m]
     nroot = 0
     for k in range(n - 1, -1, -1):
         deg = n - k
