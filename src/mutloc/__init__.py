@@ -5,6 +5,7 @@ Frames, pose direction and file formats follow the project's SPEC: a result
 ``T_qp = (R, t)`` maps ``x_q = R @ x_p + t``.
 """
 
+from . import _jit_cache  # noqa: F401  (must precede every Numba kernel)
 from .api import Estimate, load_rig, localize, solve_bearings
 from .core.camera import Camera
 from .core.geometry import Pose, rotation_error_deg, translation_error

@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .p3p import p3p_kernel
 from .polynomial import WORK_SIZE as _ROOT_WORK, real_roots_ws
 
 MAX_SOLUTIONS = 8
@@ -294,6 +295,50 @@ def _absolute_orientation(Pp, Pq, Fp, Fq, R, t):
     return True
 
 
+@njit(cache=True)
+def _orthonormalize(R):
+    """Gram-Schmidt on the rows: removes the 1e-12-level drift of a rotation
+    built from noisy-free but rounded depths (the paper's arccos rotation
+    error amplifies it to 1e-5 degrees)."""
+    n0 = np.sqrt(R[0, 0] ** 2 + R[0, 1] ** 2 + R[0, 2] ** 2)
+    for j in range(3):
+        R[0, j] /= n0
+    d = R[0, 0] * R[1, 0] + R[0, 1] * R[1, 1] + R[0, 2] * R[1, 2]
+    for j in range(3):
+        R[1, j] -= d * R[0, j]
+    n1 = np.sqrt(R[1, 0] ** 2 + R[1, 1] ** 2 + R[1, 2] ** 2)
+    for j in range(3):
+        R[1, j] /= n1
+    R[2, 0] = R[0, 1] * R[1, 2] - R[0, 2] * R[1, 1]
+    R[2, 1] = R[0, 2] * R[1, 0] - R[0, 0] * R[1, 2]
+    R[2, 2] = R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0]
+
+
+@njit(cache=True)
+def _p3p_mutual(seen_by_p, bearings, points, Rs, ts, ranges):
+    """3-0 and 0-3: one camera sees three markers of the other robot, plain
+    P3P (Lambda Twist, :mod:`.p3p`).  P3P gives the observed robot's frame in
+    the observer's; for p observing, T_qp is its inverse."""
+    n = p3p_kernel(bearings, points, Rs, ts)
+    for i in range(n):
+        _orthonormalize(Rs[i])
+        for k in range(3):
+            x0 = Rs[i, 0, 0] * points[k, 0] + Rs[i, 0, 1] * points[k, 1] + Rs[i, 0, 2] * points[k, 2] + ts[i, 0]
+            x1 = Rs[i, 1, 0] * points[k, 0] + Rs[i, 1, 1] * points[k, 1] + Rs[i, 1, 2] * points[k, 2] + ts[i, 1]
+            x2 = Rs[i, 2, 0] * points[k, 0] + Rs[i, 2, 1] * points[k, 1] + Rs[i, 2, 2] * points[k, 2] + ts[i, 2]
+            ranges[i, k] = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        if seen_by_p:
+            t0, t1, t2 = ts[i, 0], ts[i, 1], ts[i, 2]
+            for a in range(3):
+                for b in range(a + 1, 3):
+                    tmp = Rs[i, a, b]
+                    Rs[i, a, b] = Rs[i, b, a]
+                    Rs[i, b, a] = tmp
+            for a in range(3):
+                ts[i, a] = -(Rs[i, a, 0] * t0 + Rs[i, a, 1] * t1 + Rs[i, a, 2] * t2)
+    return n
+
+
 # Scratch layout of solve_minimal_ws (floats).
 _WS_UNI = 0  # 59 for _univariate
 _WS_ROOT = 64  # root finder
@@ -320,12 +365,14 @@ def solve_minimal_ws(side, bearings, points, Rs, ts, ranges, ws, iws):
     Only solutions with positive ranges (markers in front of the observing
     cameras along their rays) are returned.
     """
-    # Canonical order: the target range (index 2) is the lone observation of
-    # a mixed split, so the usual mounting's solution pairs stay apart.
     n0 = 0
     for k in range(3):
         if side[k] == 0:
             n0 += 1
+    if n0 == 0 or n0 == 3:
+        return _p3p_mutual(n0 == 3, bearings, points, Rs, ts, ranges)
+    # Canonical order: the target range (index 2) is the lone observation of
+    # a mixed split, so the usual mounting's solution pairs stay apart.
     order = iws[0:3]
     order[0] = 0
     order[1] = 1
@@ -376,12 +423,6 @@ def solve_minimal_ws(side, bearings, points, Rs, ts, ranges, ws, iws):
     _pair_coeffs(sd, b, Xn, 1, 2, f12)
     poly = ws[o + 45 : o + 54]
     _univariate(f01, f02, f12, poly, ws[_WS_UNI:_WS_ROOT])
-    if n0 == 0 or n0 == 3:
-        # P3P is symmetric under s -> -s: the polynomial is even and its odd
-        # coefficients are pure rounding noise that would smear the tightly
-        # clustered roots of a distant triangle.
-        for i in range(1, 9, 2):
-            poly[i] = 0.0
     cand = ws[o + 54 : o + 70]
     nr, nn = real_roots_ws(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-13, 1e-7, ws[_WS_ROOT:_WS_MAIN])
     sols = ws[o + 70 : o + 142].reshape((24, 3))

@@ -24,13 +24,22 @@ description:
 * The pose maps the object triangle frame ``[x1-x2, x1-x3, (x1-x2)x(x1-x3)]``
   onto the same frame built from the camera points ``lambda_i y_i``.
 
-Deviations from the paper, for robustness: the cubic is solved in closed form
-in ``gamma`` or ``1/gamma`` (whichever keeps the leading coefficient
-dominant), and when it has three real roots the one whose plane pair is
-best separated is used; the plane pair and the per-plane quadratics are both
-found as zero directions of 2x2 symmetric forms (no divisions by possibly
-vanishing coefficients); near-zero discriminants are treated as double roots
-and left for Newton to split.
+Deviations from the paper, for robustness:
+
+* the correspondences are relabelled so that the pivot side ``a23`` is the
+  longest (a short pivot makes ``D1`` and ``D2`` nearly proportional);
+* the cubic is solved in closed form in ``gamma`` or ``1/gamma`` (whichever
+  keeps the leading coefficient dominant) and polished by Newton; with three
+  real roots the one whose plane pair is best separated is used;
+* the plane pair and the per-plane quadratics are both found as zero
+  directions of 2x2 symmetric forms (no division by a coefficient that may
+  vanish); discriminants within rounding of zero count as double roots and
+  are left for the final Newton step to split;
+* the final Newton step stops on its step length, not the residual, which
+  is unreliable when the rays are nearly coplanar (ill-conditioned Jacobian).
+
+``R`` is built from the refined depths without re-orthonormalisation; it is
+orthonormal to rounding (measured <= 2e-12) because the depths are.
 """
 
 from __future__ import annotations
@@ -42,7 +51,7 @@ from numba import njit
 
 __all__ = ["p3p_kernel", "p3p"]
 
-_NEWTON_ITERS = 6
+_NEWTON_ITERS = 8
 # Relative residual of the distance equations above which a polished
 # candidate is not a solution (a complex pair that rounding made look real).
 _RESIDUAL_TOL = 1e-7
@@ -50,12 +59,21 @@ _RESIDUAL_TOL = 1e-7
 _DISC_TOL = 1e-10
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
+def _d2(a0, a1, a2, b0, b1, b2):
+    """Squared distance between two 3-vectors."""
+    d0 = a0 - b0
+    d1 = a1 - b1
+    d2 = a2 - b2
+    return d0 * d0 + d1 * d1 + d2 * d2
+
+
+@njit(cache=True, error_model="numpy")
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def _cof(m00, m01, m02, m11, m12, m22):
     """Cofactors (adjugate) of a symmetric 3x3 matrix, in the same 6-entry order."""
     return (
@@ -68,7 +86,7 @@ def _cof(m00, m01, m02, m11, m12, m22):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def _quad(m00, m01, m02, m11, m12, m22, u0, u1, u2, v0, v1, v2):
     """u^T M v for symmetric M."""
     return (
@@ -78,7 +96,7 @@ def _quad(m00, m01, m02, m11, m12, m22, u0, u1, u2, v0, v1, v2):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def _cubic_roots(b, c, d):
     """Real roots of x^3 + b x^2 + c x + d, each polished by Newton.
 
@@ -127,7 +145,7 @@ def _cubic_roots(b, c, d):
     return n, r0, r1, r2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def _zero_dirs(p, r, s):
     """Unit directions (a, b) with p a^2 + 2 r a b + s b^2 = 0.
 
@@ -179,7 +197,7 @@ def _zero_dirs(p, r, s):
     return 2, a1 / n1, b1 / n1, a2 / n2, b2 / n2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def _residuals(l1, l2, l3, c12, c13, c23, a12, a13, a23):
     d12 = l1 - l2
     d13 = l1 - l3
@@ -191,54 +209,52 @@ def _residuals(l1, l2, l3, c12, c13, c23, a12, a13, a23):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy")
 def _newton(l1, l2, l3, c12, c13, c23, a12, a13, a23):
-    """Newton on the three distance equations; returns (l1, l2, l3, max relative residual)."""
-    f1, f2, f3 = _residuals(l1, l2, l3, c12, c13, c23, a12, a13, a23)
-    err = max(abs(f1) / a12, abs(f2) / a13, abs(f3) / a23)
+    """Newton on the three distance equations.
+
+    Returns (l1, l2, l3, max relative residual).  Termination is on the
+    step, not the residual: when the rays are nearly coplanar the Jacobian
+    is ill-conditioned, a full step may raise a 1e-12 residual before it
+    collapses, and a tiny residual can still hide a 1e-5 depth error.
+    """
+    prev = np.inf
     for _ in range(_NEWTON_ITERS):
-        if err < 1e-15:
-            break
+        f1, f2, f3 = _residuals(l1, l2, l3, c12, c13, c23, a12, a13, a23)
         d12 = l1 - l2
         d13 = l1 - l3
         d23 = l2 - l3
-        # Rows of the Jacobian: d f_ij / d l_i = 2 (l_i - l_j) + 2 c_ij l_j etc.
+        # d f_ij / d l_i = 2 (l_i - l_j) + 2 c_ij l_j, and symmetrically.
         j11 = 2.0 * (d12 + c12 * l2)
         j12 = 2.0 * (-d12 + c12 * l1)
         j21 = 2.0 * (d13 + c13 * l3)
         j23 = 2.0 * (-d13 + c13 * l1)
         j32 = 2.0 * (d23 + c23 * l3)
         j33 = 2.0 * (-d23 + c23 * l2)
-        # J = [[j11, j12, 0], [j21, 0, j23], [0, j32, j33]]; solve J dx = f by Cramer.
+        # J = [[j11, j12, 0], [j21, 0, j23], [0, j32, j33]], solved by its adjugate.
         det = -j11 * j23 * j32 - j12 * j21 * j33
         if det == 0.0 or det != det:
             break
-        # Adjugate of J (rows), written out.
-        i11 = -j23 * j32
-        i12 = -j12 * j33
-        i13 = j12 * j23
-        i21 = -j21 * j33
-        i22 = j11 * j33
-        i23 = -j11 * j23
-        i31 = j21 * j32
-        i32 = -j11 * j32
-        i33 = -j12 * j21
-        k1 = (i11 * f1 + i12 * f2 + i13 * f3) / det
-        k2 = (i21 * f1 + i22 * f2 + i23 * f3) / det
-        k3 = (i31 * f1 + i32 * f2 + i33 * f3) / det
-        n1 = l1 - k1
-        n2 = l2 - k2
-        n3 = l3 - k3
-        g1, g2, g3 = _residuals(n1, n2, n3, c12, c13, c23, a12, a13, a23)
-        e = max(abs(g1) / a12, abs(g2) / a13, abs(g3) / a23)
-        if not (e < err):
-            break  # converged to rounding level (or diverging): keep the best
-        l1, l2, l3, f1, f2, f3, err = n1, n2, n3, g1, g2, g3, e
-    return l1, l2, l3, err
+        k1 = (-j23 * j32 * f1 - j12 * j33 * f2 + j12 * j23 * f3) / det
+        k2 = (-j21 * j33 * f1 + j11 * j33 * f2 - j11 * j23 * f3) / det
+        k3 = (j21 * j32 * f1 - j11 * j32 * f2 - j12 * j21 * f3) / det
+        step = max(abs(k1), abs(k2), abs(k3))
+        if not (step < prev):
+            break  # at the rounding floor (or diverging): keep the last iterate
+        l1 -= k1
+        l2 -= k2
+        l3 -= k3
+        if step <= 1e-15 * max(abs(l1), abs(l2), abs(l3)):
+            break
+        prev = step
+    f1, f2, f3 = _residuals(l1, l2, l3, c12, c13, c23, a12, a13, a23)
+    return l1, l2, l3, max(abs(f1) / a12, abs(f2) / a13, abs(f3) / a23)
 
 
-@njit(cache=True)
-def p3p_kernel(bearings, points, Rs, ts):
+# error_model="numpy": a division by zero must give inf/NaN (caught by the
+# checks), never raise from inside a hot loop.
+@njit(cache=True, error_model="numpy")
+def p3p_kernel(bearings: np.ndarray, points: np.ndarray, Rs: np.ndarray, ts: np.ndarray) -> int:
     """All P3P poses ``X_cam = R @ X_obj + t`` with positive depths.
 
     bearings: (3, 3) rays in the camera frame (rows; normalised here);
@@ -253,25 +269,37 @@ def p3p_kernel(bearings, points, Rs, ts):
             tot += bearings[i, j] + points[i, j]
     if tot - tot != 0.0:  # NaN or inf anywhere
         return 0
-    n1 = math.sqrt(bearings[0, 0] ** 2 + bearings[0, 1] ** 2 + bearings[0, 2] ** 2)
-    n2 = math.sqrt(bearings[1, 0] ** 2 + bearings[1, 1] ** 2 + bearings[1, 2] ** 2)
-    n3 = math.sqrt(bearings[2, 0] ** 2 + bearings[2, 1] ** 2 + bearings[2, 2] ** 2)
+    # Relabel so that the pair (2, 3) is the farthest apart: D1 and D2 below
+    # both contain -a_1j M23 terms, and a short pivot side a23 would make them
+    # nearly proportional (a degenerate pencil, most digits lost).
+    e01 = _d2(points[0, 0], points[0, 1], points[0, 2], points[1, 0], points[1, 1], points[1, 2])
+    e02 = _d2(points[0, 0], points[0, 1], points[0, 2], points[2, 0], points[2, 1], points[2, 2])
+    e12 = _d2(points[1, 0], points[1, 1], points[1, 2], points[2, 0], points[2, 1], points[2, 2])
+    if e12 >= e01 and e12 >= e02:
+        i1, i2, i3 = 0, 1, 2
+    elif e02 >= e01:
+        i1, i2, i3 = 1, 2, 0
+    else:
+        i1, i2, i3 = 2, 0, 1
+    n1 = math.sqrt(_d2(bearings[i1, 0], bearings[i1, 1], bearings[i1, 2], 0.0, 0.0, 0.0))
+    n2 = math.sqrt(_d2(bearings[i2, 0], bearings[i2, 1], bearings[i2, 2], 0.0, 0.0, 0.0))
+    n3 = math.sqrt(_d2(bearings[i3, 0], bearings[i3, 1], bearings[i3, 2], 0.0, 0.0, 0.0))
     if not (n1 > 0.0 and n2 > 0.0 and n3 > 0.0):
         return 0
-    y10, y11, y12 = bearings[0, 0] / n1, bearings[0, 1] / n1, bearings[0, 2] / n1
-    y20, y21, y22 = bearings[1, 0] / n2, bearings[1, 1] / n2, bearings[1, 2] / n2
-    y30, y31, y32 = bearings[2, 0] / n3, bearings[2, 1] / n3, bearings[2, 2] / n3
+    y10, y11, y12 = bearings[i1, 0] / n1, bearings[i1, 1] / n1, bearings[i1, 2] / n1
+    y20, y21, y22 = bearings[i2, 0] / n2, bearings[i2, 1] / n2, bearings[i2, 2] / n2
+    y30, y31, y32 = bearings[i3, 0] / n3, bearings[i3, 1] / n3, bearings[i3, 2] / n3
 
     # c_ij = 1 - cos(angle) from the chord: exact even for nearly parallel rays.
-    c12 = 0.5 * ((y10 - y20) ** 2 + (y11 - y21) ** 2 + (y12 - y22) ** 2)
-    c13 = 0.5 * ((y10 - y30) ** 2 + (y11 - y31) ** 2 + (y12 - y32) ** 2)
-    c23 = 0.5 * ((y20 - y30) ** 2 + (y21 - y31) ** 2 + (y22 - y32) ** 2)
+    c12 = 0.5 * _d2(y10, y11, y12, y20, y21, y22)
+    c13 = 0.5 * _d2(y10, y11, y12, y30, y31, y32)
+    c23 = 0.5 * _d2(y20, y21, y22, y30, y31, y32)
     if not (c12 > 1e-18 and c13 > 1e-18 and c23 > 1e-18):
         return 0  # coincident rays
 
-    x10, x11, x12 = points[0, 0], points[0, 1], points[0, 2]
-    x20, x21, x22 = points[1, 0], points[1, 1], points[1, 2]
-    x30, x31, x32 = points[2, 0], points[2, 1], points[2, 2]
+    x10, x11, x12 = points[i1, 0], points[i1, 1], points[i1, 2]
+    x20, x21, x22 = points[i2, 0], points[i2, 1], points[i2, 2]
+    x30, x31, x32 = points[i3, 0], points[i3, 1], points[i3, 2]
     u0, u1, u2 = x10 - x20, x11 - x21, x12 - x22  # x1 - x2
     v0, v1, v2 = x10 - x30, x11 - x31, x12 - x32  # x1 - x3
     w0, w1, w2 = x20 - x30, x21 - x31, x22 - x32  # x2 - x3
@@ -416,9 +444,9 @@ def p3p_kernel(bearings, points, Rs, ts):
             L3 = ea * z2 + eb * w2_
             # Scale from the sum of the three (dimensionless) distance equations.
             S = (
-                (L1 - L2) ** 2
-                + (L1 - L3) ** 2
-                + (L2 - L3) ** 2
+                (L1 - L2) * (L1 - L2)
+                + (L1 - L3) * (L1 - L3)
+                + (L2 - L3) * (L2 - L3)
                 + 2.0 * (c12 * L1 * L2 + c13 * L1 * L3 + c23 * L2 * L3)
             )
             if not (S > 0.0):
