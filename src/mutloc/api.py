@@ -115,12 +115,15 @@ class Estimate:
 
 def _pixel(value: Any, where: str) -> tuple[float, float]:
     try:
+        if isinstance(value, (str, bytes)):
+            raise TypeError
         u, v = value
         u = float(u)
         v = float(v)
-    except (TypeError, ValueError):
-        shape = np.shape(value) if not isinstance(value, (str, bytes)) else "a string"
-        raise InputError(f"{where}: pixel must be two numbers [u, v], got {shape if shape else repr(value)}") from None
+    except (TypeError, ValueError, OverflowError):
+        text = repr(value)
+        text = text if len(text) <= 60 else text[:57] + "..."
+        raise InputError(f"{where}: pixel must be two numbers [u, v], got {text}") from None
     if not (math.isfinite(u) and math.isfinite(v)):
         raise InputError(f"{where}: pixel is NaN or infinite")
     return u, v
@@ -228,7 +231,13 @@ def localize(rig: Any, observations: Mapping[str, Any], source: str | None = Non
     """
     rig = load_rig(rig)
     source, target = rig.default_pair(source, target)
-    if not (np.isfinite(pixel_sigma) and pixel_sigma > 0):
+    try:
+        if isinstance(pixel_sigma, (str, bytes, bool)):
+            raise TypeError
+        pixel_sigma = float(pixel_sigma)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"pixel_sigma must be a positive number, got {pixel_sigma!r}") from None
+    if not (math.isfinite(pixel_sigma) and pixel_sigma > 0):
         raise InputError(f"pixel_sigma must be a positive number, got {pixel_sigma!r}")
     if initializer not in ("minimal", "essential", "both"):
         raise InputError(f"initializer must be 'minimal', 'essential' or 'both', got {initializer!r}")
@@ -309,8 +318,8 @@ def solve_bearings(bearings_p: Any, points_q: Any, bearings_q: Any, points_p: An
                     ("points_p", points_p)):
         try:
             x = np.asarray(a if a is not None else np.empty((0, 3)), dtype=float)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} must be an array of shape (n, 3)") from None
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{name} must be an array of finite numbers of shape (n, 3)") from None
         if x.size == 0:
             x = x.reshape(0, 3)
         if x.ndim != 2 or x.shape[1] != 3:

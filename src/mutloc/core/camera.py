@@ -284,7 +284,7 @@ def _as_points(a: Any, dim: int, what: str, allow_nonfinite: bool = False) -> tu
     """``a`` as a C-contiguous float64 (n, dim) array, and whether it was 1-D."""
     try:
         arr = np.asarray(a, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise InputError(f"{what}: cannot convert to a float array ({exc})") from None
     single = arr.ndim == 1
     if single:
@@ -321,7 +321,7 @@ class Camera:
     def __init__(self, K: Any, dist: Any = None, size: Any = None) -> None:
         try:
             Kf = np.asarray(K, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise RigError("camera K must be a 3x3 matrix of numbers") from None
         if Kf.shape != (3, 3):
             raise RigError(f"camera K must be 3x3, got shape {Kf.shape}")
@@ -340,7 +340,7 @@ class Camera:
         else:
             try:
                 d = np.asarray(dist, dtype=np.float64)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise RigError("camera dist must be a list of numbers") from None
             # OpenCV hands out (1, n) / (n, 1) arrays; accept those too.
             if d.ndim == 2 and 1 in d.shape:

@@ -27,8 +27,9 @@ _PER_SUBSET = 16
 # Subsets beyond this many are sampled (deterministically): with many
 # markers, a few dozen minimal problems already contain a good start.
 MAX_SUBSETS = 60
-# Relative condition number of J^T J beyond which the pose is not isolated.
-_MAX_COND = 1e12
+# Condition number of the (Jacobi-scaled) J^T J beyond which the pose is not
+# isolated: rounding level, so near-degenerate but valid poses still pass.
+_MAX_COND = 1e14
 
 
 @dataclass
@@ -54,10 +55,16 @@ class Observations:
             raise InputError("observations: side, points and bearings differ in length")
         if not (np.all(np.isfinite(self.points)) and np.all(np.isfinite(self.bearings))):
             raise InputError("observations contain NaN or inf")
-        norms = np.linalg.norm(self.bearings, axis=1)
-        if np.any(norms < 1e-12):
+        # Scale each ray by its largest component first so huge but finite
+        # values cannot overflow the norm.
+        big = np.max(np.abs(self.bearings), axis=1)
+        if np.any(big == 0.0):
             raise InputError("observations contain a zero-length bearing")
-        self.bearings = self.bearings / norms[:, None]
+        b = self.bearings / big[:, None]
+        self.bearings = b / np.linalg.norm(b, axis=1)[:, None]
+        scale = np.max(np.abs(self.points)) if n else 0.0
+        if scale > 1e9:
+            raise InputError(f"marker positions of magnitude {scale:.3g} m are not plausible")
         if n < 3:
             raise TooFewObservationsError(f"{n} marker observations; at least three are needed")
         if self.pixels is not None:
@@ -264,7 +271,19 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
 def _inverse_checked(H, max_cond, out):
     """Inverse of the symmetric information matrix; False if its condition
     number exceeds ``max_cond`` (the pose is not isolated)."""
-    ev, V = np.linalg.eigh(H)
+    # Jacobi scaling first: rotation (rad) and translation (m) columns have
+    # different units, and only the scaled matrix's conditioning says whether
+    # the pose is determined at all.
+    d = np.empty(6)
+    for i in range(6):
+        if not H[i, i] > 0.0:
+            return False
+        d[i] = 1.0 / np.sqrt(H[i, i])
+    Hs = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            Hs[i, j] = H[i, j] * d[i] * d[j]
+    ev, V = np.linalg.eigh(Hs)
     if not ev[0] > ev[-1] / max_cond:
         return False
     for i in range(6):
@@ -272,7 +291,7 @@ def _inverse_checked(H, max_cond, out):
             s = 0.0
             for k in range(6):
                 s += V[i, k] * V[j, k] / ev[k]
-            out[i, j] = s
+            out[i, j] = s * d[i] * d[j]
     return True
 
 

@@ -106,6 +106,9 @@ class Rig:
 
     def default_pair(self, source: str | None = None, target: str | None = None) -> tuple[str, str]:
         """Resolve ``(source, target)``; both may be omitted for a two-robot rig."""
+        for what, value in (("source", source), ("target", target)):
+            if value is not None and not isinstance(value, str):
+                raise ObservationError(f"{what} must be a robot name (a string), got {value!r}")
         names = list(self.robots)
         if source is None and target is None:
             if len(names) != 2:
