@@ -424,7 +424,8 @@ def solve_minimal_ws(side, bearings, points, Rs, ts, ranges, ws, iws):
     poly = ws[o + 45 : o + 54]
     _univariate(f01, f02, f12, poly, ws[_WS_UNI:_WS_ROOT])
     cand = ws[o + 54 : o + 70]
-    nr, nn = real_roots_ws(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-13, 1e-7, ws[_WS_ROOT:_WS_MAIN])
+    # Roots need only ~1e-9: Newton on the three quadrics polishes them.
+    nr, nn = real_roots_ws(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-9, 1e-7, ws[_WS_ROOT:_WS_MAIN])
     sols = ws[o + 70 : o + 142].reshape((24, 3))
     nsol = 0
     q0 = ws[o + 142 : o + 144]

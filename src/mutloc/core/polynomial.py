@@ -61,15 +61,30 @@ def _bracketed_root(c, n, dc, ddc, a, b, fa, fb, rtol, a_crit, b_crit):
     if not (a < x < b):
         x = 0.5 * (a + b)
     for _ in range(100):
-        f = _horner(c, n, x)
+        # p, p' and p'' in one pass over the coefficients; Halley's step
+        # (cubic convergence) then needs fewer iterations than Newton's.
+        f = c[n]
+        df = 0.0
+        d2 = 0.0
+        for i in range(n - 1, -1, -1):
+            d2 = d2 * x + df
+            df = df * x + f
+            f = f * x + c[i]
         if f == 0.0:
             return x
         if (f > 0.0) == (fa > 0.0):
             a = x
         else:
             b = x
-        df = _horner(dc, n - 1, x) if n > 0 else 0.0
-        xn = x - f / df if df != 0.0 else 0.5 * (a + b)
+        # d2 holds p''/2 (simultaneous Horner), so Halley's step is
+        # x - p p' / (p'^2 - p p''/2).
+        den = df * df - f * d2
+        if den != 0.0:
+            xn = x - f * df / den
+        elif df != 0.0:
+            xn = x - f / df
+        else:
+            xn = 0.5 * (a + b)
         if not (a < xn < b):
             xn = 0.5 * (a + b)
         if abs(xn - x) <= rtol * abs(xn) or b - a <= rtol * abs(xn):
@@ -148,7 +163,7 @@ def real_roots_ws(c, lo, hi, roots, near_tol, rtol, crit_rtol, work):
                     cur[nroot] = -D[k, 0] / D[k, 1]
                 else:
                     cur[nroot] = _bracketed_root(D[k], deg, D[k + 1], D[min(k + 2, n)], a, b, fa, fb,
-                                                 rtol if k == 0 else crit_rtol, j > 0, j < ncrit)
+                                                 rtol if k == 0 else (crit_rtol if k == 1 else 1e3 * crit_rtol), j > 0, j < ncrit)
                 nroot += 1
             elif fb == 0.0 and j < ncrit:
                 cur[nroot] = b
