@@ -1,0 +1,75 @@
+"""What every detector returns.
+
+Images are NumPy arrays in OpenCV's layout: ``uint8`` BGR ``(H, W, 3)`` (as
+``cv2.imread`` gives them) or grayscale ``(H, W)``.  Pixels follow the SPEC:
+``(u, v)`` with ``(0, 0)`` the centre of the top-left pixel, raw (distorted).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["Detection", "DetectionResult", "as_bgr"]
+
+
+@dataclass
+class Detection:
+    """One marker found in an image."""
+
+    marker: str
+    uv: np.ndarray
+    score: float = 1.0
+    # Tag corners (4, 2) in OpenCV's corner order, when the detector has them.
+    corners: np.ndarray | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"uv": [float(self.uv[0]), float(self.uv[1])], "score": float(self.score)}
+        if self.corners is not None:
+            d["corners"] = np.asarray(self.corners, float).tolist()
+        if self.info:
+            d["info"] = self.info
+        return d
+
+
+@dataclass
+class DetectionResult:
+    """The markers one robot's camera saw in one image, and those it did not."""
+
+    detections: dict[str, Detection] = field(default_factory=dict)
+    missing: list[str] = field(default_factory=list)
+
+    def pixels(self) -> dict[str, tuple[float, float]]:
+        """``{marker: (u, v)}``: one observer's entry of an observations file."""
+        return {name: (float(d.uv[0]), float(d.uv[1])) for name, d in self.detections.items()}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"detections": {n: d.to_dict() for n, d in self.detections.items()}, "missing": list(self.missing)}
+
+
+def as_bgr(image: Any, where: str = "image") -> np.ndarray:
+    """Validate an image and return it as uint8 BGR (H, W, 3)."""
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"{where}: expected a NumPy image array, got {type(image).__name__}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim != 3 or image.shape[2] not in (3, 4) or image.shape[0] < 2 or image.shape[1] < 2:
+        raise InputError(f"{where}: expected an (H, W, 3) BGR image, got shape {image.shape}")
+    if image.shape[2] == 4:
+        image = image[:, :, :3]
+    if image.dtype != np.uint8:
+        if np.issubdtype(image.dtype, np.floating):
+            if not np.all(np.isfinite(image)):
+                raise InputError(f"{where}: image contains NaN or inf")
+            scale = 255.0 if image.max() <= 1.0 else 1.0
+            image = np.clip(image * scale + 0.5, 0, 255).astype(np.uint8)
+        elif image.dtype == np.uint16:
+            image = (image >> 8).astype(np.uint8)
+        else:
+            raise InputError(f"{where}: unsupported image dtype {image.dtype}")
+    return np.ascontiguousarray(image)
