@@ -50,23 +50,7 @@ _UNDIST_MAX_HALVINGS = 40
 @numba.njit(cache=True, fastmath=False)
 def _distort(dist, x, y):
     """Distorted normalized point of the undistorted normalized (x, y)."""
-    k1 = dist[0]
-    k2 = dist[1]
-    p1 = dist[2]
-    p2 = dist[3]
-    k3 = dist[4]
-    k4 = dist[5]
-    k5 = dist[6]
-    k6 = dist[7]
-    x2 = x * x
-    y2 = y * y
-    xy = x * y
-    r2 = x2 + y2
-    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    radial = num / den
-    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2)
-    yd = y * radial + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy
+    xd, yd, _, _, _, _, _ = _distort_jac(dist, x, y)
     return xd, yd
 
 

@@ -12,7 +12,7 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 import yaml
@@ -195,6 +195,20 @@ def key_name(key: Any) -> str | None:
     if isinstance(key, (int, np.integer)) and not isinstance(key, (bool, np.bool_)):
         return str(int(key))
     return None
+
+
+def named_items(mapping: Mapping, kind: str, where: str, error: type[Exception]) -> Iterator[tuple[str, Any]]:
+    """``(name, value)`` of a mapping keyed by robot/marker names, rejecting
+    keys that are not names and names given twice (after ``key_name``)."""
+    seen: set[str] = set()
+    for key, value in mapping.items():
+        name = key_name(key)
+        if name is None:
+            raise error(f"{where}: {kind} name must be a non-empty string, got {key!r}")
+        if name in seen:
+            raise error(f"{where}: {kind} {name!r} given twice")
+        seen.add(name)
+        yield name, value
 
 
 # ---------------------------------------------------------------------------

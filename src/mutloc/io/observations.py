@@ -14,7 +14,7 @@ from typing import Any, Mapping, Union
 import numpy as np
 
 from ..errors import ObservationError
-from ._files import PathLike, is_number, is_path, key_name, load_file, short
+from ._files import PathLike, is_number, is_path, load_file, named_items, short
 
 __all__ = ["load_observations", "Pixel", "Observations"]
 
@@ -52,23 +52,11 @@ def load_observations(source: PathLike | Mapping[str, Any]) -> Observations:
         )
 
     out: Observations = {}
-    for okey, oval in data.items():
-        observer = key_name(okey)
-        if observer is None:
-            raise ObservationError(f"{where}: observer name must be a non-empty string, got {okey!r}")
-        if observer in out:
-            raise ObservationError(f"{where}: observer {observer!r} given twice")
+    for observer, oval in named_items(data, "observer", where, ObservationError):
         w = f"{where}: observer {observer!r}"
         if isinstance(oval, Mapping):
-            seen: dict[str, Pixel] = {}
-            for mkey, pix in oval.items():
-                marker = key_name(mkey)
-                if marker is None:
-                    raise ObservationError(f"{w}: marker name must be a non-empty string, got {mkey!r}")
-                if marker in seen:
-                    raise ObservationError(f"{w}: marker {marker!r} given twice")
-                seen[marker] = _pixel(pix, f"{w}: marker {marker!r}")
-            out[observer] = seen
+            out[observer] = {marker: _pixel(pix, f"{w}: marker {marker!r}")
+                             for marker, pix in named_items(oval, "marker", w, ObservationError)}
         elif isinstance(oval, (list, tuple)) or (isinstance(oval, np.ndarray) and oval.ndim == 2):
             out[observer] = [_pixel(pix, f"{w}: point {i}") for i, pix in enumerate(oval)]
         else:

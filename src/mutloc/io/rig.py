@@ -29,8 +29,8 @@ from ._files import (
     as_float_array,
     is_number,
     is_path,
-    key_name,
     load_file,
+    named_items,
     one_line,
     parse_text,
     read_text,
@@ -138,12 +138,7 @@ def rig_from_dict(data: Any, *, where: str = "rig", base_dir: PathLike | None = 
         raise RigError(f"{where}: 'robots' is empty")
 
     robots: dict[str, Robot] = {}
-    for rkey, rspec in robots_spec.items():
-        rname = key_name(rkey)
-        if rname is None:
-            raise RigError(f"{where}: robots: robot name must be a non-empty string, got {rkey!r}")
-        if rname in robots:
-            raise RigError(f"{where}: robot {rname!r} given twice")
+    for rname, rspec in named_items(robots_spec, "robot", f"{where}: robots", RigError):
         robots[rname] = _robot(rname, rspec, where, base)
 
     try:
@@ -170,12 +165,7 @@ def _robot(name: str, spec: Any, where: str, base: Path) -> Robot:
     if not isinstance(mspec, Mapping):
         raise RigError(f"{w}: 'markers' must be a mapping of marker name to {{position, ...}}, got {short(mspec)}")
     markers: dict[str, Marker] = {}
-    for mkey, mval in mspec.items():
-        mname = key_name(mkey)
-        if mname is None:
-            raise RigError(f"{w}: markers: marker name must be a non-empty string, got {mkey!r}")
-        if mname in markers:
-            raise RigError(f"{w}: marker {mname!r} given twice")
+    for mname, mval in named_items(mspec, "marker", f"{w}: markers", RigError):
         markers[mname] = _marker(mname, name, mval, f"{w}: marker {mname!r}")
     return Robot(name=name, camera=camera, markers=markers)
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..api import localize
 from ..core.camera import Camera
-from ..core.geometry import Pose, rotation_error_deg, so3_exp
+from ..core.geometry import Pose, rotation_error_deg
 from ..io import load_observations, load_rig, save_rig, write_json
 from ..core.rig import Marker, Rig, Robot
 from .synthetic import USUAL_MARKERS, facing_pose
