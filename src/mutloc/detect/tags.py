@@ -553,9 +553,16 @@ def tag_corner_points(marker: Marker) -> np.ndarray | None:
     if rvec.shape != (3,) or not np.all(np.isfinite(rvec)):
         raise RigError(f"marker {marker.name!r}: tag rotation must be a rotation vector of 3 finite numbers "
                        f"(radians), got {rot!r}")
+    return square_corners(marker.position, size, so3_exp(rvec))
+
+
+def square_corners(centre: np.ndarray, size: float, R: np.ndarray) -> np.ndarray:
+    """Corners (4, 3) of a square tag of side ``size`` centred at ``centre``
+    whose frame (x right, y down as printed, z into the tag) has rotation R,
+    in OpenCV's order: top-left, top-right, bottom-right, bottom-left."""
     h = 0.5 * size
     local = np.array([[-h, -h, 0.0], [h, -h, 0.0], [h, h, 0.0], [-h, h, 0.0]])
-    return marker.position + local @ so3_exp(rvec).T
+    return np.asarray(centre, float) + local @ R.T
 
 
 def expand_tag_corners(rig: Rig | Mapping[str, Any] | str) -> Rig:

@@ -1,0 +1,506 @@
+"""Scene description for the built-in renderer (:mod:`mutloc.sim.render`).
+
+A :class:`World` is a room (floor, walls, ceiling with procedural textures),
+a point light plus ambient light, a sensor model, and robots.  Each robot is
+a rig :class:`~mutloc.core.rig.Robot` (camera + markers) with a world pose of
+its camera (``Pose`` camera -> world, OpenCV optical frame), constant or a
+function of time, and a simple grey body below and behind the camera.
+
+World frame: z up, the floor is the plane z = 0, metres.
+
+How each rig marker is drawn (first match wins):
+
+- ``tag: {family, id, size, rotation?}``: the printed tag, OpenCV's own
+  ``cv2.aruco.generateImageMarker`` image on a square card with a white
+  margin of :data:`TAG_MARGIN_CELLS` cells.  ``size`` is the side of the
+  black square.  Tag frame as in :mod:`mutloc.detect.tags` (the AprilTag
+  library's): x right and y down as printed, z into the tag;
+  ``X_robot = expm([rotation]x) @ X_tag + position``.  Default rotation
+  :data:`DEFAULT_TAG_ROTATION` (pi about y): the tag faces forward (robot +z),
+  upright for an upright camera in front of the robot.
+- ``cylinder: {radius, height, code: [bits]}`` (in ``Marker.extra``): a
+  vertical cylinder (axis along the robot's y) centred on ``position``,
+  wrapped in ``len(code)`` equal rings; ``code[0]`` is the *top* ring
+  (robot -y side), bit 1 = dark, 0 = light.  Caps are mid grey.
+- ``blink_hz``: an emissive sphere (radius ``extra['radius']``, default
+  :data:`DEFAULT_LIGHT_RADIUS`) of ``color`` (default white), on during the
+  first half of each period: on iff ``frac(blink_hz * t + phase) < 0.5`` with
+  ``phase = extra.get('phase', 0)`` in cycles (see :func:`light_is_on`).
+- otherwise a matte ball of ``color`` (default light grey), radius
+  ``extra['radius']`` or :data:`DEFAULT_BALL_RADIUS`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..core.camera import Camera
+from ..core.geometry import Pose, so3_exp
+from ..core.rig import Marker, Rig, Robot
+from ..errors import InputError, ObservationError, RigError
+from ..detect.tags import aruco_dictionary, canonical_family, square_corners
+
+__all__ = [
+    "DEFAULT_BALL_RADIUS",
+    "DEFAULT_LIGHT_RADIUS",
+    "DEFAULT_TAG_ROTATION",
+    "LIGHT_EMISSION",
+    "MARKER_KINDS",
+    "TAG_MARGIN_CELLS",
+    "Light",
+    "PoseLike",
+    "Room",
+    "Sensor",
+    "World",
+    "WorldRobot",
+    "aruco_dictionary",
+    "ball_radius",
+    "camera_to_world_facing",
+    "cylinder_spec",
+    "light_is_on",
+    "marker_kind",
+    "room_textures",
+    "standard_rig",
+    "tag_corners",
+    "tag_image",
+    "tag_spec",
+]
+
+DEFAULT_BALL_RADIUS = 0.03
+DEFAULT_LIGHT_RADIUS = 0.02
+# Linear radiance of a lit LED's brightest channel: > 1 so its core saturates
+# and the bloom halo is visible, like a real LED at normal exposure.
+LIGHT_EMISSION = 4.0
+# White quiet zone around the black square of a printed tag, in tag cells.
+TAG_MARGIN_CELLS = 1
+DEFAULT_TAG_ROTATION = (0.0, math.pi, 0.0)
+# Albedo (sRGB 0-255) of tag cells: real paper and ink are neither 0 nor 1.
+_TAG_BLACK, _TAG_WHITE = 20, 235
+
+PoseLike = Pose | Callable[[float], Pose]
+
+
+# ---------------------------------------------------------------------------
+# markers
+# ---------------------------------------------------------------------------
+
+
+def marker_kind(marker: Marker) -> str:
+    """How ``marker`` is drawn: ``"tag"``, ``"cylinder"``, ``"light"`` or ``"ball"``."""
+    if marker.tag is not None:
+        return "tag"
+    if marker.extra.get("cylinder") is not None:
+        return "cylinder"
+    if marker.blink_hz is not None:
+        return "light"
+    return "ball"
+
+
+def _positive(value: Any, what: str, marker: Marker) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(float(value)) and float(value) > 0):
+        raise RigError(f"marker {marker.name!r}: {what} must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+def ball_radius(marker: Marker) -> float:
+    """Sphere radius (m) of a ball or light marker (``extra['radius']`` or the default)."""
+    default = DEFAULT_LIGHT_RADIUS if marker_kind(marker) == "light" else DEFAULT_BALL_RADIUS
+    r = marker.extra.get("radius")
+    return default if r is None else _positive(r, "radius", marker)
+
+
+def _phase(marker: Marker) -> float:
+    ph = marker.extra.get("phase", 0.0)
+    if isinstance(ph, bool) or not isinstance(ph, (int, float, np.integer, np.floating)) or not math.isfinite(ph):
+        raise RigError(f"marker {marker.name!r}: phase must be a finite number (cycles), got {ph!r}")
+    return float(ph)
+
+
+def light_is_on(marker: Marker, t: float) -> bool:
+    """State of a blinking light at time ``t`` (s): a 50 % duty square wave.
+
+    On iff ``frac(blink_hz * t + phase) < 0.5``, ``phase`` in cycles.  A tiny
+    tolerance makes frame times such as ``k / fps`` that land exactly on a
+    switching instant come out the same despite round-off.
+    """
+    if marker.blink_hz is None:
+        return True
+    x = marker.blink_hz * float(t) + _phase(marker)
+    return ((x + 1e-9) % 1.0) < 0.5
+
+
+def tag_spec(marker: Marker) -> tuple[str, int, float, np.ndarray]:
+    """``(family, id, size, R_robot_tag)`` of a tag marker, validated (RigError)."""
+    tag = marker.tag
+    w = f"marker {marker.name!r}: tag"
+    if not isinstance(tag, Mapping):
+        raise RigError(f"{w} must be a mapping {{family, id, size}}")
+    try:
+        family = canonical_family(tag.get("family"))
+    except RigError as exc:
+        raise RigError(f"{w}: {exc}") from None
+    tid = tag.get("id")
+    n_ids = int(aruco_dictionary(family).bytesList.shape[0])
+    if isinstance(tid, bool) or not isinstance(tid, (int, np.integer)) or not 0 <= tid < n_ids:
+        raise RigError(f"{w}: id must be an integer in 0..{n_ids - 1} for {family}, got {tid!r}")
+    size = _positive(tag.get("size"), "tag size", marker)
+    rot = tag.get("rotation", DEFAULT_TAG_ROTATION)
+    try:
+        rvec = np.asarray(rot, dtype=float)
+    except (TypeError, ValueError):
+        rvec = np.empty(0)
+    if rvec.shape != (3,) or not np.all(np.isfinite(rvec)):
+        raise RigError(f"{w}: rotation must be a rotation vector of 3 finite numbers (radians), got {rot!r}")
+    return family, int(tid), size, so3_exp(rvec)
+
+
+@functools.lru_cache(maxsize=256)
+def tag_image(family: str, tag_id: int) -> np.ndarray:
+    """The tag as printed, one pixel per cell, uint8 (n, n), white margin included."""
+    d = aruco_dictionary(family)
+    cells = int(d.markerSize) + 2
+    img = cv2.aruco.generateImageMarker(d, int(tag_id), cells, borderBits=1)
+    img = np.where(img > 127, _TAG_WHITE, _TAG_BLACK).astype(np.uint8)
+    m = TAG_MARGIN_CELLS
+    out = np.pad(img, m, constant_values=_TAG_WHITE)
+    out.flags.writeable = False
+    return out
+
+
+def tag_corners(marker: Marker) -> np.ndarray:
+    """Corners (4, 3) of the black square in the robot frame, OpenCV order
+    (top-left, top-right, bottom-right, bottom-left as printed)."""
+    _, _, size, R = tag_spec(marker)
+    return square_corners(marker.position, size, R)
+
+
+def cylinder_spec(marker: Marker) -> tuple[float, float, np.ndarray]:
+    """``(radius, height, code)`` of a banded-cylinder marker, validated (RigError)."""
+    spec = marker.extra.get("cylinder")
+    w = f"marker {marker.name!r}: cylinder"
+    if not isinstance(spec, Mapping):
+        raise RigError(f"{w} must be a mapping {{radius, height, code}}, got {spec!r}")
+    for key in ("radius", "height", "code"):
+        if key not in spec:
+            raise RigError(f"{w}: missing key {key!r}")
+    radius = _positive(spec["radius"], "cylinder radius", marker)
+    height = _positive(spec["height"], "cylinder height", marker)
+    code = spec["code"]
+    if not isinstance(code, (list, tuple)) or not code or not all(
+            not isinstance(b, bool) and b in (0, 1) for b in code) or len(code) > 64:
+        raise RigError(f"{w}: code must be a list of 1 to 64 bits (0 or 1), got {code!r}")
+    return radius, height, np.asarray(code, dtype=np.int64)
+
+
+# ---------------------------------------------------------------------------
+# light, sensor, room
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Light:
+    """A white point light (no shadows) plus uniform ambient light.
+
+    Radiance of a matte surface = albedo * (ambient + intensity * max(0, n.l)).
+    ``position`` is in the world frame; None puts it near the ceiling above
+    the robots.
+    """
+
+    position: tuple[float, float, float] | None = None
+    intensity: float = 0.75
+    ambient: float = 0.35
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Camera response: ``DN = 255 * srgb(clip(gain * exposure * radiance)) + N(0, gain * noise_sigma)``.
+
+    ``blur_angle_deg`` is the direction of :func:`~mutloc.sim.render.render`'s
+    linear motion blur in the image (0 = along +u); ``bloom_sigma_px`` and
+    ``bloom_strength`` shape the glow around lit lights.
+    """
+
+    exposure: float = 1.0
+    gain: float = 1.0
+    blur_angle_deg: float = 0.0
+    bloom_sigma_px: float = 4.0
+    bloom_strength: float = 0.6
+
+
+@dataclass(frozen=True)
+class Room:
+    """An axis-aligned box room: floor at z = 0, walls, ceiling at ``height``.
+
+    ``center``/``size`` are the floor's centre and extent (x, y) in metres;
+    ``seed`` drives the procedural textures; ``texel`` is their resolution (m).
+    """
+
+    center: tuple[float, float] = (0.0, 0.0)
+    size: tuple[float, float] = (8.0, 8.0)
+    height: float = 2.6
+    seed: int = 0
+    texel: float = 0.005
+
+    def surfaces(self) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, float, float]]:
+        """``(name, centre, u, v, half_u, half_v)`` of each inner surface.
+
+        ``u`` is "right" and ``v`` "up" for a viewer inside the room facing the
+        surface, so textures (text on posters) read the right way round; the
+        inward normal is ``u x v``.
+        """
+        cx, cy = map(float, self.center)
+        sx, sy = (0.5 * float(s) for s in self.size)
+        H = float(self.height)
+        X, Y, Z = np.eye(3)
+        return [
+            ("floor", np.array([cx, cy, 0.0]), X, Y, sx, sy),
+            ("ceiling", np.array([cx, cy, H]), X, -Y, sx, sy),
+            ("wall_xp", np.array([cx + sx, cy, H / 2]), -Y, Z, sy, H / 2),
+            ("wall_xn", np.array([cx - sx, cy, H / 2]), Y, Z, sy, H / 2),
+            ("wall_yp", np.array([cx, cy + sy, H / 2]), X, Z, sx, H / 2),
+            ("wall_yn", np.array([cx, cy - sy, H / 2]), -X, Z, sx, H / 2),
+        ]
+
+
+def _noise(rng: np.random.Generator, h: int, w: int, cells: float, texel: float) -> np.ndarray:
+    """Smooth value noise (float32, ~unit std) with features ``cells`` metres across."""
+    gh = max(2, int(round(h * texel / cells)) + 1)
+    gw = max(2, int(round(w * texel / cells)) + 1)
+    g = rng.standard_normal((gh, gw)).astype(np.float32)
+    return cv2.resize(g, (w, h), interpolation=cv2.INTER_CUBIC)
+
+
+def _random_text(rng: np.random.Generator, n: int) -> str:
+    letters = "ABCDEFGHJKLMNPRSTUVWXYZ0123456789"
+    return "".join(letters[i] for i in rng.integers(0, len(letters), n))
+
+
+def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator) -> np.ndarray:
+    """sRGB uint8 (h, w, 3) BGR texture of one room surface (row 0 = top / far +v side)."""
+    px = lambda metres: max(1, int(round(metres / texel)))
+    if name == "floor":
+        # Tiles in two tones with dark grout, mottled, with speckles: plenty of
+        # corners and blobs for feature matching, no exact repetition.
+        base = np.array([118, 128, 140], np.float32)
+        img = np.empty((h, w, 3), np.float32)
+        img[:] = base
+        tile = px(0.5)
+        yy, xx = np.mgrid[0:h, 0:w]
+        checker = ((yy // tile + xx // tile) % 2).astype(np.float32)
+        img += (checker * 28.0 - 14.0)[..., None]
+        img += (12.0 * _noise(rng, h, w, 0.6, texel) + 7.0 * _noise(rng, h, w, 0.08, texel))[..., None]
+        img = np.clip(img, 0, 255).astype(np.uint8)
+        grout = max(1, px(0.008))
+        for x in range(0, w, tile):
+            img[:, x:x + grout] = (60, 62, 66)
+        for y in range(0, h, tile):
+            img[y:y + grout, :] = (60, 62, 66)
+        n = int(w * h * texel * texel * 25)
+        for _ in range(n):
+            c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+            shade = int(rng.choice([rng.integers(25, 70), rng.integers(180, 240)]))
+            cv2.circle(img, c, px(rng.uniform(0.006, 0.025)), (shade, shade, shade), -1, cv2.LINE_AA)
+        return img
+    if name == "ceiling":
+        img = np.full((h, w, 3), 205, np.float32)
+        img += (6.0 * _noise(rng, h, w, 0.3, texel))[..., None]
+        img = np.clip(img, 0, 255).astype(np.uint8)
+        panel = px(0.6)
+        for x in range(0, w, panel):
+            img[:, x:x + 2] = 150
+        for y in range(0, h, panel):
+            img[y:y + 2, :] = 150
+        return img
+    # Walls: a pastel base, mottled, with posters of shapes and random text.
+    hue = rng.uniform(0, 180)
+    base = cv2.cvtColor(np.array([[[hue, rng.uniform(25, 60), rng.uniform(170, 215)]]], np.uint8),
+                        cv2.COLOR_HSV2BGR)[0, 0].astype(np.float32)
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = base
+    img += (10.0 * _noise(rng, h, w, 0.5, texel) + 4.0 * _noise(rng, h, w, 0.05, texel))[..., None]
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    # A skirting board along the floor.
+    img[h - px(0.1):, :] = (70, 80, 90)
+    n_posters = max(3, int(w * texel * 2.2))
+    for _ in range(n_posters):
+        pw, ph = px(rng.uniform(0.25, 0.9)), px(rng.uniform(0.25, 0.9))
+        x0 = int(rng.integers(0, max(1, w - pw)))
+        y0 = int(rng.integers(px(0.35), max(px(0.36), h - ph - px(0.4))))
+        col = tuple(int(c) for c in rng.integers(30, 240, 3))
+        cv2.rectangle(img, (x0, y0), (x0 + pw, y0 + ph), col, -1)
+        for _ in range(int(rng.integers(3, 9))):
+            kind = int(rng.integers(0, 3))
+            c2 = tuple(int(c) for c in rng.integers(0, 256, 3))
+            cx, cy = x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))
+            if kind == 0:
+                cv2.circle(img, (cx, cy), int(rng.integers(3, max(4, min(pw, ph) // 4))), c2, -1, cv2.LINE_AA)
+            elif kind == 1:
+                cv2.rectangle(img, (cx, cy), (cx + int(rng.integers(4, max(5, pw // 3))),
+                                              cy + int(rng.integers(4, max(5, ph // 3)))), c2, -1)
+            else:
+                cv2.line(img, (cx, cy), (x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))), c2,
+                         int(rng.integers(1, 5)), cv2.LINE_AA)
+        scale = max(0.3, ph / 160.0)
+        cv2.putText(img, _random_text(rng, int(rng.integers(3, 7))), (x0 + 4, y0 + ph - 6),
+                    cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), max(1, int(scale * 2)), cv2.LINE_AA)
+    return img
+
+
+def room_textures(room: Room) -> dict[str, np.ndarray]:
+    """sRGB BGR uint8 texture of each surface of ``room`` (deterministic in ``room.seed``).
+
+    Texel (i, j) covers ``u`` in ``[-half_u + j*texel, ...)`` and ``v`` from the
+    top (``+half_v``) down.  Cached on (size, height, seed, texel): rooms that
+    differ only in where they stand share their textures.
+    """
+    return _room_textures(tuple(map(float, room.size)), float(room.height), int(room.seed), float(room.texel))
+
+
+@functools.lru_cache(maxsize=4)
+def _room_textures(size: tuple[float, float], height: float, seed: int, texel: float) -> dict[str, np.ndarray]:
+    room = Room(size=size, height=height, seed=seed, texel=texel)
+    out = {}
+    for k, (name, _c, _u, _v, hu, hv) in enumerate(room.surfaces()):
+        rng = np.random.default_rng([seed & 0xFFFFFFFF, 7919, k])
+        w = max(2, int(math.ceil(2 * hu / texel)))
+        h = max(2, int(math.ceil(2 * hv / texel)))
+        tex = _texture(name, w, h, texel, rng)
+        tex.flags.writeable = False
+        out[name] = tex
+    return out
+
+
+# ---------------------------------------------------------------------------
+# robots and the world
+# ---------------------------------------------------------------------------
+
+
+def camera_to_world_facing(position: Any, yaw: float = 0.0, pitch: float = 0.0) -> Pose:
+    """Camera -> world pose of an upright camera at ``position`` (world, z up).
+
+    ``yaw`` (radians, about world z) 0 looks along world +x; ``pitch`` > 0
+    looks up.
+    """
+    # Columns: the camera's x (right), y (down), z (forward) in the world.
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    fwd = np.array([cy * cp, sy * cp, sp])
+    right = np.array([sy, -cy, 0.0])
+    down = np.cross(fwd, right)
+    return Pose(np.column_stack([right, down, fwd]), np.asarray(position, dtype=float))
+
+
+@dataclass
+class WorldRobot:
+    """A robot in the world: rig robot + camera->world pose (constant or ``pose(t)``)."""
+
+    robot: Robot
+    pose: PoseLike
+    body: bool = True
+    body_color: tuple[int, int, int] = (128, 128, 128)
+
+    @property
+    def name(self) -> str:
+        return self.robot.name
+
+    def pose_at(self, t: float = 0.0) -> Pose:
+        """Camera -> world pose at time ``t``."""
+        p = self.pose(float(t)) if callable(self.pose) else self.pose
+        if not isinstance(p, Pose):
+            raise InputError(f"robot {self.name!r}: pose must be a Pose (or return one), got {type(p).__name__}")
+        return p
+
+
+@dataclass
+class World:
+    """Robots in a room, lit, seen through a sensor model.  See the module docstring."""
+
+    robots: dict[str, WorldRobot]
+    room: Room | None = None
+    light: Light = field(default_factory=Light)
+    sensor: Sensor = field(default_factory=Sensor)
+    background: tuple[int, int, int] = (0, 0, 0)  # sRGB of rays that hit nothing
+
+    def robot(self, name: str) -> WorldRobot:
+        try:
+            return self.robots[name]
+        except KeyError:
+            raise ObservationError(f"unknown robot {name!r} (world has {sorted(self.robots)})") from None
+
+    def camera(self, name: str) -> Camera:
+        return self.robot(name).robot.camera
+
+    def pose(self, name: str, t: float = 0.0) -> Pose:
+        """Camera -> world pose of robot ``name`` at time ``t``."""
+        return self.robot(name).pose_at(t)
+
+    def light_position(self) -> np.ndarray:
+        """World position of the point light (default: near the ceiling above the robots at t = 0)."""
+        if self.light.position is not None:
+            return np.asarray(self.light.position, dtype=float)
+        # From the poses at t = 0 only, so the light does not move with the robots.
+        c = np.mean([self.pose(n, 0.0).t for n in self.robots], axis=0)
+        top = self.room.height - 0.2 if self.room is not None else 2.4
+        # Off to one side so spheres show a clear terminator, as under real lamps.
+        return np.array([c[0] + 0.7, c[1] - 0.9, top])
+
+
+# ---------------------------------------------------------------------------
+# the standard simulation rig
+# ---------------------------------------------------------------------------
+
+MARKER_KINDS = ("balls", "lights", "tags", "cylinders")
+
+# Marker layout of the standard rig (as mutloc.sim.synthetic.USUAL_MARKERS):
+# left and right of the camera, a little above and behind it.
+_STANDARD_LAYOUT = {"q": {"M1": (-0.15, -0.05, -0.03), "M2": (0.15, -0.05, -0.03)},
+                    "p": {"M3": (-0.15, -0.05, -0.03), "M4": (0.15, -0.05, -0.03)}}
+_STANDARD_COLORS = {"M1": (0, 0, 255), "M2": (255, 255, 0), "M3": (255, 0, 0), "M4": (0, 255, 0)}
+_STANDARD_BLINK = {"M1": 2.0, "M2": 3.0, "M3": 5.0, "M4": 7.5}
+_STANDARD_TAG_IDS = {"M1": 0, "M2": 1, "M3": 2, "M4": 3}
+# Framed by dark bands at both ends so the code's extent is visible on any background.
+_STANDARD_CODES = {"M1": [1, 0, 1, 0, 0, 1], "M2": [1, 1, 0, 1, 0, 1], "M3": [1, 0, 0, 1, 1, 1],
+                   "M4": [1, 1, 1, 0, 0, 1]}
+
+
+def standard_rig(markers: str = "balls", *, size: tuple[int, int] = (960, 540), f: float = 800.0,
+                 k1: float = 0.0) -> Rig:
+    """The rig ``mutloc simulate`` uses: robots ``p`` (M3, M4) and ``q`` (M1, M2).
+
+    Identical cameras (focal ``f`` px, centred principal point, radial ``k1``)
+    and two markers per robot of kind ``markers`` (:data:`MARKER_KINDS`).
+    """
+    if markers not in MARKER_KINDS:
+        raise InputError(f"unknown marker kind {markers!r} (one of {', '.join(MARKER_KINDS)})")
+    w, h = int(size[0]), int(size[1])
+    K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    cam = Camera(K, [k1, 0.0, 0.0, 0.0, 0.0], (w, h))
+    robots = {}
+    for rname in ("p", "q"):
+        ms = {}
+        for mname, pos in _STANDARD_LAYOUT[rname].items():
+            kw: dict[str, Any] = {}
+            extra: dict[str, Any] = {}
+            if markers == "balls":
+                kw["color"] = _STANDARD_COLORS[mname]
+                extra["radius"] = DEFAULT_BALL_RADIUS
+            elif markers == "lights":
+                kw["color"] = _STANDARD_COLORS[mname]
+                kw["blink_hz"] = _STANDARD_BLINK[mname]
+                extra["radius"] = DEFAULT_LIGHT_RADIUS
+            elif markers == "tags":
+                kw["tag"] = {"family": "tag36h11", "id": _STANDARD_TAG_IDS[mname], "size": 0.1,
+                             "rotation": list(DEFAULT_TAG_ROTATION)}
+            else:
+                extra["cylinder"] = {"radius": 0.03, "height": 0.12, "code": list(_STANDARD_CODES[mname])}
+            ms[mname] = Marker(mname, rname, np.array(pos, dtype=float), extra=extra, **kw)
+        robots[rname] = Robot(rname, cam, ms)
+    return Rig(robots)
