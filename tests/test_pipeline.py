@@ -135,3 +135,34 @@ def test_track_reports_bad_frames_and_keeps_the_rest(tmp_path):
     status = [r.status for r in traj.rows]
     assert status[2].startswith("corrupt") and "too few markers" in status[3]
     assert [r.estimate is not None for r in traj.rows] == [True, True, False, False, True]
+
+
+def test_localize_images_with_banded_cylinders():
+    """Cylinder band centres (NAME#bK) flow through the pipeline as markers."""
+    rig = standard_rig("cylinders")
+    T = facing_pose(3.0, np.radians(3), np.radians(-2), 0.1)
+    world = two_robot_world(rig, T, seed=1)
+    imgs = {r: render(world, r, seed=1) for r in ("p", "q")}
+    res = localize_images(rig, imgs)
+    truth = relative_pose(world, "p", "q")
+    assert any("#b" in n for n in res.estimate.markers_used)
+    assert np.linalg.norm(res.estimate.t - truth.t) < 0.03
+    assert rotation_error_deg(res.estimate.R, truth.R) < 1.0
+
+
+def test_oriented_tags_add_their_corners():
+    rig = standard_rig("tags")
+    from mutloc.io import load_rig
+
+    d = rig.to_dict()
+    for robot in d["robots"].values():
+        for m in robot["markers"].values():
+            m["tag"]["rotation"] = [0.0, float(np.pi), 0.0]
+    rig = load_rig(d)
+    T = facing_pose(2.0, np.radians(5), np.radians(-3), 0.1)
+    world = two_robot_world(rig, T, seed=2)
+    imgs = {r: render(world, r, seed=2, noise_sigma=1.0) for r in ("p", "q")}
+    res = localize_images(rig, imgs)
+    truth = relative_pose(world, "p", "q")
+    assert sum("#" in n for n in res.estimate.markers_used) >= 8
+    assert np.linalg.norm(res.estimate.t - truth.t) < 0.005

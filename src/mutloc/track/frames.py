@@ -12,10 +12,10 @@ import numpy as np
 
 from ..api import Estimate, load_rig, localize
 from ..core.rig import Marker, Rig
-from ..detect.base import DetectionResult, as_bgr
+from ..detect.base import Detection, DetectionResult, as_bgr
 from ..errors import FileFormatError, InputError, ObservationError
 
-__all__ = ["FrameResult", "read_image", "detect_markers", "localize_images"]
+__all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images"]
 
 
 @dataclass
@@ -59,21 +59,50 @@ def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str
     markers: dict[str, Marker] = {}
     for r in others:
         markers.update(rig.robot(r).markers)
+    # Derived point markers (tag corners, cylinder bands) are found through
+    # their parent marker, not on their own.
+    markers = {n: m for n, m in markers.items() if "tag_of" not in m.extra and "cylinder_of" not in m.extra}
     balls = {n: m for n, m in markers.items() if m.color is not None and m.tag is None}
     tags = {n: m for n, m in markers.items() if m.tag is not None}
+    cylinders = {n: m for n, m in markers.items() if "cylinder" in m.extra}
     result = DetectionResult()
     if balls:
         from ..detect.balls import detect_balls
 
         _merge(result, detect_balls(image, balls, camera=camera))
     if tags:
-        from ..detect.tags import detect_tags
+        from ..detect.tags import corner_marker_names, detect_tags, tag_corner_points
 
-        _merge(result, detect_tags(image, tags))
-    handled = set(balls) | set(tags)
+        found = detect_tags(image, tags, camera=camera)
+        # An oriented tag's corners are markers of their own (NAME#0..3).
+        for name, det in list(found.detections.items()):
+            if det.corners is not None and tag_corner_points(tags[name]) is not None:
+                for cname, uv in zip(corner_marker_names(name), det.corners):
+                    found.detections[cname] = Detection(cname, np.asarray(uv, float), det.score)
+        _merge(result, found)
+    if cylinders:
+        from ..detect.cylinders import detect_cylinders
+
+        _merge(result, detect_cylinders(image, cylinders, camera=camera))
+    handled = set(balls) | set(tags) | set(cylinders)
     # Blinking lights need a sequence: a single image cannot show them.
     result.missing.extend(n for n in markers if n not in handled and n not in result.missing)
     return result
+
+
+def expanded_rig(rig: Rig) -> Rig:
+    """The rig with oriented tags' corners and cylinders' bands as markers,
+    so every point a detector reports has a known position."""
+    markers = [m for r in rig.robots.values() for m in r.markers.values()]
+    if any(m.tag is not None and isinstance(m.tag, Mapping) and "rotation" in m.tag for m in markers):
+        from ..detect.tags import expand_tag_corners
+
+        rig = expand_tag_corners(rig)
+    if any("cylinder" in m.extra for m in markers):
+        from ..detect.cylinders import expand_cylinder_bands
+
+        rig = expand_cylinder_bands(rig)
+    return rig
 
 
 def _merge(into: DetectionResult, other: DetectionResult) -> None:
@@ -85,7 +114,7 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
                     pixel_sigma: float = 1.0) -> FrameResult:
     """Detect the markers in one image per robot (arrays or file paths) and
     localize ``source`` in ``target``'s frame."""
-    rig = load_rig(rig)
+    rig = expanded_rig(load_rig(rig))
     source, target = rig.default_pair(source, target)
     for robot in images:
         rig.robot(robot)

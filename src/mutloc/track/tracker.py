@@ -22,7 +22,7 @@ from ..core.geometry import quaternion_xyzw_from_matrix
 from ..core.rig import Rig
 from ..detect.base import DetectionResult
 from ..errors import MutlocError, ObservationError
-from .frames import detect_markers
+from .frames import detect_markers, expanded_rig
 from .sources import Frame
 
 __all__ = ["TrackRow", "Trajectory", "pair_streams", "track"]
@@ -145,7 +145,7 @@ def track(rig: Any, streams: Mapping[str, Iterator[Frame]], source: str | None =
           tolerance: float = 0.005, pixel_sigma: float = 1.0, fps: float | None = None,
           annotate: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``)."""
-    rig = load_rig(rig)
+    rig = expanded_rig(load_rig(rig))
     source, target = rig.default_pair(source, target)
     for robot in streams:
         rig.robot(robot)
