@@ -80,11 +80,16 @@ def _sequence(kind, n, fps, seed=0):
     return rig, frames, truth
 
 
-def test_track_blinking_lights_in_memory():
+def test_track_blinking_lights_in_memory(tmp_path):
     fps = 30.0
-    rig, frames, truth = _sequence("lights", 75, fps)
-    traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False)
-    assert len(traj.rows) == 75
+    n = 54
+    rig, frames, truth = _sequence("lights", n, fps)
+    video = tmp_path / "annotated.mp4"
+    traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False, annotate=video)
+    assert len(traj.rows) == n
+    cap = cv2.VideoCapture(str(video))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == n and int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * 960
+    cap.release()
     late = [(row, truth[i]) for i, row in enumerate(traj.rows) if row.t >= 1.0]
     solved = [(r, T) for r, T in late if r.estimate is not None]
     # After the first second the lights are identified and the pose is tracked.

@@ -8,6 +8,15 @@ for free: a critical point where ``|p|`` is at rounding level is a double root
 that rounding has pushed into the complex plane.  Those are reported too, so a
 caller can polish them against the original (multivariate) system instead of
 silently losing a solution.
+
+The derivative chain solves for the roots of every derivative, about 20
+bracketed solves for degree 8.  When only the positive roots are wanted
+(:func:`positive_roots_ws`, the minimal solver's case) a faster path comes
+first: Laguerre's method from above the roots, deflating each one, stops as
+soon as the quotient has only positive coefficients, which *certifies* that
+no positive root and no complex pair near the positive axis (a merged double
+root) is left.  Whenever that certificate is not reached the derivative
+chain runs instead, so the fast path changes the speed, not the contract.
 """
 
 from __future__ import annotations
@@ -15,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["real_roots", "real_roots_py"]
+__all__ = ["positive_roots_ws", "real_roots", "real_roots_py"]
 
 MAX_DEG = 8
 
@@ -190,6 +199,157 @@ def real_roots_ws(c, lo, hi, roots, near_tol, rtol, crit_rtol, work):
             crit[i] = cur[i]
         ncrit = nroot
     return 0, 0
+
+
+@njit(cache=True, inline="always")
+def _eval012(q, x):
+    """p(x), p'(x) and p''(x)/2 of a polynomial of degree <= 8 stored in
+    q[0..8] (zero-padded), by Estrin's scheme.
+
+    Horner's rule is one long chain of dependent multiply-adds; Estrin's
+    pairing halves its depth, which is what limits a Laguerre step (the
+    three evaluations then run side by side).  The rounding error is of the
+    same order.
+    """
+    x2 = x * x
+    x4 = x2 * x2
+    p = ((q[0] + q[1] * x) + x2 * (q[2] + q[3] * x)) + x4 * (
+        ((q[4] + q[5] * x) + x2 * (q[6] + q[7] * x)) + x4 * q[8]
+    )
+    dp = ((q[1] + 2.0 * q[2] * x) + x2 * (3.0 * q[3] + 4.0 * q[4] * x)) + x4 * (
+        (5.0 * q[5] + 6.0 * q[6] * x) + x2 * (7.0 * q[7] + 8.0 * q[8] * x)
+    )
+    hp = ((q[2] + 3.0 * q[3] * x) + x2 * (6.0 * q[4] + 10.0 * q[5] * x)) + x4 * (
+        (15.0 * q[6] + 21.0 * q[7] * x) + x2 * (28.0 * q[8])
+    )
+    return p, dp, hp
+
+
+@njit(cache=True)
+def _laguerre(q, m, x, rtol, max_iter):
+    """A root of the monic ``q`` (degree m, stored zero-padded in q[0..8]) by
+    Laguerre's method from x.
+
+    For a polynomial with only real roots Laguerre's method converges
+    monotonically (and cubically) to the nearest root on the side the step
+    points to, from any start; above the largest root that is the largest
+    root.  With complex roots nothing is promised, so the caller checks the
+    result.  Returns NaN if the iteration does not settle in max_iter.
+    """
+    for _ in range(max_iter):
+        f, df, d2 = _eval012(q, x)
+        if f == 0.0:
+            return x
+        # Laguerre's step  m q / (q' +- sqrt((m-1) ((m-1) q'^2 - m q q''))),
+        # written without dividing by q.  A negative radicand means complex
+        # roots nearby: it is clamped (a Newton-like step m q / q').
+        disc = (m - 1) * ((m - 1) * df * df - 2.0 * m * f * d2)
+        sq = np.sqrt(disc) if disc > 0.0 else 0.0
+        den = df + sq if df >= 0.0 else df - sq
+        if den == 0.0:
+            return np.nan
+        dx = m * f / den
+        x -= dx
+        if abs(dx) <= rtol * abs(x):
+            return x
+    return np.nan
+
+
+@njit(cache=True)
+def _positive_roots_certified(c, n, lo, hi, roots, q, rtol):
+    """Fast path of :func:`positive_roots_ws`: the real roots of ``c``
+    (degree n <= 8) in (lo, hi), lo >= 0, or -1 when they cannot be
+    certified complete.
+
+    Roots are found from the top down by Laguerre's method, each one
+    deflated out of the monic polynomial.  The search stops as soon as the
+    quotient has only positive coefficients: such a polynomial has no root
+    in the sector |arg z| < pi / degree (there every term points into the
+    open upper half plane), so neither a positive root nor a complex pair
+    close to the positive axis, which is what a numerically merged double
+    root looks like, can hide in it.  The argument needs only that every
+    deflated value is a root (checked by the remainder of its deflation),
+    not that Laguerre found them in order; any doubt returns -1 and the
+    caller uses the derivative chain instead.
+    """
+    inv = 1.0 / c[n]
+    for i in range(9):
+        q[i] = c[i] * inv if i <= n else 0.0
+    # Start at Laguerre's limit from +infinity: the mean of the roots plus
+    # sqrt(n - 1) times their spread (an upper bound when all are real).
+    mu = -q[n - 1] / n
+    var = (q[n - 1] * q[n - 1] - 2.0 * q[n - 2]) / n - mu * mu
+    x = mu + np.sqrt(max(var, 0.0) * (n - 1))
+    x += 1e-9 * abs(x)
+    nr = 0
+    m = n
+    while True:
+        certified = True
+        for i in range(m):
+            if not q[i] > 0.0:
+                certified = False
+                break
+        if certified:
+            return nr
+        x = _laguerre(q, m, x, rtol, 40)
+        if not np.isfinite(x):
+            return -1
+        # Deflate by x (in place, synthetic division).  The remainder is
+        # q(x), which must be at rounding level of its terms for x to be a
+        # root.
+        ax = abs(x)
+        b = q[m]
+        scale = 1.0
+        for i in range(m - 1, -1, -1):
+            t = q[i]
+            q[i] = b
+            b = t + x * b
+            scale = scale * ax + abs(t)
+        if not abs(b) <= 1e-10 * scale:
+            return -1
+        q[m] = 0.0
+        m -= 1
+        if lo < x < hi:
+            if nr >= roots.shape[0]:
+                return -1
+            # Keep the roots increasing (insertion; at most eight).
+            j = nr
+            while j > 0 and roots[j - 1] > x:
+                roots[j] = roots[j - 1]
+                j -= 1
+            roots[j] = x
+            nr += 1
+        if m == 0:
+            return nr
+
+
+@njit(cache=True)
+def positive_roots_ws(c, lo, hi, roots, near_tol, rtol, crit_rtol, work):
+    """Same contract as :func:`real_roots_ws` for ``lo >= 0`` and degree
+    <= 8, usually several times faster.
+
+    Tries :func:`_positive_roots_certified` (Laguerre plus deflation, three
+    to six iterations per root) and falls back to the derivative chain
+    whenever its result is not certified complete.  The fast path reports
+    no merged double roots (``n_near == 0``): it only succeeds when there
+    are none near the positive axis.  ``work`` as for :func:`real_roots_ws`
+    (at least 9 floats).
+    """
+    n = c.shape[0] - 1
+    cmax = 0.0
+    for i in range(n + 1):
+        if not np.isfinite(c[i]):
+            return 0, 0
+        cmax = max(cmax, abs(c[i]))
+    if cmax == 0.0:
+        return 0, 0
+    while n > 0 and abs(c[n]) <= 1e-15 * cmax:
+        n -= 1
+    if 2 <= n <= MAX_DEG and lo >= 0.0:
+        nr = _positive_roots_certified(c, n, lo, hi, roots, work, rtol)
+        if nr >= 0:
+            return nr, 0
+    return real_roots_ws(c, lo, hi, roots, near_tol, rtol, crit_rtol, work)
 
 
 def real_roots_py(coeffs_ascending, lo: float = -np.inf, hi: float = np.inf, near_tol: float = 0.0) -> np.ndarray:
