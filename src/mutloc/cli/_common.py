@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["positive_float", "nonnegative_float", "output_path"]
+__all__ = ["positive_float", "nonnegative_float", "output_path", "robot_value"]
 
 
 def positive_float(text: str) -> float:
@@ -33,3 +33,11 @@ def nonnegative_float(text: str) -> float:
 def output_path(text: str | None) -> str | None:
     """``None`` for stdout (no option or ``-``), else the path."""
     return None if text in (None, "-") else text
+
+
+def robot_value(text: str) -> tuple[str, str]:
+    """argparse type: ``ROBOT=VALUE`` (an image path, a stream, a topic)."""
+    robot, sep, value = text.partition("=")
+    if not sep or not robot or not value:
+        raise argparse.ArgumentTypeError(f"expected ROBOT=VALUE, got {text!r}")
+    return robot, value

@@ -4,16 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import output_path, positive_float
+from ._common import output_path, positive_float, robot_value
 
 ORDER = 20
-
-
-def _image_arg(text: str) -> tuple[str, str]:
-    robot, sep, path = text.partition("=")
-    if not sep or not robot or not path:
-        raise argparse.ArgumentTypeError(f"expected ROBOT=PATH, got {text!r}")
-    return robot, path
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -25,7 +18,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "tags, as the rig says) and print the relative pose as the result JSON.",
     )
     p.add_argument("--rig", required=True, metavar="FILE", help="rig file (YAML or JSON)")
-    p.add_argument("--image", required=True, action="append", type=_image_arg, metavar="ROBOT=PATH",
+    p.add_argument("--image", required=True, action="append", type=robot_value, metavar="ROBOT=PATH",
                    help="the image of a robot's camera; give one per robot")
     p.add_argument("--source", metavar="ROBOT")
     p.add_argument("--target", metavar="ROBOT")

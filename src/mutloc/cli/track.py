@@ -5,16 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import positive_float
+from ._common import positive_float, robot_value
 
 ORDER = 30
-
-
-def _pair(text: str) -> tuple[str, str]:
-    robot, sep, value = text.partition("=")
-    if not sep or not robot or not value:
-        raise argparse.ArgumentTypeError(f"expected ROBOT=VALUE, got {text!r}")
-    return robot, value
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -26,11 +19,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "writes the trajectory as TUM and CSV (every frame with its status).",
     )
     p.add_argument("--rig", required=True, metavar="FILE")
-    p.add_argument("--stream", required=True, action="append", type=_pair, metavar="ROBOT=PATH",
+    p.add_argument("--stream", required=True, action="append", type=robot_value, metavar="ROBOT=PATH",
                    help="a video file, a folder of images, or a ROS 1/2 bag (with --topic); one per robot")
-    p.add_argument("--topic", action="append", type=_pair, default=[], metavar="ROBOT=TOPIC",
+    p.add_argument("--topic", action="append", type=robot_value, default=[], metavar="ROBOT=TOPIC",
                    help="image topic of a robot's camera in a bag")
-    p.add_argument("--camera-info", action="append", type=_pair, default=[], metavar="ROBOT=TOPIC",
+    p.add_argument("--camera-info", action="append", type=robot_value, default=[], metavar="ROBOT=TOPIC",
                    help="take this robot's calibration from a camera_info topic of the bag")
     p.add_argument("--source", metavar="ROBOT")
     p.add_argument("--target", metavar="ROBOT")

@@ -391,7 +391,7 @@ def _refine_edges(gray: np.ndarray, corners: np.ndarray, cells: int,
 # ---------------------------------------------------------------------------
 
 
-def _tag_spec(marker: Marker) -> tuple[str, int, float]:
+def tag_spec(marker: Marker) -> tuple[str, int, float]:
     """(canonical family, id, size) of a tag marker, validated."""
     tag = marker.tag
     where = f"marker {marker.name!r}"
@@ -468,7 +468,7 @@ def detect_tags(image: Any, markers: Mapping[str, Marker] | Robot, *, refine: st
             raise InputError(f"markers[{name!r}] must be a Marker, got {type(marker).__name__}")
         if marker.tag is None:
             continue
-        family, tid, _ = _tag_spec(marker)
+        family, tid, _ = tag_spec(marker)
         ids = wanted.setdefault(family, {})
         if tid in ids:
             raise RigError(f"markers {ids[tid]!r} and {name!r} both use {family} tag id {tid}: "
@@ -542,8 +542,15 @@ def tag_corner_points(marker: Marker) -> np.ndarray | None:
     """
     if marker.tag is None:
         return None
-    _, _, size = _tag_spec(marker)
-    rot = marker.tag.get("rotation") if isinstance(marker.tag, Mapping) else None
+    _, _, size = tag_spec(marker)
+    R = tag_rotation(marker)
+    return None if R is None else square_corners(marker.position, size, R)
+
+
+def tag_rotation(marker: Marker, default: Any = None) -> np.ndarray | None:
+    """Rotation matrix of a tag's frame in its robot's frame, from the rig's
+    ``tag.rotation`` (a rotation vector), else ``default`` (None: unknown)."""
+    rot = marker.tag.get("rotation", default) if isinstance(marker.tag, Mapping) else default
     if rot is None:
         return None
     try:
@@ -553,7 +560,7 @@ def tag_corner_points(marker: Marker) -> np.ndarray | None:
     if rvec.shape != (3,) or not np.all(np.isfinite(rvec)):
         raise RigError(f"marker {marker.name!r}: tag rotation must be a rotation vector of 3 finite numbers "
                        f"(radians), got {rot!r}")
-    return square_corners(marker.position, size, so3_exp(rvec))
+    return so3_exp(rvec)
 
 
 def square_corners(centre: np.ndarray, size: float, R: np.ndarray) -> np.ndarray:

@@ -42,10 +42,11 @@ import cv2
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.geometry import Pose, so3_exp
+from ..core.geometry import Pose
 from ..core.rig import Marker, Rig, Robot
 from ..errors import InputError, ObservationError, RigError
-from ..detect.tags import aruco_dictionary, canonical_family, square_corners
+from ..detect.tags import aruco_dictionary, square_corners, tag_rotation
+from ..detect.tags import tag_spec as detect_tag_spec
 
 __all__ = [
     "DEFAULT_BALL_RADIUS",
@@ -138,28 +139,10 @@ def light_is_on(marker: Marker, t: float) -> bool:
 
 
 def tag_spec(marker: Marker) -> tuple[str, int, float, np.ndarray]:
-    """``(family, id, size, R_robot_tag)`` of a tag marker, validated (RigError)."""
-    tag = marker.tag
-    w = f"marker {marker.name!r}: tag"
-    if not isinstance(tag, Mapping):
-        raise RigError(f"{w} must be a mapping {{family, id, size}}")
-    try:
-        family = canonical_family(tag.get("family"))
-    except RigError as exc:
-        raise RigError(f"{w}: {exc}") from None
-    tid = tag.get("id")
-    n_ids = int(aruco_dictionary(family).bytesList.shape[0])
-    if isinstance(tid, bool) or not isinstance(tid, (int, np.integer)) or not 0 <= tid < n_ids:
-        raise RigError(f"{w}: id must be an integer in 0..{n_ids - 1} for {family}, got {tid!r}")
-    size = _positive(tag.get("size"), "tag size", marker)
-    rot = tag.get("rotation", DEFAULT_TAG_ROTATION)
-    try:
-        rvec = np.asarray(rot, dtype=float)
-    except (TypeError, ValueError):
-        rvec = np.empty(0)
-    if rvec.shape != (3,) or not np.all(np.isfinite(rvec)):
-        raise RigError(f"{w}: rotation must be a rotation vector of 3 finite numbers (radians), got {rot!r}")
-    return family, int(tid), size, so3_exp(rvec)
+    """``(family, id, size, R_robot_tag)`` of a tag marker, validated (RigError);
+    a tag without ``rotation`` faces forward, upright."""
+    family, tid, size = detect_tag_spec(marker)
+    return family, tid, size, tag_rotation(marker, DEFAULT_TAG_ROTATION)
 
 
 @functools.lru_cache(maxsize=256)
