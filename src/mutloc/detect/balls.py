@@ -2,8 +2,8 @@
 
 Pipeline, per image:
 
-1. **Coarse search** (full resolution by default, downscaled when the
-   smallest ball allows): HSV hue window around each marker's nominal colour
+1. **Coarse search** (half resolution by default, with a full-resolution
+   pass for small balls of markers it did not find): HSV hue window around each marker's nominal colour
    (red wraps around 0 deg); the saturation floor is a fraction of the
    marker's own saturation (shading scales RGB and leaves saturation alone)
    and the value floor follows the image's exposure, so shaded and dimly lit
@@ -37,7 +37,7 @@ Pipeline, per image:
 Accuracy on exact supersampled renders of shaded balls (3 cm, 1-3 m,
 f = 800 px, 960x540, textured background; ``tests/test_detect_balls.py``):
 median error about 0.02 px clean and 0.1 px with noise, blur and JPEG.
-Speed: ~200 frames/s of CPU time for four markers on one core;
+Speed: over 100 frames/s of CPU time for four markers on one core;
 ``python -m mutloc.detect.balls`` measures it.
 
 Pixels follow the SPEC: ``(0, 0)`` is the centre of the top-left pixel.
@@ -58,7 +58,7 @@ import cv2
 import numba
 import numpy as np
 
-from ..core.camera import Camera
+from ..core.camera import Camera, _project_many
 from ..core.rig import Marker
 from ..errors import InputError
 from .base import Detection, DetectionResult, as_bgr
@@ -115,6 +115,11 @@ _MAX_JOINT_COMBOS = 5000
 # Once a blob of a marker scores this well, only bigger blobs of that
 # marker are still refined (see detect_balls).
 _GOOD_ENOUGH = 0.85
+
+# Largest ball radius (full-resolution pixels) the full-resolution fallback
+# of the hybrid search looks for: the half-resolution search finds balls of
+# 1.5 coarse pixels and more, so this leaves a wide margin.
+_FALLBACK_MAX_R = 8.0
 
 
 @dataclass(frozen=True)
@@ -233,9 +238,10 @@ def detect_balls(
         strong colour (or a bad white balance) turns hues: raise it then.
     downscale:
         Factor of the coarse search image; ``None`` picks the largest of 1, 2,
-        4 that keeps ``min_radius_px`` at least 1.5 coarse pixels (so the
-        default ``min_radius_px=2`` searches at full resolution; pass
-        ``min_radius_px=3`` or ``downscale=2`` for a ~1.5x faster search).
+        4 that keeps ``min_radius_px`` at least 1.5 coarse pixels, and when
+        that is 1 (the default ``min_radius_px=2``) searches at half
+        resolution and falls back to full resolution (small blobs only) for
+        markers left without a candidate.
     srgb:
         Pixel values are sRGB-encoded (cameras, PNG, JPEG).  ``False`` for
         linear images.
@@ -293,13 +299,17 @@ def detect_balls(
     Himg, Wimg = img.shape[:2]
     rmax = float(max_radius_px) if max_radius_px is not None else min(Himg, Wimg) / 3.0
     k = _pick_downscale(downscale, min_radius_px, Wimg, Himg)
+    # Hybrid search (the default when min_radius_px needs full resolution):
+    # the coarse search runs at half resolution, which finds every ball of
+    # more than ~1.5 coarse pixels, and only markers it leaves without a
+    # candidate are searched again at full resolution, for small blobs.
+    fallback = downscale is None and k == 1 and min(Wimg, Himg) // 2 >= 120
+    if fallback:
+        k = 2
     lut = _MIX_LUT if srgb else _LINEAR_LUT
-
-    coarse = img if k == 1 else cv2.resize(img, (Wimg // k, Himg // k), interpolation=cv2.INTER_AREA)
-    hsv = cv2.cvtColor(coarse, cv2.COLOR_BGR2HSV_FULL)
-    v_floor = _value_floor(hsv)
-    sx = Wimg / coarse.shape[1]
-    sy = Himg / coarse.shape[0]
+    # Exposure from the full image (every 4th row and column): the same
+    # floor whatever the search resolution.
+    v_floor = _value_floor(img)
 
     # Balls that share a robot with another searched ball at a different
     # place can be checked against each other (needs a camera for their 3-D
@@ -315,30 +325,44 @@ def detect_balls(
 
     per_marker: dict[str, list[_Candidate]] = {}
     skipped: dict[str, list[tuple[float, float, float, float, float]]] = {}
-    for s, mask in zip(searches, _hue_masks(hsv, searches, hue_tol_deg, v_floor)):
-        blobs = _coarse_blobs(mask, sx, sy, min_radius_px, rmax)
-        # Best first: round, solid, vivid and (other things equal) big, as
-        # in the final score; blobs that are clearly not discs are not
-        # refined.
-        blobs = [b for b in blobs if b[3] >= 0.25]
-        blobs.sort(key=lambda b: -b[3] * _evidence(2.0 * math.pi * b[2]) * _vivid(_blob_chroma(coarse, b, sx, sy)))
-        good_r = math.inf
-        found: list[_Candidate] = []
-        skipped[s.name] = []
-        for blob in blobs[: int(max_candidates)]:
-            # Once a blob fits well, a lower-ranked blob can only win by
-            # being bigger (more rim evidence): smaller ones are not refined
-            # (unless the rig check below asks for them), which saves time in
-            # cluttered scenes.
-            if good_r == math.inf or blob[2] > good_r:
-                c = refine(s, blob)
-                if c is not None:
-                    found.append(c)
-                    if c.score >= _GOOD_ENOUGH:
-                        good_r = min(good_r, c.radius_px)
-            else:
-                skipped[s.name].append(blob)
-        per_marker[s.name] = found
+
+    def search(level: list[BallSearch], k: int, blob_rmax: float) -> None:
+        coarse = img if k == 1 else cv2.resize(img, (Wimg // k, Himg // k), interpolation=cv2.INTER_AREA)
+        hsv = cv2.cvtColor(coarse, cv2.COLOR_BGR2HSV_FULL)
+        sx = Wimg / coarse.shape[1]
+        sy = Himg / coarse.shape[0]
+        for s, mask in zip(level, _hue_masks(hsv, level, hue_tol_deg, v_floor)):
+            blobs = _coarse_blobs(mask, sx, sy, min_radius_px, blob_rmax)
+            # Best first: round, solid, vivid and (other things equal) big, as
+            # in the final score; blobs that are clearly not discs are not
+            # refined.
+            blobs = [b for b in blobs if b[3] >= 0.25]
+            blobs.sort(key=lambda b: -b[3] * _evidence(2.0 * math.pi * b[2]) * _vivid(_blob_chroma(coarse, b, sx, sy)))
+            good_r = math.inf
+            found: list[_Candidate] = []
+            skipped[s.name] = []
+            for blob in blobs[: int(max_candidates)]:
+                # Once a blob fits well, a lower-ranked blob can only win by
+                # being bigger (more rim evidence): smaller ones are not refined
+                # (unless the rig check below asks for them), which saves time in
+                # cluttered scenes.
+                if good_r == math.inf or blob[2] > good_r:
+                    c = refine(s, blob)
+                    if c is not None:
+                        found.append(c)
+                        if c.score >= _GOOD_ENOUGH:
+                            good_r = min(good_r, c.radius_px)
+                else:
+                    skipped[s.name].append(blob)
+            per_marker[s.name] = found
+
+    search(searches, k, rmax)
+    if fallback:
+        lost = [s for s in searches if not per_marker[s.name]]
+        if lost:
+            # Balls big enough for the half-resolution search were found
+            # there: full resolution only looks for the small ones.
+            search(lost, 1, min(rmax, _FALLBACK_MAX_R))
 
     chosen: list[_Candidate] = []
     for group in mates.values():
@@ -478,7 +502,7 @@ def _pick_downscale(downscale: int | None, min_radius_px: float, w: int, h: int)
     return k
 
 
-def _value_floor(hsv: np.ndarray) -> int:
+def _value_floor(img: np.ndarray) -> int:
     """Value threshold adapted to the image's exposure.
 
     Hue is meaningless in near-black pixels (noise dominates), but a dim image
@@ -486,7 +510,8 @@ def _value_floor(hsv: np.ndarray) -> int:
     percentile of V, kept within [12, 40].  Every 4th row and column is
     plenty for a percentile.
     """
-    hist = np.bincount(np.ascontiguousarray(hsv[::4, ::4, 2]).ravel(), minlength=256)
+    sub = cv2.cvtColor(np.ascontiguousarray(img[::4, ::4]), cv2.COLOR_BGR2HSV_FULL)
+    hist = np.bincount(cv2.extractChannel(sub, 2).ravel(), minlength=256)
     cum = np.cumsum(hist)
     p99 = int(np.searchsorted(cum, 0.99 * cum[-1]))
     return int(np.clip(0.12 * p99, 12, 40))
@@ -576,15 +601,25 @@ def _coarse_blobs(
 
 def _fill_fraction(mask: np.ndarray, cu: float, cv_: float, r: float) -> float:
     """Share of the disc ``(cu, cv_, r)`` (mask pixels) that is set in ``mask``."""
+    return float(_fill_kernel(mask, float(cu), float(cv_), float(r)))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _fill_kernel(mask, cu, cv_, r):
     h, w = mask.shape
     x0, x1 = max(0, int(math.floor(cu - r))), min(w, int(math.ceil(cu + r)) + 1)
     y0, y1 = max(0, int(math.floor(cv_ - r))), min(h, int(math.ceil(cv_ + r)) + 1)
-    if x0 >= x1 or y0 >= y1:
-        return 0.0
-    yy, xx = np.ogrid[y0:y1, x0:x1]
-    inside = (xx - cu) ** 2 + (yy - cv_) ** 2 <= r * r
-    n = int(inside.sum())
-    return float(np.count_nonzero(mask[y0:y1, x0:x1][inside])) / n if n else 0.0
+    n = 0
+    k = 0
+    r2 = r * r
+    for y in range(y0, y1):
+        dy2 = (y - cv_) ** 2
+        for x in range(x0, x1):
+            if (x - cu) ** 2 + dy2 <= r2:
+                n += 1
+                if mask[y, x] != 0:
+                    k += 1
+    return k / n if n > 0 else 0.0
 
 
 # Fixed random triplets: detections are repeatable.
@@ -1006,18 +1041,56 @@ class _CameraContext:
 
 def _cone_rim(camera: Camera, d: np.ndarray, cos_t: float, n: int = 48) -> np.ndarray | None:
     """Pixels (n, 2) of the cone's rim: the outline of the sphere's image."""
+    uv = np.empty((n, 2))
+    _cone_rim_kernel(camera._K, camera._dist, d, cos_t, uv)
+    return uv if np.all(np.isfinite(uv)) else None
+
+
+@numba.njit(cache=True, fastmath=False)
+def _cone_rim_kernel(K, dist, d, cos_t, uv) -> None:
+    n = uv.shape[0]
     sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
     # Orthonormal e1, e2 perpendicular to d (d[2] > 0, so never degenerate).
-    e1 = np.array([d[2], 0.0, -d[0]]) / math.hypot(d[0], d[2])
-    e2 = np.array([d[1] * e1[2] - d[2] * e1[1], d[2] * e1[0] - d[0] * e1[2], d[0] * e1[1] - d[1] * e1[0]])
-    phi = np.arange(n) * (2.0 * math.pi / n)
-    rays = cos_t * d[None, :] + sin_t * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
-    uv = camera.project(rays)
-    return uv if np.all(np.isfinite(uv)) else None
+    h = math.hypot(d[0], d[2])
+    e10, e11, e12 = d[2] / h, 0.0, -d[0] / h
+    e20 = d[1] * e12 - d[2] * e11
+    e21 = d[2] * e10 - d[0] * e12
+    e22 = d[0] * e11 - d[1] * e10
+    rays = np.empty((n, 3))
+    for i in range(n):
+        phi = i * (2.0 * math.pi / n)
+        c = math.cos(phi)
+        sn = math.sin(phi)
+        rays[i, 0] = cos_t * d[0] + sin_t * (c * e10 + sn * e20)
+        rays[i, 1] = cos_t * d[1] + sin_t * (c * e11 + sn * e21)
+        rays[i, 2] = cos_t * d[2] + sin_t * (c * e12 + sn * e22)
+    _project_many(K, dist, rays, uv)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _pinhole_bearings_kernel(Ki, pts, ok, bear) -> None:
+    for i in range(pts.shape[0]):
+        bear[i, 0] = 0.0
+        bear[i, 1] = 0.0
+        bear[i, 2] = 0.0
+        if not (ok[i] and math.isfinite(pts[i, 0]) and math.isfinite(pts[i, 1])):
+            ok[i] = False
+            continue
+        x = Ki[0, 0] * pts[i, 0] + Ki[0, 1] * pts[i, 1] + Ki[0, 2]
+        y = Ki[1, 1] * pts[i, 1] + Ki[1, 2]
+        nrm = math.sqrt(x * x + y * y + 1.0)
+        bear[i, 0] = x / nrm
+        bear[i, 1] = y / nrm
+        bear[i, 2] = 1.0 / nrm
 
 
 def _bearings(cam: _CameraContext, pts: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit bearings of pixels ``pts`` where ``ok``; also the rows that have one."""
+    if cam.pinhole:
+        bear = np.empty((len(pts), 3))
+        ok = ok.copy()
+        _pinhole_bearings_kernel(cam.Kinv, pts, ok, bear)
+        return bear, ok
     bear = np.zeros((len(pts), 3))
     ok = ok & np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1])
     if not np.any(ok):
@@ -1045,6 +1118,7 @@ def _bearings(cam: _CameraContext, pts: np.ndarray, ok: np.ndarray) -> tuple[np.
     return bear, ok
 
 
+@numba.njit(cache=True, fastmath=False)
 def _rim_radii(rim: np.ndarray, cx: float, cy: float, ang: np.ndarray) -> np.ndarray:
     """Radius of the closed outline ``rim`` (n, 2) seen from ``(cx, cy)`` at angles ``ang``."""
     dx = rim[:, 0] - cx
@@ -1054,8 +1128,8 @@ def _rim_radii(rim: np.ndarray, cx: float, cy: float, ang: np.ndarray) -> np.nda
     o = np.argsort(th)
     th, rr = th[o], rr[o]
     # Periodic interpolation: pad one sample on each side across +-pi.
-    th = np.concatenate([th[-1:] - 2 * math.pi, th, th[:1] + 2 * math.pi])
-    rr = np.concatenate([rr[-1:], rr, rr[:1]])
+    th = np.concatenate((th[-1:] - 2 * math.pi, th, th[:1] + 2 * math.pi))
+    rr = np.concatenate((rr[-1:], rr, rr[:1]))
     return np.interp((ang + math.pi) % (2 * math.pi) - math.pi, th, rr)
 
 
@@ -1065,9 +1139,9 @@ def _window(rexp: np.ndarray) -> float:
     Wide enough for the blur of a small ball and the error of the coarse
     circle, never reaching the centre.
     """
-    r = float(np.mean(rexp))
-    h = float(np.clip(0.25 * r + 2.0, 2.5, 6.0))
-    return min(h, max(float(np.min(rexp)) - 0.75, 1.5))
+    r = float(rexp.mean())
+    h = min(max(0.25 * r + 2.0, 2.5), 6.0)
+    return min(h, max(float(rexp.min()) - 0.75, 1.5))
 
 
 def _refine(
