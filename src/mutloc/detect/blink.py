@@ -329,11 +329,11 @@ class BlinkTracker:
         centroid_level: float = 0.3,
         gate_px: float = 6.0,
         gate_growth: float = 30.0,
-        max_speed: float = 180.0,
+        max_speed: float | None = None,
         max_gate_px: float = 40.0,
         fit_window_s: float = 0.4,
-        max_blob_area: int = 900,
-        max_blob_std: float = 6.0,
+        max_blob_area: int | None = None,
+        max_blob_std: float | None = None,
         max_tracks: int = 64,
         brightness: str = "max",
     ) -> None:
@@ -407,11 +407,16 @@ class BlinkTracker:
         min_score = number("min_score", min_score, 0.0, 1.0, lo_open=False)
         for name, value in (("search_radius", search_radius), ("spot_radius", spot_radius),
                             ("gate_px", gate_px), ("max_gate_px", max_gate_px),
-                            ("fit_window_s", fit_window_s), ("max_blob_std", max_blob_std)):
+                            ("fit_window_s", fit_window_s)):
             number(name, value, 0.0, math.inf)
+        for name, value in (("max_blob_std", max_blob_std), ("max_blob_area", max_blob_area)):
+            if value is not None:
+                number(name, value, 0.0, math.inf)
         for name, value in (("motion_radius", motion_radius), ("gate_growth", gate_growth),
-                            ("max_speed", max_speed), ("centroid_level", centroid_level)):
+                            ("centroid_level", centroid_level)):
             number(name, value, 0.0, math.inf, lo_open=False)
+        if max_speed is not None:
+            number("max_speed", max_speed, 0.0, math.inf, lo_open=False)
         if brightness not in ("max", "gray"):
             raise InputError(f"BlinkTracker: brightness must be 'max' or 'gray', got {brightness!r}")
         self.decay = float(decay)
@@ -433,11 +438,14 @@ class BlinkTracker:
         self.centroid_level = float(centroid_level)
         self.gate_px = float(gate_px)
         self.gate_growth = float(gate_growth)
-        self.max_speed = float(max_speed)
-        self.max_gate_px = float(max_gate_px)
+        # Limits in pixels that depend on the image size (None: derived from
+        # it at the first frame, see _set_scale).
+        self._max_speed_arg = None if max_speed is None else float(max_speed)
+        self._max_gate_arg = float(max_gate_px)
+        self._max_blob_area_arg = None if max_blob_area is None else int(max_blob_area)
+        self._max_blob_std_arg = None if max_blob_std is None else float(max_blob_std)
         self.fit_window_s = float(fit_window_s)
-        self.max_blob_area = int(max_blob_area)
-        self.max_blob_std = float(max_blob_std)
+        self._set_scale(540)
         self.max_tracks = int(max_tracks)
         self.brightness = brightness
         k = 2 * self.motion_radius + 1
@@ -452,6 +460,12 @@ class BlinkTracker:
         self._horizon = self.keep_frames / fps
         self._basis_cache: dict[bytes, np.ndarray] = {}
         self._ring_masks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        # A lit light's glow (bloom, a few px) raises its surroundings; on a
+        # bright background a saturated light stands out of them only beyond
+        # it, so brightness contrast is measured this much further out.
+        self._glow_px = 5
+        # Centroid level for a clipped (saturated) spot, see _centroid_at.
+        self._saturated_level = 0.75
         self._motion = GlobalMotion()
         self.reset()
 
@@ -476,6 +490,32 @@ class BlinkTracker:
             "confidence": tr.conf, "on": tr.is_on, "marker": tr.marker,
             "scores": dict(tr.scores), "history": len(tr.hist),
         } for tr in self._tracks]
+
+    def _set_scale(self, short_side: int) -> None:
+        """Pixel limits for images whose shorter side is ``short_side`` px.
+
+        How large a light looks and how fast it moves in the image grow with
+        the resolution (and as the light comes closer), so the limits not
+        given explicitly are relative: an RMS radius of up to 3 % of the
+        image's shorter side for a light's region of change, image speeds
+        up to 60 % of it per second.
+        """
+        scale = max(1.0, short_side / 540.0)
+        self.max_speed = (0.6 * short_side if self._max_speed_arg is None else self._max_speed_arg)
+        self.max_gate_px = self._max_gate_arg * scale
+        self.max_blob_std = (max(6.0, 0.03 * short_side) if self._max_blob_std_arg is None
+                             else self._max_blob_std_arg)
+        self.max_blob_area = (max(900, round(4 * math.pi * self.max_blob_std**2))
+                              if self._max_blob_area_arg is None else self._max_blob_area_arg)
+
+    def _reach(self, spread: float) -> int:
+        """Half-size of the window searched for the peak of a light of RMS
+        radius ``spread``: a large saturated spot's peak may be anywhere on it."""
+        return max(self.search_radius, math.ceil(1.5 * spread))
+
+    def _spot(self, spread: float) -> int:
+        """Half-size of the centroid window: must hold the whole spot."""
+        return max(self.spot_radius, math.ceil(2.0 * spread) + 2)
 
     # ----------------------------------------------------------------- frames
 
@@ -515,6 +555,8 @@ class BlinkTracker:
                 )
             if not t > self._prev_t:
                 raise InputError(f"BlinkTracker.update: time {t} does not increase (previous {self._prev_t})")
+        if prev is None:
+            self._set_scale(min(cur.shape))
         shift = self._motion.update(cur) if self.stabilize else np.zeros(2)
         self._times.append(t)
         if prev is not None:
@@ -592,21 +634,23 @@ class BlinkTracker:
         need = 0.5 * self.diff_threshold
         is_light = np.array([
             self._contrast(turned_on if on else turned_off, c, sp) >= need
-            and self._contrast(cur if on else prev, c, sp, 80.0) >= need
+            and self._contrast(cur if on else prev, c, sp, 80.0, margin=self._glow_px) >= need
             for c, on, sp in zip(cents, lit_now, spread)
         ], bool)
         return cents[is_light], lit_now[is_light], spread[is_light]
 
-    def _contrast(self, img: np.ndarray, c: np.ndarray, spread: float, ring_q: float = 100.0) -> float:
+    def _contrast(self, img: np.ndarray, c: np.ndarray, spread: float, ring_q: float = 100.0,
+                  reach: float = 2.0, margin: int = 0) -> float:
         """How far the peak near ``c`` stands above a ring around it.
 
         The inner square holds a light of RMS radius ``spread``; the ring
-        (square, cheap) lies just outside.  Against the ring's maximum
+        (square, cheap) lies just outside, ``reach`` RMS radii plus ``margin``
+        pixels out.  Against the ring's maximum
         (``ring_q=100``), a compact spot scores high and a strip or edge that
         continues through the ring scores low; a lower percentile forgives a
         small bright neighbour touching the ring.
         """
-        r_in = int(min(8, max(2, math.ceil(1.5 * spread) + 1)))
+        r_in = int(min(max(8, 3.0 * self.max_blob_std), max(2, math.ceil(reach * spread) + 1)) + margin)
         r_out = r_in + 3
         cx, cy = round(float(c[0])), round(float(c[1]))
         h, w = img.shape
@@ -663,7 +707,8 @@ class BlinkTracker:
             penalty = np.array([0.0 if tr.marker is not None else self.gate_px for tr in tracks])
             cost = dist + penalty[None, :]
             nearest = np.argmin(cost, axis=1)
-            absorb = dist[np.arange(nb), nearest] <= self.search_radius + 3.0
+            reach = np.array([self._reach(tr.spread) for tr in tracks], float)
+            absorb = dist[np.arange(nb), nearest] <= reach[nearest] + 3.0
             rows, cols = np.nonzero(dist <= gates[None, :])
             taken = np.zeros(nt, bool)
             for k in np.argsort(cost[rows, cols], kind="stable"):
@@ -712,7 +757,7 @@ class BlinkTracker:
         born: list[np.ndarray] = []
         for r in np.flatnonzero(newborn):
             c = cents[r]
-            if any(math.hypot(*(c - b)) <= self.search_radius for b in born):
+            if any(math.hypot(*(c - b)) <= self._reach(spread[r]) for b in born):
                 continue
             born.append(c)
             tr = _Track(id=self._next_id, pos=c - off, conf=self.boost, born_frame=frame, born_t=t,
@@ -791,7 +836,7 @@ class BlinkTracker:
         """
         tr.jump = math.inf
         cx, cy = round(float(centre[0])), round(float(centre[1]))
-        r = self.search_radius
+        r = self._reach(tr.spread)
         h, w = cur.shape
         x0, x1, y0, y1 = max(0, cx - r), min(w, cx + r + 1), max(0, cy - r), min(h, cy + r + 1)
         if x0 >= x1 or y0 >= y1:  # predicted out of the image
@@ -825,13 +870,20 @@ class BlinkTracker:
         # surroundings -- or a track whose light went dark over bright
         # texture would follow the texture.
         if tr.is_on:
-            tr.is_on = (self._contrast(cur, np.array([x0 + px, y0 + py], float), tr.spread, 80.0)
+            # The ring lies beyond the glow around a saturated light (which
+            # on a bright background leaves little contrast just outside it).
+            tr.is_on = (self._contrast(cur, np.array([x0 + px, y0 + py], float), tr.spread, 80.0,
+                                       margin=self._glow_px)
                         >= 0.5 * self.diff_threshold)
         if not tr.is_on:
             return None  # keep the prediction (or where a new track was born)
-        uv = self._centroid(cur, x0 + px, y0 + py, peak)
-        if uv is None:
+        found = self._centroid(cur, x0 + px, y0 + py, peak, self._spot(tr.spread))
+        if found is None:
             tr.is_on = False
+            return None
+        uv, rms = found
+        # The lit spot's own size keeps the windows fitted to the light.
+        tr.spread += 0.3 * (rms - tr.spread)
         return uv
 
     @staticmethod
@@ -878,23 +930,38 @@ class BlinkTracker:
         tr.vel = coef[1]
         tr.acc = coef[2] if len(coef) > 2 else np.zeros(2)
 
-    def _centroid(self, img: np.ndarray, px: int, py: int, peak: float) -> np.ndarray | None:
-        """Intensity-weighted centroid of the bright spot around pixel (px, py).
+    def _centroid(self, img: np.ndarray, px: int, py: int, peak: float,
+                  r: int) -> tuple[np.ndarray, float] | None:
+        """Intensity-weighted centroid of the bright spot around pixel (px, py),
+        and the spot's RMS radius (px).
 
         The brightest pixel of a saturated spot may sit anywhere on its
         plateau, so a window centred on it can clip the spot: if the centroid
         lands more than half a pixel away, it is measured again around itself.
+        A spot that still reaches the window's edge is larger than the track
+        believed (a light coming closer): the window grows until it holds it.
         """
-        uv = self._centroid_at(img, px, py, peak)
-        if uv is not None and max(abs(uv[0] - px), abs(uv[1] - py)) > 0.5:
-            again = self._centroid_at(img, round(float(uv[0])), round(float(uv[1])), peak)
-            uv = again if again is not None else uv
-        return uv
+        r_max = max(r, math.ceil(3.0 * self.max_blob_std))
+        cx, cy = px, py
+        out = self._centroid_at(img, cx, cy, peak, r)
+        for _ in range(2):  # per frame; the track's size estimate adapts over frames
+            if out is None or not out[2] or r >= r_max:
+                break
+            r = min(r_max, math.ceil(1.5 * r))
+            cx, cy = round(float(out[0][0])), round(float(out[0][1]))
+            out = self._centroid_at(img, cx, cy, peak, r)
+        if out is None:
+            return None
+        if max(abs(out[0][0] - cx), abs(out[0][1] - cy)) > 0.5:
+            again = self._centroid_at(img, round(float(out[0][0])), round(float(out[0][1])), peak, r)
+            out = again if again is not None else out
+        return out[0], out[1]
 
-    def _centroid_at(self, img: np.ndarray, px: int, py: int, peak: float) -> np.ndarray | None:
-        r = self.spot_radius
-        x0, x1 = max(0, px - r), min(img.shape[1], px + r + 1)
-        y0, y1 = max(0, py - r), min(img.shape[0], py + r + 1)
+    def _centroid_at(self, img: np.ndarray, px: int, py: int, peak: float,
+                     r: int) -> tuple[np.ndarray, float, bool] | None:
+        h, w = img.shape
+        x0, x1 = max(0, px - r), min(w, px + r + 1)
+        y0, y1 = max(0, py - r), min(h, py + r + 1)
         patch = img[y0:y1, x0:x1].astype(np.float32)
         if patch.shape[0] < 3 or patch.shape[1] < 3:
             return None
@@ -902,15 +969,26 @@ class BlinkTracker:
         # a bright neighbour touching it.
         border = np.concatenate([patch[0], patch[-1], patch[1:-1, 0], patch[1:-1, -1]])
         bg = float(np.median(border))
-        thr = bg + self.centroid_level * (peak - bg)
+        # A clipped (saturated) spot: its plateau's edge is what is sharp; the
+        # skirt around it is glow added to whatever background lies there,
+        # which pulls the centroid towards the brighter side.
+        level = self.centroid_level if peak < 250 else max(self.centroid_level, self._saturated_level)
+        thr = bg + level * (peak - bg)
         wts = patch - thr
         np.maximum(wts, 0.0, out=wts)
         s = float(wts.sum())
         if s <= 0:
             return None
-        u = x0 + float(wts.sum(axis=0) @ np.arange(x1 - x0)) / s
-        v = y0 + float(wts.sum(axis=1) @ np.arange(y1 - y0)) / s
-        return np.array([u, v])
+        cols, rows = wts.sum(axis=0), wts.sum(axis=1)
+        xs, ys = np.arange(x1 - x0, dtype=np.float64), np.arange(y1 - y0, dtype=np.float64)
+        mu, mv = float(cols @ xs) / s, float(rows @ ys) / s
+        var = float(cols @ (xs - mu) ** 2) / s + float(rows @ (ys - mv) ** 2) / s
+        # Clipped by the window (not by the image border) -- unless most of
+        # the border is above the threshold: a bright area, not a spot.
+        clipped = bool((cols[0] > 0 and x0 > 0) or (cols[-1] > 0 and x1 < w)
+                       or (rows[0] > 0 and y0 > 0) or (rows[-1] > 0 and y1 < h))
+        clipped = clipped and 2 * int(np.count_nonzero(border > thr)) < border.size
+        return np.array([x0 + mu, y0 + mv]), math.sqrt(max(var, 0.0)), clipped
 
     # -------------------------------------------------------------- identity
 
