@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -37,10 +36,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
-import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
-import mutloc  # noqa: E402
 from mutloc.core.rig import Marker, Rig, Robot  # noqa: E402
 from mutloc.detect.balls import detect_balls  # noqa: E402
 from mutloc.detect.blink import BlinkTracker  # noqa: E402
@@ -49,6 +46,9 @@ from mutloc.sim.render import moving_world, project_markers, relative_pose, rend
 from mutloc.sim.world import standard_rig  # noqa: E402
 from mutloc.track.sources import Frame  # noqa: E402
 from mutloc.track.tracker import track  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import machine  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -62,31 +62,6 @@ TARGETS = {"balls_960_fps": 100.0, "track_fps": 30.0}
 # plus two more above them, in the four standard colours.
 _FOUR_BALLS = {"M1": ((-0.15, -0.05, -0.03), (0, 0, 255)), "M2": ((0.15, -0.05, -0.03), (255, 255, 0)),
                "M3": ((-0.08, -0.17, -0.03), (255, 0, 0)), "M4": ((0.08, -0.17, -0.03), (0, 255, 0))}
-
-
-def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        load = os.getloadavg()
-    except OSError:
-        load = None
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "load_average_at_start": load,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "opencv": cv2.__version__,
-        "mutloc": mutloc.__version__,
-    }
 
 
 def four_ball_rig(size: tuple[int, int], f: float) -> Rig:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
-import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
@@ -36,28 +34,11 @@ from mutloc.core.minimal import solve_minimal  # noqa: E402
 from mutloc.core.rig import Marker, Rig, Robot  # noqa: E402
 from mutloc.sim.synthetic import batch_minimal_problems, batch_scenes  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import machine  # noqa: E402
+
 CONFIGS = {"3-0": 3, "2-1": 2, "1-2": 1, "0-3": 0}
 KINDS = ("usual", "facing", "random")
-
-
-def machine() -> dict:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "opencv": cv2.__version__,
-        "mutloc": mutloc.__version__,
-    }
 
 
 def per_call_us(fn, args_list, repeat: int = 5) -> float:

@@ -105,6 +105,20 @@ def expanded_rig(rig: Rig) -> Rig:
     return rig
 
 
+def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target: str | None,
+                 what: str) -> tuple[Rig, str, str]:
+    """The expanded rig and the (source, target) pair, checking that every
+    input names a robot of the rig and both robots of the pair have one."""
+    rig = expanded_rig(load_rig(rig))
+    source, target = rig.default_pair(source, target)
+    for robot in inputs:
+        rig.robot(robot)
+    for robot in (source, target):
+        if robot not in inputs:
+            raise ObservationError(f"no {what} for robot {robot!r}")
+    return rig, source, target
+
+
 def _merge(into: DetectionResult, other: DetectionResult) -> None:
     into.detections.update(other.detections)
     into.missing.extend(m for m in other.missing if m not in into.missing)
@@ -114,13 +128,7 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
                     pixel_sigma: float = 1.0) -> FrameResult:
     """Detect the markers in one image per robot (arrays or file paths) and
     localize ``source`` in ``target``'s frame."""
-    rig = expanded_rig(load_rig(rig))
-    source, target = rig.default_pair(source, target)
-    for robot in images:
-        rig.robot(robot)
-    for robot in (source, target):
-        if robot not in images:
-            raise ObservationError(f"no image for robot {robot!r}")
+    rig, source, target = prepare_pair(rig, images, source, target, "image")
     detections: dict[str, DetectionResult] = {}
     observations: dict[str, dict[str, tuple[float, float]]] = {}
     for observer, other in ((source, target), (target, source)):

@@ -17,12 +17,12 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ..api import Estimate, load_rig, localize
+from ..api import Estimate, localize
 from ..core.geometry import quaternion_xyzw_from_matrix
 from ..core.rig import Rig
 from ..detect.base import DetectionResult
-from ..errors import MutlocError, ObservationError
-from .frames import detect_markers, expanded_rig
+from ..errors import MutlocError
+from .frames import detect_markers, prepare_pair
 from .sources import Frame
 
 __all__ = ["TrackRow", "Trajectory", "pair_streams", "track"]
@@ -134,24 +134,11 @@ class _Detector:
         return res
 
 
-def _estimate_rate(frames: list[Frame]) -> float:
-    if len(frames) < 2:
-        return 30.0
-    dt = np.median(np.diff([f.t for f in frames]))
-    return float(1.0 / dt) if dt > 0 else 30.0
-
-
 def track(rig: Any, streams: Mapping[str, Iterator[Frame]], source: str | None = None, target: str | None = None, *,
           tolerance: float = 0.005, pixel_sigma: float = 1.0, fps: float | None = None,
           annotate: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``)."""
-    rig = expanded_rig(load_rig(rig))
-    source, target = rig.default_pair(source, target)
-    for robot in streams:
-        rig.robot(robot)
-    for robot in (source, target):
-        if robot not in streams:
-            raise ObservationError(f"no stream for robot {robot!r}")
+    rig, source, target = prepare_pair(rig, streams, source, target, "stream")
     rate = fps or 30.0
     dets = {source: _Detector(rig, source, target, rate), target: _Detector(rig, target, source, rate)}
     writer = _Annotator(annotate) if annotate else None
