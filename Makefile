@@ -22,6 +22,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_solvers.py
+	$(BIN)/python bench/bench_detectors.py
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info
