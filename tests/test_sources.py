@@ -131,3 +131,18 @@ def test_pairing_by_timestamp():
     b = [Frame(i, t, None) for i, t in enumerate([0.001, 0.102, 0.25, 0.299])]
     pairs = [(x.t if x else None, y.t if y else None) for x, y in pair_streams(iter(a), iter(b), 0.005)]
     assert pairs == [(0.0, 0.001), (0.1, 0.102), (0.2, None), (None, 0.25), (0.3, 0.299)]
+
+
+def test_truncated_video_keeps_earlier_frames_and_reports(tmp_path):
+    path = tmp_path / "v.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    for img in _images(10):
+        vw.write(img)
+    vw.release()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    frames = list(video_frames(cut))
+    good = [f for f in frames if f.image is not None]
+    assert 0 < len(good) < 10
+    assert frames[-1].image is None and "stopped" in frames[-1].status
