@@ -132,42 +132,83 @@ class _Run:
         return 0.5 * (self.left + self.right)
 
 
-def _dark_runs(gray: np.ndarray) -> list[_Run]:
+def _dark_mask(gray: np.ndarray) -> np.ndarray:
     g = gray.astype(np.float32)
-    local = cv2.blur(g, (31, 31))
+    # The reference is the local *light* level (the brightest smoothed value nearby), so the
+    # inside of a large dark band still reads as dark at close range.
+    local = cv2.dilate(cv2.blur(g, (5, 5)), np.ones((61, 61), np.uint8))
     dark = ((g < 90) & (g < 0.6 * local)).astype(np.uint8)
-    dark = cv2.morphologyEx(dark, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=4)
+    return cv2.morphologyEx(dark, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+
+
+def _dark_runs(gray: np.ndarray) -> list[_Run]:
+    """Dark rectangles: vertical stacks of per-row dark segments of consistent extent.
+
+    Each row's dark segments are linked to the open tracks of the rows above
+    whose left and right ends they repeat (within a pixel or so).  A segment
+    that *contains* a track's extent (the band touching dark clutter beside it
+    on those rows) bridges the track for up to a band-width of rows, provided
+    clean rows of the same extent follow; a track that neither repeats nor is
+    bridged ends.  So a dark band keeps its own rows whatever touches it.
+    """
+    dark = _dark_mask(gray)
+    H, W = dark.shape
+    pad = np.zeros((H, W + 2), np.int8)
+    pad[:, 1:-1] = dark
+    d = np.diff(pad, axis=1)
+    sr, sc = np.nonzero(d == 1)
+    er, ec = np.nonzero(d == -1)  # same order: row-major, paired
+    seg_rows: dict[int, list[tuple[int, int]]] = {}
+    for r, a, b in zip(sr.tolist(), sc.tolist(), (ec - 1).tolist()):
+        segs = seg_rows.setdefault(r, [])
+        # A short gap (a specular highlight down the middle of a dark band) does not split a segment.
+        if segs and a - segs[-1][1] - 1 <= max(2.0, 0.35 * min(b - a + 1, segs[-1][1] - segs[-1][0] + 1)):
+            segs[-1] = (segs[-1][0], b)
+        else:
+            segs.append((a, b))
+    for r in seg_rows:
+        seg_rows[r] = [(a, b) for a, b in seg_rows[r] if b - a + 1 >= 3]
+    # track: [rows(list), lefts, rights, last_clean_row, last_seen_row]
+    open_tracks: list[list] = []
+    done: list[list] = []
+    for r in range(H):
+        segs = seg_rows.get(r, [])
+        still: list[list] = []
+        taken = [False] * len(segs)
+        for tr in open_tracks:
+            tl, trr = tr[1][-1], tr[2][-1]
+            w = trr - tl + 1
+            tol = max(1.5, 0.08 * w)
+            hit = None
+            for k, (a, b) in enumerate(segs):
+                if not taken[k] and abs(a - tl) <= tol and abs(b - trr) <= tol:
+                    hit = k
+                    break
+            if hit is not None:
+                taken[hit] = True
+                a, b = segs[hit]
+                tr[0].append(r)
+                tr[1].append(a)
+                tr[2].append(b)
+                tr[3] = tr[4] = r
+                still.append(tr)
+                continue
+            if (r - tr[3] <= max(2, w) and
+                    any(a <= tl + tol and b >= trr - tol for a, b in segs)):
+                tr[4] = r
+                still.append(tr)
+                continue
+            done.append(tr)
+        for k, (a, b) in enumerate(segs):
+            if not taken[k]:
+                still.append([[r], [a], [b], r, r])
+        open_tracks = still
+    done.extend(open_tracks)
     runs: list[_Run] = []
-    for i in range(1, n):
-        x, y, w, h, area = stats[i]
-        if w < 3 or h < 2 or area < 6:
+    for rows, lefts, rights, _, _ in done:
+        if len(rows) < 2 or rows[-1] - rows[0] < 1:
             continue
-        sub = lab[y:y + h, x:x + w] == i
-        rows = np.nonzero(sub.any(axis=1))[0]
-        lefts = np.array([np.argmax(sub[r]) for r in rows], float)
-        rights = np.array([w - 1 - np.argmax(sub[r, ::-1]) for r in rows], float)
-        widths = rights - lefts + 1
-        # Rows of consistent extent (a band is a rectangle in the image).
-        ml, mr = np.median(lefts), np.median(rights)
-        tol = max(1.5, 0.12 * (mr - ml + 1))
-        good = (np.abs(lefts - ml) <= tol) & (np.abs(rights - mr) <= tol) & (widths >= 3)
-        # Longest contiguous stretch of good rows.
-        best, start, blen = None, None, 0
-        for idx in range(len(rows) + 1):
-            ok = idx < len(rows) and good[idx] and (idx == 0 or rows[idx] == rows[idx - 1] + 1 or start is None)
-            if ok and start is None:
-                start = idx
-            elif not ok and start is not None:
-                if idx - start > blen:
-                    best, blen = (start, idx - 1), idx - start
-                start = idx if (idx < len(rows) and good[idx]) else None
-        if best is None or blen < 2:
-            continue
-        r0, r1 = best
-        sel = slice(r0, r1 + 1)
-        runs.append(_Run(int(y + rows[r0]), int(y + rows[r1]), float(x + np.median(lefts[sel])),
-                         float(x + np.median(rights[sel]))))
+        runs.append(_Run(int(rows[0]), int(rows[-1]), float(np.median(lefts)), float(np.median(rights))))
     return runs
 
 
@@ -268,7 +309,7 @@ def _refine(gray: np.ndarray, part: list[_Run], code: np.ndarray) -> dict[str, A
     else:
         cx1, cx0 = 0.0, float(xs.mean())
     R = 0.5 * float(np.median([r.width for r in part]))
-    hw = int(np.clip(round(0.45 * unit), 1, 4))
+    hw = int(np.clip(math.floor(0.45 * unit), 1, 4))
     g = gray.astype(np.float32)
 
     # Across: sub-pixel silhouette edges of the dark runs, on their middle rows.
@@ -326,10 +367,13 @@ def _refine(gray: np.ndarray, part: list[_Run], code: np.ndarray) -> dict[str, A
                              cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
             c = int(round(v0 + 0.5)) - vv[0]  # first sample below the boundary
             i0, i1 = c - hw - 1, c + hw
-            inside_dark = lambda lo, hi: prof[max(0, lo):max(0, hi)]  # noqa: E731
-            q = max(1, int(round(0.5 * unit)))
-            above = inside_dark(i0 - q - 1, i0 - 1)
-            below = prof[i1 + 2:i1 + 2 + q]
+            # Levels from the middle of the band (or background) on each side: a band can be
+            # as short as ~4 px, so the windows must not reach the next boundary.
+            lq = max(0, int(round(0.15 * unit)))
+            ca = int(round(v0 - 0.5 * unit - vv[0] + 0.5))
+            cb = int(round(v0 + 0.5 * unit - vv[0] + 0.5))
+            above = prof[max(0, ca - lq - 1):max(0, ca + lq)]
+            below = prof[cb - lq:cb + lq + 1]
             if above.size == 0 or below.size == 0:
                 continue
             a, b = float(np.median(above)), float(np.median(below))
@@ -385,6 +429,20 @@ def _refine(gray: np.ndarray, part: list[_Run], code: np.ndarray) -> dict[str, A
     for k in range(n):
         v = v_at(k + 0.5)
         band_uv.append((cx0 + cx1 * v, v))
+    # Verify the code: every band's middle must read as its bit (dark bands all darker than light ones).
+    unit_v = abs(al)
+    hu, hr = max(0.5, 0.25 * unit_v), max(1.0, 0.4 * R)
+    levels = []
+    for u, v in band_uv:
+        r0, r1 = int(round(v - hu)), int(round(v + hu))
+        c0, c1 = int(round(u - hr)), int(round(u + hr))
+        if r0 < 0 or c0 < 0 or r1 >= H or c1 >= W:
+            return None
+        levels.append(float(np.median(g[r0:r1 + 1, c0:c1 + 1])))
+    levels = np.array(levels)
+    dk, lt = levels[code == 1], levels[code == 0]
+    if lt.size and dk.size and not lt.min() - dk.max() > max(20.0, 0.3 * (np.median(lt) - np.median(dk))):
+        return None
     vc = v_at(0.5 * n)
     return {"bands": band_uv, "centre": (cx0 + cx1 * vc, vc), "unit_px": unit, "radius_px": R,
             "edge_rms_px": float(np.sqrt(np.mean(res[keep] ** 2)))}
