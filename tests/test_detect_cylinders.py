@@ -66,10 +66,9 @@ def scenes():
     return out
 
 
-# (distance, observer, cylinders that must be found).  Measured (see report): median
-# error 0.10-0.14 px; a cylinder whose top dark band touches dark background text is
-# not found (q's view of M4 at 1.5 m).
-CASES = [(1.5, "p", {"M1", "M2"}), (3.0, "q", {"M3", "M4"}), (1.5, "q", {"M3"})]
+# (distance, observer, cylinders that must be found).  q's view of M4 at 1.5 m has its top
+# dark band touching dark poster text; p's view of M1 at 3.0 m has 5-px bands.
+CASES = [(1.5, "p", {"M1", "M2"}), (3.0, "q", {"M3", "M4"}), (1.5, "q", {"M3", "M4"}), (3.0, "p", {"M1", "M2"})]
 
 
 @pytest.mark.parametrize("d,obs,expected", CASES)
@@ -113,3 +112,53 @@ def test_localize_from_bands(scenes):
     assert np.linalg.norm(est.t - Tgt.t) < 0.05
     assert rotation_error_deg(est.R, Tgt.R) < 2.0
     print('t err m', np.linalg.norm(est.t - Tgt.t), 'rot err deg', rotation_error_deg(est.R, Tgt.R))
+
+
+def _sweep_errors(d, yp, yq, seed, **kw):
+    from mutloc.sim.render import project_markers
+    from mutloc.sim.synthetic import facing_pose
+
+    w = two_robot_world(RIG, facing_pose(d, np.radians(yp), np.radians(yq), 0.05 * d), seed=seed)
+    found, expected, errs = 0, 0, []
+    for obs, other in (("p", "q"), ("q", "p")):
+        gt = _truth(w, obs)
+        vis = project_markers(w, obs, check_occlusion=True)
+        res = detect_cylinders(render(w, obs, seed=seed, **kw), EX.robot(other).markers)
+        for name in RIG.robot(other).markers:
+            if name not in vis:
+                continue
+            expected += 1
+            if name in res.detections:
+                found += 1
+                e = [np.linalg.norm(res.detections[n].uv - gt[n]) for n in [name] + band_marker_names(name, 6)]
+                assert max(e) < 4.0, (d, yp, yq, obs, name, e)  # never a wrong place / wrong code
+                errs += e
+    return found, expected, errs
+
+
+# Poses where every cylinder is fully visible, at 1.2-3 m and yaw up to 15 degrees, rendered
+# clean and with sensor noise + blur + JPEG.  Measured (report): 63/64 and 63/64 over a
+# 16-pose sweep; median band error 0.16-0.17 px; the worst errors (2-3 px on the top band)
+# are at 1.2 m with 15 degrees yaw.
+SWEEP = [(1.2, 0, 0, 0), (1.5, -15, 15, 6), (2.2, 15, -15, 9), (3.0, 10, 5, 15)]
+DEGRADED = {"clean": {}, "noise+blur+jpeg": dict(noise_sigma=2.0, blur_px=0.7, jpeg_quality=90)}
+
+
+@pytest.mark.parametrize("cond", sorted(DEGRADED))
+def test_detection_rate_and_accuracy_sweep(cond):
+    found = expected = 0
+    errs = []
+    for d, yp, yq, seed in SWEEP:
+        f, e, er = _sweep_errors(d, yp, yq, seed, **DEGRADED[cond])
+        found, expected, errs = found + f, expected + e, errs + er
+    assert expected == 16
+    assert found >= 15, (found, expected)
+    assert np.median(errs) <= 0.3, np.median(errs)
+    assert np.percentile(errs, 90) <= 1.0
+
+
+@pytest.mark.parametrize("kw", [dict(noise_sigma=2.0), dict(blur_px=0.7), dict(jpeg_quality=90)])
+def test_each_degradation_alone(kw):
+    f, e, errs = _sweep_errors(1.5, -15, 15, 6, **kw)
+    assert f == e == 4
+    assert np.median(errs) <= 0.5

@@ -10,14 +10,21 @@ the cylinder centre ``NAME`` itself.
 
 Detector (:func:`detect_cylinders`), per image:
 
-1. Dark pixels (darker than both an absolute level and a fraction of the
-   local mean), opened with a 3x3 square to drop thin clutter such as text.
-2. Each connected dark blob is trimmed to its rows whose horizontal extent
-   agrees with the blob's median extent (a dark band touching dark clutter
-   keeps its own rows), giving dark *runs*.  Runs stacked on top of each other
-   with similar widths are chained; every contiguous sub-chain is read as a
-   code: the run lengths and gaps in units of the chain's band height must
-   match a marker's code (trimmed to its first..last dark band).
+1. Dark pixels (darker than an absolute level and than a fraction of the
+   local *light* level, the brightest smoothed value within 30 px), opened
+   with a 3x3 square to drop thin clutter such as text.
+2. Per-row dark segments (short gaps such as a specular highlight bridged)
+   are linked downwards into tracks of constant left/right extent, giving
+   dark *runs*; a row where the band touches clutter beside it is bridged, so
+   a band keeps its own rows.  Runs stacked on top of each other with similar
+   widths are chained; a contiguous sub-chain is read as a code: run lengths
+   and gaps in band heights must match a marker's code (trimmed to its
+   first..last dark band), and width / band height must match the cylinder's
+   diameter / band height within 30 %.  One dark run may be missing (merged
+   with clutter over its whole height); it is then placed from the code.
+   After refinement every band's middle must read as its bit (all dark bands
+   darker than all light ones), which rejects wrong codes and false chains;
+   found cylinders may not overlap.
 3. Sub-pixel: each dark/light boundary is located on several columns across
    the cylinder by the integral of the unmixed intensity over a window around
    it (the edge position for any symmetric blur).  Every boundary is the
@@ -122,6 +129,7 @@ class _Run:
     bot: int  # last dark row
     left: float  # median leftmost dark column
     right: float  # median rightmost dark column
+    synthetic: bool = False  # placed from the code, not seen
 
     @property
     def width(self) -> float:
@@ -258,31 +266,62 @@ def _code_runs(code: np.ndarray) -> tuple[int, int, list[tuple[int, int]]] | Non
     return int(ones[0]), int(ones[-1]) + 1, runs
 
 
-def _match(chain: list[_Run], code: np.ndarray) -> tuple[float, int] | None:
-    """Best (cost, offset) placing the code's dark runs on a contiguous part of ``chain``."""
+def _match(chain: list[_Run], code: np.ndarray, aspect: float) -> tuple[float, list[_Run]] | None:
+    """Best (cost, runs) placing the code's dark runs on a contiguous part of ``chain``.
+
+    ``aspect`` is the cylinder's diameter over one band's height: a dark run's
+    width over the band height in the image must agree with it (perspective
+    changes both alike), within 30 %.  When all the code's dark runs are
+    present the band height comes from the span, else from the width and
+    ``aspect``: then one dark run may be missing (it touches dark clutter
+    over its whole height) and is put where the code says, marked
+    ``synthetic``; such a match costs 0.5 more and is only kept if
+    :func:`_refine` verifies every band.
+    """
     cr = _code_runs(code)
     if cr is None:
         return None
     first, last, druns = cr
     m = len(druns)
     best = None
-    for off in range(len(chain) - m + 1):
-        part = chain[off:off + m]
-        span = part[-1].bot + 1 - part[0].top
-        unit = span / (last - first)
-        if unit < 2.0:
-            continue
-        cost = 0.0
-        for (s, e), run in zip(druns, part):
-            t = (run.top - part[0].top) / unit + first
-            b = (run.bot + 1 - part[0].top) / unit + first
-            cost = max(cost, abs(t - s), abs(b - e))
-        # Width of a band vs its height: a cylinder is not much wider than 20 bands, not thinner than 1/20 of one.
-        ratio = np.median([r.width for r in part]) / unit
-        if not 0.05 < ratio < 20:
-            continue
-        if cost < 0.35 and (best is None or cost < best[0]):
-            best = (cost, off)
+    subsets = [list(range(m))] + ([[k for k in range(m) if k != skip] for skip in range(m)] if m >= 2 else [])
+    for sub in subsets:
+        full = len(sub) == m
+        ms = len(sub)
+        for off in range(len(chain) - ms + 1):
+            part = chain[off:off + ms]
+            if any(r.synthetic for r in part):
+                continue
+            wmed = float(np.median([r.width for r in part]))
+            unit_w = wmed / aspect
+            if full:
+                unit = (part[-1].bot + 1 - part[0].top) / (last - first)
+            else:
+                unit = unit_w
+            if unit < 2.0 or not 0.7 < unit / unit_w < 1.3:
+                continue
+            obs = [druns[k] for k in sub]
+            # offset: v of code index 0 (least squares over the observed boundaries)
+            o = float(np.mean([r.top - s0 * unit for (s0, _), r in zip(obs, part)]
+                              + [r.bot + 1 - e0 * unit for (_, e0), r in zip(obs, part)]))
+            cost = 0.0
+            for (s0, e0), run in zip(obs, part):
+                cost = max(cost, abs((run.top - o) / unit - s0), abs((run.bot + 1 - o) / unit - e0))
+            if cost >= 0.35:
+                continue
+            runs, it = [], iter(part)
+            left = float(np.median([r.left for r in part]))
+            right = float(np.median([r.right for r in part]))
+            for k, (s0, e0) in enumerate(druns):
+                if k in sub:
+                    runs.append(next(it))
+                else:
+                    runs.append(_Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right,
+                                     synthetic=True))
+            if not full:
+                cost += 0.5
+            if best is None or cost < best[0]:
+                best = (cost, runs)
     return best
 
 
@@ -302,13 +341,13 @@ def _refine(gray: np.ndarray, part: list[_Run], code: np.ndarray) -> dict[str, A
     span = part[-1].bot + 1 - part[0].top
     unit = span / (last - first)
     # Centre line x = cx0 + cx1 * v from the runs' row-extent midpoints (refined below).
-    vs = np.array([0.5 * (r.top + r.bot) for r in part])
-    xs = np.array([r.xc for r in part])
-    if len(part) >= 2 and np.ptp(vs) > 0:
+    vs = np.array([0.5 * (r.top + r.bot) for r in part if not r.synthetic])
+    xs = np.array([r.xc for r in part if not r.synthetic])
+    if len(vs) >= 2 and np.ptp(vs) > 0:
         cx1, cx0 = np.polyfit(vs, xs, 1)
     else:
         cx1, cx0 = 0.0, float(xs.mean())
-    R = 0.5 * float(np.median([r.width for r in part]))
+    R = 0.5 * float(np.median([r.width for r in part if not r.synthetic]))
     hw = int(np.clip(math.floor(0.45 * unit), 1, 4))
     g = gray.astype(np.float32)
 
@@ -316,6 +355,8 @@ def _refine(gray: np.ndarray, part: list[_Run], code: np.ndarray) -> dict[str, A
     mids_v, mids_x = [], []
     m = max(2, int(round(0.2 * R)) + 2)
     for run in part:
+        if run.synthetic:
+            continue
         hh = run.bot - run.top
         for v in range(run.top + max(1, hh // 4), run.bot - max(1, hh // 4) + 1):
             xc = cx0 + cx1 * v
@@ -466,21 +507,23 @@ def detect_cylinders(image: Any, markers: Mapping[str, Marker] | Robot, *, camer
     gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
     chains = _chains(_dark_runs(gray))
     cands = []  # (cost, -length, marker, part)
-    for name, (_, _, code) in specs.items():
+    for name, (radius, height, code) in specs.items():
+        aspect = 2 * radius / (height / len(code))
         for chain in chains:
-            got = _match(chain, code)
+            got = _match(chain, code, aspect)
             if got is not None:
-                cost, off = got
-                m = len(_code_runs(code)[2])  # type: ignore[index]
-                part = chain[off:off + m]
+                cost, part = got
                 cands.append((cost, -(part[-1].bot - part[0].top), name, part))
     cands.sort(key=lambda c: (c[0], c[1]))
-    used: list[tuple[int, int, float]] = []
+    used: list[tuple[int, int, float, float]] = []
     for cost, _, name, part in cands:
         if name in result.detections:
             continue
-        key = (part[0].top, part[-1].bot, part[0].xc)
-        if any(abs(key[0] - u[0]) < 2 and abs(key[2] - u[2]) < 2 for u in used):
+        # One cylinder per image region: no overlap with one already found (better matches first).
+        key = (part[0].top, part[-1].bot, float(np.median([r.xc for r in part])),
+               float(np.median([r.width for r in part])))
+        if any(key[0] <= u[1] and u[0] <= key[1] and abs(key[2] - u[2]) < 0.5 * max(key[3], u[3])
+               for u in used):
             continue
         ref = _refine(gray, part, specs[name][2])
         if ref is None:
