@@ -8,32 +8,12 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ._common import nonnegative_float, positive_float
+from ._common import int_in_range, nonnegative_float, positive_float
 
 ORDER = 70
 
 # As mutloc.sim.world.MARKER_KINDS (not imported: keep `mutloc --help` light).
 MARKER_KINDS = ("balls", "lights", "tags", "cylinders")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
-    return n
-
-
-def _jpeg_quality(text: str) -> int:
-    try:
-        q = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 1 <= q <= 100:
-        raise argparse.ArgumentTypeError(f"JPEG quality must be in 1..100, got {text!r}")
-    return q
 
 
 def _image_size(text: str) -> tuple[int, int]:
@@ -70,13 +50,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="marker kind on each robot (default balls)")
     p.add_argument("--distance", type=positive_float, default=2.0, metavar="M",
                    help="distance between the cameras in metres (default 2.0)")
-    p.add_argument("--frames", type=_positive_int, default=1, metavar="N",
+    p.add_argument("--frames", type=int_in_range(1), default=1, metavar="N",
                    help="number of frames; more than 1 renders a sequence of p moving (default 1)")
     p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate of a sequence (default 30)")
     p.add_argument("--seed", type=int, default=0, help="seed of the room, the pose and the noise (default 0)")
     p.add_argument("--noise", type=nonnegative_float, default=1.0, metavar="SIGMA",
                    help="sensor noise, standard deviation in grey levels (default 1.0)")
-    p.add_argument("--jpeg", type=_jpeg_quality, metavar="Q",
+    p.add_argument("--jpeg", type=int_in_range(1, 100, 'JPEG quality'), metavar="Q",
                    help="pass each image through JPEG at quality Q (files stay PNG)")
     p.add_argument("--blur", type=nonnegative_float, default=0.0, metavar="PX",
                    help="horizontal motion blur length in pixels (default 0)")
