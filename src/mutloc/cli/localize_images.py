@@ -14,8 +14,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p = subparsers.add_parser(
         "localize-images",
         help="detect markers in one image per robot, then localize; prints the result JSON",
-        description="Detect each robot's view of the other robot's markers (coloured balls or printed "
-        "tags, as the rig says) and print the relative pose as the result JSON.",
+        description="Detect each robot's view of the other robot's markers (coloured balls, printed "
+        "tags or banded cylinders, as the rig says) and print the relative pose as the result JSON.",
     )
     p.add_argument("--rig", required=True, metavar="FILE", help="rig file (YAML or JSON)")
     p.add_argument("--image", required=True, action="append", type=robot_value, metavar="ROBOT=PATH",
