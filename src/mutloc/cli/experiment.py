@@ -1,4 +1,4 @@
-"""``mutloc experiment``: reproduce one of the paper's experiments."""
+"""``mutloc experiment``: reproduce the paper's experiments."""
 
 from __future__ import annotations
 
@@ -6,17 +6,21 @@ import argparse
 
 ORDER = 60
 
-EXPERIMENTS = ["noise"]
+EXPERIMENTS = ["noise", "localization", "reconstruction", "all"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``experiment``."""
     p = subparsers.add_parser(
         "experiment",
-        help="reproduce one of the paper's experiments (results.json, report.md, plots)",
+        help="reproduce the paper's experiments (results.json, report.md, plots)",
         description=(
-            "Run one of the paper's experiments and write OUT/NAME/results.json, report.md and plots. "
-            "noise: simulation with Gaussian noise on the detected ball centres (paper Sec. V-B)."
+            "Run one of the paper's experiments and write OUT/NAME/results.json, report.md and plots; "
+            "'all' runs every one and writes OUT/report.md. "
+            "noise: Gaussian noise on the detected ball centres (Sec. V-B); "
+            "localization: grid of positions, mutual localization against a one-sided tag, egomotion and "
+            "the Dugas closed form (Sec. V-A, Table II); "
+            "reconstruction: points triangulated with each method's poses (Sec. V-C)."
         ),
     )
     p.add_argument("name", choices=EXPERIMENTS, metavar="NAME", help=f"experiment ({', '.join(EXPERIMENTS)})")
@@ -28,18 +32,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the named experiment and print where the report is."""
+    """Run the named experiment(s) and print where the report is."""
     import shlex
     from pathlib import Path
+
+    from ..experiments.report import quick_kwargs, run_all, runner
 
     cmd = ["mutloc", "experiment", args.name, "--out", args.out, "--seed", str(args.seed)]
     if args.quick:
         cmd.append("--quick")
     command = " ".join(shlex.quote(c) for c in cmd)
-    if args.name == "noise":
-        from ..experiments.noise import QUICK, run_noise
-
-        kwargs = dict(QUICK) if args.quick else {}
-        run_noise(args.out, seed=args.seed, progress=args.progress, command=command, **kwargs)
+    if args.name == "all":
+        run_all(args.out, seed=args.seed, quick=args.quick, progress=args.progress, command=command)
+        print(Path(args.out) / "report.md")
+        return 0
+    kwargs = quick_kwargs(args.name) if args.quick else {}
+    runner(args.name)(args.out, seed=args.seed, progress=args.progress, command=command, **kwargs)
     print(Path(args.out) / args.name / "report.md")
     return 0

@@ -17,15 +17,14 @@ Output in ``OUT/noise/``: ``results.json`` (SPEC "Experiment results"),
 
 from __future__ import annotations
 
-import json
 import math
-import platform
-import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+
+from ._common import fmt, median, pyplot, reproduce_lines, versions, write_results
 
 __all__ = ["run_noise", "PAPER_TRANSLATION_M", "PAPER_ROTATION_DEG", "METHODS", "QUICK"]
 
@@ -48,18 +47,6 @@ DISTANCE_SPREAD = 0.1  # +-10 % around the nominal distance
 MAX_DETECTION_ERROR_PX = 1.0
 CRB_SAMPLES_PER_SCENE = 400
 MAX_POSE_ATTEMPTS = 200
-
-
-def _versions() -> dict[str, str]:
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {"python": platform.python_version()}
-    for pkg in ("mutloc", "numpy", "scipy", "numba", "opencv-python-headless", "matplotlib"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
 
 
 class _Scene:
@@ -155,10 +142,6 @@ def _solve_errors(scene: _Scene, noisy: dict[str, dict[str, np.ndarray]], sigma:
     return out
 
 
-def _median(values: list[float]) -> float:
-    return float(np.median(values)) if values else float("nan")
-
-
 def _distance_key(d: float) -> str:
     return f"{float(d):.1f}"
 
@@ -224,8 +207,8 @@ def run_noise(out_dir: str | Path, *, seed: int = 0, sigmas: Sequence[float] = (
         by_distance[key] = {
             "distance_m": d,
             "scenes": poses_per_distance,
-            "methods": {m: {"median_translation_m": [_median(errs[m][s][0]) for s in sigmas],
-                            "median_rotation_deg": [_median(errs[m][s][1]) for s in sigmas],
+            "methods": {m: {"median_translation_m": [median(errs[m][s][0]) for s in sigmas],
+                            "median_rotation_deg": [median(errs[m][s][1]) for s in sigmas],
                             "samples": [len(errs[m][s][0]) for s in sigmas]} for m in METHODS},
         }
         failures[key] = fails
@@ -253,23 +236,17 @@ def run_noise(out_dir: str | Path, *, seed: int = 0, sigmas: Sequence[float] = (
         },
         "solver_failures": failures,
         "command": command or f"mutloc.experiments.noise.run_noise(seed={seed})",
-        "versions": _versions(),
+        "versions": versions(),
         "elapsed_s": round(elapsed, 2),
     }
-    with open(out / "results.json", "w", encoding="utf-8") as f:
-        json.dump(results, f, indent=2, allow_nan=True)
-        f.write("\n")
+    write_results(results, out)
     _plots(results, out)
     (out / "report.md").write_text(_report(results), encoding="utf-8")
     return results
 
 
 def _plots(results: dict[str, Any], out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     sig = results["sigma_px"]
     styles = {"best_root": ("-", "o", "best root (paper)"), "refined": ("--", "s", "refined (ML)"),
               "crlb": (":", None, "CRB-implied")}
@@ -294,10 +271,6 @@ def _plots(results: dict[str, Any], out: Path) -> None:
         fig.tight_layout()
         fig.savefig(out / fname, dpi=120)
         plt.close(fig)
-
-
-def _fmt(x: float, scale: float, digits: int) -> str:
-    return "n/a" if not math.isfinite(x) else f"{x * scale:.{digits}f}"
 
 
 def _report(results: dict[str, Any]) -> str:
@@ -328,8 +301,8 @@ def _report(results: dict[str, Any]) -> str:
                   f"{PAPER_ROTATION_DEG:.1f} deg (at most) |"]
         for m, label in (("best_root", "best root (paper's method)"), ("refined", "refined (mutloc)"),
                          ("crlb", "CRB-implied")):
-            lines.append(f"| {label} | {_fmt(m1[m]['median_translation_m'][i10], 100, 2)} cm | "
-                         f"{_fmt(m1[m]['median_rotation_deg'][i10], 1, 2)} deg |")
+            lines.append(f"| {label} | {fmt(m1[m]['median_translation_m'][i10], 100, 2)} cm | "
+                         f"{fmt(m1[m]['median_rotation_deg'][i10], 1, 2)} deg |")
         lines.append("")
     for key, block in results["by_distance_m"].items():
         ms = block["methods"]
@@ -338,12 +311,9 @@ def _report(results: dict[str, Any]) -> str:
                   "CRB [deg] |", "|---|---|---|---|---|---|---|"]
         for j, s in enumerate(sig):
             lines.append(
-                f"| {s:g} | " + " | ".join(_fmt(ms[m]["median_translation_m"][j], 100, 2) for m in METHODS) + " | "
-                + " | ".join(_fmt(ms[m]["median_rotation_deg"][j], 1, 3) for m in METHODS) + " |")
+                f"| {s:g} | " + " | ".join(fmt(ms[m]["median_translation_m"][j], 100, 2) for m in METHODS) + " | "
+                + " | ".join(fmt(ms[m]["median_rotation_deg"][j], 1, 3) for m in METHODS) + " |")
         fails = results["solver_failures"][key]
         lines += ["", f"Solver failures (excluded): best root {fails['best_root']}, refined {fails['refined']}.", ""]
-    lines += ["Plots: `translation_vs_sigma.png`, `rotation_vs_sigma.png`.", "", "## Reproduce", "",
-              "```", results["command"], "```", "",
-              f"Seed {results['seed']}; run time {results['elapsed_s']:.1f} s; Python {sys.version.split()[0]}.", "",
-              "Versions: " + ", ".join(f"{k} {v}" for k, v in results["versions"].items()) + ".", ""]
+    lines += ["Plots: `translation_vs_sigma.png`, `rotation_vs_sigma.png`.", ""] + reproduce_lines(results)
     return "\n".join(lines)

@@ -58,12 +58,14 @@ __all__ = [
     "default_path",
     "pixel_bearings",
     "render_linear",
+    "room_around",
     "linear_to_srgb",
     "moving_world",
     "project_markers",
     "relative_pose",
     "render",
     "srgb_to_linear",
+    "surface_distance",
     "two_robot_world",
 ]
 
@@ -751,7 +753,8 @@ def _atlas(world: World) -> tuple[np.ndarray, np.ndarray, dict[Any, int]]:
                 fam, tid, _, _ = tag_spec(m)
                 tags.append((fam, tid))
     room = world.room
-    key = (None if room is None else (tuple(room.size), room.height, room.seed, room.texel), tuple(sorted(set(tags))))
+    key = (None if room is None else (tuple(room.size), room.height, room.seed, room.texel, room.floor_decals),
+           tuple(sorted(set(tags))))
     cached = _ATLASES.get(key)
     if cached is not None:
         _ATLASES.move_to_end(key)
@@ -1125,6 +1128,37 @@ def _occluded(scene: _Scene, world: World, observer: str, rname: str, marker: An
     return False
 
 
+def surface_distance(world: World, points: Any, t: float = 0.0) -> np.ndarray:
+    """Distance (n,) from each world point (n, 3) to the nearest surface of
+    ``world`` at time ``t``: room walls, robot bodies, markers.  The ground
+    truth for reconstructed point clouds (exact, no sampling)."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    scene, _ = _compile(world, _check_time(t))
+    best = np.full(len(P), np.inf)
+    for k in range(len(scene.rows)):
+        f, kind = scene.pf[k], int(scene.pi[k, 0])
+        d = P - f[:3]
+        if kind == _SPHERE:
+            dist = np.abs(np.linalg.norm(d, axis=1) - f[3])
+        elif kind == _QUAD:
+            a = np.clip(d @ f[3:6], -f[12], f[12])
+            b = np.clip(d @ f[6:9], -f[13], f[13])
+            dist = np.linalg.norm(d - a[:, None] * f[3:6] - b[:, None] * f[6:9], axis=1)
+        elif kind == _BOX:
+            local = d @ f[3:12].reshape(3, 3)  # coordinates along the box axes
+            q = np.abs(local) - f[12:15]
+            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+            dist = np.where(outside > 0, outside, -np.max(q, axis=1))
+        else:  # capped cylinder
+            h = d @ f[3:6]
+            rad = np.linalg.norm(d - h[:, None] * f[3:6], axis=1)
+            q = np.stack([rad - f[6], np.abs(h) - f[7]], axis=1)
+            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+            dist = np.where(outside > 0, outside, -np.max(q, axis=1))
+        best = np.minimum(best, dist)
+    return best
+
+
 # ---------------------------------------------------------------------------
 # standard worlds
 # ---------------------------------------------------------------------------
@@ -1132,8 +1166,9 @@ def _occluded(scene: _Scene, world: World, observer: str, rname: str, marker: An
 CAMERA_HEIGHT = 0.5  # m above the floor, of the target robot q in the standard worlds
 
 
-def _room_around(points: list[np.ndarray], seed: int, margin: float = 2.5) -> Room:
-    """A room containing ``points`` (world xy) with ``margin`` metres to spare, off-centre by the seed."""
+def room_around(points: list[np.ndarray], seed: int, margin: float = 2.5, floor_decals: float = 0.0) -> Room:
+    """A room containing ``points`` (world xy) with ``margin`` metres to spare, off-centre by the seed;
+    ``floor_decals`` printed mats per square metre on its floor (:class:`~mutloc.sim.world.Room`)."""
     P = np.array(points)[:, :2]
     lo, hi = P.min(axis=0), P.max(axis=0)
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 104729])
@@ -1143,7 +1178,7 @@ def _room_around(points: list[np.ndarray], seed: int, margin: float = 2.5) -> Ro
     free = np.maximum(0.5 * (size - (hi - lo)) - 1.0, 0.0)
     centre = 0.5 * (lo + hi) + 0.5 * free * rng.uniform(-1.0, 1.0, 2)
     return Room(center=(float(centre[0]), float(centre[1])), size=(float(size[0]), float(size[1])),
-                seed=int(seed))
+                seed=int(seed), floor_decals=float(floor_decals))
 
 
 def _pair(rig: Rig, source: str | None, target: str | None) -> tuple[str, str]:
@@ -1165,7 +1200,7 @@ def two_robot_world(rig: Rig, T_qp: Pose, *, room: bool = True, seed: int = 0, s
     T_wq = camera_to_world_facing((0.0, 0.0, CAMERA_HEIGHT))
     T_wp = T_wq @ T_qp
     robots = {q: WorldRobot(rig.robot(q), T_wq, body=body), p: WorldRobot(rig.robot(p), T_wp, body=body)}
-    rm = _room_around([T_wq.t, T_wp.t], seed) if room else None
+    rm = room_around([T_wq.t, T_wp.t], seed) if room else None
     return World(robots=robots, room=rm)
 
 
@@ -1221,5 +1256,5 @@ def moving_world(rig: Rig, T_qp: Callable[[float], Pose] | None = None, *, dista
     if room:
         # Sample the path so the room holds all of it.
         pts = [T_wq(0.0).t] + [T_wp(s).t for s in np.linspace(0.0, period, 33)]
-        rm = _room_around(pts, seed)
+        rm = room_around(pts, seed)
     return World(robots=robots, room=rm)

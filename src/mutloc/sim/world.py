@@ -231,6 +231,9 @@ class Room:
     height: float = 2.6
     seed: int = 0
     texel: float = 0.005
+    # Printed mats on the floor (per square metre): distinctive texture that
+    # cameras facing each other both see, for feature-matching baselines.
+    floor_decals: float = 0.0
 
     def surfaces(self) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, float, float]]:
         """``(name, centre, u, v, half_u, half_v)`` of each inner surface.
@@ -266,7 +269,7 @@ def _random_text(rng: np.random.Generator, n: int) -> str:
     return "".join(letters[i] for i in rng.integers(0, len(letters), n))
 
 
-def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator) -> np.ndarray:
+def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator, decals: float = 0.0) -> np.ndarray:
     """sRGB uint8 (h, w, 3) BGR texture of one room surface (row 0 = top / far +v side)."""
     px = lambda metres: max(1, int(round(metres / texel)))
     if name == "floor":
@@ -291,6 +294,10 @@ def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator) 
             c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
             shade = int(rng.choice([rng.integers(25, 70), rng.integers(180, 240)]))
             cv2.circle(img, c, px(rng.uniform(0.006, 0.025)), (shade, shade, shade), -1, cv2.LINE_AA)
+        for _ in range(int(round(w * h * texel * texel * decals))):
+            pw, ph = px(rng.uniform(0.2, 0.6)), px(rng.uniform(0.2, 0.6))
+            x0, y0 = int(rng.integers(0, max(1, w - pw))), int(rng.integers(0, max(1, h - ph)))
+            _poster(img, rng, x0, y0, pw, ph, 8, 20)
         return img
     if name == "ceiling":
         img = np.full((h, w, 3), 205, np.float32)
@@ -317,24 +324,30 @@ def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator) 
         pw, ph = px(rng.uniform(0.25, 0.9)), px(rng.uniform(0.25, 0.9))
         x0 = int(rng.integers(0, max(1, w - pw)))
         y0 = int(rng.integers(px(0.35), max(px(0.36), h - ph - px(0.4))))
-        col = tuple(int(c) for c in rng.integers(30, 240, 3))
-        cv2.rectangle(img, (x0, y0), (x0 + pw, y0 + ph), col, -1)
-        for _ in range(int(rng.integers(3, 9))):
-            kind = int(rng.integers(0, 3))
-            c2 = tuple(int(c) for c in rng.integers(0, 256, 3))
-            cx, cy = x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))
-            if kind == 0:
-                cv2.circle(img, (cx, cy), int(rng.integers(3, max(4, min(pw, ph) // 4))), c2, -1, cv2.LINE_AA)
-            elif kind == 1:
-                cv2.rectangle(img, (cx, cy), (cx + int(rng.integers(4, max(5, pw // 3))),
-                                              cy + int(rng.integers(4, max(5, ph // 3)))), c2, -1)
-            else:
-                cv2.line(img, (cx, cy), (x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))), c2,
-                         int(rng.integers(1, 5)), cv2.LINE_AA)
-        scale = max(0.3, ph / 160.0)
-        cv2.putText(img, _random_text(rng, int(rng.integers(3, 7))), (x0 + 4, y0 + ph - 6),
-                    cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), max(1, int(scale * 2)), cv2.LINE_AA)
+        _poster(img, rng, x0, y0, pw, ph, 3, 9)
     return img
+
+
+def _poster(img: np.ndarray, rng: np.random.Generator, x0: int, y0: int, pw: int, ph: int,
+            lo: int, hi: int) -> None:
+    """Draw a coloured card with ``lo..hi`` random shapes and a word of text."""
+    col = tuple(int(c) for c in rng.integers(30, 240, 3))
+    cv2.rectangle(img, (x0, y0), (x0 + pw, y0 + ph), col, -1)
+    for _ in range(int(rng.integers(lo, hi))):
+        kind = int(rng.integers(0, 3))
+        c2 = tuple(int(c) for c in rng.integers(0, 256, 3))
+        cx, cy = x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))
+        if kind == 0:
+            cv2.circle(img, (cx, cy), int(rng.integers(3, max(4, min(pw, ph) // 4))), c2, -1, cv2.LINE_AA)
+        elif kind == 1:
+            cv2.rectangle(img, (cx, cy), (cx + int(rng.integers(4, max(5, pw // 3))),
+                                          cy + int(rng.integers(4, max(5, ph // 3)))), c2, -1)
+        else:
+            cv2.line(img, (cx, cy), (x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))), c2,
+                     int(rng.integers(1, 5)), cv2.LINE_AA)
+    scale = max(0.3, ph / 160.0)
+    cv2.putText(img, _random_text(rng, int(rng.integers(3, 7))), (x0 + 4, y0 + ph - 6),
+                cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), max(1, int(scale * 2)), cv2.LINE_AA)
 
 
 def room_textures(room: Room) -> dict[str, np.ndarray]:
@@ -344,18 +357,20 @@ def room_textures(room: Room) -> dict[str, np.ndarray]:
     top (``+half_v``) down.  Cached on (size, height, seed, texel): rooms that
     differ only in where they stand share their textures.
     """
-    return _room_textures(tuple(map(float, room.size)), float(room.height), int(room.seed), float(room.texel))
+    return _room_textures(tuple(map(float, room.size)), float(room.height), int(room.seed), float(room.texel),
+                          float(room.floor_decals))
 
 
 @functools.lru_cache(maxsize=4)
-def _room_textures(size: tuple[float, float], height: float, seed: int, texel: float) -> dict[str, np.ndarray]:
-    room = Room(size=size, height=height, seed=seed, texel=texel)
+def _room_textures(size: tuple[float, float], height: float, seed: int, texel: float,
+                   decals: float = 0.0) -> dict[str, np.ndarray]:
+    room = Room(size=size, height=height, seed=seed, texel=texel, floor_decals=decals)
     out = {}
     for k, (name, _c, _u, _v, hu, hv) in enumerate(room.surfaces()):
         rng = np.random.default_rng([seed & 0xFFFFFFFF, 7919, k])
         w = max(2, int(math.ceil(2 * hu / texel)))
         h = max(2, int(math.ceil(2 * hv / texel)))
-        tex = _texture(name, w, h, texel, rng)
+        tex = _texture(name, w, h, texel, rng, decals if name == "floor" else 0.0)
         tex.flags.writeable = False
         out[name] = tex
     return out

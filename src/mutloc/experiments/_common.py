@@ -1,0 +1,72 @@
+"""What every experiment shares: versions, medians, number formatting, output."""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+__all__ = ["versions", "median", "fmt", "write_results", "reproduce_lines", "pyplot"]
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the packages the results depend on."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for pkg in ("mutloc", "numpy", "scipy", "numba", "opencv-python-headless", "matplotlib"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = "unknown"
+    return out
+
+
+def median(values: Iterable[float]) -> float:
+    """Median, NaN for no values."""
+    v = list(values)
+    return float(np.median(v)) if v else float("nan")
+
+
+def fmt(x: float, scale: float = 1.0, digits: int = 2) -> str:
+    """``x * scale`` with ``digits`` decimals, or n/a."""
+    return "n/a" if x is None or not math.isfinite(x) else f"{x * scale:.{digits}f}"
+
+
+def _finite(x: Any) -> Any:
+    """NaN/inf (a method that never succeeded) as JSON null, recursively."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def write_results(results: dict[str, Any], out: Path) -> None:
+    """``out/results.json`` (SPEC "Experiment results"); undefined numbers are null."""
+    with open(out / "results.json", "w", encoding="utf-8") as f:
+        json.dump(_finite(results), f, indent=2, allow_nan=False)
+        f.write("\n")
+
+
+def reproduce_lines(results: dict[str, Any]) -> list[str]:
+    """The report's closing "Reproduce" section."""
+    return ["## Reproduce", "", "```", results["command"], "```", "",
+            f"Seed {results['seed']}; run time {results['elapsed_s']:.1f} s.", "",
+            "Versions: " + ", ".join(f"{k} {v}" for k, v in results["versions"].items()) + ".", ""]
+
+
+def pyplot():
+    """Matplotlib's pyplot on the non-interactive Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt

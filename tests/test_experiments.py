@@ -1,0 +1,98 @@
+"""``mutloc experiment all --quick``: the localization and reconstruction
+experiments (paper Sec. V-A, V-C) and the combined report, on a tiny grid and
+three poses, checked against the rendered truth."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from mutloc.cli.main import main
+from mutloc.experiments.localization import FOOT, METHODS, QUICK
+from mutloc.io.pointcloud import read_ply
+
+
+@pytest.fixture(scope="module")
+def quick_all(tmp_path_factory):
+    out = tmp_path_factory.mktemp("all")
+    status = main(["experiment", "all", "--out", str(out), "--seed", "1", "--quick", "--no-progress"])
+    return status, out
+
+
+def test_all_writes_one_report_with_every_experiment(quick_all):
+    status, out = quick_all
+    assert status == 0
+    report = (out / "report.md").read_text()
+    for heading in ("Localization experiment", "Simulation experiment with noise", "3D reconstruction experiment"):
+        assert heading in report
+    assert "0.57 m / 9.2 deg" in report and "0.176 m vs 0.331 m" in report  # the paper beside ours
+    assert "mutloc experiment all --out" in report and "--seed 1 --quick" in report
+    for name in ("noise", "localization", "reconstruction"):
+        res = json.loads((out / name / "results.json").read_text())
+        assert res["experiment"] == name and res["seed"] == 1
+
+
+def test_localization_results_follow_spec_and_match_the_per_position_table(quick_all):
+    _, out = quick_all
+    res = json.loads((out / "localization" / "results.json").read_text())
+    assert set(res["methods"]) == set(METHODS)
+    with open(out / "localization" / "positions.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(QUICK["grid_x_ft"]) * len(QUICK["grid_z_ft"])
+    for r in rows:  # the grid is where it should be, in q's frame
+        assert float(r["x_m"]) == pytest.approx(int(r["x_ft"]) * FOOT, abs=1e-3)
+        assert float(r["z_m"]) == pytest.approx(int(r["z_ft"]) * FOOT, abs=1e-3)
+    for m in METHODS:
+        block = res["methods"][m]
+        vals = [float(r[f"{m}_translation_m"]) for r in rows if r[f"{m}_translation_m"]]
+        assert block["solved"] == len(vals)
+        if vals:
+            assert block["median_translation_m"] == pytest.approx(float(np.median(vals)), rel=1e-4)
+        else:
+            assert block["median_translation_m"] is None
+
+
+def test_localization_reproduces_the_papers_direction(quick_all):
+    _, out = quick_all
+    res = json.loads((out / "localization" / "results.json").read_text())
+    mutual, tag = res["methods"]["mutual"], res["methods"]["tag"]
+    assert mutual["solved"] == mutual["positions"] >= 3
+    # Rendered, detected, solved: millimetres and hundredths of a degree.
+    assert mutual["median_translation_m"] < 0.005 and mutual["median_rotation_deg"] < 0.1
+    # The acceptance: at least ten-fold better than the one-sided tag.
+    assert tag["solved"] >= 3
+    assert tag["median_translation_m"] >= 10 * mutual["median_translation_m"]
+    assert res["translation_improvement"]["tag"] == pytest.approx(
+        tag["median_translation_m"] / mutual["median_translation_m"])
+    # Dugas' closed form on the same detections is exact up to detection noise.
+    assert res["methods"]["dugas"]["median_translation_m"] < 0.01
+
+
+def test_reconstruction_points_lie_on_the_true_surface(quick_all):
+    _, out = quick_all
+    res = json.loads((out / "reconstruction" / "results.json").read_text())
+    mut = res["methods"]["mutual"]
+    assert mut["poses_solved"] == res["setup"]["poses"]
+    assert mut["points"] > 20
+    assert mut["mean_nn_distance_m"] < 0.05
+    pts, cols = read_ply(out / "reconstruction" / "mutual.ply")
+    assert len(pts) == mut["points"] and cols is not None
+    # Independently recompute the metric from the PLY and the room.
+    from mutloc.experiments.reconstruction import _scene
+    from mutloc.sim.render import surface_distance
+    from mutloc.sim.world import World, WorldRobot, standard_rig
+
+    rig = standard_rig("balls", f=res["setup"]["focal_px"])
+    T_wq, T_wp, room = _scene(np.random.default_rng(1), res["setup"]["poses"], 1)
+    # p moved between poses: a point is on the surface of the scene at one of them.
+    d = np.min([surface_distance(World(robots={"q": WorldRobot(rig.robot("q"), T_wq),
+                                               "p": WorldRobot(rig.robot("p"), T)}, room=room), pts)
+                for T in T_wp], axis=0)
+    assert float(np.mean(d)) == pytest.approx(mut["mean_nn_distance_m"], abs=2e-3)
+    ego = res["methods"]["egomotion"]
+    if ego["points"]:
+        assert math.isfinite(ego["mean_nn_distance_m"])
