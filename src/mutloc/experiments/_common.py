@@ -10,7 +10,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-__all__ = ["versions", "median", "fmt", "write_results", "reproduce_lines", "pyplot"]
+__all__ = ["versions", "median", "fmt", "write_results", "reproduce_lines", "pyplot", "save_figure"]
 
 
 def versions() -> dict[str, str]:
@@ -70,3 +70,12 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_figure(fig: Any, path: Path, dpi: int = 120) -> None:
+    """Lay out, write and close a Matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)

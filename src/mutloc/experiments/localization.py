@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._common import fmt, median, pyplot, reproduce_lines, versions, write_results
+from ._common import fmt, median, pyplot, reproduce_lines, save_figure, versions, write_results
 
 __all__ = ["run_localization", "localization_rig", "METHODS", "PAPER", "QUICK", "FOOT"]
 
@@ -288,9 +288,7 @@ def _plots(rows: list[dict[str, Any]], results: dict[str, Any], out: Path) -> No
         axes[0].set_ylabel(ylabel + " (log)")
         axes[1].legend(fontsize=7)
         fig.suptitle(f"Localization experiment: {ylabel} against ground truth (seed {results['seed']})")
-        fig.tight_layout()
-        fig.savefig(out / fname, dpi=120)
-        plt.close(fig)
+        save_figure(fig, out / fname, 120)
 
 
 def _report(results: dict[str, Any]) -> str:

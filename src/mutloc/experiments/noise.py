@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._common import fmt, median, pyplot, reproduce_lines, versions, write_results
+from ._common import fmt, median, pyplot, reproduce_lines, save_figure, versions, write_results
 
 __all__ = ["run_noise", "PAPER_TRANSLATION_M", "PAPER_ROTATION_DEG", "METHODS", "QUICK"]
 
@@ -268,9 +268,7 @@ def _plots(results: dict[str, Any], out: Path) -> None:
         ax.set_title(f"Noise experiment (seed {results['seed']})")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7, ncol=2)
-        fig.tight_layout()
-        fig.savefig(out / fname, dpi=120)
-        plt.close(fig)
+        save_figure(fig, out / fname, 120)
 
 
 def _report(results: dict[str, Any]) -> str:

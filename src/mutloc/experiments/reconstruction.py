@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ._common import fmt, median, pyplot, reproduce_lines, versions, write_results
+from ._common import fmt, median, pyplot, reproduce_lines, save_figure, versions, write_results
 
 __all__ = ["run_reconstruction", "PAPER", "QUICK", "OUTLIER_M"]
 
@@ -237,9 +237,7 @@ def _plots(clouds, dists, T_wq, T_wp, room, results, out: Path) -> None:
     axes[0].set_ylabel("world y [m]")
     axes[0].legend(fontsize=7, loc="lower left")
     fig.suptitle("Reconstructed points, top view (colour = height)")
-    fig.tight_layout()
-    fig.savefig(out / "reconstruction.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "reconstruction.png", 110)
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     bins = np.linspace(0, OUTLIER_M, 51)
@@ -251,9 +249,7 @@ def _plots(clouds, dists, T_wq, T_wp, room, results, out: Path) -> None:
     ax.set_yscale("log")
     ax.legend()
     ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / "distance_histogram.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "distance_histogram.png", 110)
 
 
 def _report(results: dict[str, Any]) -> str:
