@@ -538,3 +538,56 @@ def test_rendered_close_lights(size, f, distance, n, first) -> None:
           f"on {np.median(errs):.3f} px ({len(errs)} reports), {n / spent:.0f} frames/s")
     assert rate >= 0.99
     assert np.median(errs) <= 0.3
+
+
+# ---------------------------------------------------------------------------
+# accuracy at 1.2 m against the renderer's exact projection
+# ---------------------------------------------------------------------------
+
+DEGRADED = {"clean": {}, "noise+blur+jpeg": {"noise_sigma": 2.0, "blur_px": 0.7, "jpeg_quality": 90}}
+
+
+@pytest.mark.parametrize("cond, limit", [("clean", 0.2), ("noise+blur+jpeg", 0.3)])
+def test_rendered_lights_at_1_2m_accuracy(cond, limit) -> None:
+    """Issue: median error <= 0.2 px clean and <= 0.3 px with noise, blur and
+    JPEG, at 1.2 m and 960x540 (the standard rig's lights, 2 cm spheres, are
+    ~13 px in radius there, clipped, with bloom).
+
+    Truth is the projection of each light's centre (what the pose solver
+    needs), not the centre of its image: a sphere images as an ellipse whose
+    centre lies slightly outward of that projection (by about f alpha^2
+    tan(theta) / cos^2(theta) for angular radius alpha at theta off axis:
+    median 0.04 px, at most 0.14 px here), and that is counted as error.
+
+    The sequence has p's green light beside a poster's edge and dark text for
+    a second: the clipped core around a light extends further over the bright
+    side, so its centroid was off by 1.1-1.5 px (before the halo fit: median
+    0.24 px clean / 0.22 px degraded, 90th percentile 1.31 / 1.25 px; now about
+    0.05 / 0.08 and 0.08 / 0.15 px)."""
+    from mutloc.sim.render import moving_world, project_markers, render
+    from mutloc.sim.world import light_is_on, standard_rig
+
+    rig = standard_rig("lights")
+    world = moving_world(rig, distance=1.2)
+    markers = rig.robot("p").markers
+    tracker = BlinkTracker(markers, FPS)
+    errs, good, total = [], 0, 0
+    for k in range(60):
+        t = k / FPS
+        res = tracker.update(render(world, "q", t, seed=k, **DEGRADED[cond]), t)
+        truth = project_markers(world, "q", t)
+        for name, det in res.detections.items():
+            assert name in truth
+            e = float(np.linalg.norm(det.uv - np.asarray(truth[name])))
+            assert e <= 5.0, (k, name, e)
+            if light_is_on(markers[name], t) and det.info["on"]:
+                errs.append(e)
+        if k >= FPS:
+            total += len(truth)
+            good += sum(name in res.detections for name in truth)
+    print(f"1.2 m, {cond}: median error when on {np.median(errs):.3f} px, 90% {np.percentile(errs, 90):.3f} px "
+          f"({len(errs)} reports), identity {good / total:.3f}")
+    assert good / total >= 0.99
+    assert len(errs) >= 25
+    assert np.median(errs) <= limit
+    assert np.percentile(errs, 90) <= 0.5

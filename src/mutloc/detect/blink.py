@@ -30,7 +30,13 @@ confidence tracking".  :class:`BlinkTracker` does that and adds identity:
    decides from two learned levels (on / off) whether its light is on, and,
    when it is, re-measures the light's sub-pixel centre as the
    intensity-weighted centroid of the bright spot (a spot claimed by two
-   tracks goes to the one that predicted it best).  Positions are kept in
+   tracks goes to the one that predicted it best).  A light bright enough to
+   clip is measured by its glow instead: the clipped core spreads further
+   over bright background than over dark, which biases its centroid (by over
+   a pixel beside a poster's edge), while the glow is radially symmetric.
+   The background is taken from frames in which the light was off (a few
+   "plates" per track), subtracted, and circles are fitted to where the glow
+   crosses a few levels (:meth:`BlinkTracker._halo_centre`).  Positions are kept in
    camera-motion-compensated coordinates, where robots move smoothly: the
    prediction is a quadratic fitted to the last ``fit_window_s`` of "on"
    centres.
@@ -65,6 +71,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -76,6 +83,184 @@ __all__ = ["BlinkTracker", "GlobalMotion"]
 
 # Cost of forbidden pairs in the Hungarian problem (far above any real cost).
 _FORBIDDEN = 1e6
+
+# sRGB-encoded uint8 -> linear light.
+_SRGB_LUT = np.array(
+    [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in np.arange(256) / 255.0],
+    dtype=np.float32,
+)
+# A pixel at or above this (uint8) is taken as clipped.
+_CLIP_LEVEL = 250
+# Levels of the halo contours, as fractions of the headroom above the
+# background (see BlinkTracker._halo_centre), and the lowest level in linear
+# light (well above the noise of a difference of two frames).
+_HALO_LEVELS = (0.1, 0.2, 0.35, 0.5, 0.7)
+_HALO_MIN_LEVEL = 0.04
+# Background plates kept per light.
+_MAX_PLATES = 4
+
+
+@numba.njit(cache=True)
+def _solve_small(a, b, x):
+    """Solve ``a x = b`` (small, dense; ``a`` and ``b`` are overwritten) by
+    Gaussian elimination with partial pivoting.  False if singular."""
+    n = b.shape[0]
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(a[i, k]) > abs(a[p, k]):
+                p = i
+        if abs(a[p, k]) < 1e-300:
+            return False
+        if p != k:
+            for j in range(n):
+                a[k, j], a[p, j] = a[p, j], a[k, j]
+            b[k], b[p] = b[p], b[k]
+        for i in range(k + 1, n):
+            f = a[i, k] / a[k, k]
+            if f != 0.0:
+                for j in range(k, n):
+                    a[i, j] -= f * a[k, j]
+                b[i] -= f * b[k]
+    for k in range(n - 1, -1, -1):
+        s = b[k]
+        for j in range(k + 1, n):
+            s -= a[k, j] * x[j]
+        x[k] = s / a[k, k]
+    return True
+
+
+@numba.njit(cache=True)
+def _halo_kernel(h, cx, cy, levels, nray, step, rmax, iters, out):
+    """Centre of the circular contours of a radially symmetric halo.
+
+    ``h`` (float32, NaN where unknown: clipped, masked or outside) is the
+    light's own contribution in linear light, decreasing away from its centre.
+    Rays from ``(cx, cy)`` (array coordinates) are sampled bilinearly every
+    ``step`` px out to ``rmax``; past the first unknown stretch (the clipped
+    core) each ray's crossing of each level is interpolated.  Crossings are
+    fitted robustly (Tukey IRLS) with ``r = rho_level + dx cos a + dy sin a
+    + second harmonics`` (an ellipse's contours have those), and the centre
+    is moved by ``(dx, dy)``; ``iters`` rounds of rays.
+
+    ``out``: centre x, y, inlier crossings, quadrants (of 4) holding inliers,
+    robust residual scale (px).  Returns False when there is too little to fit.
+    """
+    hh, ww = h.shape
+    nl = levels.shape[0]
+    ns = int(rmax / step) + 1
+    buf = np.empty(ns)
+    npar = nl + 4
+    maxc = nray * nl
+    rows_l = np.empty(maxc, np.int64)
+    rows_a = np.empty(maxc)
+    rr = np.empty(maxc)
+    wts = np.empty(maxc)
+    res = np.empty(maxc)
+    ata = np.empty((npar, npar))
+    atb = np.empty(npar)
+    sol = np.zeros(npar)
+    row = np.empty(npar)
+    x = cx
+    y = cy
+    n = 0
+    scale = 0.0
+    for it in range(iters):
+        # --- crossings ---
+        n = 0
+        for i in range(nray):
+            a = 2.0 * math.pi * i / nray
+            ca = math.cos(a)
+            sa = math.sin(a)
+            for j in range(ns):
+                px = x + ca * j * step
+                py = y + sa * j * step
+                if px < 0.0 or py < 0.0 or px > ww - 1.0 or py > hh - 1.0:
+                    buf[j] = np.nan
+                    continue
+                x0 = min(int(px), ww - 2)
+                y0 = min(int(py), hh - 2)
+                fx = px - x0
+                fy = py - y0
+                buf[j] = ((1.0 - fx) * (1.0 - fy) * h[y0, x0] + fx * (1.0 - fy) * h[y0, x0 + 1]
+                          + (1.0 - fx) * fy * h[y0 + 1, x0] + fx * fy * h[y0 + 1, x0 + 1])
+            j0 = 0
+            while j0 < ns and not math.isfinite(buf[j0]):
+                j0 += 1
+            if j0 >= ns:
+                continue
+            for lv in range(nl):
+                t = levels[lv]
+                if not buf[j0] > t:
+                    continue  # the crossing is hidden in the clipped core
+                for j in range(j0 + 1, ns):
+                    v = buf[j]
+                    if not math.isfinite(v):
+                        break  # unknown before crossing: no measurement
+                    if v <= t:
+                        u = buf[j - 1]
+                        rr[n] = step * (j - 1 + (u - t) / (u - v))
+                        rows_l[n] = lv
+                        rows_a[n] = a
+                        n += 1
+                        break
+        if n < 12:
+            return False
+        # --- robust fit ---
+        for k in range(n):
+            wts[k] = 1.0
+        for rnd in range(8):
+            for p in range(npar):
+                atb[p] = 0.0
+                for q in range(npar):
+                    ata[p, q] = 0.0
+            for k in range(n):
+                wk = wts[k]
+                if wk <= 0.0:
+                    continue
+                for p in range(npar):
+                    row[p] = 0.0
+                row[rows_l[k]] = 1.0
+                a = rows_a[k]
+                row[nl] = math.cos(a)
+                row[nl + 1] = math.sin(a)
+                row[nl + 2] = math.cos(2.0 * a)
+                row[nl + 3] = math.sin(2.0 * a)
+                for p in range(npar):
+                    if row[p] == 0.0:
+                        continue
+                    atb[p] += wk * row[p] * rr[k]
+                    for q in range(npar):
+                        ata[p, q] += wk * row[p] * row[q]
+            for p in range(npar):
+                ata[p, p] += 1e-9
+            if not _solve_small(ata, atb, sol):
+                return False
+            for k in range(n):
+                a = rows_a[k]
+                res[k] = abs(rr[k] - sol[rows_l[k]] - sol[nl] * math.cos(a) - sol[nl + 1] * math.sin(a)
+                             - sol[nl + 2] * math.cos(2.0 * a) - sol[nl + 3] * math.sin(2.0 * a))
+            scale = max(0.1, 1.4826 * np.median(res[:n]))
+            c = 4.685 * scale
+            for k in range(n):
+                u = res[k] / c
+                wts[k] = (1.0 - u * u) ** 2 if u < 1.0 else 0.0
+        x += sol[nl]
+        y += sol[nl + 1]
+        if abs(sol[nl]) < 0.01 and abs(sol[nl + 1]) < 0.01:
+            break
+    inl = 0
+    quad = np.zeros(4, np.int64)
+    for k in range(n):
+        if wts[k] > 0.0:
+            inl += 1
+            quad[int(rows_a[k] / (0.5 * math.pi)) % 4] = 1
+    out[0] = x
+    out[1] = y
+    out[2] = inl
+    out[3] = quad.sum()
+    out[4] = scale
+    return True
 
 
 class GlobalMotion:
@@ -197,6 +382,19 @@ class GlobalMotion:
 
 
 @dataclass
+class _Plate:
+    """The neighbourhood of a light while it was off: the background its halo
+    is measured against when it is on (see BlinkTracker._halo_centre)."""
+
+    lin: np.ndarray  # float32 (h, w, channels), linear light
+    x0: int  # image column of lin[:, 0] then
+    y0: int  # image row of lin[0] then
+    offset: np.ndarray  # the tracker's cumulative camera offset then
+    light: np.ndarray  # where the dark light was (image coordinates then)
+    frame: int
+
+
+@dataclass
 class _Track:
     """One candidate light.  Positions are motion-compensated ("stabilised")
     pixel coordinates: image ``uv = pos + offset`` with the tracker's current
@@ -224,6 +422,9 @@ class _Track:
     marker: str | None = None
     score: float = 0.0
     scores: dict[str, float] = field(default_factory=dict)
+    dark: bool = False  # this frame: clearly off (a background plate may be taken)
+    clip_radius: float = math.nan  # radius (px) of the clipped core when last on
+    plates: list[_Plate] = field(default_factory=list)  # oldest first
 
     def predict(self, t: float, horizon: float) -> np.ndarray:
         """Position at time ``t`` from the motion model (stabilised coordinates)."""
@@ -474,6 +675,7 @@ class BlinkTracker:
     def reset(self) -> None:
         """Forget every track and the previous frame (e.g. after a cut)."""
         self._prev: np.ndarray | None = None
+        self._colour: np.ndarray | None = None  # the current frame, (H, W, channels) uint8
         self._prev_t = math.nan
         self._frame = 0
         self._times: deque[float] = deque(maxlen=self.window)
@@ -519,15 +721,18 @@ class BlinkTracker:
 
     # ----------------------------------------------------------------- frames
 
-    def _to_brightness(self, image: Any) -> np.ndarray:
+    def _to_brightness(self, image: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The brightness channel, and the image as (H, W, channels) uint8
+        (BGR, or the grey image itself) for measuring lit lights."""
         if isinstance(image, np.ndarray) and image.ndim == 2 and image.dtype == np.uint8:
             if image.shape[0] < 2 or image.shape[1] < 2:
                 raise InputError(f"BlinkTracker.update: image too small, shape {image.shape}")
-            return np.ascontiguousarray(image)
+            cur = np.ascontiguousarray(image)
+            return cur, cur[:, :, None]
         bgr = as_bgr(image, "BlinkTracker.update image")
         if self.brightness == "gray":
-            return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        return cv2.max(cv2.max(bgr[:, :, 0], bgr[:, :, 1]), bgr[:, :, 2])
+            return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), bgr
+        return cv2.max(cv2.max(bgr[:, :, 0], bgr[:, :, 1]), bgr[:, :, 2]), bgr
 
     def update(self, image: Any, t: float | None = None) -> DetectionResult:
         """Process the next frame; return the markers seen in it.
@@ -536,7 +741,7 @@ class BlinkTracker:
         as :func:`~mutloc.detect.base.as_bgr` accepts).  ``t``: its time in
         seconds, strictly increasing; default ``frame_index / fps``.
         """
-        cur = self._to_brightness(image)
+        cur, self._colour = self._to_brightness(image)
         if t is None:
             t = self._frame / self.fps
         else:
@@ -774,8 +979,17 @@ class BlinkTracker:
         # --- one light, one track: when two tracks found the same spot (two
         # lights crossing, a duplicate track), it belongs to the one that
         # predicted it best -- an identified track first, as in the
-        # association; the other's light is taken to be off. ---
-        observed.sort(key=lambda o: o[0] + (0.0 if tracks[o[1]].marker is not None else self.gate_px))
+        # association; the other's light is taken to be off.  Between
+        # unidentified tracks that both predicted it well (within a few px)
+        # the older wins: a stray track born beside a light must not take
+        # over the light's history by a fraction of a pixel. ---
+        def claim_order(o: tuple[float, int, np.ndarray]) -> tuple[float, int]:
+            tr = tracks[o[1]]
+            if tr.marker is not None:
+                return o[0], tr.born_frame
+            return self.gate_px + max(o[0], 3.0), tr.born_frame
+
+        observed.sort(key=claim_order)
         claimed: list[np.ndarray] = []
         for jump, j, uv in observed:
             tr = tracks[j]
@@ -784,6 +998,11 @@ class BlinkTracker:
                 continue
             claimed.append(uv)
             self._commit(tr, uv, jump, t, frame)
+
+        # --- background plates of lights that are off now ---
+        for tr in tracks:
+            if tr.dark and not tr.is_on:
+                self._take_plate(tr, frame)
 
         # --- drop weak, lost and duplicate tracks ---
         h, w = cur.shape
@@ -835,6 +1054,7 @@ class BlinkTracker:
         centre (image coordinates) if it is on, else None.
         """
         tr.jump = math.inf
+        tr.dark = False
         cx, cy = round(float(centre[0])), round(float(centre[1]))
         r = self._reach(tr.spread)
         h, w = cur.shape
@@ -866,6 +1086,12 @@ class BlinkTracker:
             tr.is_on = peak >= 0.5 * (tr.hi + tr.lo)
         else:
             tr.is_on = tr.last_polarity_on
+        if not tr.is_on and 0 <= cx < w and 0 <= cy < h:
+            # Clearly off, not partly lit: dim where the light is (the
+            # window's peak may be bright background).  What matters is the
+            # dark state of lights that clip when on (see _take_plate).
+            tr.dark = float(cur[max(0, cy - 1):cy + 2, max(0, cx - 1):cx + 2].max()) \
+                <= _CLIP_LEVEL - 2 * self.diff_threshold
         # What is bright must also look like the light -- a spot above its
         # surroundings -- or a track whose light went dark over bright
         # texture would follow the texture.
@@ -884,6 +1110,18 @@ class BlinkTracker:
         uv, rms = found
         # The lit spot's own size keeps the windows fitted to the light.
         tr.spread += 0.3 * (rms - tr.spread)
+        if peak >= _CLIP_LEVEL:
+            # A clipped core: its outline depends on the background (see
+            # _halo_centre), so the centre comes from the halo if possible.
+            rs = self._spot(tr.spread)
+            win = cur[max(0, round(float(uv[1])) - rs):round(float(uv[1])) + rs + 1,
+                      max(0, round(float(uv[0])) - rs):round(float(uv[0])) + rs + 1]
+            tr.clip_radius = math.sqrt(np.count_nonzero(win >= _CLIP_LEVEL) / math.pi)
+            better = self._halo_centre(tr, uv)
+            if better is not None:
+                uv = better
+        else:
+            tr.clip_radius = math.nan
         return uv
 
     @staticmethod
@@ -929,6 +1167,123 @@ class BlinkTracker:
         coef, *_ = np.linalg.lstsq(a, ps, rcond=None)
         tr.vel = coef[1]
         tr.acc = coef[2] if len(coef) > 2 else np.zeros(2)
+
+    @staticmethod
+    def _halo_radius(clip_radius: float) -> int:
+        """Half-size of the window over which the halo of a light whose
+        clipped core has radius ``clip_radius`` (px) is measured."""
+        return math.ceil(1.5 * clip_radius) + 12
+
+    def _take_plate(self, tr: _Track, frame: int) -> None:
+        """Keep the neighbourhood of a dark light that clips when on: the
+        background its halo will be measured against.
+
+        A few plates are kept, with the light in different places: where the
+        dark light hides the background in the newest, an older one may show
+        it (a light moving by less than its halo's size per frame).
+        """
+        if not math.isfinite(tr.clip_radius) or self._colour is None:
+            return
+        # Room for the light to move before it is on again.
+        half = self._halo_radius(tr.clip_radius) + math.ceil(6.0 + 4.0 * float(np.hypot(*tr.vel)) / self.fps)
+        centre = tr.pos + self._offset
+        cx, cy = round(float(centre[0])), round(float(centre[1]))
+        h, w = self._colour.shape[:2]
+        x0, x1, y0, y1 = max(0, cx - half), min(w, cx + half + 1), max(0, cy - half), min(h, cy + half + 1)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            return
+        lin = _SRGB_LUT[self._colour[y0:y1, x0:x1]]
+        plate = _Plate(lin, x0, y0, self._offset.copy(), centre.copy(), frame)
+        plates = tr.plates
+        # The newest plate with the light (nearly) where it is now adds
+        # nothing an up-to-date one does not: replace it.
+        if plates and math.hypot(*((plates[-1].light - plates[-1].offset) - (centre - self._offset))) \
+                < 0.25 * tr.clip_radius + 1.0:
+            plates[-1] = plate
+        else:
+            plates.append(plate)
+        max_age = round(self.fps)
+        while plates and (len(plates) > _MAX_PLATES or frame - plates[0].frame > max_age):
+            plates.pop(0)
+
+    def _halo_centre(self, tr: _Track, uv: np.ndarray) -> np.ndarray | None:
+        """Centre of a lit light whose core is clipped, from its halo.
+
+        A light bright enough to clip is surrounded by its glow (lens bloom),
+        and where the glow adds to a bright background the image clips too:
+        the clipped region reaches further out over bright background than
+        over dark, so its centroid (or outline) is pulled towards the bright
+        side -- by over a pixel for a light beside a poster's edge.  The glow
+        itself is radially symmetric, so it is isolated by subtracting the
+        background seen around the light while it was off (the track's
+        plates, moved by the camera motion since; the newest that shows each
+        pixel), in linear light and in the light's own colour channel (the
+        one it brightens most).  Where the clipped core, the dark light in
+        the plates and their edges leave it unknown, rays from the centre
+        measure where the glow crosses a few levels; the crossings are fitted
+        robustly by circles (with second harmonics, for the slightly
+        elliptical image of a sphere) of one common centre.  None if there
+        is no plate or too little fits.
+        """
+        col = self._colour
+        max_age = round(self.fps)
+        plates = [p for p in tr.plates if self._frame - p.frame <= max_age]
+        if not plates or col is None:
+            return None
+        r_core = tr.clip_radius
+        rmax = self._halo_radius(r_core)
+        h, w = col.shape[:2]
+        cx, cy = round(float(uv[0])), round(float(uv[1]))
+        x0, x1, y0, y1 = max(0, cx - rmax), min(w, cx + rmax + 1), max(0, cy - rmax), min(h, cy + rmax + 1)
+        pw, ph = x1 - x0, y1 - y0
+        if pw < 8 or ph < 8:
+            return None
+        raw = col[y0:y1, x0:x1]
+        cur = _SRGB_LUT[raw]
+        # The dark light in a plate: a disc about as large as the clipped
+        # core now (the glow widens the core, JPEG and blur narrow it a
+        # little), with a margin for the smoothing below.
+        r_mask = r_core + 1.5
+        ys, xs = np.ogrid[0:ph, 0:pw]
+        bg = np.full(cur.shape, np.nan, np.float32)
+        missing = np.ones((ph, pw), bool)
+        for plate in reversed(plates):  # newest first
+            # Where the static scene now is: the camera moved by the change
+            # of the cumulative offset since the plate was taken.
+            moved = self._offset - plate.offset
+            m = np.float32([[1, 0, x0 - moved[0] - plate.x0], [0, 1, y0 - moved[1] - plate.y0]])
+            b = cv2.warpAffine(plate.lin, m, (pw, ph), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=(math.nan,) * 4)
+            if b.ndim == 2:
+                b = b[:, :, None]
+            old = plate.light + moved - np.array([x0, y0])
+            use = missing & ~np.isnan(b[:, :, 0]) & ((xs - old[0]) ** 2 + (ys - old[1]) ** 2 > r_mask ** 2)
+            bg[use] = b[use]
+            missing &= ~use
+            if not missing.any():
+                break
+        glow = cur - bg
+        c = int(np.argmax(np.nansum(glow, axis=(0, 1))))
+        g = glow[:, :, c]
+        unknown = np.isnan(g)
+        g = np.where(unknown, np.float32(0.0), g)
+        g = cv2.GaussianBlur(g, (5, 5), 1.0)
+        unknown |= raw[:, :, c] >= _CLIP_LEVEL
+        unknown = cv2.dilate(unknown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        g[unknown] = np.nan
+        b = bg[:, :, c]
+        fin = np.isfinite(b)
+        ref = float(np.median(b[fin])) if fin.any() else 0.0
+        levels = np.maximum(_HALO_MIN_LEVEL, max(0.1, 1.0 - ref) * np.array(_HALO_LEVELS))
+        out = np.empty(5)
+        if not _halo_kernel(g, float(uv[0]) - x0, float(uv[1]) - y0, levels, 64, 0.5, float(rmax), 3, out):
+            return None
+        if out[2] < 16 or out[3] < 3:
+            return None
+        found = np.array([out[0] + x0, out[1] + y0])
+        if math.hypot(*(found - uv)) > max(2.0, 0.5 * r_core):
+            return None
+        return found
 
     def _centroid(self, img: np.ndarray, px: int, py: int, peak: float,
                   r: int) -> tuple[np.ndarray, float] | None:
