@@ -137,11 +137,14 @@ def _sweep_errors(d, yp, yq, seed, **kw):
 
 
 # Poses where every cylinder is fully visible, at 1.2-3 m and yaw up to 15 degrees, rendered
-# clean and with sensor noise + blur + JPEG.  Measured (report): 63/64 and 63/64 over a
-# 16-pose sweep; median band error 0.16-0.17 px; the worst errors (2-3 px on the top band)
-# are at 1.2 m with 15 degrees yaw.
+# clean and with sensor noise + blur + JPEG.  The 16-pose sweep (distances 1.2, 1.5, 2.2,
+# 3.0 m x yaws (0, 0), (15, -15), (-15, 15), (10, 5), seed 4 i + j) of which these are four:
+# 64/64 found clean and degraded, median band error 0.06 / 0.08 px, 90th percentile 0.22 /
+# 0.20 px, worst 0.40 / 0.41 px (the first detector: 63/64 and 63/64, median 0.16 / 0.17 px,
+# worst 2-3 px on the top band at 1.2 m with 15 degrees yaw).  These four: median 0.06 /
+# 0.07 px, worst 0.24 / 0.35 px (were 0.15 / 0.15 and 1.27 / 0.79 px).
 SWEEP = [(1.2, 0, 0, 0), (1.5, -15, 15, 6), (2.2, 15, -15, 9), (3.0, 10, 5, 15)]
-DEGRADED = {"clean": {}, "noise+blur+jpeg": dict(noise_sigma=2.0, blur_px=0.7, jpeg_quality=90)}
+DEGRADED = {"clean": {}, "noise+blur+jpeg": {"noise_sigma": 2.0, "blur_px": 0.7, "jpeg_quality": 90}}
 
 
 @pytest.mark.parametrize("cond", sorted(DEGRADED))
@@ -152,13 +155,60 @@ def test_detection_rate_and_accuracy_sweep(cond):
         f, e, er = _sweep_errors(d, yp, yq, seed, **DEGRADED[cond])
         found, expected, errs = found + f, expected + e, errs + er
     assert expected == 16
-    assert found >= 15, (found, expected)
-    assert np.median(errs) <= 0.3, np.median(errs)
-    assert np.percentile(errs, 90) <= 1.0
+    assert found == expected, (found, expected)
+    assert np.median(errs) <= 0.15, np.median(errs)
+    assert np.percentile(errs, 90) <= 0.4
+    assert max(errs) <= 0.75
 
 
-@pytest.mark.parametrize("kw", [dict(noise_sigma=2.0), dict(blur_px=0.7), dict(jpeg_quality=90)])
+@pytest.mark.parametrize("kw", [{"noise_sigma": 2.0}, {"blur_px": 0.7}, {"jpeg_quality": 90}])
 def test_each_degradation_alone(kw):
     f, e, errs = _sweep_errors(1.5, -15, 15, 6, **kw)
     assert f == e == 4
-    assert np.median(errs) <= 0.5
+    assert np.median(errs) <= 0.2
+    assert max(errs) <= 0.75
+
+
+# The first detector's known failures (issue), each (distance, yaw_p, yaw_q, seed of the sweep
+# above, render options, observer, cylinder):
+HARD_CASES = [
+    # Missed: the middle and bottom dark bands touch a dark disc and dark text beside them over
+    # their whole height, so no row run had a band's own width.
+    pytest.param(1.5, 10, 5, 7, {}, "p", "M2", id="1.5m-p-M2-clutter-beside-bands"),
+    pytest.param(1.5, 10, 5, 7, DEGRADED["noise+blur+jpeg"], "p", "M2", id="1.5m-p-M2-degraded"),
+    # Missed with sensor noise, or JPEG: the top band touches dark text beside it.
+    pytest.param(1.2, 0, 0, 0, {"noise_sigma": 2.0}, "q", "M4", id="1.2m-q-M4-noise"),
+    pytest.param(1.2, 0, 0, 0, {"jpeg_quality": 90}, "q", "M4", id="1.2m-q-M4-jpeg"),
+    pytest.param(1.2, 0, 0, 0, {"noise_sigma": 2.0, "jpeg_quality": 90}, "q", "M4", id="1.2m-q-M4-noise-jpeg"),
+    # 2-3 px on the top band at 1.2 m, 15 degrees yaw: the top band against dark posters (its
+    # run widened by them tilted the centre line; a poster's edge taken for the cylinder's top),
+    # and boundaries that show as tilted, curved ellipse arcs.
+    pytest.param(1.2, 15, -15, 1, {}, "q", "M3", id="1.2m-yaw15-q-M3"),
+    pytest.param(1.2, 15, -15, 1, {}, "p", "M2", id="1.2m-yaw15-p-M2"),
+    pytest.param(1.2, -15, 15, 2, {}, "p", "M1", id="1.2m-yaw15-p-M1"),
+    pytest.param(1.2, -15, 15, 2, {}, "p", "M2", id="1.2m-yaw15-p-M2b"),
+    pytest.param(1.2, 15, -15, 1, DEGRADED["noise+blur+jpeg"], "q", "M3", id="1.2m-yaw15-q-M3-degraded"),
+]
+
+
+@pytest.mark.parametrize("d,yp,yq,seed,kw,obs,name", HARD_CASES)
+def test_known_hard_cases(d, yp, yq, seed, kw, obs, name):
+    """Found, every band centre near its truth (median <= 0.5 px), and nothing else reported
+    anywhere but at its own truth.  Truth: ``project_markers`` on the same scene with the band
+    markers (the renderer draws the plain rig; the band points are the same geometry)."""
+    from mutloc.sim.render import project_markers
+    from mutloc.sim.synthetic import facing_pose
+
+    T = facing_pose(d, np.radians(yp), np.radians(yq), 0.05 * d)
+    w = two_robot_world(RIG, T, seed=seed)
+    gt = project_markers(two_robot_world(EX, T, seed=seed), obs)
+    other = "q" if obs == "p" else "p"
+    res = detect_cylinders(render(w, obs, seed=seed, **kw), EX.robot(other).markers)
+    assert name in res.detections, res.missing
+    names = [name] + band_marker_names(name, 6)
+    errs = [float(np.linalg.norm(res.detections[n].uv - np.asarray(gt[n]))) for n in names]
+    print(name, np.round(errs, 3))
+    assert np.median(errs) <= 0.5, errs
+    assert max(errs) <= 1.0, errs
+    for n, det in res.detections.items():
+        assert np.linalg.norm(det.uv - np.asarray(gt[n])) <= 1.0, (n, det.uv, gt[n])
