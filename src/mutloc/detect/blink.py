@@ -422,6 +422,7 @@ class _Track:
     marker: str | None = None
     score: float = 0.0
     scores: dict[str, float] = field(default_factory=dict)
+    measured_spread: float = 1.5  # RMS radius of the spot found this frame (px)
     dark: bool = False  # this frame: clearly off (a background plate may be taken)
     clip_radius: float = math.nan  # radius (px) of the clipped core when last on
     plates: list[_Plate] = field(default_factory=list)  # oldest first
@@ -1108,8 +1109,9 @@ class BlinkTracker:
             tr.is_on = False
             return None
         uv, rms = found
-        # The lit spot's own size keeps the windows fitted to the light.
-        tr.spread += 0.3 * (rms - tr.spread)
+        # The lit spot's own size keeps the windows fitted to the light --
+        # once the spot is taken to be the light (see _commit).
+        tr.measured_spread = rms
         if peak >= _CLIP_LEVEL:
             # A clipped core: its outline depends on the background (see
             # _halo_centre), so the centre comes from the halo if possible.
@@ -1136,6 +1138,7 @@ class BlinkTracker:
         pos = uv - self._offset
         tr.jump = jump
         tr.pos = pos
+        tr.spread += 0.3 * (tr.measured_spread - tr.spread)
         tr.last_on_pos = pos
         tr.last_on_t = t
         tr.last_on_frame = frame
