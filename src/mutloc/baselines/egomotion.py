@@ -18,7 +18,7 @@ from ..core.camera import Camera
 from ..core.geometry import Pose
 from ..errors import InputError, NoSolutionError
 
-__all__ = ["Matches", "match_features", "egomotion_pose", "MIN_INLIERS"]
+__all__ = ["Matches", "match_features", "essential_inliers", "egomotion_pose", "MIN_INLIERS"]
 
 # Fewer RANSAC inliers than this and the two-view geometry is not trusted
 # (Bundler's default for an image pair is 16 matches).
@@ -62,6 +62,28 @@ def match_features(image_a: np.ndarray, image_b: np.ndarray, *, max_features: in
     return Matches(uv_a, uv_b)
 
 
+def _normalized(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    # Undistorted normalized coordinates: the cameras may differ.
+    x = camera.pixels_to_bearings(uv)
+    return x[:, :2] / x[:, 2:]
+
+
+def essential_inliers(matches: Matches, camera_a: Camera, camera_b: Camera, *, threshold_px: float = 1.0,
+                      seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
+    """OpenCV's five-point essential matrix in RANSAC over ``matches`` and its
+    inlier mask (E is None, mask all False, when there is none)."""
+    none = np.zeros(len(matches), bool)
+    if len(matches) < 5:
+        return None, none
+    f = 0.5 * (camera_a.K[0, 0] + camera_b.K[0, 0])
+    cv2.setRNGSeed(int(seed))
+    E, mask = cv2.findEssentialMat(_normalized(camera_a, matches.uv_a), _normalized(camera_b, matches.uv_b),
+                                   np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=threshold_px / f)
+    if E is None or mask is None or E.shape != (3, 3):
+        return None, none
+    return E, mask.ravel() > 0
+
+
 def egomotion_pose(image_a: np.ndarray, image_b: np.ndarray, camera_a: Camera, camera_b: Camera,
                    scale: float, *, threshold_px: float = 1.0, seed: int = 0,
                    matches: Matches | None = None) -> tuple[Pose, np.ndarray]:
@@ -77,19 +99,11 @@ def egomotion_pose(image_a: np.ndarray, image_b: np.ndarray, camera_a: Camera, c
     m = matches if matches is not None else match_features(image_a, image_b)
     if len(m) < MIN_INLIERS:
         raise NoSolutionError(f"only {len(m)} feature matches between the two views (need {MIN_INLIERS})")
-    # Normalized image coordinates, so the two cameras may differ and lens
-    # distortion is removed before the five-point solver.
-    xa = camera_a.pixels_to_bearings(m.uv_a)
-    xb = camera_b.pixels_to_bearings(m.uv_b)
-    xa = xa[:, :2] / xa[:, 2:]
-    xb = xb[:, :2] / xb[:, 2:]
-    f = 0.5 * (camera_a.K[0, 0] + camera_b.K[0, 0])
-    cv2.setRNGSeed(int(seed))
-    E, mask = cv2.findEssentialMat(xa, xb, np.eye(3), method=cv2.RANSAC, prob=0.999,
-                                   threshold=threshold_px / f)
-    if E is None or mask is None or E.shape != (3, 3):
+    E, inliers = essential_inliers(m, camera_a, camera_b, threshold_px=threshold_px, seed=seed)
+    if E is None:
         raise NoSolutionError("no essential matrix from the feature matches")
-    n, R, t, mask2 = cv2.recoverPose(E, xa, xb, np.eye(3), mask=mask.copy())
+    n, R, t, mask2 = cv2.recoverPose(E, _normalized(camera_a, m.uv_a), _normalized(camera_b, m.uv_b), np.eye(3),
+                                     mask=inliers.astype(np.uint8).reshape(-1, 1))
     if int(n) < MIN_INLIERS:
         raise NoSolutionError(f"only {int(n)} matches agree on a relative pose (need {MIN_INLIERS})")
     t = t.ravel()

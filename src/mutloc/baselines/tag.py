@@ -8,8 +8,6 @@ robot then gives the robot's camera pose.  Only one camera is used.
 
 from __future__ import annotations
 
-from typing import Any
-
 import cv2
 import numpy as np
 
@@ -18,7 +16,7 @@ from ..core.geometry import Pose
 from ..core.rig import Marker
 from ..errors import NoSolutionError, ObservationError
 
-__all__ = ["tag_pose", "detect_tag_corners", "tag_marker"]
+__all__ = ["tag_pose", "detect_tag_corners"]
 
 # OpenCV's IPPE_SQUARE frame is x right, y up, z out of the printed side;
 # mutloc's tag frame is x right, y down, z into the tag (see detect.tags).
@@ -62,10 +60,3 @@ def tag_pose(image: np.ndarray, marker: Marker, camera: Camera) -> Pose:
     T_rt = Pose(R_rt @ _FLIP, np.asarray(marker.position, float))
     return T_ct @ T_rt.inverse()
 
-
-def tag_marker(robot: Any) -> Marker:
-    """The (single) tag marker of a robot (ObservationError if none)."""
-    tags = [m for m in robot.markers.values() if m.tag is not None and "tag_of" not in m.extra]
-    if not tags:
-        raise ObservationError(f"robot {robot.name!r} carries no printed tag")
-    return tags[0]

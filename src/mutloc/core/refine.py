@@ -188,7 +188,7 @@ def _so3_exp_left(w, R, out):
 
 
 @njit(cache=True)
-def _solve_spd(A, b, x):
+def solve_spd(A, b, x):
     """Cholesky solve of a small symmetric positive definite system."""
     n = A.shape[0]
     L = np.zeros((n, n))
@@ -266,7 +266,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             A[:, :] = H
             for k in range(6):
                 A[k, k] += lam * (H[k, k] + 1e-12)
-            if not _solve_spd(A, -g, delta):
+            if not solve_spd(A, -g, delta):
                 lam *= 10.0
                 continue
             step = 0.0

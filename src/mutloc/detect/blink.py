@@ -75,6 +75,7 @@ import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from ..core.refine import solve_spd
 from ..core.rig import Marker
 from ..errors import InputError
 from .base import Detection, DetectionResult, as_bgr
@@ -98,36 +99,6 @@ _HALO_LEVELS = (0.1, 0.2, 0.35, 0.5, 0.7)
 _HALO_MIN_LEVEL = 0.04
 # Background plates kept per light.
 _MAX_PLATES = 4
-
-
-@numba.njit(cache=True)
-def _solve_small(a, b, x):
-    """Solve ``a x = b`` (small, dense; ``a`` and ``b`` are overwritten) by
-    Gaussian elimination with partial pivoting.  False if singular."""
-    n = b.shape[0]
-    for k in range(n):
-        p = k
-        for i in range(k + 1, n):
-            if abs(a[i, k]) > abs(a[p, k]):
-                p = i
-        if abs(a[p, k]) < 1e-300:
-            return False
-        if p != k:
-            for j in range(n):
-                a[k, j], a[p, j] = a[p, j], a[k, j]
-            b[k], b[p] = b[p], b[k]
-        for i in range(k + 1, n):
-            f = a[i, k] / a[k, k]
-            if f != 0.0:
-                for j in range(k, n):
-                    a[i, j] -= f * a[k, j]
-                b[i] -= f * b[k]
-    for k in range(n - 1, -1, -1):
-        s = b[k]
-        for j in range(k + 1, n):
-            s -= a[k, j] * x[j]
-        x[k] = s / a[k, k]
-    return True
 
 
 @numba.njit(cache=True)
@@ -234,7 +205,7 @@ def _halo_kernel(h, cx, cy, levels, nray, step, rmax, iters, out):
                         ata[p, q] += wk * row[p] * row[q]
             for p in range(npar):
                 ata[p, p] += 1e-9
-            if not _solve_small(ata, atb, sol):
+            if not solve_spd(ata, atb, sol):  # normal equations: SPD
                 return False
             for k in range(n):
                 a = rows_a[k]

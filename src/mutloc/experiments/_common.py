@@ -10,7 +10,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-__all__ = ["versions", "median", "fmt", "write_results", "reproduce_lines", "pyplot", "save_figure"]
+__all__ = ["versions", "median", "fmt", "pose_errors", "write_results", "reproduce_lines", "pyplot", "save_figure"]
 
 
 def versions() -> dict[str, str]:
@@ -30,6 +30,14 @@ def median(values: Iterable[float]) -> float:
     """Median, NaN for no values."""
     v = list(values)
     return float(np.median(v)) if v else float("nan")
+
+
+def pose_errors(est: Any, truth: Any) -> tuple[float, float]:
+    """(translation error m, rotation error deg, the paper's angle) of an
+    estimate against the truth; both need ``.R`` and ``.t``."""
+    from ..core.geometry import rotation_error_deg, translation_error
+
+    return translation_error(est.t, truth.t), float(rotation_error_deg(est.R, truth.R))
 
 
 def fmt(x: float, scale: float = 1.0, digits: int = 2) -> str:

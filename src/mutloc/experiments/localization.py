@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._common import fmt, median, pyplot, reproduce_lines, save_figure, versions, write_results
+from ._common import fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions, write_results
 
 __all__ = ["run_localization", "localization_rig", "METHODS", "PAPER", "QUICK", "FOOT"]
 
@@ -91,20 +91,11 @@ def _balls_only(rig):
 
 def _grid_pose(x: float, z: float, heading: float):
     """T_qp of p at (x, 0, z) in q's frame, level, facing q's camera turned by ``heading`` (rad)."""
-    from ..core.geometry import Pose, so3_exp
+    from ..core.geometry import so3_exp
+    from ..sim.synthetic import looking_pose
 
     pos = np.array([x, 0.0, z])
-    look = so3_exp([0.0, heading, 0.0]) @ (-pos / np.linalg.norm(pos))
-    down = np.array([0.0, 1.0, 0.0])
-    right = np.cross(down, look)
-    right /= np.linalg.norm(right)
-    return Pose(np.column_stack([right, np.cross(look, right), look]), pos)
-
-
-def _errors(est, truth) -> tuple[float, float]:
-    from ..core.geometry import rotation_error_deg
-
-    return float(np.linalg.norm(est.t - truth.t)), float(rotation_error_deg(est.R, truth.R))
+    return looking_pose(pos, so3_exp([0.0, heading, 0.0]) @ (-pos / np.linalg.norm(pos)))
 
 
 def _solve_position(rig, balls, img: dict[str, np.ndarray], truth, seed: int) -> dict[str, Any]:
@@ -120,7 +111,7 @@ def _solve_position(rig, balls, img: dict[str, np.ndarray], truth, seed: int) ->
     det = {o: detect_markers(balls, o, img[o]) for o in ("p", "q")}
     obs = {o: {n: tuple(map(float, d.uv)) for n, d in det[o].detections.items()} for o in det}
     try:
-        out["mutual"] = _errors(mutloc.localize(balls, obs, "p", "q"), truth)
+        out["mutual"] = pose_errors(mutloc.localize(balls, obs, "p", "q"), truth)
     except MutlocError as e:
         out["mutual"] = str(e)
     try:
@@ -132,17 +123,17 @@ def _solve_position(rig, balls, img: dict[str, np.ndarray], truth, seed: int) ->
         est = dugas_pose(cam_p.pixels_to_bearings(np.array([obs["p"][n] for n in lq])),
                          cam_q.pixels_to_bearings(np.array([obs["q"][n] for n in lp])),
                          balls.robot("p").marker_positions(lp), balls.robot("q").marker_positions(lq))
-        out["dugas"] = _errors(est, truth)
+        out["dugas"] = pose_errors(est, truth)
     except MutlocError as e:
         out["dugas"] = str(e)
     try:
-        out["tag"] = _errors(tag_pose(img["q"], rig.robot("p").markers["TP"], rig.robot("q").camera), truth)
+        out["tag"] = pose_errors(tag_pose(img["q"], rig.robot("p").markers["TP"], rig.robot("q").camera), truth)
     except MutlocError as e:
         out["tag"] = str(e)
     try:
         est, _n = egomotion_pose(img["p"], img["q"], rig.robot("p").camera, rig.robot("q").camera,
                                  float(np.linalg.norm(truth.t)), seed=seed)
-        out["egomotion"] = _errors(est, truth)
+        out["egomotion"] = pose_errors(est, truth)
     except MutlocError as e:
         out["egomotion"] = str(e)
     return out

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._common import fmt, median, pyplot, reproduce_lines, save_figure, versions, write_results
+from ._common import fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions, write_results
 
 __all__ = ["run_noise", "PAPER_TRANSLATION_M", "PAPER_ROTATION_DEG", "METHODS", "QUICK"]
 
@@ -127,7 +127,6 @@ def _make_scene(rng: np.random.Generator, rig, distance: float) -> tuple[_Scene,
 def _solve_errors(scene: _Scene, noisy: dict[str, dict[str, np.ndarray]], sigma: float
                   ) -> dict[str, tuple[float, float] | None]:
     import mutloc
-    from ..core.geometry import rotation_error_deg
     from ..errors import MutlocError
 
     obs = {o: {n: (float(uv[0]), float(uv[1])) for n, uv in d.items()} for o, d in noisy.items()}
@@ -138,7 +137,7 @@ def _solve_errors(scene: _Scene, noisy: dict[str, dict[str, np.ndarray]], sigma:
         except MutlocError:
             out[method] = None
             continue
-        out[method] = (float(np.linalg.norm(est.t - scene.T.t)), rotation_error_deg(est.R, scene.T.R))
+        out[method] = pose_errors(est, scene.T)
     return out
 
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ._common import fmt, median, pyplot, reproduce_lines, save_figure, versions, write_results
+from ._common import fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions, write_results
 
 __all__ = ["run_reconstruction", "PAPER", "QUICK", "OUTLIER_M"]
 
@@ -70,20 +70,6 @@ def _scene(rng: np.random.Generator, poses: int, seed: int):
     return T_wq, T_wp, room
 
 
-def _verified(matches, cam_p, cam_q, seed: int) -> np.ndarray:
-    """Matches consistent with one essential matrix (RANSAC), whatever pose is then used."""
-    import cv2
-
-    if len(matches) < 5:
-        return np.zeros(len(matches), bool)
-    xa = cam_p.pixels_to_bearings(matches.uv_a)
-    xb = cam_q.pixels_to_bearings(matches.uv_b)
-    cv2.setRNGSeed(int(seed))
-    E, mask = cv2.findEssentialMat(xa[:, :2] / xa[:, 2:], xb[:, :2] / xb[:, 2:], np.eye(3), method=cv2.RANSAC,
-                                   prob=0.999, threshold=MAX_REPROJ_PX / cam_q.K[0, 0])
-    return np.zeros(len(matches), bool) if mask is None else mask.ravel() > 0
-
-
 def _reconstruct(matches, cam_p, cam_q, T_qp, T_wq):
     """World points, and q-image pixels, of the matches triangulated with ``T_qp``."""
     from ..core.triangulate import triangulate_midpoint
@@ -107,7 +93,7 @@ def run_reconstruction(out_dir: str | Path, *, seed: int = 0, poses: int = POSES
     from tqdm import tqdm
 
     import mutloc
-    from ..baselines.egomotion import Matches, egomotion_pose, match_features
+    from ..baselines.egomotion import Matches, egomotion_pose, essential_inliers, match_features
     from ..errors import MutlocError
     from ..io.pointcloud import write_ply
     from ..sim.render import project_markers, relative_pose, render, surface_distance
@@ -142,7 +128,8 @@ def run_reconstruction(out_dir: str | Path, *, seed: int = 0, poses: int = POSES
         img = {o: render(world, o, seed=seed * 1000 + k, noise_sigma=NOISE_SIGMA) for o in ("p", "q")}
         # Matches verified once by the essential matrix; both methods triangulate the same ones.
         m_all = match_features(img["p"], img["q"])
-        inl = _verified(m_all, cam_p, cam_q, seed)
+        # Whatever pose is then used, the same matches: those one essential matrix explains.
+        _E, inl = essential_inliers(m_all, cam_p, cam_q, threshold_px=MAX_REPROJ_PX, seed=seed)
         est: dict[str, Any] = {}
         try:
             est["egomotion"], _ = egomotion_pose(img["p"], img["q"], cam_p, cam_q,
@@ -152,18 +139,15 @@ def run_reconstruction(out_dir: str | Path, *, seed: int = 0, poses: int = POSES
         obs = {o: {n: tuple(map(float, d.uv)) for n, d in detect_markers(rig, o, img[o]).detections.items()}
                for o in ("p", "q")}
         try:
-            est["mutual"] = mutloc.localize(rig, obs, "p", "q")
+            est["mutual"] = mutloc.localize(rig, obs, "p", "q").pose
         except MutlocError as e:
             row["mutual_failure"] = str(e)
         matches = Matches(m_all.uv_a[inl], m_all.uv_b[inl])
         row["matches"] = int(len(matches))
         rgb = img["q"][:, :, ::-1]
         for m, T in est.items():
-            from ..core.geometry import rotation_error_deg
-
-            row[f"{m}_translation_m"] = float(np.linalg.norm(T.t - truth.t))
-            row[f"{m}_rotation_deg"] = float(rotation_error_deg(T.R, truth.R))
-            Pw, uv = _reconstruct(matches, cam_p, cam_q, Pose_of(T), T_wq)
+            row[f"{m}_translation_m"], row[f"{m}_rotation_deg"] = pose_errors(T, truth)
+            Pw, uv = _reconstruct(matches, cam_p, cam_q, T, T_wq)
             clouds[m].append(Pw)
             # Against the scene as it was at this pose (p's body moves).
             surface[m].append(surface_distance(world, Pw))
@@ -207,13 +191,6 @@ def run_reconstruction(out_dir: str | Path, *, seed: int = 0, poses: int = POSES
     _plots(clouds, dists, T_wq, T_wp, room, results, out)
     (out / "report.md").write_text(_report(results), encoding="utf-8")
     return results
-
-
-def Pose_of(T: Any):
-    """A :class:`~mutloc.core.geometry.Pose` of an estimate or pose."""
-    from ..core.geometry import Pose
-
-    return T if isinstance(T, Pose) else Pose(np.asarray(T.R), np.asarray(T.t))
 
 
 def _plots(clouds, dists, T_wq, T_wp, room, results, out: Path) -> None:

@@ -36,6 +36,7 @@ from ..core.camera import Camera, undistort_kernel
 from ..core.geometry import Pose, so3_exp
 from ..core.rig import Rig
 from ..errors import InputError
+from .synthetic import looking_pose
 from .world import (
     LIGHT_EMISSION,
     TAG_MARGIN_CELLS,
@@ -1218,11 +1219,7 @@ def default_path(distance: float = 2.0, period: float = 8.0, lateral: float = 0.
         pos = np.array([x, 0.0, z])
         look = -pos / np.linalg.norm(pos)
         look = so3_exp([0.0, math.radians(5.0) * math.sin(1.5 * w * t + 1.0), 0.0]) @ look
-        down = np.array([0.0, 1.0, 0.0])
-        right = np.cross(down, look)
-        right /= np.linalg.norm(right)
-        down = np.cross(look, right)
-        return Pose(np.column_stack([right, down, look]), pos)
+        return looking_pose(pos, look)
 
     return T_qp
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.geometry import Pose, so3_exp
 
-__all__ = ["Scene", "facing_pose", "usual_mounting", "random_layout", "USUAL_MARKERS"]
+__all__ = ["Scene", "facing_pose", "looking_pose", "usual_mounting", "random_layout", "USUAL_MARKERS"]
 
 # Two balls left and right of the camera, a little below and behind it.
 USUAL_MARKERS = np.array([[-0.15, -0.05, -0.03], [0.15, -0.05, -0.03]])
@@ -45,6 +45,16 @@ class Scene:
 
     def all_in_front(self) -> bool:
         return bool(np.all(self.points_q_in_p()[:, 2] > 0) and np.all(self.points_p_in_q()[:, 2] > 0))
+
+
+def looking_pose(position: np.ndarray, look: np.ndarray) -> Pose:
+    """Pose (in a frame whose y is down, like q's) of a level camera at
+    ``position`` with optical axis ``look``: its y axis stays in the plane of
+    ``look`` and the frame's y."""
+    look = np.asarray(look, float) / np.linalg.norm(look)
+    right = np.cross([0.0, 1.0, 0.0], look)
+    right /= np.linalg.norm(right)
+    return Pose(np.column_stack([right, np.cross(look, right), look]), np.asarray(position, float))
 
 
 def facing_pose(distance: float, yaw_p: float = 0.0, yaw_q: float = 0.0, lateral: float = 0.0,
