@@ -12,7 +12,7 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
-from .core.camera import _undistort_many as undistort_many
+from .core.camera import undistort_many
 from .core.estimate import Observations, Solution, estimate
 from .core.geometry import Pose, quaternion_xyzw_from_matrix, skew
 from .core.rig import Rig

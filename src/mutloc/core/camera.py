@@ -27,6 +27,9 @@ __all__ = [
     "project_kernel",
     "project_jac_kernel",
     "undistort_kernel",
+    "project_many",
+    "project_jac_many",
+    "undistort_many",
     "VALID_DIST_LENGTHS",
 ]
 
@@ -239,19 +242,21 @@ def undistort_kernel(K, dist, uv, b) -> bool:
 
 
 @numba.njit(cache=True, fastmath=False)
-def _project_many(K, dist, X, out) -> None:
+def project_many(K, dist, X, out) -> None:
+    """Project points ``X`` (n, 3) into ``out`` (n, 2) (compiled; no checks)."""
     for i in range(X.shape[0]):
         project_kernel(K, dist, X[i], out[i])
 
 
 @numba.njit(cache=True, fastmath=False)
-def _project_jac_many(K, dist, X, out, J) -> None:
+def project_jac_many(K, dist, X, out, J) -> None:
+    """Project ``X`` (n, 3) into ``out`` with Jacobians ``J`` (n, 2, 3) (compiled; no checks)."""
     for i in range(X.shape[0]):
         project_jac_kernel(K, dist, X[i], out[i], J[i])
 
 
 @numba.njit(cache=True, fastmath=False)
-def _undistort_many(K, dist, uv, out) -> int:
+def undistort_many(K, dist, uv, out) -> int:
     """Index of the first pixel that cannot be undistorted, or -1."""
     for i in range(uv.shape[0]):
         if not undistort_kernel(K, dist, uv[i], out[i]):
@@ -414,7 +419,7 @@ class Camera:
         """
         P, single = _as_points(X, 3, "points")
         out = np.empty((P.shape[0], 2))
-        _project_many(self._K, self._dist, P, out)
+        project_many(self._K, self._dist, P, out)
         return out[0] if single else out
 
     def project_jacobian(self, X: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -422,7 +427,7 @@ class Camera:
         P, single = _as_points(X, 3, "points")
         out = np.empty((P.shape[0], 2))
         J = np.empty((P.shape[0], 2, 3))
-        _project_jac_many(self._K, self._dist, P, out, J)
+        project_jac_many(self._K, self._dist, P, out, J)
         return (out[0], J[0]) if single else (out, J)
 
     def bearings_to_pixels(self, b: Any) -> np.ndarray:
@@ -437,7 +442,7 @@ class Camera:
         """
         U, single = _as_points(uv, 2, "pixels")
         out = np.empty((U.shape[0], 3))
-        bad = _undistort_many(self._K, self._dist, U, out)
+        bad = undistort_many(self._K, self._dist, U, out)
         if bad >= 0:
             u, v = U[bad]
             raise InputError(

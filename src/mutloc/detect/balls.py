@@ -58,7 +58,7 @@ import cv2
 import numba
 import numpy as np
 
-from ..core.camera import Camera, _project_many
+from ..core.camera import Camera, project_many
 from ..core.rig import Marker
 from ..errors import InputError
 from .base import Detection, DetectionResult, as_bgr
@@ -1042,7 +1042,7 @@ class _CameraContext:
 def _cone_rim(camera: Camera, d: np.ndarray, cos_t: float, n: int = 48) -> np.ndarray | None:
     """Pixels (n, 2) of the cone's rim: the outline of the sphere's image."""
     uv = np.empty((n, 2))
-    _cone_rim_kernel(camera._K, camera._dist, d, cos_t, uv)
+    _cone_rim_kernel(camera.K, camera.dist, d, cos_t, uv)
     return uv if np.all(np.isfinite(uv)) else None
 
 
@@ -1064,7 +1064,7 @@ def _cone_rim_kernel(K, dist, d, cos_t, uv) -> None:
         rays[i, 0] = cos_t * d[0] + sin_t * (c * e10 + sn * e20)
         rays[i, 1] = cos_t * d[1] + sin_t * (c * e11 + sn * e21)
         rays[i, 2] = cos_t * d[2] + sin_t * (c * e12 + sn * e22)
-    _project_many(K, dist, rays, uv)
+    project_many(K, dist, rays, uv)
 
 
 @numba.njit(cache=True, fastmath=False)
