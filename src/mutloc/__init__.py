@@ -3,28 +3,51 @@
 Implements and extends Dhiman, Ryde & Corso, "Mutual Localization" (IROS 2013).
 Frames, pose direction and file formats follow the project's SPEC: a result
 ``T_qp = (R, t)`` maps ``x_q = R @ x_p + t``.
+
+Names load on first use, so ``import mutloc`` (and ``mutloc --help``) does not
+pull in Numba, SciPy or OpenCV.
 """
 
-from . import _jit_cache  # noqa: F401  (must precede every Numba kernel)
-from .api import Estimate, load_rig, localize, solve_bearings
-from .core.camera import Camera
-from .core.geometry import Pose, rotation_error_deg, translation_error
-from .core.rig import Marker, Rig, Robot
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from ._jit_cache import CACHE_DIR  # noqa: F401  (must precede every Numba kernel)
 from . import errors
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "Camera",
-    "Estimate",
-    "Marker",
-    "Pose",
-    "Rig",
-    "Robot",
-    "errors",
-    "load_rig",
-    "localize",
-    "rotation_error_deg",
-    "solve_bearings",
-    "translation_error",
-]
+# public name -> module that defines it
+_EXPORTS = {
+    "Camera": "core.camera",
+    "Estimate": "api",
+    "Marker": "core.rig",
+    "Pose": "core.geometry",
+    "Rig": "core.rig",
+    "Robot": "core.rig",
+    "load_observations": "io.observations",
+    "load_rig": "api",
+    "localize": "api",
+    "localize_images": "track.frames",
+    "rotation_error_deg": "core.geometry",
+    "save_rig": "io.rig",
+    "solve_bearings": "api",
+    "track": "track.tracker",
+    "translation_error": "core.geometry",
+}
+
+__all__ = sorted([*_EXPORTS, "errors"])
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'mutloc' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])

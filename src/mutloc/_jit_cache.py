@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -30,21 +31,31 @@ def _source_hash() -> str:
 
 
 def configure() -> str | None:
-    """Point Numba's cache at a folder specific to this version of the sources."""
-    import numba
+    """Point Numba's cache at a folder specific to this version of the sources.
 
+    Does not import Numba: when it is not loaded yet the folder is handed over
+    through ``NUMBA_CACHE_DIR`` (read when Numba loads), so importing mutloc
+    stays cheap for commands that never compile anything.
+    """
+    tag = f"numba-{_source_hash()}"
     base = os.environ.get("MUTLOC_CACHE_DIR") or os.environ.get("NUMBA_CACHE_DIR")
+    if base and os.path.basename(os.path.normpath(base)) == tag:
+        base = os.path.dirname(os.path.normpath(base))  # set by a parent mutloc process
     if not base:
         xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         base = os.path.join(xdg, "mutloc")
     for candidate in (base, os.path.join(tempfile.gettempdir(), "mutloc-cache")):
-        path = os.path.join(candidate, f"numba-{_source_hash()}")
+        path = os.path.join(candidate, tag)
         try:
             os.makedirs(path, exist_ok=True)
         except OSError:
             continue
         if os.access(path, os.W_OK):
-            numba.config.CACHE_DIR = path
+            numba = sys.modules.get("numba")
+            if numba is not None:
+                numba.config.CACHE_DIR = path
+            else:
+                os.environ["NUMBA_CACHE_DIR"] = path
             return path
     return None
 
