@@ -108,16 +108,16 @@ def test_trajectory_files_match_the_moving_truth(demo, rig):
         rows = list(csv.DictReader(f))
     assert len(rows) == FRAMES
     np.testing.assert_allclose([float(r["t"]) for r in rows], times, atol=1e-6)
-    assert all(r["status"] == "ok" for r in rows), [r["status"] for r in rows]
+    assert all(r["status"] == "solved" for r in rows), [r["status"] for r in rows]
 
-    est = _tum(out / "trajectory_tum.txt")
+    est = _tum(out / "trajectory.tum")
     assert est.shape == (FRAMES, 8)
     for row in est:
         T = relative_pose(world, "p", "q", row[0])
         assert np.linalg.norm(row[1:4] - T.t) < MAX_T_M, row[0]
         assert rotation_error_deg(matrix_from_quaternion_xyzw(row[4:]), T.R) < MAX_ROT_DEG, row[0]
 
-    true = _tum(out / "truth_tum.txt")
+    true = _tum(out / "truth.tum")
     assert true.shape == (FRAMES, 8)
     np.testing.assert_allclose(true[:, 0], times, atol=1e-9)
     for row in true:
@@ -143,13 +143,13 @@ def test_report_and_console_state_the_real_errors(demo, rig):
     assert f"frames solved: **{FRAMES} of {FRAMES}**" in report
 
     world = moving_world(rig, seed=0)
-    est = _tum(out / "trajectory_tum.txt")
+    est = _tum(out / "trajectory.tum")
     seq_cm = [100 * np.linalg.norm(r[1:4] - relative_pose(world, "p", "q", r[0]).t) for r in est]
     m = re.search(r"translation error median \*\*([\d.]+) cm\*\*, max ([\d.]+) cm", report)
     assert m, report
     assert float(m.group(1)) == pytest.approx(np.median(seq_cm), abs=0.006)
     assert float(m.group(2)) == pytest.approx(np.max(seq_cm), abs=0.006)
-    for link in ("annotated.png", "trajectory.png", "result.json", "trajectory_tum.txt", "truth_tum.txt"):
+    for link in ("annotated.png", "trajectory.png", "result.json", "trajectory.tum", "truth.tum"):
         assert f"({link})" in report
 
     assert f"error {err_cm:.2f} cm, {err_deg:.3f} deg" in console

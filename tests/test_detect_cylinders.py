@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import mutloc
-from mutloc.core.geometry import Pose, rotation_error_deg, so3_exp
+from mutloc.core.geometry import rotation_error_deg, so3_exp
+from mutloc.core.pose import Pose
 from mutloc.detect.cylinders import band_marker_names, band_points, detect_cylinders, expand_cylinder_bands
 from mutloc.sim.render import relative_pose, render, two_robot_world
 from mutloc.sim.world import standard_rig

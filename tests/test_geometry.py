@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
+from mutloc.core.pose import Pose
 from mutloc.core.geometry import (
-    Pose,
     matrix_from_quaternion_xyzw,
     quaternion_xyzw_from_matrix,
     rotation_error_deg,

@@ -562,7 +562,7 @@ SPEC_OBS = {"p": {"M1": [612.3, 281.9], "M2": [701.0, 280.4]}, "q": {"M3": [402.
 
 
 def _check_plain(obs):
-    for observer, seen in obs.items():
+    for observer, seen in obs.to_dict().items():
         assert type(observer) is str
         items = seen.items() if isinstance(seen, dict) else enumerate(seen)
         for _, pix in items:
@@ -590,8 +590,8 @@ def test_observations_mapping_with_numpy_and_ints():
 def test_observations_unknown_identity_list(tmp_path):
     data = {"p": [[612.3, 281.9], [701.0, 280.4]], "q": {"M3": [402.8, 255.1]}}
     obs = load_observations(data)
-    assert obs["p"] == [(612.3, 281.9), (701.0, 280.4)]
-    assert obs["q"] == {"M3": (402.8, 255.1)}
+    assert obs.to_dict()["p"] == [(612.3, 281.9), (701.0, 280.4)]
+    assert obs.to_dict()["q"] == {"M3": (402.8, 255.1)}
     _check_plain(obs)
     f = write(tmp_path / "obs.json", json.dumps(data))
     assert load_observations(f) == obs
@@ -599,8 +599,8 @@ def test_observations_unknown_identity_list(tmp_path):
 
 
 def test_observations_empty_entries_are_structurally_fine():
-    assert load_observations({"p": {}, "q": []}) == {"p": {}, "q": []}
-    assert load_observations({}) == {}
+    assert len(load_observations({"p": {}, "q": []})) == 0
+    assert len(load_observations({})) == 0
 
 
 BAD_OBS = [

@@ -21,8 +21,9 @@ import pytest
 
 import mutloc
 from mutloc.core.camera import Camera
-from mutloc.core.estimate import Observations
-from mutloc.core.geometry import Pose, so3_exp, so3_log
+from mutloc.core.estimate import PairProblem
+from mutloc.core.geometry import so3_exp, so3_log
+from mutloc.core.pose import Pose
 from mutloc.core.refine import information, lm_refine
 from mutloc.core.rig import Marker, Rig, Robot
 from mutloc.sim.synthetic import usual_mounting
@@ -61,11 +62,11 @@ class Trial:
         return (self.up + rng.normal(scale=sigma, size=self.up.shape),
                 self.uq + rng.normal(scale=sigma, size=self.uq.shape))
 
-    def solver_obs(self, up=None, uq=None) -> Observations:
+    def solver_obs(self, up=None, uq=None) -> PairProblem:
         up = self.up if up is None else up
         uq = self.uq if uq is None else uq
         pix = np.vstack([up, uq])
-        return Observations(
+        return PairProblem(
             side=np.array([0, 0, 1, 1]),
             points=np.vstack([self.markers_q, self.markers_p]),
             bearings=np.vstack([CAM.pixels_to_bearings(up), CAM.pixels_to_bearings(uq)]),

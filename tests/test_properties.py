@@ -23,7 +23,8 @@ from hypothesis import strategies as st
 
 import mutloc
 from mutloc.core.camera import Camera
-from mutloc.core.geometry import Pose, so3_exp
+from mutloc.core.geometry import so3_exp
+from mutloc.core.pose import Pose
 from mutloc.core.rig import Marker, Rig, Robot
 from mutloc.errors import (
     DegenerateGeometryError,

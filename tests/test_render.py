@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from mutloc.core.geometry import Pose, so3_exp
+from mutloc.core.geometry import so3_exp
+from mutloc.core.pose import Pose
 from mutloc.core.rig import Marker, Rig, Robot
 from mutloc.errors import InputError, ObservationError, RigError
 from mutloc.sim.render import (

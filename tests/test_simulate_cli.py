@@ -29,7 +29,7 @@ def check_frame(rig, frame: dict) -> tuple[np.ndarray, np.ndarray]:
     t = np.array(frame["T_qp"]["t"])
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
     np.testing.assert_allclose(matrix_from_quaternion_xyzw(frame["T_qp"]["quaternion_xyzw"]), R, atol=1e-9)
-    obs = load_observations(frame["observations"])
+    obs = load_observations(frame["observations"]).to_dict()
     for observer, other, (Ro, to) in (("q", "p", (R, t)), ("p", "q", (R.T, -R.T @ t))):
         cam = rig.robot(observer).camera
         names = list(rig.robot(other).markers)

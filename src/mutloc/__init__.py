@@ -23,7 +23,7 @@ _EXPORTS = {
     "Camera": "core.camera",
     "Estimate": "api",
     "Marker": "core.rig",
-    "Pose": "core.geometry",
+    "Pose": "core.pose",
     "Rig": "core.rig",
     "Robot": "core.rig",
     "load_observations": "io.observations",

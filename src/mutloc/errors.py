@@ -61,4 +61,21 @@ __all__ = [
     "GeometryError",
     "DegenerateGeometryError",
     "NoSolutionError",
+    "positive_number",
 ]
+
+
+def positive_number(value: object, what: str, error: type[InputError] = InputError) -> float:
+    """``value`` as a finite float > 0, else ``error`` naming ``what`` (the one
+    check of "a positive number" for every option and rig key)."""
+    import math
+
+    if isinstance(value, (str, bytes, bool)) or value is None:
+        raise error(f"{what} must be a finite number > 0, got {value!r}")
+    try:
+        x = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        raise error(f"{what} must be a finite number > 0, got {value!r}") from None
+    if not (math.isfinite(x) and x > 0):
+        raise error(f"{what} must be a finite number > 0, got {value!r}")
+    return x

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.geometry import Pose
+from ..core.pose import Pose
 from ..errors import DegenerateGeometryError, InputError, NoSolutionError
 
 __all__ = ["dugas_pose", "subtended_range"]

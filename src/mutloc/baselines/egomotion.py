@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.geometry import Pose
+from ..core.pose import Pose
 from ..errors import InputError, NoSolutionError
 
 __all__ = ["Matches", "match_features", "essential_inliers", "egomotion_pose", "MIN_INLIERS"]

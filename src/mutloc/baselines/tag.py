@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.geometry import Pose
+from ..core.pose import Pose
 from ..core.rig import Marker
 from ..errors import NoSolutionError, ObservationError
 

@@ -17,11 +17,11 @@ import numpy as np
 from numba import njit
 
 from ..errors import DegenerateGeometryError, InputError, NoSolutionError, TooFewObservationsError
-from .geometry import Pose
+from .pose import Pose
 from .minimal import solve_minimal_kernel
 from .refine import MODE_BEARING, MODE_PIXEL, information, lm_refine, cost, tangent_bases
 
-__all__ = ["Observations", "Solution", "estimate", "minimal_subsets"]
+__all__ = ["PairProblem", "Solution", "estimate", "minimal_subsets"]
 
 _PER_SUBSET = 16
 # Subsets beyond this many are sampled (deterministically): with many
@@ -33,10 +33,12 @@ _MAX_COND = 1e14
 
 
 @dataclass
-class Observations:
-    """Observations between robots p and q in solver form.
+class PairProblem:
+    """The observations between robots p and q in solver form: what
+    :meth:`mutloc.ObservationSet.pair` gives, with the markers' positions and
+    the rays looked up.
 
-    ``pixels``/``cameras`` are only needed for the pixel objective.
+    ``pixels``/``K``/``dist`` are only needed for the pixel objective.
     """
 
     side: np.ndarray
@@ -71,7 +73,7 @@ class Observations:
             self.pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
 
     @classmethod
-    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None) -> "Observations":
+    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None) -> "PairProblem":
         """Build without validation, for callers that already validated
         (contiguous float arrays, unit bearings, at least three rows)."""
         obj = cls.__new__(cls)
@@ -106,17 +108,11 @@ class Solution:
     cost: float
     information: np.ndarray
     information_inv: np.ndarray
-    candidates_R: np.ndarray
-    candidates_t: np.ndarray
+    candidates: Pose
     candidate_costs: np.ndarray
     n_obs: int
     refined: bool = True
     extra: dict = field(default_factory=dict)
-
-    @property
-    def candidates(self) -> list[Pose]:
-        """Every distinct candidate pose, best first."""
-        return [Pose(R, t) for R, t in zip(self.candidates_R, self.candidates_t)]
 
     def covariance(self, sigma: float) -> np.ndarray:
         """6x6 covariance of (left rotation vector, translation)."""
@@ -295,7 +291,7 @@ def _inverse_checked(H, max_cond, out):
     return True
 
 
-def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
+def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
              root_filter: bool = False, extra_candidates: tuple[np.ndarray, np.ndarray] | None = None,
              use_minimal: bool = True) -> Solution:
     """The best pose T_qp for ``obs`` with all distinct candidates.
@@ -347,8 +343,7 @@ def estimate(obs: Observations, *, refine: bool = True, n_refine: int = 4, max_i
         cost=float(best),
         information=H,
         information_inv=Hinv,
-        candidates_R=Rc[sel],
-        candidates_t=tc[sel],
+        candidates=Pose(Rc[sel], tc[sel]),
         candidate_costs=costs[sel],
         n_obs=n,
         refined=refine,

@@ -6,8 +6,6 @@ perturbations are rotation vectors applied on the left: ``R' = exp(w) @ R``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 __all__ = [
@@ -18,7 +16,6 @@ __all__ = [
     "translation_error",
     "quaternion_xyzw_from_matrix",
     "matrix_from_quaternion_xyzw",
-    "Pose",
 ]
 
 
@@ -100,59 +97,3 @@ def matrix_from_quaternion_xyzw(q: np.ndarray) -> np.ndarray:
             [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
         ]
     )
-
-
-@dataclass(frozen=True, eq=False)
-class Pose:
-    """A rigid transform ``x_to = R @ x_from + t``."""
-
-    R: np.ndarray
-    t: np.ndarray
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "R", np.asarray(self.R, dtype=float).reshape(3, 3))
-        object.__setattr__(self, "t", np.asarray(self.t, dtype=float).reshape(3))
-
-    @classmethod
-    def identity(cls) -> "Pose":
-        return cls(np.eye(3), np.zeros(3))
-
-    @classmethod
-    def from_matrix(cls, T: np.ndarray) -> "Pose":
-        T = np.asarray(T, dtype=float)
-        return cls(T[:3, :3], T[:3, 3])
-
-    def as_matrix(self) -> np.ndarray:
-        """The 4x4 homogeneous matrix."""
-        T = np.eye(4)
-        T[:3, :3] = self.R
-        T[:3, 3] = self.t
-        return T
-
-    def inverse(self) -> "Pose":
-        return Pose(self.R.T, -self.R.T @ self.t)
-
-    def __matmul__(self, other: "Pose") -> "Pose":
-        """Composition: ``(A @ B).apply(x) == A.apply(B.apply(x))``."""
-        return Pose(self.R @ other.R, self.R @ other.t + self.t)
-
-    def apply(self, x: np.ndarray) -> np.ndarray:
-        """Transform points ``(3,)`` or ``(n, 3)``."""
-        return np.asarray(x, dtype=float) @ self.R.T + self.t
-
-    @property
-    def quaternion_xyzw(self) -> np.ndarray:
-        return quaternion_xyzw_from_matrix(self.R)
-
-    @property
-    def rotvec(self) -> np.ndarray:
-        return so3_log(self.R)
-
-    def rotation_error_deg(self, other: "Pose") -> float:
-        return rotation_error_deg(self.R, other.R)
-
-    def translation_error(self, other: "Pose") -> float:
-        return translation_error(self.t, other.t)
-
-    def __repr__(self) -> str:
-        return f"Pose(rotvec={np.round(self.rotvec, 6).tolist()}, t={np.round(self.t, 6).tolist()})"

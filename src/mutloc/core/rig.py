@@ -6,6 +6,7 @@ Pure data and validation; reading rig files lives in :mod:`mutloc.io.rig`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any, Mapping
 
 import numpy as np
@@ -13,10 +14,27 @@ import numpy as np
 from ..errors import ObservationError, RigError, UnknownMarkerError
 from .camera import Camera
 
-__all__ = ["Marker", "Robot", "Rig"]
+__all__ = ["Marker", "MarkerKind", "Robot", "Rig", "DETECTED_KINDS"]
 
 # Markers closer than this (metres) on one robot cannot be told apart.
 COINCIDENT_TOL_M = 1e-6
+
+
+class MarkerKind(str, Enum):
+    """How a marker is seen: the closed set of kinds, decided by
+    :attr:`Marker.kind` and nowhere else."""
+
+    BALL = "ball"                    # a coloured ball, found by its colour (``color``)
+    LIGHT = "light"                  # a blinking light, found by its blink (``blink_hz``), never by colour
+    TAG = "tag"                      # a printed tag (``tag: {family, id, size}``)
+    CYLINDER = "cylinder"            # a banded cylinder (``cylinder: {radius, height, code}``)
+    TAG_CORNER = "tag_corner"        # a corner of an oriented tag (derived, ``NAME#k``)
+    CYLINDER_BAND = "cylinder_band"  # a band centre of a cylinder (derived, ``NAME#bk``)
+    POINT = "point"                  # a known point without a detector: pixels are given
+
+
+#: Kinds a detector looks for in images (derived points come with their parent).
+DETECTED_KINDS = (MarkerKind.BALL, MarkerKind.LIGHT, MarkerKind.TAG, MarkerKind.CYLINDER)
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,6 +54,23 @@ class Marker:
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise RigError(f"marker {self.name!r} of robot {self.robot!r}: position must be 3 finite numbers")
         object.__setattr__(self, "position", pos)
+
+    @property
+    def kind(self) -> MarkerKind:
+        """The marker's kind; a blinking light is a light even when it has a colour."""
+        if "tag_of" in self.extra:
+            return MarkerKind.TAG_CORNER
+        if "cylinder_of" in self.extra:
+            return MarkerKind.CYLINDER_BAND
+        if self.tag is not None:
+            return MarkerKind.TAG
+        if self.extra.get("cylinder") is not None:
+            return MarkerKind.CYLINDER
+        if self.blink_hz is not None:
+            return MarkerKind.LIGHT
+        if self.color is not None:
+            return MarkerKind.BALL
+        return MarkerKind.POINT
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"position": self.position.tolist()}

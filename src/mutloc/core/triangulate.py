@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from .geometry import Pose
+from .pose import Pose
 
 __all__ = ["triangulate_midpoint"]
 

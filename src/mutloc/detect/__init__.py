@@ -1,26 +1,47 @@
-"""Marker detectors: coloured balls, blinking lights, printed tags.
+"""Marker detectors: coloured balls, blinking lights, printed tags, banded cylinders.
 
-Each takes an OpenCV BGR image (or, for blinking lights, a stream of them)
-and the rig's markers, and returns a :class:`DetectionResult`.
+Each image detector takes an OpenCV BGR image and the rig's markers of its
+kind and returns a :class:`DetectionResult`; blinking lights need a stream
+and are found by :class:`BlinkTracker`.  Which detector finds which marker
+is this module's one table, keyed by :class:`mutloc.MarkerKind`.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any, Callable
+
+from ..core.rig import MarkerKind
 from .base import Detection, DetectionResult, as_bgr
 
-__all__ = ["Detection", "DetectionResult", "as_bgr", "detect_balls", "detect_tags", "BlinkTracker"]
+__all__ = ["Detection", "DetectionResult", "as_bgr", "detect_balls", "detect_tags", "detect_cylinders",
+           "BlinkTracker", "IMAGE_DETECTORS", "SEQUENCE_DETECTORS", "image_detector"]
+
+#: kind -> (module, function) of the detector that finds it in one image.
+IMAGE_DETECTORS: dict[MarkerKind, tuple[str, str]] = {
+    MarkerKind.BALL: ("balls", "detect_balls"),
+    MarkerKind.TAG: ("tags", "detect_tags"),
+    MarkerKind.CYLINDER: ("cylinders", "detect_cylinders"),
+}
+#: kind -> (module, class) of the detector that needs a stream of images.
+SEQUENCE_DETECTORS: dict[MarkerKind, tuple[str, str]] = {
+    MarkerKind.LIGHT: ("blink", "BlinkTracker"),
+}
+
+_LAZY = {fn: mod for mod, fn in [*IMAGE_DETECTORS.values(), *SEQUENCE_DETECTORS.values()]}
 
 
-def __getattr__(name: str):
+def image_detector(kind: MarkerKind) -> Callable[..., DetectionResult] | None:
+    """The single-image detector of ``kind`` (None: needs a stream, or none exists)."""
+    entry = IMAGE_DETECTORS.get(kind)
+    if entry is None:
+        return None
+    return getattr(importlib.import_module(f".{entry[0]}", __name__), entry[1])
+
+
+def __getattr__(name: str) -> Any:
     # Detectors load lazily: each pulls in its own OpenCV/Numba machinery.
-    if name == "detect_balls":
-        from .balls import detect_balls
-
-        return detect_balls
-    if name == "detect_tags":
-        from .tags import detect_tags
-
-        return detect_tags
-    if name == "BlinkTracker":
-        from .blink import BlinkTracker
-
-        return BlinkTracker
-    raise AttributeError(name)
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(name)
+    return getattr(importlib.import_module(f".{mod}", __name__), name)

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.observations import ObservationSet
 from ..errors import InputError
 
 __all__ = ["Detection", "DetectionResult", "as_bgr"]
@@ -44,9 +45,23 @@ class DetectionResult:
     detections: dict[str, Detection] = field(default_factory=dict)
     missing: list[str] = field(default_factory=list)
 
+    def observations(self, observer: str, time: float | None = None) -> ObservationSet:
+        """What ``observer``'s camera saw, as an :class:`ObservationSet` (the
+        detector's score travels with each pixel)."""
+        names = list(self.detections)
+        uv = np.array([self.detections[n].uv for n in names], dtype=float).reshape(-1, 2)
+        return ObservationSet([observer] * len(names), names, uv, time,
+                              [float(self.detections[n].score) for n in names])
+
     def pixels(self) -> dict[str, tuple[float, float]]:
-        """``{marker: (u, v)}``: one observer's entry of an observations file."""
+        """``{marker: (u, v)}``: one observer's entry of the SPEC's observations dict."""
         return {name: (float(d.uv[0]), float(d.uv[1])) for name, d in self.detections.items()}
+
+    def merge(self, other: "DetectionResult") -> None:
+        """Add ``other``'s detections; a marker found there is no longer missing."""
+        self.detections.update(other.detections)
+        self.missing = [m for m in self.missing if m not in other.detections]
+        self.missing.extend(m for m in other.missing if m not in self.missing and m not in self.detections)
 
     def to_dict(self) -> dict[str, Any]:
         return {"detections": {n: d.to_dict() for n, d in self.detections.items()}, "missing": list(self.missing)}

@@ -71,7 +71,7 @@ def _sample_pose(rng: np.random.Generator, distance: float):
 
 def _information_inverse(rig, T_qp, truth_px: dict[str, dict[str, np.ndarray]]) -> np.ndarray:
     """(J^T J)^-1 of the pixel model at the true pose, for the four balls."""
-    from ..core.estimate import Observations
+    from ..core.estimate import PairProblem
     from ..core.refine import information
 
     cam_p, cam_q = rig.robot("p").camera, rig.robot("q").camera
@@ -79,7 +79,7 @@ def _information_inverse(rig, T_qp, truth_px: dict[str, dict[str, np.ndarray]]) 
     names_q = sorted(truth_px["q"])  # p's markers, seen by q (side 1)
     up = np.array([truth_px["p"][n] for n in names_p], float)
     uq = np.array([truth_px["q"][n] for n in names_q], float)
-    obs = Observations(
+    obs = PairProblem(
         side=np.array([0] * len(names_p) + [1] * len(names_q)),
         points=np.vstack([[rig.robot("q").markers[n].position for n in names_p],
                           [rig.robot("p").markers[n].position for n in names_q]]),

@@ -20,8 +20,8 @@ downloads), through the same code as ``mutloc localize-images`` and
 Files in ``out_dir`` (see :data:`FILES`): ``rig.yaml``, ``p.png``, ``q.png``,
 ``truth.json``, ``result.json`` (SPEC result), ``detections.json``,
 ``annotated.png``, ``sequence/{p,q}/NNNNNN.png`` with ``sequence/frames.csv``,
-``sequence_annotated.mp4``, ``trajectory_tum.txt``, ``trajectory.csv``,
-``truth_tum.txt``, ``trajectory.png`` and ``report.md``.
+``sequence_annotated.mp4``, ``trajectory.tum``, ``trajectory.csv``,
+``truth.tum``, ``trajectory.png`` and ``report.md``.
 """
 
 from __future__ import annotations
@@ -37,9 +37,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..core.geometry import Pose, rotation_error_deg, so3_log
+from ..core.geometry import so3_log
+from ..core.pose import Pose
 from ..errors import InputError, NoSolutionError
 from ..io import load_rig, save_rig, write_json
+from ..io.trajectory import write_tum
 from .render import moving_world, project_markers, relative_pose, render, two_robot_world
 from .synthetic import facing_pose
 from .world import standard_rig
@@ -62,9 +64,9 @@ FILES = {
     "annotated.png": "both views with the detections and the estimated pose",
     "sequence/": "the sequence: p/ and q/ image folders and frames.csv (timestamps)",
     "sequence_annotated.mp4": "the sequence, annotated as by `mutloc track --annotate`",
-    "trajectory_tum.txt": "the tracked pose of p in q's frame, solved frames (TUM)",
+    "trajectory.tum": "the tracked pose of p in q's frame, solved frames (TUM)",
     "trajectory.csv": "every frame with its status and pose",
-    "truth_tum.txt": "the true pose of p in q's frame per frame (TUM)",
+    "truth.tum": "the true pose of p in q's frame per frame (TUM)",
     "trajectory.png": "estimated vs true position over time, and the errors",
     "report.md": "this run's report",
 }
@@ -84,37 +86,23 @@ def _imwrite(path: Path, image: np.ndarray) -> None:
 
 
 def _pose_dict(T: Pose) -> dict[str, Any]:
-    return {"from": SOURCE, "to": TARGET, "R": T.R.tolist(), "t": T.t.tolist(),
-            "quaternion_xyzw": T.quaternion_xyzw.tolist()}
+    return {"from": SOURCE, "to": TARGET, **T.to_dict()}
 
 
-def _errors(R: np.ndarray, t: np.ndarray, truth: Pose) -> tuple[float, float]:
+def _errors(estimate: Any, truth: Pose) -> tuple[float, float]:
     """(translation error m, rotation error deg), as SPEC defines them."""
-    return float(np.linalg.norm(np.asarray(t) - truth.t)), rotation_error_deg(np.asarray(R), truth.R)
+    return estimate.pose.translation_error(truth), estimate.pose.rotation_error_deg(truth)
 
 
 def _annotate(path: Path, images: dict[str, np.ndarray], estimate: Any, detections: dict[str, Any]) -> None:
     """Both views side by side with detections and the pose, drawn exactly as
     ``mutloc track --annotate`` draws a video frame, kept as one image."""
-    from ..track.tracker import TrackRow, _Annotator
+    from ..track.annotate import draw_pair
+    from ..track.status import FrameStatus
+    from ..track.tracker import TrackRow
 
-    class _Still:  # stands in for the annotator's cv2.VideoWriter
-        frame: np.ndarray | None = None
-
-        def write(self, frame: np.ndarray) -> None:
-            self.frame = frame
-
-        def release(self) -> None:
-            pass
-
-    still = _Still()
-    annotator = _Annotator(path)
-    annotator.vw = still  # type: ignore[assignment]
-    row = TrackRow(0.0, 0.0, 0.0, "ok", estimate=estimate, detections=detections)
-    annotator.write(images[SOURCE], images[TARGET], row, SOURCE, TARGET)
-    if still.frame is None:
-        raise OSError(f"{path}: nothing was drawn")
-    _imwrite(path, still.frame)
+    row = TrackRow(0.0, 0.0, 0.0, FrameStatus.SOLVED, estimate=estimate, detections=detections)
+    _imwrite(path, draw_pair(images[SOURCE], images[TARGET], row, SOURCE, TARGET))
 
 
 def _check_args(out: Path, seed: Any, frames: Any, fps: Any) -> None:
@@ -154,7 +142,7 @@ def _run_pair(out: Path, rig_file: Path, rig: Any, seed: int) -> dict[str, Any]:
     for r, det in res.detections.items():
         exact = project_markers(world, r)
         det_err += [float(np.hypot(*(np.asarray(d.uv) - exact[n]))) for n, d in det.detections.items() if n in exact]
-    err_t, err_r = _errors(est.R, est.t, truth)
+    err_t, err_r = _errors(est, truth)
     # Error in the covariance's own parametrization: R_true = exp(dtheta) R, t_true = t + dt.
     delta = np.concatenate([so3_log(truth.R @ est.R.T), truth.t - est.t])
     sd = np.sqrt(np.diag(est.covariance))
@@ -201,9 +189,8 @@ def _run_sequence(out: Path, rig_file: Path, rig: Any, seed: int, frames: int, f
     (seq / "frames.csv").write_text("frame,timestamp\n" + "".join(f"{i},{t:.9f}\n" for i, t in enumerate(times)),
                                     encoding="utf-8")
     truth = [relative_pose(world, SOURCE, TARGET, t) for t in times]
-    rows = [[t, *T.t, *T.quaternion_xyzw] for t, T in zip(times, truth)]
-    np.savetxt(out / "truth_tum.txt", np.round(rows, 9) + 0.0, fmt="%.9f",  # no "-0.000000000"
-               header=f"mutloc demo: true pose of {SOURCE} in {TARGET}'s camera frame (T_qp); "
+    write_tum(out / "truth.tum", times, Pose.concatenate(truth),
+              comment=f"mutloc demo: true pose of {SOURCE} in {TARGET}'s camera frame (T_qp); "
                       "timestamp tx ty tz qx qy qz qw")
 
     # Track from the folders just written, as `mutloc track --stream p=DIR ...` does.
@@ -212,15 +199,15 @@ def _run_sequence(out: Path, rig_file: Path, rig: Any, seed: int, frames: int, f
     traj = track(load_rig(rig_file), streams, SOURCE, TARGET, fps=fps, progress=progress, total=frames,
                  annotate=out / "sequence_annotated.mp4")
     t_track = time.perf_counter() - t0
-    traj.write_tum(out / "trajectory_tum.txt")
+    traj.write_tum(out / "trajectory.tum")
     traj.write_csv(out / "trajectory.csv")
 
     per_frame = []
     for row in traj.rows:
         T = relative_pose(world, SOURCE, TARGET, row.t)
-        entry: dict[str, Any] = {"t": row.t, "status": row.status, "true_t": T.t.tolist()}
+        entry: dict[str, Any] = {"t": row.t, "status": str(row.status), "true_t": T.t.tolist()}
         if row.estimate is not None:
-            e_t, e_r = _errors(row.estimate.R, row.estimate.t, T)
+            e_t, e_r = _errors(row.estimate, T)
             entry.update(est_t=row.estimate.t.tolist(), translation_error_m=e_t, rotation_error_deg=e_r)
         per_frame.append(entry)
     solved = [f for f in per_frame if "est_t" in f]
@@ -358,8 +345,8 @@ def _report(s: dict[str, Any]) -> str:
            + ")"),
         f"- translation error median **{_num(te['median'], 100, 2)} cm**, max {_num(te['max'], 100, 2)} cm",
         f"- rotation error median **{_num(re_['median'], 1, 3)} deg**, max {_num(re_['max'], 1, 3)} deg",
-        "- files: [`trajectory_tum.txt`](trajectory_tum.txt) (estimate, TUM), "
-        "[`truth_tum.txt`](truth_tum.txt) (truth, TUM), [`trajectory.csv`](trajectory.csv) (every frame "
+        "- files: [`trajectory.tum`](trajectory.tum) (estimate, TUM), "
+        "[`truth.tum`](truth.tum) (truth, TUM), [`trajectory.csv`](trajectory.csv) (every frame "
         "with its status), [`sequence_annotated.mp4`](sequence_annotated.mp4)",
         "",
         "![estimated vs true position, and the errors](trajectory.png)",
@@ -434,7 +421,7 @@ def format_summary(s: dict[str, Any]) -> str:
         f"{seq['fps']:g} fps); error median {_num(te['median'], 100, 2)} cm / {_num(re_['median'], 1, 3)} deg,"
         f" max {_num(te['max'], 100, 2)} cm / {_num(re_['max'], 1, 3)} deg",
         f"  report       {Path(s['out_dir']) / 'report.md'} (plot trajectory.png, annotated.png, "
-        "result.json, trajectory_tum.txt, ...)",
+        "result.json, trajectory.tum, ...)",
         f"  time         {s['seconds']['total']:.1f} s",
     ]
     return "\n".join(lines)

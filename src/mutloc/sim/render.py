@@ -33,7 +33,8 @@ import numba
 import numpy as np
 
 from ..core.camera import Camera, undistort_kernel
-from ..core.geometry import Pose, so3_exp
+from ..core.geometry import so3_exp
+from ..core.pose import Pose
 from ..core.rig import Rig
 from ..errors import InputError
 from .synthetic import looking_pose
@@ -47,7 +48,6 @@ from .world import (
     camera_to_world_facing,
     cylinder_spec,
     light_is_on,
-    marker_kind,
     room_textures,
     tag_image,
     tag_spec,
@@ -750,7 +750,7 @@ def _atlas(world: World) -> tuple[np.ndarray, np.ndarray, dict[Any, int]]:
     tags = []
     for wr in world.robots.values():
         for m in wr.robot.markers.values():
-            if marker_kind(m) == "tag":
+            if m.kind == "tag":
                 fam, tid, _, _ = tag_spec(m)
                 tags.append((fam, tid))
     room = world.room
@@ -799,7 +799,7 @@ def _atlas(world: World) -> tuple[np.ndarray, np.ndarray, dict[Any, int]]:
 
 def _marker_extent(m: Any) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo, hi) of a marker in its robot frame."""
-    kind = marker_kind(m)
+    kind = m.kind
     if kind == "tag":
         fam, tid, size, _R = tag_spec(m)
         n = tag_image(fam, tid).shape[0]
@@ -850,10 +850,10 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
                       R @ c + t, float(np.linalg.norm(half)))
 
     for m in markers:
-        kind = marker_kind(m)
+        kind = m.kind
         c = R @ m.position + t
         color = m.color if m.color is not None else (220, 220, 220)
-        if kind == "ball":
+        if kind in ("ball", "point"):  # a marker without a detector is drawn as a grey ball
             r = ball_radius(m)
             row = np.concatenate([c, [r], _lin_bgr(color), [0.0, 0.0, 0.0]])
             scene.add(row, (_SPHERE, -1, 0), (name, m.name), c, r)

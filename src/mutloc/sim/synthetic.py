@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.geometry import Pose, so3_exp
+from ..core.geometry import so3_exp
+from ..core.pose import Pose
 
 __all__ = ["Scene", "facing_pose", "looking_pose", "usual_mounting", "random_layout", "USUAL_MARKERS"]
 

@@ -42,8 +42,8 @@ import cv2
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.geometry import Pose
-from ..core.rig import Marker, Rig, Robot
+from ..core.pose import Pose
+from ..core.rig import Marker, MarkerKind, Rig, Robot
 from ..errors import InputError, ObservationError, RigError
 from ..detect.tags import aruco_dictionary, square_corners, tag_rotation
 from ..detect.tags import tag_spec as detect_tag_spec
@@ -66,7 +66,6 @@ __all__ = [
     "camera_to_world_facing",
     "cylinder_spec",
     "light_is_on",
-    "marker_kind",
     "room_textures",
     "standard_rig",
     "tag_corners",
@@ -93,17 +92,6 @@ PoseLike = Pose | Callable[[float], Pose]
 # ---------------------------------------------------------------------------
 
 
-def marker_kind(marker: Marker) -> str:
-    """How ``marker`` is drawn: ``"tag"``, ``"cylinder"``, ``"light"`` or ``"ball"``."""
-    if marker.tag is not None:
-        return "tag"
-    if marker.extra.get("cylinder") is not None:
-        return "cylinder"
-    if marker.blink_hz is not None:
-        return "light"
-    return "ball"
-
-
 def _positive(value: Any, what: str, marker: Marker) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
             or not (math.isfinite(float(value)) and float(value) > 0):
@@ -113,7 +101,7 @@ def _positive(value: Any, what: str, marker: Marker) -> float:
 
 def ball_radius(marker: Marker) -> float:
     """Sphere radius (m) of a ball or light marker (``extra['radius']`` or the default)."""
-    default = DEFAULT_LIGHT_RADIUS if marker_kind(marker) == "light" else DEFAULT_BALL_RADIUS
+    default = DEFAULT_LIGHT_RADIUS if marker.kind == MarkerKind.LIGHT else DEFAULT_BALL_RADIUS
     r = marker.extra.get("radius")
     return default if r is None else _positive(r, "radius", marker)
 

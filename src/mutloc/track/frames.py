@@ -11,11 +11,13 @@ import cv2
 import numpy as np
 
 from ..api import Estimate, load_rig, localize
-from ..core.rig import Marker, Rig
+from ..core.observations import ObservationSet
+from ..core.rig import DETECTED_KINDS, Marker, MarkerKind, Rig
+from ..detect import image_detector
 from ..detect.base import Detection, DetectionResult, as_bgr
 from ..errors import FileFormatError, InputError, ObservationError
 
-__all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images"]
+__all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images", "observations_of"]
 
 
 @dataclass
@@ -51,43 +53,38 @@ def _check_size(rig: Rig, robot: str, image: np.ndarray, where: str) -> None:
 
 def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str] | None = None) -> DetectionResult:
     """Every marker of the other robots (or of ``targets``) that ``observer``'s
-    image shows, by the detector each marker's rig keys call for."""
+    image shows, each found by the detector of its kind (``mutloc.detect``'s
+    table).  Blinking lights need a sequence: from one image they are missing."""
     image = as_bgr(image, f"image of robot {observer!r}")
     _check_size(rig, observer, image, f"image of robot {observer!r}")
     camera = rig.robot(observer).camera
     others = targets if targets is not None else [r for r in rig.robots if r != observer]
-    markers: dict[str, Marker] = {}
+    by_kind: dict[MarkerKind, dict[str, Marker]] = {}
     for r in others:
-        markers.update(rig.robot(r).markers)
-    # Derived point markers (tag corners, cylinder bands) are found through
-    # their parent marker, not on their own.
-    markers = {n: m for n, m in markers.items() if "tag_of" not in m.extra and "cylinder_of" not in m.extra}
-    balls = {n: m for n, m in markers.items() if m.color is not None and m.tag is None}
-    tags = {n: m for n, m in markers.items() if m.tag is not None}
-    cylinders = {n: m for n, m in markers.items() if "cylinder" in m.extra}
+        for n, m in rig.robot(r).markers.items():
+            if m.kind in DETECTED_KINDS:  # derived points come with their parent
+                by_kind.setdefault(m.kind, {})[n] = m
     result = DetectionResult()
-    if balls:
-        from ..detect.balls import detect_balls
-
-        _merge(result, detect_balls(image, balls, camera=camera))
-    if tags:
-        from ..detect.tags import corner_marker_names, detect_tags, tag_corner_points
-
-        found = detect_tags(image, tags, camera=camera)
-        # An oriented tag's corners are markers of their own (NAME#0..3).
-        for name, det in list(found.detections.items()):
-            if det.corners is not None and tag_corner_points(tags[name]) is not None:
-                for cname, uv in zip(corner_marker_names(name), det.corners):
-                    found.detections[cname] = Detection(cname, np.asarray(uv, float), det.score)
-        _merge(result, found)
-    if cylinders:
-        from ..detect.cylinders import detect_cylinders
-
-        _merge(result, detect_cylinders(image, cylinders, camera=camera))
-    handled = set(balls) | set(tags) | set(cylinders)
-    # Blinking lights need a sequence: a single image cannot show them.
-    result.missing.extend(n for n in markers if n not in handled and n not in result.missing)
+    for kind, markers in by_kind.items():
+        detector = image_detector(kind)
+        if detector is None:
+            result.missing.extend(n for n in markers if n not in result.missing)
+            continue
+        found = detector(image, markers, camera=camera)
+        if kind == MarkerKind.TAG:
+            _add_tag_corners(found, markers)
+        result.merge(found)
     return result
+
+
+def _add_tag_corners(found: DetectionResult, tags: Mapping[str, Marker]) -> None:
+    """An oriented tag's corners are markers of their own (NAME#0..3)."""
+    from ..detect.tags import corner_marker_names, tag_corner_points
+
+    for name, det in list(found.detections.items()):
+        if det.corners is not None and tag_corner_points(tags[name]) is not None:
+            for cname, uv in zip(corner_marker_names(name), det.corners):
+                found.detections[cname] = Detection(cname, np.asarray(uv, float), det.score)
 
 
 def expanded_rig(rig: Rig) -> Rig:
@@ -119,9 +116,9 @@ def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target
     return rig, source, target
 
 
-def _merge(into: DetectionResult, other: DetectionResult) -> None:
-    into.detections.update(other.detections)
-    into.missing.extend(m for m in other.missing if m not in into.missing)
+def observations_of(detections: Mapping[str, DetectionResult], time: float | None = None) -> ObservationSet:
+    """One :class:`ObservationSet` from each observer's detections."""
+    return ObservationSet.concatenate([d.observations(r, time) for r, d in detections.items()])
 
 
 def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = None, target: str | None = None, *,
@@ -130,17 +127,10 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
     localize ``source`` in ``target``'s frame."""
     rig, source, target = prepare_pair(rig, images, source, target, "image")
     detections: dict[str, DetectionResult] = {}
-    observations: dict[str, dict[str, tuple[float, float]]] = {}
     for observer, other in ((source, target), (target, source)):
         img = images[observer]
         if isinstance(img, (str, Path)):
             img = read_image(img)
-        det = detect_markers(rig, observer, img, targets=[other])
-        detections[observer] = det
-        observations[observer] = det.pixels()
-    n = sum(len(v) for v in observations.values())
-    if n < 3:
-        found = ", ".join(f"{r}: {sorted(v)}" for r, v in observations.items())
-        raise ObservationError(f"only {n} markers detected ({found}); at least three are needed")
-    est = localize(rig, observations, source, target, pixel_sigma=pixel_sigma)
+        detections[observer] = detect_markers(rig, observer, img, targets=[other])
+    est = localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma)
     return FrameResult(est, detections)

@@ -8,24 +8,29 @@ happens later in the files.
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Iterable, Iterator, Mapping
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from ..api import Estimate, localize
-from ..core.geometry import quaternion_xyzw_from_matrix
-from ..core.rig import Rig
+from ..core.observations import MIN_OBSERVATIONS, ObservationSet
+from ..core.pose import Pose
+from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import MutlocError
-from .frames import detect_markers, prepare_pair
+from ..io.trajectory import write_trajectory_csv, write_tum
+from .annotate import Annotator
+from .frames import detect_markers, observations_of, prepare_pair
 from .sources import Frame
+from .status import FrameStatus
 
-__all__ = ["TrackRow", "Trajectory", "pair_streams", "track"]
+__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "frame_rate", "DEFAULT_FPS", "CSV_EXTRA"]
+
+#: Frame rate assumed when neither the caller nor the streams say.
+DEFAULT_FPS = 30.0
 
 
 @dataclass
@@ -35,47 +40,62 @@ class TrackRow:
     t: float
     t_source: float | None
     t_target: float | None
-    status: str
+    status: FrameStatus
+    reason: str = ""
     estimate: Estimate | None = None
     detections: dict[str, DetectionResult] = field(default_factory=dict)
+    observations: ObservationSet | None = None
 
 
 @dataclass
 class Trajectory:
+    """Every frame of a track, in time order; ``T_qp`` of ``source`` in ``target``'s frame."""
+
     source: str
     target: str
     rows: list[TrackRow]
+    fps: float | None = None
 
     @property
     def solved(self) -> list[TrackRow]:
+        """The rows with a pose."""
         return [r for r in self.rows if r.estimate is not None]
 
+    @property
+    def poses(self) -> Pose:
+        """A stack with every row's pose (NaN where a row has none)."""
+        R = np.full((len(self.rows), 3, 3), np.nan)
+        t = np.full((len(self.rows), 3), np.nan)
+        for i, r in enumerate(self.rows):
+            if r.estimate is not None:
+                R[i], t[i] = r.estimate.R, r.estimate.t
+        return Pose(R, t)
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.array([r.t for r in self.rows], dtype=float)
+
     def write_tum(self, path: str | Path) -> None:
-        """TUM format: ``timestamp tx ty tz qx qy qz qw``, p's pose in q's frame."""
-        with open(path, "w") as f:
-            f.write(f"# mutloc: pose of {self.source} in {self.target}'s camera frame (T_qp)\n")
-            for r in self.solved:
-                q = quaternion_xyzw_from_matrix(r.estimate.R)
-                t = r.estimate.t
-                f.write(f"{r.t:.9f} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n")
+        """TUM format: ``timestamp tx ty tz qx qy qz qw`` of the rows with a pose."""
+        write_tum(path, self.times, self.poses,
+                  comment=f"mutloc: pose of {self.source} in {self.target}'s camera frame (T_qp)")
 
     def write_csv(self, path: str | Path) -> None:
-        """Every frame with its status; pose columns empty where unsolved."""
-        cols = ["t", "t_source", "t_target", "status", "tx", "ty", "tz", "qx", "qy", "qz", "qw",
-                "reprojection_rms_px", "markers_used"]
-        with open(path, "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(cols)
+        """SPEC's ``trajectory.csv``: every frame with its status, pose and sigmas."""
+        def rows():
             for r in self.rows:
-                row: list[Any] = [f"{r.t:.9f}", "" if r.t_source is None else f"{r.t_source:.9f}",
-                                  "" if r.t_target is None else f"{r.t_target:.9f}", r.status]
-                if r.estimate is not None:
-                    q = quaternion_xyzw_from_matrix(r.estimate.R)
-                    row += [f"{x:.9f}" for x in r.estimate.t] + [f"{x:.9f}" for x in q]
-                    row += [f"{r.estimate.reprojection_rms_px:.4f}", " ".join(r.estimate.markers_used)]
-                else:
-                    row += [""] * 9
-                w.writerow(row)
+                e = r.estimate
+                yield {"t": r.t, "status": r.status, "pose": None if e is None else e.pose,
+                       "covariance": None if e is None else e.covariance, "reason": r.reason,
+                       "t_source": r.t_source, "t_target": r.t_target,
+                       "reprojection_rms_px": None if e is None else e.reprojection_rms_px,
+                       "markers_used": None if e is None else " ".join(e.markers_used)}
+
+        write_trajectory_csv(path, rows(), extra=CSV_EXTRA)
+
+
+#: Columns ``trajectory.csv`` adds after the SPEC's.
+CSV_EXTRA = ("reason", "t_source", "t_target", "reprojection_rms_px", "markers_used")
 
 
 def pair_streams(a: Iterator[Frame], b: Iterator[Frame], tolerance: float) -> Iterator[tuple[Frame | None, Frame | None]]:
@@ -114,7 +134,7 @@ class _Detector:
         self.rig, self.observer, self.other = rig, observer, other
         markers = rig.robot(other).markers
         self.blink = None
-        lights = {n: m for n, m in markers.items() if m.blink_hz is not None}
+        lights = {n: m for n, m in markers.items() if m.kind == MarkerKind.LIGHT}
         if lights:
             from ..detect.blink import BlinkTracker
 
@@ -134,39 +154,51 @@ class _Detector:
         return res
 
 
-def track(rig: Any, streams: Mapping[str, Iterator[Frame]], source: str | None = None, target: str | None = None, *,
+def frame_rate(streams: Mapping[str, Any], fps: float | None) -> float | None:
+    """The frame rate to use: the one given, else the streams' own (the
+    slowest of them, since pairs come at the slower rate), else None."""
+    if fps is not None:
+        return float(fps)
+    rates = [float(r) for r in (getattr(s, "fps", None) for s in streams.values()) if r]
+    return min(rates) if rates else None
+
+
+def _status_of(estimate: Estimate) -> FrameStatus:
+    return FrameStatus.UNVERIFIED if len(estimate.markers_used) == MIN_OBSERVATIONS else FrameStatus.SOLVED
+
+
+def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None = None, target: str | None = None, *,
           tolerance: float = 0.005, pixel_sigma: float = 1.0, fps: float | None = None,
           annotate: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
-    """Localize over two streams (``{robot: frames}``)."""
+    """Localize over two streams (``{robot: frames}``).
+
+    The frame rate (for blinking lights and the annotated video) is ``fps``,
+    else the streams' own (``stream.fps``), else 30 frames/s.
+    """
     rig, source, target = prepare_pair(rig, streams, source, target, "stream")
-    rate = fps or 30.0
-    dets = {source: _Detector(rig, source, target, rate), target: _Detector(rig, target, source, rate)}
-    writer = _Annotator(annotate) if annotate else None
+    rate = frame_rate(streams, fps)
+    dets = {source: _Detector(rig, source, target, rate or DEFAULT_FPS),
+            target: _Detector(rig, target, source, rate or DEFAULT_FPS)}
+    writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
     rows: list[TrackRow] = []
-    pairs = pair_streams(streams[source], streams[target], tolerance)
+    pairs = pair_streams(iter(streams[source]), iter(streams[target]), tolerance)
     bar = tqdm(pairs, total=total, unit="frame", disable=not progress, desc="track")
     try:
         for fs, ft in bar:
             for robot, fr in ((source, fs), (target, ft)):
                 if fr is not None:
                     dets[robot].feed(fr)
-            t = np.mean([f.t for f in (fs, ft) if f is not None])
-            row = TrackRow(float(t), fs.t if fs else None, ft.t if ft else None, "ok")
+            t = float(np.mean([f.t for f in (fs, ft) if f is not None]))
+            row = TrackRow(t, fs.t if fs else None, ft.t if ft else None, FrameStatus.SOLVED)
             if fs is None or ft is None:
-                row.status = f"unpaired ({'no ' + source if fs is None else 'no ' + target} frame within {tolerance}s)"
+                row.status = FrameStatus.UNPAIRED
+                row.reason = f"no {source if fs is None else target} frame within {tolerance} s"
             elif fs.image is None or ft.image is None:
-                row.status = fs.status if fs.image is None else ft.status
+                row.status = FrameStatus.CORRUPT
+                row.reason = fs.status if fs.image is None else ft.status
             else:
-                try:
-                    row.detections = {source: dets[source].detect(fs), target: dets[target].detect(ft)}
-                    obs = {r: d.pixels() for r, d in row.detections.items()}
-                    n = sum(len(v) for v in obs.values())
-                    if n < 3:
-                        row.status = f"too few markers ({n})"
-                    else:
-                        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma)
-                except MutlocError as exc:
-                    row.status = " ".join(str(exc).split())
+                _solve_row(row, rig, source, target, {source: dets[source].detect(fs), target: dets[target].detect(ft)},
+                           pixel_sigma)
             rows.append(row)
             if writer is not None and fs is not None and ft is not None and fs.image is not None \
                     and ft.image is not None:
@@ -175,46 +207,23 @@ def track(rig: Any, streams: Mapping[str, Iterator[Frame]], source: str | None =
         bar.close()
         if writer is not None:
             writer.close()
-    return Trajectory(source, target, rows)
+    return Trajectory(source, target, rows, rate)
 
 
-class _Annotator:
-    """Side-by-side video of both views with detections and the pose."""
+def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, detections: dict[str, DetectionResult],
+               pixel_sigma: float) -> None:
+    row.detections = detections
+    row.observations = obs = observations_of(detections, row.t)
+    try:
+        pair = obs.pair(rig, source, target)
+        if pair.count < MIN_OBSERVATIONS:
+            row.status = FrameStatus.TOO_FEW
+            row.reason = f"{pair.count} markers seen ({', '.join(f'{r}: {sorted(d.detections)}' for r, d in detections.items())})"
+            return
+        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma)
+        row.status = _status_of(row.estimate)
+    except MutlocError as exc:
+        row.status = FrameStatus.FAILED
+        row.reason = " ".join(str(exc).split())
 
-    def __init__(self, path: str | Path, fps: float = 30.0):
-        self.path = str(path)
-        self.fps = fps
-        self.vw: cv2.VideoWriter | None = None
 
-    def write(self, img_s: np.ndarray, img_t: np.ndarray, row: TrackRow, source: str, target: str) -> None:
-        views = []
-        for robot, img in ((source, img_s), (target, img_t)):
-            canvas = img.copy()
-            det = row.detections.get(robot)
-            if det is not None:
-                for name, d in det.detections.items():
-                    u, v = float(d.uv[0]), float(d.uv[1])
-                    cv2.circle(canvas, (int(round(u)), int(round(v))), 8, (0, 255, 255), 2, cv2.LINE_AA)
-                    cv2.putText(canvas, name, (int(u) + 10, int(v) - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                                (0, 255, 255), 1, cv2.LINE_AA)
-            cv2.putText(canvas, f"{robot}  t={row.t:.3f}s", (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
-                        (255, 255, 255), 2, cv2.LINE_AA)
-            views.append(canvas)
-        h = max(v.shape[0] for v in views)
-        views = [cv2.copyMakeBorder(v, 0, h - v.shape[0], 0, 0, cv2.BORDER_CONSTANT) for v in views]
-        frame = np.hstack(views)
-        text = row.status
-        if row.estimate is not None:
-            t = row.estimate.t
-            text = f"{source} in {target}: t=({t[0]:+.3f}, {t[1]:+.3f}, {t[2]:+.3f}) m  rms {row.estimate.reprojection_rms_px:.2f}px"
-        cv2.putText(frame, text, (10, h - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 255, 0), 2, cv2.LINE_AA)
-        if self.vw is None:
-            self.vw = cv2.VideoWriter(self.path, cv2.VideoWriter_fourcc(*"mp4v"), self.fps,
-                                      (frame.shape[1], frame.shape[0]))
-            if not self.vw.isOpened():
-                raise MutlocError(f"{self.path}: cannot write the annotated video")
-        self.vw.write(frame)
-
-    def close(self) -> None:
-        if self.vw is not None:
-            self.vw.release()

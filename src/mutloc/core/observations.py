@@ -1,0 +1,341 @@
+"""The one observation set: what each robot's camera saw of the others' markers.
+
+An observation says: at ``time``, robot ``observer``'s camera saw marker
+``marker`` (of another robot) at raw, distorted pixel ``uv`` (SPEC pixel
+convention), with a detector ``score``.  A marker may have several scored
+candidates at one time (a detector that is unsure hands over each, and the
+localizer picks what the mutual geometry supports); a marker of unknown
+identity has ``marker=None``.
+
+An :class:`ObservationSet` is built once at the edge -- from the SPEC's dict
+(:meth:`ObservationSet.from_dict`), from detector output, or from records --
+and validated there; everything after it (``localize``, the tracker, logs)
+takes it without checking again.  :meth:`ObservationSet.check` ties it to a
+rig (known robots and markers, no robot seeing its own marker, pixels on the
+image) and :meth:`ObservationSet.pair` turns it into the solver's form.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Iterator, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InputError, ObservationError, TooFewObservationsError
+
+__all__ = ["Observation", "ObservationSet", "PairObservations", "MIN_OBSERVATIONS"]
+
+#: A relative pose has six degrees of freedom and each marker gives two.
+MIN_OBSERVATIONS = 3
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One marker seen by one robot's camera (``marker=None``: identity unknown)."""
+
+    observer: str
+    marker: str | None
+    uv: tuple[float, float]
+    time: float | None = None
+    score: float = 1.0
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _pixel(value: Any, where: str) -> tuple[float, float]:
+    """Two finite numbers, else an ObservationError naming ``where``."""
+    if isinstance(value, np.ndarray):
+        items = value.tolist() if value.ndim == 1 else None
+    elif isinstance(value, (list, tuple)):
+        items = value
+    else:
+        items = None
+    if items is None or len(items) != 2 or any(isinstance(x, (bool, str, bytes)) for x in items):
+        raise ObservationError(f"{where}: pixel must be two numbers [u, v], got {_short(value)}")
+    try:
+        u, v = float(items[0]), float(items[1])
+    except (TypeError, ValueError, OverflowError):
+        raise ObservationError(f"{where}: pixel must be two numbers [u, v], got {_short(value)}") from None
+    if not (math.isfinite(u) and math.isfinite(v)):
+        raise ObservationError(f"{where}: pixel must be finite, got {_short(value)}")
+    return u, v
+
+
+def _name(key: Any, kind: str, where: str) -> str:
+    if isinstance(key, bool) or not isinstance(key, (str, int, np.integer)) or str(key).strip() == "":
+        raise ObservationError(f"{where}: {kind} name must be a non-empty string, got {_short(key)}")
+    return str(key)
+
+
+class ObservationSet:
+    """Observations keyed by (time, observer, marker); immutable.
+
+    Columns: ``observer`` and ``marker`` (tuples of names; ``None`` for a
+    marker of unknown identity), ``uv`` (n, 2) raw pixels, ``time`` (n,)
+    seconds (NaN: untimed), ``score`` (n,) detector confidence (1 for given
+    pixels).  Iterating yields :class:`Observation` records.
+    """
+
+    __slots__ = ("observer", "marker", "uv", "time", "score")
+
+    def __init__(self, observer: Sequence[str], marker: Sequence[str | None], uv: Any,
+                 time: Any = None, score: Any = None) -> None:
+        n = len(observer)
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2) if n else np.empty((0, 2))
+        time = np.full(n, np.nan) if time is None else np.broadcast_to(np.asarray(time, float), (n,)).copy()
+        score = np.ones(n) if score is None else np.broadcast_to(np.asarray(score, float), (n,)).copy()
+        if len(marker) != n or uv.shape[0] != n:
+            raise InputError(f"ObservationSet: {n} observers, {len(marker)} markers and {uv.shape[0]} pixels")
+        if not np.all(np.isfinite(uv)):
+            i = int(np.flatnonzero(~np.all(np.isfinite(uv), axis=1))[0])
+            raise ObservationError(f"observations[{observer[i]!r}][{marker[i]!r}]: pixel must be finite")
+        if np.any(np.isinf(time)) or np.any(~np.isfinite(score)):
+            raise ObservationError("observations: times and scores must be finite")
+        uv.flags.writeable = False
+        time.flags.writeable = False
+        score.flags.writeable = False
+        for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
+                     ("score", score)):
+            object.__setattr__(self, k, v)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("ObservationSet is immutable")
+
+    def __reduce__(self) -> tuple:
+        return (ObservationSet, (self.observer, self.marker, self.uv, self.time, self.score))
+
+    # -- construction -------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, data: Any, *, time: float | None = None, where: str = "observations") -> "ObservationSet":
+        """From the SPEC's form ``{observer: {marker: [u, v]}}`` (an observer may
+        hold a list of ``[u, v]`` for markers of unknown identity).  An
+        ObservationSet is returned unchanged."""
+        if isinstance(data, ObservationSet):
+            return data
+        if not isinstance(data, Mapping):
+            raise ObservationError(
+                f"{where}: expected a mapping {{observer: {{marker: [u, v]}}}}, got {type(data).__name__}")
+        obs: list[str] = []
+        mk: list[str | None] = []
+        uv: list[tuple[float, float]] = []
+        for okey, entries in data.items():
+            observer = _name(okey, "observer", where)
+            w = f"{where}[{observer!r}]"
+            if isinstance(entries, Mapping):
+                for mkey, value in entries.items():
+                    marker = _name(mkey, "marker", w)
+                    obs.append(observer)
+                    mk.append(marker)
+                    uv.append(_pixel(value, f"{w}[{marker!r}]"))
+            elif isinstance(entries, (list, tuple)) or (isinstance(entries, np.ndarray) and entries.ndim == 2):
+                for i, value in enumerate(entries):
+                    obs.append(observer)
+                    mk.append(None)
+                    uv.append(_pixel(value, f"{w}: point {i}"))
+            else:
+                raise ObservationError(
+                    f"{w}: expected a mapping {{marker: [u, v]}} or a list of [u, v], got {_short(entries)}")
+        return cls(obs, mk, uv, time)
+
+    @classmethod
+    def from_records(cls, records: Iterable[Observation]) -> "ObservationSet":
+        """From :class:`Observation` records (pixels checked here)."""
+        recs = list(records)
+        uv = [_pixel(r.uv, f"observations[{r.observer!r}][{r.marker!r}]") for r in recs]
+        return cls([r.observer for r in recs], [r.marker for r in recs], uv,
+                   [np.nan if r.time is None else r.time for r in recs], [r.score for r in recs])
+
+    @classmethod
+    def concatenate(cls, sets: Sequence["ObservationSet"]) -> "ObservationSet":
+        """One set from several (e.g. one per observer or per frame)."""
+        sets = [s for s in sets if len(s)]
+        if not sets:
+            return cls((), (), np.empty((0, 2)))
+        return cls(sum((s.observer for s in sets), ()), sum((s.marker for s in sets), ()),
+                   np.concatenate([s.uv for s in sets]), np.concatenate([s.time for s in sets]),
+                   np.concatenate([s.score for s in sets]))
+
+    # -- a collection -------------------------------------------------------
+
+    def __len__(self) -> int:
+        return len(self.observer)
+
+    def __iter__(self) -> Iterator[Observation]:
+        for i in range(len(self)):
+            t = float(self.time[i])
+            yield Observation(self.observer[i], self.marker[i], (float(self.uv[i, 0]), float(self.uv[i, 1])),
+                              None if math.isnan(t) else t, float(self.score[i]))
+
+    def __eq__(self, other: object) -> bool:
+        """Same observations in the same order (a mapping is read as the SPEC's form)."""
+        if isinstance(other, Mapping):
+            try:
+                other = ObservationSet.from_dict(other)
+            except ObservationError:
+                return False
+        if not isinstance(other, ObservationSet):
+            return NotImplemented
+        return (self.observer == other.observer and self.marker == other.marker
+                and np.array_equal(self.uv, other.uv) and np.array_equal(self.time, other.time, equal_nan=True)
+                and np.array_equal(self.score, other.score))
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return f"ObservationSet({len(self)} observations by {sorted(set(self.observer))})"
+
+    def take(self, index: Any) -> "ObservationSet":
+        """The rows ``index`` (indices or a boolean mask)."""
+        idx = np.arange(len(self))[index]
+        return ObservationSet([self.observer[i] for i in idx], [self.marker[i] for i in idx], self.uv[idx],
+                              self.time[idx], self.score[idx])
+
+    @property
+    def observers(self) -> list[str]:
+        """The observing robots, in first-seen order."""
+        return list(dict.fromkeys(self.observer))
+
+    @property
+    def times(self) -> np.ndarray:
+        """The distinct times, sorted (NaN, untimed, excluded)."""
+        t = self.time[~np.isnan(self.time)]
+        return np.unique(t)
+
+    def at_time(self, t: float) -> "ObservationSet":
+        """The observations made at time ``t``."""
+        return self.take(self.time == t)
+
+    def with_time(self, t: float | None) -> "ObservationSet":
+        """The same observations stamped with time ``t``."""
+        return ObservationSet(self.observer, self.marker, self.uv, np.nan if t is None else t, self.score)
+
+    def best(self) -> "ObservationSet":
+        """One candidate per (time, observer, marker): the highest-scored
+        (markers of unknown identity are all kept)."""
+        seen: dict[tuple, int] = {}
+        keep: list[int] = []
+        for i in range(len(self)):
+            if self.marker[i] is None:
+                keep.append(i)
+                continue
+            key = (self.time[i] if not math.isnan(self.time[i]) else None, self.observer[i], self.marker[i])
+            j = seen.get(key)
+            if j is None:
+                seen[key] = len(keep)
+                keep.append(i)
+            elif self.score[i] > self.score[keep[j]]:
+                keep[j] = i
+        if len(keep) == len(self):
+            return self
+        return self.take(np.array(keep, dtype=np.int64))
+
+    @property
+    def has_alternatives(self) -> bool:
+        """Whether some marker has more than one candidate at one time."""
+        return len(self.best()) != len(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The SPEC's form ``{observer: {marker: (u, v)}}`` (best candidates;
+        markers of unknown identity as a list of ``(u, v)``)."""
+        out: dict[str, Any] = {}
+        best = self.best()
+        for o, m, (u, v) in zip(best.observer, best.marker, best.uv.tolist()):
+            if m is None:
+                entry = out.setdefault(o, [])
+                if isinstance(entry, dict):
+                    raise ObservationError(f"observations[{o!r}]: named and unnamed markers cannot share one dict")
+                entry.append((u, v))
+            else:
+                out.setdefault(o, {})[m] = (u, v)
+        return out
+
+    # -- against a rig ------------------------------------------------------
+
+    def check(self, rig: Any) -> "ObservationSet":
+        """Raise ObservationError (naming observer and marker) for an unknown
+        robot or marker, a robot seeing its own marker, or a pixel far outside
+        the observer's image; returns ``self``."""
+        for i in range(len(self)):
+            o, m = self.observer[i], self.marker[i]
+            where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
+            if o not in rig.robots:
+                raise ObservationError(f"observations: unknown robot {o!r} (rig has {sorted(rig.robots)})")
+            if m is not None:
+                owner = rig.owner(m)
+                if owner == o:
+                    raise ObservationError(f"{where}: robot {o!r} cannot observe its own marker {m!r}")
+            size = rig.robots[o].camera.size
+            if size is not None:
+                # Noise may push a detection just past the border; only a pixel
+                # far outside (wrong camera, swapped u/v, wrong units) is wrong.
+                w, h = size
+                u, v = self.uv[i]
+                if not (-0.5 * w <= u <= 1.5 * w and -0.5 * h <= v <= 1.5 * h):
+                    raise ObservationError(f"{where}: pixel ({u:.2f}, {v:.2f}) is outside the {w}x{h} image")
+        return self
+
+    def pair(self, rig: Any, source: str, target: str) -> "PairObservations":
+        """The named observations between ``source`` (p) and ``target`` (q)
+        in solver form (unknown-identity rows are returned apart)."""
+        side: list[int] = []
+        names: list[str] = []
+        rows: list[int] = []
+        anonymous: dict[int, list[int]] = {}
+        owner = rig.owner
+        for i in range(len(self)):
+            o = self.observer[i]
+            if o == source:
+                s = 0
+            elif o == target:
+                s = 1
+            else:
+                continue
+            m = self.marker[i]
+            if m is None:
+                anonymous.setdefault(s, []).append(i)
+                continue
+            if owner(m) == (target if s == 0 else source):
+                side.append(s)
+                names.append(m)
+                rows.append(i)
+        return PairObservations(self, source, target, np.array(side, dtype=np.int64), names,
+                                np.array(rows, dtype=np.int64), anonymous)
+
+
+@dataclass(frozen=True)
+class PairObservations:
+    """The observations between robots p (``source``) and q (``target``):
+    ``side[k]`` is 0 when p saw marker ``names[k]`` of q, 1 when q saw p's;
+    ``rows`` index the parent set.  ``anonymous`` maps a side to the rows of
+    markers of unknown identity it saw."""
+
+    parent: ObservationSet
+    source: str
+    target: str
+    side: np.ndarray
+    names: list[str]
+    rows: np.ndarray
+    anonymous: dict[int, list[int]]
+
+    @property
+    def count(self) -> int:
+        """Observations between the pair, named and anonymous."""
+        return len(self.names) + sum(len(v) for v in self.anonymous.values())
+
+    def require(self, needed: int = MIN_OBSERVATIONS) -> None:
+        """TooFewObservationsError unless at least ``needed`` observations tie the pair."""
+        if self.count < needed:
+            seen = {r: [self.parent.marker[i] or "?" for i in range(len(self.parent))
+                        if self.parent.observer[i] == r and (i in self.rows or
+                                                              i in self.anonymous.get(k, ()))]
+                    for k, r in enumerate((self.source, self.target))}
+            found = ", ".join(f"{r} saw {sorted(v)}" for r, v in seen.items())
+            raise TooFewObservationsError(
+                f"{self.count} marker observation{'s' if self.count != 1 else ''} between {self.source!r} "
+                f"and {self.target!r} ({found}); at least {needed} are needed")
