@@ -1,0 +1,15 @@
+"""Test-suite settings.
+
+Hypothesis draws its examples from a fixed seed (``derandomize``), so a run
+of ``make test`` is reproducible: a property that fails, fails every time and
+on every machine, instead of now and then in CI.  Set
+``HYPOTHESIS_PROFILE=explore`` to search with fresh random examples.
+"""
+
+import os
+
+from hypothesis import settings
+
+settings.register_profile("repeatable", derandomize=True, print_blob=True)
+settings.register_profile("explore", derandomize=False, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))

@@ -1,0 +1,89 @@
+"""The package's layout promises, checked on its source (AST), not by eye."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+import mutloc
+
+ROOT = Path(mutloc.__file__).resolve().parent
+FILES = sorted(ROOT.rglob("*.py"))
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path):
+    """(absolute module, imported names, line) of every ``from X import ...``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    pkg = _module_name(path)
+    if path.name != "__init__.py":
+        pkg = pkg.rpartition(".")[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = pkg.split(".")
+            if node.level:
+                base = base[: len(base) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            yield mod, [a.name for a in node.names], node.lineno
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, [], node.lineno
+
+
+def _is_submodule(mod: str, name: str) -> bool:
+    return (ROOT.parent / Path(*f"{mod}.{name}".split("."))).with_suffix(".py").exists()
+
+
+def test_no_private_name_crosses_modules():
+    bad = []
+    for f in FILES:
+        for mod, names, line in _imports(f):
+            if not mod.startswith("mutloc"):
+                continue
+            for n in names:
+                if n.startswith("_") and not n.startswith("__") and not _is_submodule(mod, n):
+                    bad.append(f"{f.relative_to(ROOT)}:{line} imports {n} from {mod}")
+    assert not bad, "\n".join(bad)
+
+
+def test_private_modules_are_private_to_their_package():
+    """``mutloc.x._y`` is imported only from inside ``mutloc.x``."""
+    bad = []
+    for f in FILES:
+        here = _module_name(f)
+        for mod, names, line in _imports(f):
+            full = [mod] + [f"{mod}.{n}" for n in names if _is_submodule(mod, n)]
+            for m in full:
+                parts = m.split(".")
+                for i, p in enumerate(parts):
+                    if p.startswith("_") and not p.startswith("__") and i > 0:
+                        owner = ".".join(parts[:i])
+                        if not (here == owner or here.startswith(owner + ".")):
+                            bad.append(f"{f.relative_to(ROOT)}:{line} imports {m}")
+    assert not bad, "\n".join(bad)
+
+
+CORE_FORBIDDEN = ("mutloc.io", "mutloc.cli", "mutloc.track", "mutloc.detect", "mutloc.sim",
+                  "mutloc.experiments", "mutloc.baselines", "mutloc.api", "yaml", "matplotlib", "tqdm",
+                  "rosbags")
+
+
+def test_core_imports_no_io_and_nothing_around_it():
+    bad = []
+    for f in sorted((ROOT / "core").rglob("*.py")):
+        for mod, _names, line in _imports(f):
+            if any(mod == x or mod.startswith(x + ".") for x in CORE_FORBIDDEN):
+                bad.append(f"{f.relative_to(ROOT)}:{line} imports {mod}")
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "detect").rglob("*.py")), ids=lambda p: str(p.relative_to(ROOT)))
+def test_detector_files_stay_small(path):
+    n = len(path.read_text(encoding="utf-8").splitlines())
+    assert n <= 650, f"{path.relative_to(ROOT)} has {n} lines: split it into stages"
