@@ -104,38 +104,35 @@ class Estimate:
         return d
 
 
-def _problem(rig: Rig, pair: PairObservations, side: np.ndarray, names: list[str], rows: np.ndarray) -> PairProblem:
-    """The solver's form of the given rows: marker positions and rays looked up."""
+def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: np.ndarray) -> PairProblem:
+    """The solver's form of the given rows (rays are computed by the solver)."""
+    table = pair.table
     obs = pair.parent
-    cams = (rig.robots[pair.source].camera, rig.robots[pair.target].camera)
-    n = len(names)
-    points = np.array([rig.marker(m).position for m in names]).reshape(-1, 3)
-    pixels = np.ascontiguousarray(obs.uv[rows]) if n else np.empty((0, 2))
-    bearings = np.empty((n, 3))
-    for s in (0, 1):
-        idx = np.flatnonzero(side == s)
-        if len(idx):
-            out = np.empty((len(idx), 3))
-            bad = undistort_many(cams[s].K, cams[s].dist, np.ascontiguousarray(pixels[idx]), out)
-            if bad >= 0:
-                k = idx[bad]
-                u, v = pixels[k]
-                raise ObservationError(
-                    f"observations[{(pair.source, pair.target)[s]!r}][{names[k]!r}]: pixel ({u:.2f}, {v:.2f}) "
-                    "cannot be undistorted with this camera's calibration"
-                )
-            bearings[idx] = out
-    return PairProblem.trusted(side, points, bearings, pixels, (cams[0].K, cams[1].K), (cams[0].dist, cams[1].dist))
+    labels = _Labels(pair, rows)
+    return PairProblem.trusted(side, table.points[prow], None, obs.uv[rows], table.K, table.dist, labels)
 
 
-def _labellings(rig: Rig, pair: PairObservations) -> Iterator[tuple[np.ndarray, list[str], np.ndarray]]:
-    """The named rows, then every injective labelling of the anonymous
-    pixels with the other robot's markers added to them."""
-    base = (pair.side, pair.names, pair.rows)
+class _Labels:
+    """``observations['p']['M1']`` of row k, made only when a message needs it."""
+
+    def __init__(self, pair: PairObservations, rows: np.ndarray):
+        self.pair, self.rows = pair, rows
+
+    def __getitem__(self, k: int) -> str:
+        r = int(self.rows[k])
+        return f"observations[{self.pair.parent.observer[r]!r}][{self.pair.parent.marker[r]!r}]"
+
+
+def _labellings(rig: Rig, pair: PairObservations) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(side, marker row, observation row) of the named observations, then of
+    every injective labelling of the anonymous pixels with the other robot's
+    markers added to them."""
+    base = (pair.side, pair.points_index, pair.rows)
     if not pair.anonymous:
         yield base
         return
     robots = (pair.source, pair.target)
+    index = pair.table.index
     per_side = []
     for side, rows in sorted(pair.anonymous.items()):
         other = rig.robots[robots[1 - side]]
@@ -145,14 +142,14 @@ def _labellings(rig: Rig, pair: PairObservations) -> Iterator[tuple[np.ndarray, 
                 f"observations[{robots[side]!r}]: {len(rows)} anonymous markers but robot {other.name!r} has "
                 f"{len(names)}"
             )
-        per_side.append([[(side, n, r) for n, r in zip(perm, rows)] for perm in permutations(names, len(rows))])
+        per_side.append([[(side, index[n][1], r) for n, r in zip(perm, rows)]
+                         for perm in permutations(names, len(rows))])
     total = int(np.prod([len(p) for p in per_side]))
     if total > MAX_ASSIGNMENTS:
         raise ObservationError(f"{total} possible marker identities: too many anonymous markers to try")
     for combo in product(*per_side):
         extra = [item for part in combo for item in part]
-        yield (np.r_[pair.side, [s for s, _, _ in extra]].astype(np.int64), pair.names + [n for _, n, _ in extra],
-               np.r_[pair.rows, [r for _, _, r in extra]].astype(np.int64))
+        yield tuple(np.r_[b, [e[k] for e in extra]].astype(np.int64) for k, b in enumerate(base))
 
 
 def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source: str | None = None,
@@ -174,13 +171,13 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
     if initializer not in ("minimal", "essential", "both"):
         raise InputError(f"initializer must be 'minimal', 'essential' or 'both', got {initializer!r}")
-    obs = ObservationSet.from_dict(observations).best().check(rig)
-    pair = obs.pair(rig, source, target)
+    pair = ObservationSet.from_dict(observations).pair(rig, source, target)
     pair.require()
-    results: list[tuple[float, list[str], Solution, np.ndarray]] = []
+    obs = pair.parent
+    results: list[tuple[float, np.ndarray, Solution, np.ndarray]] = []
     errors: list[MutlocError] = []
-    for side, names, rows in _labellings(rig, pair):
-        problem = _problem(rig, pair, side, names, rows)
+    for side, prow, rows in _labellings(rig, pair):
+        problem = _problem(pair, side, prow, rows)
         try:
             sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer)
         except MutlocError as exc:
@@ -188,11 +185,12 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
                 raise
             errors.append(exc)
             continue
-        results.append((sol.cost, names, sol, rows))
+        results.append((sol.cost, prow, sol, rows))
     if not results:
         raise errors[0]
     results.sort(key=lambda r: r[0])
-    cost_best, names, sol, rows = results[0]
+    cost_best, prow, sol, rows = results[0]
+    names = pair.table.names(prow)
     n = sol.n_obs
     ambiguous = None
     assignment = None

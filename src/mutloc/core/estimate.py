@@ -16,10 +16,11 @@ from itertools import combinations
 import numpy as np
 from numba import njit
 
-from ..errors import DegenerateGeometryError, InputError, NoSolutionError, TooFewObservationsError
+from ..errors import DegenerateGeometryError, InputError, NoSolutionError, ObservationError, TooFewObservationsError
 from .pose import Pose
+from .camera import undistort_kernel
 from .minimal import solve_minimal_kernel
-from .refine import MODE_BEARING, MODE_PIXEL, information, lm_refine, cost, tangent_bases
+from .refine import MODE_BEARING, MODE_PIXEL, WS_SIZE, cost_into, information, lm_refine, tangent_bases
 
 __all__ = ["PairProblem", "Solution", "estimate", "minimal_subsets"]
 
@@ -43,10 +44,11 @@ class PairProblem:
 
     side: np.ndarray
     points: np.ndarray
-    bearings: np.ndarray
+    bearings: np.ndarray | None
     pixels: np.ndarray | None = None
     K: tuple[np.ndarray, np.ndarray] | None = None
     dist: tuple[np.ndarray, np.ndarray] | None = None
+    labels: list[str] | None = None  # where each row came from, for messages
 
     def __post_init__(self) -> None:
         self.side = np.ascontiguousarray(self.side, dtype=np.int64)
@@ -73,12 +75,13 @@ class PairProblem:
             self.pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
 
     @classmethod
-    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None) -> "PairProblem":
+    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None, labels=None) -> "PairProblem":
         """Build without validation, for callers that already validated
-        (contiguous float arrays, unit bearings, at least three rows)."""
+        (contiguous float arrays, unit bearings, at least three rows).
+        ``bearings`` may be None with pixels: the solver computes them."""
         obj = cls.__new__(cls)
         obj.side, obj.points, obj.bearings = side, points, bearings
-        obj.pixels, obj.K, obj.dist = pixels, K, dist
+        obj.pixels, obj.K, obj.dist, obj.labels = pixels, K, dist, labels
         return obj
 
     @property
@@ -203,8 +206,11 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
     Returns (number of distinct candidates, best refined cost).
     """
     key = np.empty(nc)
+    r = np.empty(2 * side.shape[0])
+    J = np.empty((1, 6))
+    ws = np.empty(WS_SIZE)
     for i in range(nc):
-        c = cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc[i], tc[i])
+        c = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc[i], tc[i], r, J, ws)
         costs[i] = c
         k = c
         if prefer_facing:
@@ -265,8 +271,9 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
 
 @njit(cache=True)
 def _inverse_checked(H, max_cond, out):
-    """Inverse of the symmetric information matrix; False if its condition
-    number exceeds ``max_cond`` (the pose is not isolated)."""
+    """Inverse of the symmetric information matrix; False if, Jacobi-scaled,
+    its smallest eigenvalue is below about 1 / ``max_cond`` of the largest
+    (the pose is not isolated)."""
     # Jacobi scaling first: rotation (rad) and translation (m) columns have
     # different units, and only the scaled matrix's conditioning says whether
     # the pose is determined at all.
@@ -275,20 +282,84 @@ def _inverse_checked(H, max_cond, out):
         if not H[i, i] > 0.0:
             return False
         d[i] = 1.0 / np.sqrt(H[i, i])
-    Hs = np.empty((6, 6))
+    # Cholesky of the scaled matrix (unit diagonal, so its largest eigenvalue
+    # is at most 6): a pivot below 6 / max_cond means an eigenvalue that small,
+    # i.e. the pose is not isolated.  Faster than an eigendecomposition, and
+    # the factor gives the inverse.
+    L = np.zeros((6, 6))
+    tol = 6.0 / max_cond
     for i in range(6):
-        for j in range(6):
-            Hs[i, j] = H[i, j] * d[i] * d[j]
-    ev, V = np.linalg.eigh(Hs)
-    if not ev[0] > ev[-1] / max_cond:
-        return False
+        for j in range(i + 1):
+            s = H[i, j] * d[i] * d[j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > tol:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    Li = np.zeros((6, 6))  # L^-1, lower triangular
     for i in range(6):
-        for j in range(6):
+        Li[i, i] = 1.0 / L[i, i]
+        for j in range(i):
             s = 0.0
-            for k in range(6):
-                s += V[i, k] * V[j, k] / ev[k]
+            for k in range(j, i):
+                s -= L[i, k] * Li[k, j]
+            Li[i, j] = s / L[i, i]
+    for i in range(6):
+        for j in range(i, 6):
+            s = 0.0
+            for k in range(j, 6):
+                s += Li[k, i] * Li[k, j]
             out[i, j] = s * d[i] * d[j]
+            out[j, i] = out[i, j]
     return True
+
+
+# Status codes of solve_kernel.
+_OK, _UNDISTORT, _NO_CANDIDATE, _BEHIND, _DEGENERATE = 0, 1, 2, 3, 4
+
+
+@njit(cache=True)
+def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, subsets, root_filter, n_extra, n_refine,
+                 max_iter, Rc, tc, order, costs, Rbest, tbest, H, Hinv):
+    """The whole estimate in one compiled call: rays from pixels (pixel
+    mode), candidates of every minimal subset (after the ``n_extra`` given
+    ones at the front of Rc/tc), ranking, refinement, information matrix and
+    its checked inverse.
+
+    Returns (status, index, candidates, distinct candidates, best cost);
+    status 1 means the pixel ``index`` cannot be undistorted.
+    """
+    n = side.shape[0]
+    if mode == MODE_PIXEL:
+        for i in range(n):
+            if side[i] == 0:
+                ok = undistort_kernel(Kp, dp, meas[i], bearings[i])
+            else:
+                ok = undistort_kernel(Kq, dq, meas[i], bearings[i])
+            if not ok:
+                return _UNDISTORT, i, 0, 0, np.inf
+    basis = np.empty((n, 3, 3))
+    tangent_bases(bearings, basis)
+    nc = n_extra
+    if subsets.shape[0] > 0:
+        nc += minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc[n_extra:], tc[n_extra:])
+    nd, best = rank_refine_kernel(side, points, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc, n_refine, max_iter,
+                                  n == 3, order, costs, Rbest, tbest)
+    if nd == 0 or not np.isfinite(best):
+        return _NO_CANDIDATE, -1, nc, nd, best
+    if not information(side, points, meas, basis, Kp, dp, Kq, dq, mode, Rbest, tbest, H):
+        return _BEHIND, -1, nc, nd, best
+    if not _inverse_checked(H, _MAX_COND, Hinv):
+        return _DEGENERATE, -1, nc, nd, best
+    return _OK, -1, nc, nd, best
+
+
+_EYE = np.eye(3)
+_NO_DIST = np.zeros(8)
+_NO_SUBSETS = np.empty((0, 3), dtype=np.int64)
 
 
 def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
@@ -296,47 +367,58 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
              use_minimal: bool = True) -> Solution:
     """The best pose T_qp for ``obs`` with all distinct candidates.
 
-    Raises NoSolutionError when no candidate keeps every marker in front of
-    the camera that saw it, DegenerateGeometryError when the best pose is
-    not isolated (singular information matrix).
+    Raises ObservationError when a pixel cannot be undistorted,
+    NoSolutionError when no candidate keeps every marker in front of the
+    camera that saw it, DegenerateGeometryError when the best pose is not
+    isolated (singular information matrix).
     """
-    args = obs.kernel_args()
     n = len(obs.side)
-    Rc_list, tc_list = [], []
-    if use_minimal:
-        subsets = minimal_subsets(obs.side)
-        Rc = np.empty((len(subsets) * _PER_SUBSET, 3, 3))
-        tc = np.empty((len(subsets) * _PER_SUBSET, 3))
-        nc = minimal_candidates_kernel(obs.side, obs.points, obs.bearings, subsets, root_filter, Rc, tc)
-        Rc_list.append(Rc[:nc])
-        tc_list.append(tc[:nc])
+    subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
+    n_extra = 0
+    size = len(subsets) * _PER_SUBSET
     if extra_candidates is not None:
-        Rc_list.append(np.asarray(extra_candidates[0], dtype=float).reshape(-1, 3, 3))
-        tc_list.append(np.asarray(extra_candidates[1], dtype=float).reshape(-1, 3))
-    if len(Rc_list) == 1:
-        Rc, tc = Rc_list[0], tc_list[0]
-    else:
-        Rc = np.ascontiguousarray(np.concatenate(Rc_list)) if Rc_list else np.empty((0, 3, 3))
-        tc = np.ascontiguousarray(np.concatenate(tc_list)) if tc_list else np.empty((0, 3))
-    nc = len(Rc)
-    order = np.empty(max(nc, 1), dtype=np.int64)
-    costs = np.empty(max(nc, 1))
+        Re = np.asarray(extra_candidates[0], dtype=float).reshape(-1, 3, 3)
+        te = np.asarray(extra_candidates[1], dtype=float).reshape(-1, 3)
+        n_extra = len(Re)
+        size += n_extra
+    Rc = np.empty((max(size, 1), 3, 3))
+    tc = np.empty((max(size, 1), 3))
+    if n_extra:
+        Rc[:n_extra] = Re
+        tc[:n_extra] = te
+    order = np.empty(max(size, 1), dtype=np.int64)
+    costs = np.empty(max(size, 1))
     Rbest = np.empty((3, 3))
     tbest = np.empty(3)
-    nd, best = rank_refine_kernel(*args, Rc, tc, nc, n_refine if refine else 1, max_iter if refine else 0,
-                                  n == 3, order, costs, Rbest, tbest)
-    if nd == 0 or not np.isfinite(best):
+    H = np.empty((6, 6))
+    Hinv = np.empty((6, 6))
+    if obs.pixels is not None:
+        (Kp, Kq), (dp, dq) = obs.K, obs.dist
+        meas, mode = obs.pixels, MODE_PIXEL
+        bearings = obs.bearings if obs.bearings is not None else np.empty((n, 3))
+    else:
+        Kp = Kq = _EYE
+        dp = dq = _NO_DIST
+        meas, mode, bearings = np.zeros((n, 2)), MODE_BEARING, obs.bearings
+    status, index, nc, nd, best = solve_kernel(
+        obs.side, obs.points, meas, bearings, Kp, dp, Kq, dq, mode, subsets, root_filter, n_extra,
+        n_refine if refine else 1, max_iter if refine else 0, Rc, tc, order, costs, Rbest, tbest, H, Hinv)
+    if status == _UNDISTORT:
+        u, v = meas[index]
+        label = obs.labels[index] if obs.labels is not None else f"observation {index}"
+        raise ObservationError(f"{label}: pixel ({u:.2f}, {v:.2f}) cannot be undistorted with this camera's "
+                               "calibration")
+    if status == _NO_CANDIDATE:
         raise NoSolutionError(
             "no pose explains the observations: every solution puts a marker behind a camera"
         )
-    H = np.empty((6, 6))
-    Hinv = np.empty((6, 6))
-    if not information(*args, Rbest, tbest, H):
+    if status == _BEHIND:
         raise NoSolutionError("the refined pose puts a marker behind a camera")
-    if not _inverse_checked(H, _MAX_COND, Hinv):
+    if status == _DEGENERATE:
         raise DegenerateGeometryError(
             "the observations do not determine an isolated pose (degenerate marker geometry)"
         )
+    obs.bearings = bearings
     sel = order[:nd]
     return Solution(
         pose=Pose(Rbest, tbest),

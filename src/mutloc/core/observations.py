@@ -281,31 +281,63 @@ class ObservationSet:
         return self
 
     def pair(self, rig: Any, source: str, target: str) -> "PairObservations":
-        """The named observations between ``source`` (p) and ``target`` (q)
-        in solver form (unknown-identity rows are returned apart)."""
+        """The observations between ``source`` (p) and ``target`` (q) in
+        solver form, checked against the rig on the way (unknown robot or
+        marker, a robot seeing its own marker, a pixel far outside the image:
+        ObservationError naming observer and marker).  Rows of markers of
+        unknown identity are returned apart; other robots' rows are skipped."""
+        table = rig.pair_table(source, target)
+        index = table.index
+        robots = rig.robots
         side: list[int] = []
-        names: list[str] = []
+        prow: list[int] = []
         rows: list[int] = []
         anonymous: dict[int, list[int]] = {}
-        owner = rig.owner
-        for i in range(len(self)):
-            o = self.observer[i]
+        seen: set[tuple[str, str]] = set()
+        duplicates = False
+        uv = self.uv.tolist()
+        for i, (o, m) in enumerate(zip(self.observer, self.marker)):
             if o == source:
                 s = 0
             elif o == target:
                 s = 1
             else:
+                if o not in robots:
+                    raise ObservationError(f"observations: unknown robot {o!r} (rig has {sorted(robots)})")
+                if m is not None and rig.owner(m) == o:
+                    raise ObservationError(f"observations[{o!r}][{m!r}]: robot {o!r} cannot observe its own "
+                                           f"marker {m!r}")
                 continue
-            m = self.marker[i]
+            size = table.sizes[s]
+            if size is not None:
+                # Noise may push a detection just past the border; only a pixel
+                # far outside (wrong camera, swapped u/v, wrong units) is wrong.
+                w, h = size
+                u, v = uv[i]
+                if not (-0.5 * w <= u <= 1.5 * w and -0.5 * h <= v <= 1.5 * h):
+                    where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
+                    raise ObservationError(f"{where}: pixel ({u:.2f}, {v:.2f}) is outside the {w}x{h} image")
             if m is None:
                 anonymous.setdefault(s, []).append(i)
                 continue
-            if owner(m) == (target if s == 0 else source):
-                side.append(s)
-                names.append(m)
-                rows.append(i)
-        return PairObservations(self, source, target, np.array(side, dtype=np.int64), names,
-                                np.array(rows, dtype=np.int64), anonymous)
+            entry = index.get(m)
+            if entry is None:
+                rig.owner(m)  # unknown marker: raises; else a third robot's marker
+                continue
+            if entry[0] != s:
+                raise ObservationError(f"observations[{o!r}][{m!r}]: robot {o!r} cannot observe its own marker {m!r}")
+            if (o, m) in seen:
+                duplicates = True
+            seen.add((o, m))
+            side.append(s)
+            prow.append(entry[1])
+            rows.append(i)
+        if duplicates and not np.all(np.isnan(self.time)) and len(self.times) > 1:
+            raise ObservationError("observations of several times: localize one frame at a time (at_time)")
+        if duplicates:
+            return self.best().pair(rig, source, target)
+        return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
+                                np.array(rows, dtype=np.int64), anonymous, table)
 
 
 @dataclass(frozen=True)
@@ -319,14 +351,20 @@ class PairObservations:
     source: str
     target: str
     side: np.ndarray
-    names: list[str]
+    points_index: np.ndarray
     rows: np.ndarray
     anonymous: dict[int, list[int]]
+    table: Any
+
+    @property
+    def names(self) -> list[str]:
+        """The observed markers' names, row by row."""
+        return [self.parent.marker[i] for i in self.rows.tolist()]
 
     @property
     def count(self) -> int:
         """Observations between the pair, named and anonymous."""
-        return len(self.names) + sum(len(v) for v in self.anonymous.values())
+        return len(self.rows) + sum(len(v) for v in self.anonymous.values())
 
     def require(self, needed: int = MIN_OBSERVATIONS) -> None:
         """TooFewObservationsError unless at least ``needed`` observations tie the pair."""

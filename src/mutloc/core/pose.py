@@ -44,8 +44,10 @@ class Pose:
     t: np.ndarray
 
     def __init__(self, R: Any, t: Any) -> None:
-        R = np.asarray(R, dtype=float)
-        t = np.asarray(t, dtype=float)
+        if not (type(R) is np.ndarray and R.dtype == np.float64):
+            R = np.asarray(R, dtype=float)
+        if not (type(t) is np.ndarray and t.dtype == np.float64):
+            t = np.asarray(t, dtype=float)
         if R.shape == (9,):
             R = R.reshape(3, 3)
         if R.ndim < 2 or R.shape[-2:] != (3, 3) or t.shape[-1:] != (3,) or R.shape[:-2] != t.shape[:-1]:

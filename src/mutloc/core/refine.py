@@ -19,8 +19,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .camera import project_jac_kernel
+from .camera import project_jac_kernel, project_kernel
 
+#: Scratch floats :func:`residuals` needs.
+WS_SIZE = 29
 MODE_PIXEL = 0
 MODE_BEARING = 1
 
@@ -61,15 +63,17 @@ def tangent_bases(bearings, basis):
 
 
 @njit(cache=True)
-def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac):
-    """Residuals (2N,) and optionally their Jacobian (2N, 6) at (R, t).
+def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac, ws):
+    """Residuals (2N,) and optionally their Jacobian (2N, 6) at (R, t);
+    ``ws`` is scratch of at least :data:`WS_SIZE` floats (reused across
+    calls: candidate ranking calls this thousands of times).
 
     Returns False when a marker falls behind the camera observing it.
     """
-    X = np.empty(3)
-    uv = np.empty(2)
-    Jp = np.empty((2, 3))
-    dX = np.empty((3, 6))
+    X = ws[0:3]
+    uv = ws[3:5]
+    Jp = ws[5:11].reshape((2, 3))
+    dX = ws[11:29].reshape((3, 6))
     n = side.shape[0]
     for i in range(n):
         if side[i] == 0:
@@ -118,7 +122,10 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
             K = Kq
             dist = dq
         if mode == MODE_PIXEL:
-            if not project_jac_kernel(K, dist, X, uv, Jp):
+            if want_jac:
+                if not project_jac_kernel(K, dist, X, uv, Jp):
+                    return False
+            elif not project_kernel(K, dist, X, uv):
                 return False
             r[2 * i] = uv[0] - meas[i, 0]
             r[2 * i + 1] = uv[1] - meas[i, 1]
@@ -139,8 +146,9 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
 
 
 @njit(cache=True)
-def _cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J):
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, False):
+def cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, ws):
+    """Sum of squared residuals with caller-provided buffers (see :func:`residuals`)."""
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, False, ws):
         return np.inf
     c = 0.0
     for k in range(r.shape[0]):
@@ -154,7 +162,7 @@ def cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t):
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((1, 6))
-    return _cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J)
+    return cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, np.empty(WS_SIZE))
 
 
 @njit(cache=True)
@@ -250,7 +258,8 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
     Rn = np.empty((3, 3))
     tn = np.empty(3)
     r2 = np.empty(2 * n)
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True):
+    ws = np.empty(WS_SIZE)
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, ws):
         return np.inf, 0
     c = 0.0
     for k in range(2 * n):
@@ -280,7 +289,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             _so3_exp_left(delta[:3], R, Rn)
             for k in range(3):
                 tn[k] = t[k] + delta[3 + k]
-            cn = _cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J)
+            cn = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J, ws)
             if cn <= c:
                 R[:, :] = Rn
                 t[:] = tn
@@ -293,7 +302,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             lam *= 10.0
         if not improved or small:
             break
-        residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True)
+        residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, ws)
     return c, it
 
 
@@ -303,7 +312,7 @@ def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, H):
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((2 * n, 6))
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, np.empty(WS_SIZE)):
         return False
     g = np.empty(6)
     _normal_equations(J, r, H, g)

@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import ObservationError, RigError, UnknownMarkerError
 from .camera import Camera
 
-__all__ = ["Marker", "MarkerKind", "Robot", "Rig", "DETECTED_KINDS"]
+__all__ = ["Marker", "MarkerKind", "Robot", "Rig", "PairTable", "DETECTED_KINDS"]
 
 # Markers closer than this (metres) on one robot cannot be told apart.
 COINCIDENT_TOL_M = 1e-6
@@ -97,6 +97,26 @@ class Robot:
         return np.array([self.markers[n].position for n in names], dtype=float).reshape(-1, 3)
 
 
+@dataclass(frozen=True)
+class PairTable:
+    """A pair's markers for the solver: ``index[name] = (side, row)`` where
+    side 0 marks target's markers (seen by source's camera), 1 source's;
+    ``points[row]`` is the marker in its owner's frame; cameras per side."""
+
+    source: str
+    target: str
+    marker_names: tuple[str, ...]
+    index: dict[str, tuple[int, int]]
+    points: np.ndarray
+    K: tuple[np.ndarray, np.ndarray]
+    dist: tuple[np.ndarray, np.ndarray]
+    sizes: tuple[tuple[int, int] | None, tuple[int, int] | None]
+
+    def names(self, rows: np.ndarray) -> list[str]:
+        """The markers at ``rows`` of :attr:`points`."""
+        return [self.marker_names[i] for i in rows.tolist()]
+
+
 class Rig:
     """Several robots; marker names are unique over the whole rig."""
 
@@ -105,6 +125,7 @@ class Rig:
             raise RigError("rig has no robots")
         self.robots: dict[str, Robot] = dict(robots)
         self._owner: dict[str, str] = {}
+        self._pairs: dict[tuple[str, str], PairTable] = {}
         for rname, robot in self.robots.items():
             for mname in robot.markers:
                 if mname in self._owner:
@@ -138,6 +159,20 @@ class Rig:
 
     def marker(self, name: str) -> Marker:
         return self.robots[self.owner(name)].markers[name]
+
+    def pair_table(self, source: str, target: str) -> "PairTable":
+        """What the solver needs of the pair (source p, target q), built once per rig."""
+        key = (source, target)
+        table = self._pairs.get(key)
+        if table is None:
+            p, q = self.robot(source), self.robot(target)
+            names = list(q.markers) + list(p.markers)
+            index = {n: (0 if i < len(q.markers) else 1, i) for i, n in enumerate(names)}
+            points = np.ascontiguousarray(np.vstack([q.marker_positions(), p.marker_positions()]).reshape(-1, 3))
+            table = PairTable(source, target, tuple(names), index, points, (p.camera.K, q.camera.K),
+                              (p.camera.dist, q.camera.dist), (p.camera.size, q.camera.size))
+            self._pairs[key] = table
+        return table
 
     def default_pair(self, source: str | None = None, target: str | None = None) -> tuple[str, str]:
         """Resolve ``(source, target)``; both may be omitted for a two-robot rig."""
