@@ -283,7 +283,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
                 step += delta[k] ** 2 + (delta[3 + k] / scale) ** 2
             # Near the optimum a Gauss-Newton step this small changes
             # nothing measurable: stop instead of probing lambda upwards.
-            if np.sqrt(step) < 1e-12:
+            if np.sqrt(step) < 1e-10:
                 small = True
                 break
             _so3_exp_left(delta[:3], R, Rn)
@@ -298,6 +298,11 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
                 lam = max(lam * 0.1, 1e-12)
                 improved = True
                 small = np.sqrt(step) < 1e-9 or dc <= 1e-14 * c
+                break
+            if np.sqrt(step) < 1e-8:
+                # A step this small that does not lower the cost is rounding
+                # at the optimum, not a sign that more damping is needed.
+                small = True
                 break
             lam *= 10.0
         if not improved or small:
