@@ -8,15 +8,15 @@ from itertools import permutations, product
 from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
-from scipy.stats import chi2
 
-from .core.camera import undistort_many
+from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile, consistency
 from .core.estimate import PairProblem, Solution, estimate
 from .core.geometry import skew
 from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
 from .core.rig import Rig
-from .errors import InputError, MutlocError, ObservationError, positive_number
+from .core.robust import largest_consistent_set, observation_errors
+from .errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
 
 __all__ = ["Estimate", "localize", "localize_batch", "solve_bearings", "load_rig", "invert_covariance"]
 
@@ -56,9 +56,19 @@ class Estimate:
     reprojection_rms_px: float
     markers_used: list[str]
     candidates: Pose
+    consistency: Consistency | None = None
+    rejected: list[dict[str, Any]] = field(default_factory=list)
     identity_ambiguous: bool | None = None
     assignment: dict[str, dict[str, Any]] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def status(self) -> str:
+        """``"solved"`` (passed its consistency test), ``"unverified"``
+        (three observations: nothing to test), or ``"rejected"`` (failed it;
+        only ever seen on the estimate an InconsistentObservationsError carries)."""
+        passed = None if self.consistency is None else self.consistency.passed
+        return "unverified" if passed is None else ("solved" if passed else "rejected")
 
     @property
     def R(self) -> np.ndarray:
@@ -83,6 +93,8 @@ class Estimate:
             reprojection_rms_px=self.reprojection_rms_px,
             markers_used=list(self.markers_used),
             candidates=self.candidates.inverse(),
+            consistency=self.consistency,
+            rejected=[dict(r) for r in self.rejected],
             identity_ambiguous=self.identity_ambiguous,
             assignment=self.assignment,
             extra=dict(self.extra),
@@ -97,7 +109,12 @@ class Estimate:
             "covariance": self.covariance.tolist(),
             "pixel_sigma": float(self.pixel_sigma),
             "markers_used": list(self.markers_used),
+            "status": self.status,
         })
+        if self.consistency is not None:
+            d["consistency"] = self.consistency.to_dict()
+        if self.rejected:
+            d["rejected"] = [dict(r) for r in self.rejected]
         if self.identity_ambiguous is not None:
             d["identity_ambiguous"] = bool(self.identity_ambiguous)
             d["assignment"] = self.assignment
@@ -154,7 +171,8 @@ def _labellings(rig: Rig, pair: PairObservations) -> Iterator[tuple[np.ndarray, 
 
 def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source: str | None = None,
              target: str | None = None, *, pixel_sigma: float = 1.0, refine: bool = True, root_filter: bool = False,
-             initializer: str = "minimal") -> Estimate:
+             initializer: str = "minimal", confidence: float = DEFAULT_CONFIDENCE, reject_outliers: bool = True,
+             scale_covariance: bool = False) -> Estimate:
     """Relative pose ``T_qp`` of robot ``source`` (p) in robot ``target``'s (q) frame.
 
     ``observations`` is an :class:`ObservationSet` or the SPEC's dict mapping
@@ -165,10 +183,26 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     is used.  ``initializer`` is ``"minimal"`` (every 3-marker subset),
     ``"essential"`` (the paper's Section III-E, five or more markers) or
     ``"both"``.
+
+    Every estimate is tested against its own noise: the squared reprojection
+    residuals over ``pixel_sigma**2`` against the chi-square quantile at
+    ``confidence`` with ``2n - 6`` degrees of freedom (``est.consistency``).
+    When the test fails and there are five or more observations, the largest
+    consistent subset is kept and the observations left out are named in
+    ``est.rejected`` (``reject_outliers``); ``confidence=1`` disables the
+    test (Monte Carlo studies of the estimator); when nothing consistent remains,
+    :class:`~mutloc.errors.InconsistentObservationsError` is raised (it
+    carries the failed estimate).  Three observations cannot be tested:
+    ``est.status`` is ``"unverified"``.  For users who do not know their pixel
+    noise, ``scale_covariance`` takes the covariance's noise from the observed
+    residual (``sqrt(cost / dof)``, reported as ``pixel_sigma``); the test then
+    uses ``pixel_sigma`` as the largest noise accepted.
     """
     rig = load_rig(rig)
     source, target = rig.default_pair(source, target)
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+    if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
+        raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
     if initializer not in ("minimal", "essential", "both"):
         raise InputError(f"initializer must be 'minimal', 'essential' or 'both', got {initializer!r}")
     pair = ObservationSet.from_dict(observations).pair(rig, source, target)
@@ -190,31 +224,75 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         raise errors[0]
     results.sort(key=lambda r: r[0])
     cost_best, prow, sol, rows = results[0]
-    names = pair.table.names(prow)
+    test = consistency(sol.cost, sol.n_obs, pixel_sigma, confidence)
+    rejected: list[dict[str, Any]] = []
+    if test.passed is False and reject_outliers and not pair.anonymous:
+        problem = _problem(pair, pair.side, pair.points_index, pair.rows)
+        problem.bearings = np.empty((len(problem.side), 3))
+        estimate(problem)  # computes the rays
+        robust = largest_consistent_set(problem, sol, pixel_sigma, confidence)
+        if robust is not None:
+            dropped = np.setdiff1d(np.arange(len(rows)), robust.keep)
+            err = observation_errors(problem, robust.solution.pose.R, robust.solution.pose.t)[0]
+            rejected = [{"observer": obs.observer[int(rows[k])], "marker": obs.marker[int(rows[k])],
+                         "residual_px": float(np.sqrt(err[k]))} for k in dropped]
+            sol, prow, rows, test = robust.solution, prow[robust.keep], rows[robust.keep], robust.test
+            cost_best = sol.cost
     n = sol.n_obs
+    names = pair.table.names(prow)
     ambiguous = None
     assignment = None
     if pair.anonymous:
         dof = 2 * n - 6
-        gate = chi2.ppf(0.99, dof) * pixel_sigma**2 if dof > 0 else np.inf
+        gate = chi2_quantile(0.99, dof) * pixel_sigma**2 if dof > 0 else np.inf
         ambiguous = len(results) > 1 and results[1][0] <= max(gate, 1e-12)
         anon_rows = {r for rs in pair.anonymous.values() for r in rs}
         assignment = {}
         for name, r in zip(names, rows.tolist()):
             if r in anon_rows:
                 assignment.setdefault(obs.observer[r], {})[name] = obs.uv[r].tolist()
-    return Estimate(
+    sigma_used = pixel_sigma
+    if scale_covariance and test.dof > 0:
+        sigma_used = float(np.sqrt(sol.cost / test.dof))
+    est = Estimate(
         source=source,
         target=target,
         pose=sol.pose,
-        covariance=sol.covariance(pixel_sigma),
-        pixel_sigma=pixel_sigma,
+        covariance=sol.covariance(sigma_used),
+        pixel_sigma=sigma_used,
         reprojection_rms_px=float(np.sqrt(cost_best / n)),
         markers_used=list(names),
         candidates=sol.candidates,
+        consistency=test,
+        rejected=rejected,
         identity_ambiguous=ambiguous,
         assignment=assignment,
     )
+    if test.passed is False:
+        raise InconsistentObservationsError(_inconsistency_message(est, pair, rows, sol, pixel_sigma), est)
+    return est
+
+
+def _inconsistency_message(est: Estimate, pair: PairObservations, rows: np.ndarray, sol: Solution,
+                           sigma: float) -> str:
+    c = est.consistency
+    assert c is not None
+    worst = ""
+    problem = _problem(pair, pair.side, pair.points_index, pair.rows)
+    try:
+        problem.bearings = np.empty((len(problem.side), 3))
+        estimate(problem)
+        err = np.sqrt(observation_errors(problem, sol.pose.R, sol.pose.t)[0])
+        k = int(np.argmax(err))
+        r = int(pair.rows[k])
+        worst = (f"; worst: observations[{pair.parent.observer[r]!r}][{pair.parent.marker[r]!r}] off by "
+                 f"{err[k]:.1f} px")
+    except MutlocError:
+        pass
+    return (f"observations between {pair.source!r} and {pair.target!r} do not fit one pose with {sigma:g} px noise "
+            f"(chi2 {c.chi2:.1f} over {c.dof} degrees of freedom, above {c.threshold:.1f} at "
+            f"{100 * c.confidence:g}%): a wrong detection, a wrong rig or more noise than --pixel-sigma says"
+            f"{worst}")
 
 
 def localize_batch(rig: Any, frames: Sequence[ObservationSet | Mapping[str, Any]], source: str | None = None,

@@ -45,6 +45,17 @@ class DegenerateGeometryError(GeometryError):
     """Coincident markers or a configuration with no isolated solution."""
 
 
+class InconsistentObservationsError(GeometryError):
+    """The observations do not fit one pose with the stated pixel noise (a
+    wrong detection, a wrong rig, or more noise than stated) and no
+    consistent subset explains them.  ``estimate`` holds the best attempt,
+    for inspection only."""
+
+    def __init__(self, message: str, estimate: object = None):
+        super().__init__(message)
+        self.estimate = estimate
+
+
 class NoSolutionError(GeometryError):
     """No pose explains the observations (e.g. every solution puts a marker
     behind a camera)."""
@@ -61,6 +72,7 @@ __all__ = [
     "GeometryError",
     "DegenerateGeometryError",
     "NoSolutionError",
+    "InconsistentObservationsError",
     "positive_number",
 ]
 

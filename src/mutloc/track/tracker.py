@@ -20,7 +20,7 @@ from ..core.observations import MIN_OBSERVATIONS, ObservationSet
 from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
-from ..errors import MutlocError
+from ..errors import InconsistentObservationsError, MutlocError
 from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
 from .frames import detect_markers, observations_of, prepare_pair
@@ -164,7 +164,7 @@ def frame_rate(streams: Mapping[str, Any], fps: float | None) -> float | None:
 
 
 def _status_of(estimate: Estimate) -> FrameStatus:
-    return FrameStatus.UNVERIFIED if len(estimate.markers_used) == MIN_OBSERVATIONS else FrameStatus.SOLVED
+    return FrameStatus.SOLVED if estimate.status == "solved" else FrameStatus.UNVERIFIED
 
 
 def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None = None, target: str | None = None, *,
@@ -222,6 +222,12 @@ def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, detections: di
             return
         row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma)
         row.status = _status_of(row.estimate)
+        if row.estimate.rejected:
+            row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
+                                                for r in row.estimate.rejected)
+    except InconsistentObservationsError as exc:
+        row.status = FrameStatus.REJECTED
+        row.reason = " ".join(str(exc).split())
     except MutlocError as exc:
         row.status = FrameStatus.FAILED
         row.reason = " ".join(str(exc).split())
