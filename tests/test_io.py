@@ -56,7 +56,7 @@ def full_rig_dict() -> dict:
                 "markers": {
                     "T3": {"position": [0.0, 0.1, 0.0], "tag": {"family": "tag36h11", "id": 3, "size": 0.1}},
                     "B1": {"position": [0.1, 0.1, 0.0], "color": [0, 0, 255], "radius": 0.02,
-                           "note": "blue ball", "meta": {"batch": 7, "ok": True}},
+                           "x_note": "blue ball", "x_meta": {"batch": 7, "ok": True}},
                 },
             },
             "r": {
@@ -140,7 +140,7 @@ def test_round_trip_keeps_every_marker_field(tmp_path):
     tag = rig.marker("T3").tag
     assert dict(tag) == {"family": "tag36h11", "id": 3, "size": 0.1}
     b1 = rig.marker("B1")
-    assert dict(b1.extra) == {"radius": 0.02, "note": "blue ball", "meta": {"batch": 7, "ok": True}}
+    assert dict(b1.extra) == {"radius": 0.02, "x_note": "blue ball", "x_meta": {"batch": 7, "ok": True}}
     assert b1.color == (0, 0, 255)
     np.testing.assert_array_equal(rig.marker("R1").position, [1e-3, 2.5, -1.0])
     K, dist, size = cam_params(rig.robots["r"].camera)

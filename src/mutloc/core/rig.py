@@ -18,6 +18,9 @@ __all__ = ["Marker", "MarkerKind", "Robot", "Rig", "PairTable", "DETECTED_KINDS"
 
 # Markers closer than this (metres) on one robot cannot be told apart.
 COINCIDENT_TOL_M = 1e-6
+# A marker farther than this from its own camera is a unit mistake
+# (millimetres or centimetres given for metres), not a robot.
+MAX_MARKER_DISTANCE_M = 5.0
 
 
 class MarkerKind(str, Enum):
@@ -53,6 +56,10 @@ class Marker:
         pos = np.asarray(self.position, dtype=float)
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise RigError(f"marker {self.name!r} of robot {self.robot!r}: position must be 3 finite numbers")
+        d = float(np.linalg.norm(pos))
+        if d > MAX_MARKER_DISTANCE_M:
+            raise RigError(f"marker {self.name!r} of robot {self.robot!r} is {d:g} m from its camera: positions are "
+                           "in metres (millimetres given?)")
         object.__setattr__(self, "position", pos)
 
     @property
@@ -183,7 +190,8 @@ class Rig:
         if source is None and target is None:
             if len(names) != 2:
                 raise ObservationError(
-                    f"rig has {len(names)} robots: say which pair with source= and target="
+                    f"rig has {len(names)} robot{'s' if len(names) != 1 else ''} ({', '.join(names)}): "
+                    + ("a relative pose needs two" if len(names) < 2 else "name the pair (source and target)")
                 )
             return names[0], names[1]
         if source is None or target is None:

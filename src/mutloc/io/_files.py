@@ -109,10 +109,22 @@ def _json_pairs(pairs: list[tuple[str, Any]]) -> dict:
     return out
 
 
-def read_text(path: Path, where: str) -> str:
-    """The UTF-8 text of ``path``; FileFormatError (one line) if it cannot be read."""
+# Rig, calibration and observation files are small; anything larger (or a
+# device such as /dev/zero, which never ends) is not one of them.
+MAX_TEXT_BYTES = 16 * 1024 * 1024
+
+
+def read_text(path: Path, where: str, limit: int = MAX_TEXT_BYTES) -> str:
+    """The UTF-8 text of ``path`` (at most ``limit`` bytes); FileFormatError
+    (one line) if it cannot be read or is larger."""
     try:
-        return path.read_text(encoding="utf-8")
+        if path.is_dir():
+            raise FileFormatError(f"{where}: is a folder, not a file")
+        with open(path, "rb") as f:
+            data = f.read(limit + 1)
+        if len(data) > limit:
+            raise FileFormatError(f"{where}: larger than {limit // (1024 * 1024)} MiB: not a mutloc input file")
+        return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise FileFormatError(f"{where}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     except OSError as exc:

@@ -40,8 +40,19 @@ from ._files import (
 
 __all__ = ["load_rig", "save_rig", "load_camera_file", "rig_from_dict"]
 
-# Marker keys with a meaning; any other key is kept in Marker.extra.
+# Marker keys with a meaning of their own; EXTRA_MARKER_KEYS are kept in
+# Marker.extra.  Any other key is a mistake (a misspelt key would otherwise
+# silently change how a marker is found).
 MARKER_KEYS = ("position", "color", "blink_hz", "tag")
+EXTRA_MARKER_KEYS = ("radius", "phase", "intensity", "cylinder", "position_sigma",
+                     "tag_of", "tag_corner", "cylinder_of", "band")  # the last four: derived points
+# Keys of the user's own (kept in Marker.extra, never interpreted) start with this.
+USER_KEY_PREFIX = "x_"
+TAG_KEYS = ("family", "id", "size", "rotation")
+ROBOT_KEYS = ("camera", "markers")
+RIG_KEYS = ("robots",)
+# A tag larger than this (metres) is a unit mistake (millimetres?).
+MAX_TAG_SIZE_M = 2.0
 
 # Calibration-file key aliases, in order of preference.
 _K_KEYS = ("K", "camera_matrix", "cameraMatrix", "k", "intrinsic_matrix")
@@ -121,6 +132,20 @@ def load_camera_file(path: PathLike, *, where: str | None = None) -> Camera:
     return _camera_from_mapping(data, where, in_file=True)
 
 
+def check_keys(spec: Mapping, known: tuple[str, ...], w: str) -> None:
+    """RigError naming the first unknown key and the nearest known one (keys
+    starting with ``x_`` are the user's own and always allowed)."""
+    import difflib
+
+    for k in spec:
+        if not isinstance(k, str):
+            raise RigError(f"{w}: key {k!r} must be a string")
+        if k not in known and not k.startswith(USER_KEY_PREFIX):
+            near = difflib.get_close_matches(k, known, n=1, cutoff=0.5)
+            hint = f" (did you mean {near[0]!r}?)" if near else f" (known keys: {', '.join(known)})"
+            raise RigError(f"{w}: unknown key {k!r}{hint}")
+
+
 def rig_from_dict(data: Any, *, where: str = "rig", base_dir: PathLike | None = None) -> Rig:
     """Build a :class:`Rig` from parsed rig-file data; ``where`` prefixes errors."""
     base = Path.cwd() if base_dir is None else Path(base_dir)
@@ -128,6 +153,7 @@ def rig_from_dict(data: Any, *, where: str = "rig", base_dir: PathLike | None = 
         raise RigError(f"{where}: empty rig (expected a mapping with key 'robots')")
     if not isinstance(data, Mapping):
         raise RigError(f"{where}: expected a mapping with key 'robots', got {type(data).__name__}")
+    check_keys(data, RIG_KEYS, where)
     if "robots" not in data:
         raise RigError(f"{where}: missing key 'robots'")
     robots_spec = data["robots"]
@@ -156,6 +182,7 @@ def _robot(name: str, spec: Any, where: str, base: Path) -> Robot:
     w = f"{where}: robot {name!r}"
     if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping with keys 'camera' and 'markers', got {short(spec)}")
+    check_keys(spec, ROBOT_KEYS, w)
     for key in ("camera", "markers"):
         if key not in spec:
             raise RigError(f"{w}: missing key {key!r}")
@@ -173,6 +200,7 @@ def _robot(name: str, spec: Any, where: str, base: Path) -> Robot:
 def _marker(name: str, robot: str, spec: Any, w: str) -> Marker:
     if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping with at least 'position', got {short(spec)}")
+    check_keys(spec, MARKER_KEYS + EXTRA_MARKER_KEYS, w)
     if "position" not in spec:
         raise RigError(f"{w}: missing key 'position'")
     pos = as_float_array(spec["position"])
@@ -187,11 +215,8 @@ def _marker(name: str, robot: str, spec: Any, w: str) -> Marker:
 
     extra: dict[str, Any] = {}
     for k, v in spec.items():
-        if k in MARKER_KEYS:
-            continue
-        if not isinstance(k, str):
-            raise RigError(f"{w}: key {k!r} must be a string")
-        extra[k] = to_builtin(v)
+        if k not in MARKER_KEYS:
+            extra[k] = to_builtin(v)
     try:
         return Marker(name=name, robot=robot, position=pos, color=color, blink_hz=blink, tag=tag, extra=extra)
     except MutlocError as exc:
@@ -231,6 +256,7 @@ def _tag(value: Any, w: str) -> dict[str, Any] | None:
         return None
     if not isinstance(value, Mapping):
         raise RigError(f"{w}: tag must be a mapping {{family, id, size}}, got {short(value)}")
+    check_keys(value, TAG_KEYS, f"{w}: tag")
     for key in ("family", "id", "size"):
         if key not in value:
             raise RigError(f"{w}: tag: missing key {key!r}")
@@ -243,6 +269,8 @@ def _tag(value: Any, w: str) -> dict[str, Any] | None:
     size = value["size"]
     if not is_number(size) or not math.isfinite(float(size)) or not float(size) > 0:
         raise RigError(f"{w}: tag: size must be a finite number > 0 (metres), got {short(size)}")
+    if float(size) > MAX_TAG_SIZE_M:
+        raise RigError(f"{w}: tag: size {float(size):g} m is not plausible: sizes are in metres (millimetres given?)")
     out: dict[str, Any] = {"family": family, "id": int(tid), "size": float(size)}
     for k, v in value.items():
         if k not in out:

@@ -78,13 +78,16 @@ def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str
 
 
 def _add_tag_corners(found: DetectionResult, tags: Mapping[str, Marker]) -> None:
-    """An oriented tag's corners are markers of their own (NAME#0..3)."""
+    """An oriented tag's corners are markers of their own (NAME#0..3) and
+    replace its centre: the centre is computed from the corners, so keeping
+    it would count the same measurement twice (an optimistic covariance)."""
     from ..detect.tags import corner_marker_names, tag_corner_points
 
     for name, det in list(found.detections.items()):
         if det.corners is not None and tag_corner_points(tags[name]) is not None:
             for cname, uv in zip(corner_marker_names(name), det.corners):
                 found.detections[cname] = Detection(cname, np.asarray(uv, float), det.score)
+            del found.detections[name]
 
 
 def expanded_rig(rig: Rig) -> Rig:

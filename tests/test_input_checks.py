@@ -1,0 +1,102 @@
+"""Inputs that look wrong get one clear line that says what and where
+(issue: never a silent wrong pose)."""
+
+import numpy as np
+import pytest
+
+import mutloc
+from mutloc.cli.main import main
+from mutloc.errors import FileFormatError, ObservationError, RigError
+
+CAM = {"K": [[800, 0, 479.5], [0, 800, 269.5], [0, 0, 1]], "dist": [-0.3, 0.1, 0, 0, 0], "size": [960, 540]}
+
+
+def _rig(markers_p=None, markers_q=None):
+    return {"robots": {
+        "p": {"camera": CAM, "markers": markers_p or {"M3": {"position": [-0.15, -0.05, -0.03]},
+                                                      "M4": {"position": [0.15, -0.05, -0.03]}}},
+        "q": {"camera": CAM, "markers": markers_q or {"M1": {"position": [-0.15, -0.05, -0.03]},
+                                                      "M2": {"position": [0.15, -0.05, -0.03]}}}}}
+
+
+@pytest.mark.parametrize("key,near", [("colour", "color"), ("postion", "position"), ("blink", "blink_hz")])
+def test_misspelt_marker_key_names_the_key_and_the_nearest(key, near):
+    m = {"position": [0.1, 0, 0], key: [255, 0, 0] if key != "postion" else [0, 0, 0]}
+    if key == "postion":
+        m = {"postion": [0.1, 0, 0]}
+    with pytest.raises(RigError) as info:
+        mutloc.load_rig(_rig(markers_p={"M3": m}))
+    msg = str(info.value)
+    assert f"unknown key {key!r}" in msg and repr(near) in msg and "'M3'" in msg
+
+
+def test_misspelt_robot_and_tag_keys():
+    rig = _rig()
+    rig["robots"]["p"]["camra"] = CAM
+    with pytest.raises(RigError, match="'camra'.*'camera'"):
+        mutloc.load_rig(rig)
+    tag = {"position": [0, 0.1, 0], "tag": {"family": "tag36h11", "id": 1, "sise": 0.1}}
+    with pytest.raises(RigError, match="'sise'.*'size'"):
+        mutloc.load_rig(_rig(markers_p={"T": tag}))
+
+
+def test_user_keys_with_prefix_are_kept():
+    rig = mutloc.load_rig(_rig(markers_p={"M3": {"position": [0.1, 0, 0], "x_serial": "A17"},
+                                          "M4": {"position": [-0.1, 0, 0]}}))
+    assert rig.marker("M3").extra["x_serial"] == "A17"
+
+
+def test_millimetre_positions_and_tag_sizes_are_refused():
+    with pytest.raises(RigError) as info:
+        mutloc.load_rig(_rig(markers_q={"M1": {"position": [-150, -50, -30]}, "M2": {"position": [150, -50, -30]}}))
+    assert "'M1'" in str(info.value) and "millimetres" in str(info.value)
+    tag = {"position": [0, 0.1, 0], "tag": {"family": "tag36h11", "id": 1, "size": 100}}
+    with pytest.raises(RigError) as info:
+        mutloc.load_rig(_rig(markers_p={"T": tag}))
+    assert "'T'" in str(info.value) and "millimetres" in str(info.value)
+
+
+def test_endless_or_huge_input_file_is_refused_quickly(tmp_path):
+    with pytest.raises(FileFormatError, match="larger than"):
+        mutloc.load_observations("/dev/zero")
+    with pytest.raises(FileFormatError, match="folder"):
+        mutloc.load_observations(tmp_path)
+
+
+def test_pixel_far_outside_the_image_says_so():
+    obs = {"p": {"M1": [5000.0, 200.0], "M2": [500.0, 260.0]}, "q": {"M3": [400.0, 250.0], "M4": [470.0, 254.0]}}
+    with pytest.raises(ObservationError) as info:
+        mutloc.localize(_rig(), obs)
+    assert "outside the 960x540 image" in str(info.value) and "'M1'" in str(info.value)
+
+
+def test_one_robot_rig_message_names_no_api_words(tmp_path, capsys):
+    rig = {"robots": {"p": _rig()["robots"]["p"]}}
+    with pytest.raises(ObservationError) as info:
+        mutloc.localize(rig, {"p": {}})
+    assert "source=" not in str(info.value) and "needs two" in str(info.value)
+    f = tmp_path / "rig.json"
+    f.write_text(__import__("json").dumps(rig))
+    o = tmp_path / "o.json"
+    o.write_text('{"p": {}}')
+    assert main(["localize", "--rig", str(f), "--observations", str(o)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "needs two" in err and "source=" not in err
+
+
+def test_tag_centre_and_corners_count_once():
+    """An oriented tag gives its four corners as observations, not its centre
+    as a fifth (the centre is computed from the corners)."""
+    from mutloc.sim.render import render, two_robot_world
+    from mutloc.sim.synthetic import facing_pose
+    from mutloc.sim.world import standard_rig
+
+    rig = standard_rig("tags")
+    world = two_robot_world(rig, facing_pose(1.5), seed=3)
+    images = {r: render(world, r, 0.0, seed=3) for r in ("p", "q")}
+    res = mutloc.localize_images(rig, images)
+    used = res.estimate.markers_used
+    tags = [n for r in ("p", "q") for n in rig.robot(r).markers]
+    assert not set(used) & set(tags), used
+    assert {n.split("#")[0] for n in used} == set(tags)
+    assert len(used) == 4 * len(tags)
