@@ -76,7 +76,7 @@ def test_sequence(tmp_path: Path) -> None:
     assert rows[0] == ["frame", "timestamp"]
     assert [(int(a), float(b)) for a, b in rows[1:]] == [(0, 0.0), (1, pytest.approx(0.1)), (2, pytest.approx(0.2))]
     truth = json.loads((out / "truth.json").read_text())
-    tum = [line.split() for line in (out / "truth_tum.txt").read_text().splitlines() if not line.startswith("#")]
+    tum = [line.split() for line in (out / "truth.tum").read_text().splitlines() if not line.startswith("#")]
     assert len(truth["frames"]) == len(tum) == 3
     prev = None
     for frame, row in zip(truth["frames"], tum):

@@ -16,7 +16,8 @@ from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
 from .core.rig import Rig
 from .core.robust import largest_consistent_set, observation_errors
-from .errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
+from .errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, UnverifiedError,
+                     positive_number)
 
 __all__ = ["Estimate", "localize", "localize_batch", "solve_bearings", "load_rig", "invert_covariance"]
 
@@ -172,7 +173,7 @@ def _labellings(rig: Rig, pair: PairObservations) -> Iterator[tuple[np.ndarray, 
 def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source: str | None = None,
              target: str | None = None, *, pixel_sigma: float = 1.0, refine: bool = True, root_filter: bool = False,
              initializer: str = "minimal", confidence: float = DEFAULT_CONFIDENCE, reject_outliers: bool = True,
-             scale_covariance: bool = False) -> Estimate:
+             scale_covariance: bool = False, allow_unverified: bool = True) -> Estimate:
     """Relative pose ``T_qp`` of robot ``source`` (p) in robot ``target``'s (q) frame.
 
     ``observations`` is an :class:`ObservationSet` or the SPEC's dict mapping
@@ -193,7 +194,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     test (Monte Carlo studies of the estimator); when nothing consistent remains,
     :class:`~mutloc.errors.InconsistentObservationsError` is raised (it
     carries the failed estimate).  Three observations cannot be tested:
-    ``est.status`` is ``"unverified"``.  For users who do not know their pixel
+    ``est.status`` is ``"unverified"`` (with ``allow_unverified=False``,
+    :class:`~mutloc.errors.UnverifiedError` instead).  For users who do not know their pixel
     noise, ``scale_covariance`` takes the covariance's noise from the observed
     residual (``sqrt(cost / dof)``, reported as ``pixel_sigma``); the test then
     uses ``pixel_sigma`` as the largest noise accepted.
@@ -270,6 +272,11 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     )
     if test.passed is False:
         raise InconsistentObservationsError(_inconsistency_message(est, pair, rows, sol, pixel_sigma), est)
+    if test.passed is None and not allow_unverified:
+        raise UnverifiedError(
+            f"only {n} marker observations between {source!r} and {target!r} ({', '.join(names)}): "
+            f"{len(est.candidates)} poses fit them exactly and nothing can verify the one chosen; accept the risk "
+            "with --allow-unverified (allow_unverified=True) or observe a fourth marker", est)
     return est
 
 

@@ -56,6 +56,16 @@ class InconsistentObservationsError(GeometryError):
         self.estimate = estimate
 
 
+class UnverifiedError(GeometryError):
+    """Exactly three observations: several poses fit them exactly, so nothing
+    can confirm the one chosen (raised only where the caller asked for
+    verified poses, e.g. the command line without ``--allow-unverified``)."""
+
+    def __init__(self, message: str, estimate: object = None):
+        super().__init__(message)
+        self.estimate = estimate
+
+
 class NoSolutionError(GeometryError):
     """No pose explains the observations (e.g. every solution puts a marker
     behind a camera)."""
@@ -73,6 +83,7 @@ __all__ = [
     "DegenerateGeometryError",
     "NoSolutionError",
     "InconsistentObservationsError",
+    "UnverifiedError",
     "positive_number",
 ]
 

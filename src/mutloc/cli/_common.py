@@ -1,11 +1,17 @@
-"""Argument types and helpers shared by the subcommand modules."""
+"""Argument types and the shared options of the subcommands.
+
+Options that several commands take are declared once here, with their help
+text, as argparse parent parsers (``parents=[RIG, PAIR, ...]``), so every
+command spells and explains them the same way.
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
 
-__all__ = ["positive_float", "nonnegative_float", "output_path", "robot_value", "int_in_range"]
+__all__ = ["positive_float", "nonnegative_float", "output_path", "robot_value", "int_in_range", "unit_interval",
+           "RIG", "PAIR", "NOISE", "TRUST", "OUTPUT", "PROGRESS", "SEED", "robot_map"]
 
 
 def positive_float(text: str) -> float:
@@ -30,6 +36,17 @@ def nonnegative_float(text: str) -> float:
     return x
 
 
+def unit_interval(text: str) -> float:
+    """argparse type: a number in (0, 1]."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 < x <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {text!r}")
+    return x
+
+
 def output_path(text: str | None) -> str | None:
     """``None`` for stdout (no option or ``-``), else the path."""
     return None if text in (None, "-") else text
@@ -41,6 +58,18 @@ def robot_value(text: str) -> tuple[str, str]:
     if not sep or not robot or not value:
         raise argparse.ArgumentTypeError(f"expected ROBOT=VALUE, got {text!r}")
     return robot, value
+
+
+def robot_map(pairs: list[tuple[str, str]], option: str) -> dict[str, str]:
+    """``{robot: value}`` from repeated ``ROBOT=VALUE`` options; a robot given twice is an error."""
+    from ..errors import InputError
+
+    out: dict[str, str] = {}
+    for robot, value in pairs:
+        if robot in out:
+            raise InputError(f"{option} given twice for robot {robot!r}")
+        out[robot] = value
+    return out
 
 
 def int_in_range(lo: int, hi: int | None = None, what: str = "value"):
@@ -57,3 +86,38 @@ def int_in_range(lo: int, hi: int | None = None, what: str = "value"):
         return n
 
     return parse
+
+
+def _parent() -> argparse.ArgumentParser:
+    return argparse.ArgumentParser(add_help=False)
+
+
+RIG = _parent()
+RIG.add_argument("--rig", required=True, metavar="FILE",
+                 help="rig file (YAML or JSON): each robot's camera and the markers it carries")
+
+PAIR = _parent()
+PAIR.add_argument("--source", metavar="ROBOT",
+                  help="robot p, whose pose is estimated (optional for a two-robot rig: the first robot)")
+PAIR.add_argument("--target", metavar="ROBOT",
+                  help="robot q, in whose camera frame the pose is given (optional for a two-robot rig)")
+
+NOISE = _parent()
+NOISE.add_argument("--pixel-sigma", type=positive_float, default=1.0, metavar="PX",
+                   help="detection noise in pixels, behind every covariance and consistency test (default 1.0)")
+NOISE.add_argument("--confidence", type=unit_interval, default=0.99, metavar="P",
+                   help="confidence of the chi-square test each estimate must pass (default 0.99; 1 disables it)")
+
+TRUST = _parent()
+TRUST.add_argument("--allow-unverified", action="store_true",
+                   help="accept a pose from exactly three markers, which nothing can verify (several poses fit "
+                        "exactly); without it such a pose is an error")
+
+OUTPUT = _parent()
+OUTPUT.add_argument("--output", "-o", metavar="FILE", help="write the result JSON here instead of stdout")
+
+PROGRESS = _parent()
+PROGRESS.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
+
+SEED = _parent()
+SEED.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same results")

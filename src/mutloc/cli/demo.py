@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import int_in_range, positive_float
+from ._common import PROGRESS, int_in_range, positive_float
 
 ORDER = 90
 
@@ -12,7 +12,7 @@ ORDER = 90
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``demo``."""
     p = subparsers.add_parser(
-        "demo", help="the main job end to end on built-in synthetic data",
+        "demo", parents=[PROGRESS], help="the main job end to end on built-in synthetic data",
         description="Render a two-robot scene pair and a short sequence with the built-in ray caster, "
         "detect the markers in the images, localize and track, and write a report (pose against the "
         "truth, a plot, annotated images) with every file it used.")
@@ -21,7 +21,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--frames", type=int_in_range(1, None, "frames"), default=30, metavar="N",
                    help="frames of the sequence (default 30)")
     p.add_argument("--fps", type=positive_float, default=10.0, help="frame rate of the sequence (default 10)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return p
 
 
@@ -29,6 +28,6 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
     from ..sim.demo import format_summary, run_demo
 
-    summary = run_demo(args.out, seed=args.seed, frames=args.frames, fps=args.fps, progress=not args.no_progress)
+    summary = run_demo(args.out, seed=args.seed, frames=args.frames, fps=args.fps, progress=args.progress)
     print(format_summary(summary))
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ._common import PROGRESS, SEED
+
 ORDER = 60
 
 EXPERIMENTS = ["noise", "localization", "reconstruction", "all"]
@@ -12,7 +14,7 @@ EXPERIMENTS = ["noise", "localization", "reconstruction", "all"]
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``experiment``."""
     p = subparsers.add_parser(
-        "experiment",
+        "experiment", parents=[SEED, PROGRESS],
         help="reproduce the paper's experiments (results.json, report.md, plots)",
         description=(
             "Run one of the paper's experiments and write OUT/NAME/results.json, report.md and plots; "
@@ -25,9 +27,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     p.add_argument("name", choices=EXPERIMENTS, metavar="NAME", help=f"experiment ({', '.join(EXPERIMENTS)})")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (NAME/ is created in it)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same results")
     p.add_argument("--quick", action="store_true", help="a small, fast variant (smoke test, not for the paper)")
-    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     return p
 
 

@@ -125,9 +125,9 @@ def observations_of(detections: Mapping[str, DetectionResult], time: float | Non
 
 
 def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = None, target: str | None = None, *,
-                    pixel_sigma: float = 1.0) -> FrameResult:
+                    pixel_sigma: float = 1.0, **options: Any) -> FrameResult:
     """Detect the markers in one image per robot (arrays or file paths) and
-    localize ``source`` in ``target``'s frame."""
+    localize ``source`` in ``target``'s frame (``options`` as :func:`mutloc.localize`)."""
     rig, source, target = prepare_pair(rig, images, source, target, "image")
     detections: dict[str, DetectionResult] = {}
     for observer, other in ((source, target), (target, source)):
@@ -135,5 +135,5 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
         if isinstance(img, (str, Path)):
             img = read_image(img)
         detections[observer] = detect_markers(rig, observer, img, targets=[other])
-    est = localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma)
+    est = localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options)
     return FrameResult(est, detections)

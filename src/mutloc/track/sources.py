@@ -10,15 +10,17 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Mapping
 
 import cv2
 import numpy as np
 
 from ..core.camera import Camera
+from ..core.rig import Rig, Robot
 from ..errors import FileFormatError, InputError
 
-__all__ = ["Frame", "folder_frames", "video_frames", "bag_frames", "bag_camera", "open_source", "IMAGE_SUFFIXES"]
+__all__ = ["Frame", "Stream", "folder_frames", "video_frames", "bag_frames", "bag_camera", "open_source",
+           "open_streams", "rig_with_bag_cameras", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 _NUMBER = re.compile(r"^(\d+(?:\.\d+)?)$")
@@ -32,6 +34,29 @@ class Frame:
     t: float
     image: np.ndarray | None
     status: str = "ok"
+
+
+class Stream:
+    """A time-ordered stream of frames (iterable once) that knows its frame
+    rate: ``fps`` is the container's or given rate, else the one the
+    timestamps show (median interval), else None."""
+
+    def __init__(self, frames: Iterator[Frame], fps: float | None, name: str):
+        self._frames = frames
+        self.fps = fps
+        self.name = name
+
+    def __iter__(self) -> Iterator[Frame]:
+        return self._frames
+
+    def __repr__(self) -> str:
+        return f"Stream({self.name!r}, fps={self.fps})"
+
+
+def _rate(stamps: list[float]) -> float | None:
+    d = np.diff(np.asarray(stamps, dtype=float))
+    d = d[d > 0]
+    return float(1.0 / np.median(d)) if len(d) else None
 
 
 def _stamp_from_name(stem: str) -> float | None:
@@ -52,6 +77,13 @@ def folder_frames(folder: str | Path, fps: float | None = None) -> Iterator[Fram
     """Images of a folder in name order.  Timestamps come from names that are
     times (``12.345.png`` seconds, or 16+ digit integers in nanoseconds), a ``frames.csv``
     (``index,timestamp``) beside the images, or ``index / fps``."""
+    files, stamps = _folder_stamps(folder, fps)
+    for i, (path, t) in enumerate(zip(files, stamps)):
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        yield Frame(i, t, img, "ok" if img is not None else f"unreadable image {path.name}")
+
+
+def _folder_stamps(folder: str | Path, fps: float | None) -> tuple[list[Path], list[float]]:
     root = Path(folder)
     if not root.is_dir():
         raise FileFormatError(f"{root}: not a folder of images")
@@ -66,9 +98,7 @@ def folder_frames(folder: str | Path, fps: float | None = None) -> Iterator[Fram
         if fps is None:
             raise InputError(f"{root}: image names are not timestamps and there is no frames.csv: give --fps")
         stamps = [i / fps for i in range(len(files))]
-    for i, (path, t) in enumerate(zip(files, stamps)):
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        yield Frame(i, t, img, "ok" if img is not None else f"unreadable image {path.name}")
+    return files, stamps
 
 
 def _csv_stamps(path: Path, n: int) -> list[float] | None:
@@ -209,13 +239,65 @@ def bag_camera(path: str | Path, topic: str) -> Camera | None:
         reader.close()
 
 
-def open_source(spec: str | Path, *, fps: float | None = None, topic: str | None = None) -> Iterator[Frame]:
-    """Frames of a folder, a video file or (with ``topic``) a ROS bag."""
+def _video_rate(p: Path) -> float | None:
+    cap = cv2.VideoCapture(str(p))
+    try:
+        rate = cap.get(cv2.CAP_PROP_FPS) if cap.isOpened() else 0.0
+    finally:
+        cap.release()
+    return float(rate) if rate and np.isfinite(rate) and rate > 0 else None
+
+
+def _bag_rate(p: Path, topic: str) -> float | None:
+    reader = _reader(p)
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        n = sum(int(getattr(c, "msgcount", 0) or 0) for c in conns)
+        span = (reader.end_time - reader.start_time) * 1e-9
+        return float((n - 1) / span) if n > 1 and span > 0 else None
+    finally:
+        reader.close()
+
+
+def open_source(spec: str | Path, *, fps: float | None = None, topic: str | None = None) -> Stream:
+    """A :class:`Stream` of a folder, a video file or (with ``topic``) a ROS bag."""
     p = Path(spec)
     if topic is not None:
-        return bag_frames(p, topic)
+        return Stream(bag_frames(p, topic), fps or _bag_rate(p, topic), f"{p}:{topic}")
     if p.is_dir() and not (p / "metadata.yaml").exists():
-        return folder_frames(p, fps)
+        files, stamps = _folder_stamps(p, fps)
+        return Stream(folder_frames(p, fps), fps or _rate(stamps), str(p))
     if p.suffix == ".bag" or (p.is_dir() and (p / "metadata.yaml").exists()):
         raise InputError(f"{p}: a ROS bag needs the image topic (--topic ROBOT=TOPIC)")
-    return video_frames(p, fps)
+    if not p.is_file():
+        raise FileFormatError(f"{p}: no such video file or image folder")
+    return Stream(video_frames(p, fps), fps or _video_rate(p), str(p))
+
+
+def open_streams(paths: Mapping[str, str | Path], *, fps: float | None = None,
+                 topics: Mapping[str, str] | None = None) -> dict[str, Stream]:
+    """One :class:`Stream` per robot; the same source given for two robots is
+    an error (one camera cannot be two robots' cameras)."""
+    topics = topics or {}
+    seen: dict[tuple[str, str | None], str] = {}
+    for robot, path in paths.items():
+        key = (str(Path(path).resolve()), topics.get(robot))
+        if key in seen:
+            raise InputError(f"robots {seen[key]!r} and {robot!r} are given the same stream {str(path)!r}"
+                             + (f" topic {topics.get(robot)!r}" if topics.get(robot) else "")
+                             + ": each robot's camera needs its own")
+        seen[key] = robot
+    return {r: open_source(p, fps=fps, topic=topics.get(r)) for r, p in paths.items()}
+
+
+def rig_with_bag_cameras(rig: Rig, bags: Mapping[str, str | Path], topics: Mapping[str, str]) -> Rig:
+    """``rig`` with each robot of ``topics`` calibrated from the first
+    camera_info message on its topic of its bag."""
+    robots = dict(rig.robots)
+    for robot, topic in topics.items():
+        old = rig.robot(robot)
+        cam = bag_camera(bags[robot], topic) if robot in bags else None
+        if cam is None:
+            raise InputError(f"no camera_info message for robot {robot!r} on {topic!r}")
+        robots[robot] = Robot(old.name, cam, old.markers)
+    return Rig(robots)

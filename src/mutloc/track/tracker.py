@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..api import Estimate, localize
+from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import MIN_OBSERVATIONS, ObservationSet
 from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
@@ -60,6 +61,12 @@ class Trajectory:
     def solved(self) -> list[TrackRow]:
         """The rows with a pose."""
         return [r for r in self.rows if r.estimate is not None]
+
+    def summary(self) -> str:
+        """``60 frames: 52 solved, 3 unverified, 5 rejected`` (statuses in their order)."""
+        counts = {st: sum(r.status == st for r in self.rows) for st in FrameStatus}
+        parts = [f"{n} {st.value}" for st, n in counts.items() if n]
+        return f"{len(self.rows)} frames: {', '.join(parts) or 'none'}"
 
     @property
     def poses(self) -> Pose:
@@ -168,7 +175,8 @@ def _status_of(estimate: Estimate) -> FrameStatus:
 
 
 def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None = None, target: str | None = None, *,
-          tolerance: float = 0.005, pixel_sigma: float = 1.0, fps: float | None = None,
+          tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
+          fps: float | None = None,
           annotate: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``).
 
@@ -198,7 +206,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 row.reason = fs.status if fs.image is None else ft.status
             else:
                 _solve_row(row, rig, source, target, {source: dets[source].detect(fs), target: dets[target].detect(ft)},
-                           pixel_sigma)
+                           pixel_sigma, confidence)
             rows.append(row)
             if writer is not None and fs is not None and ft is not None and fs.image is not None \
                     and ft.image is not None:
@@ -211,7 +219,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
 
 
 def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, detections: dict[str, DetectionResult],
-               pixel_sigma: float) -> None:
+               pixel_sigma: float, confidence: float) -> None:
     row.detections = detections
     row.observations = obs = observations_of(detections, row.t)
     try:
@@ -220,7 +228,7 @@ def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, detections: di
             row.status = FrameStatus.TOO_FEW
             row.reason = f"{pair.count} markers seen ({', '.join(f'{r}: {sorted(d.detections)}' for r, d in detections.items())})"
             return
-        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma)
+        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
         row.status = _status_of(row.estimate)
         if row.estimate.rejected:
             row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
