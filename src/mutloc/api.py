@@ -230,8 +230,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     rejected: list[dict[str, Any]] = []
     if test.passed is False and reject_outliers and not pair.anonymous:
         problem = _problem(pair, pair.side, pair.points_index, pair.rows)
-        problem.bearings = np.empty((len(problem.side), 3))
-        estimate(problem)  # computes the rays
+        problem.ensure_bearings()
         robust = largest_consistent_set(problem, sol, pixel_sigma, confidence)
         if robust is not None:
             dropped = np.setdiff1d(np.arange(len(rows)), robust.keep)
@@ -287,8 +286,7 @@ def _inconsistency_message(est: Estimate, pair: PairObservations, rows: np.ndarr
     worst = ""
     problem = _problem(pair, pair.side, pair.points_index, pair.rows)
     try:
-        problem.bearings = np.empty((len(problem.side), 3))
-        estimate(problem)
+        problem.ensure_bearings()
         err = np.sqrt(observation_errors(problem, sol.pose.R, sol.pose.t)[0])
         k = int(np.argmax(err))
         r = int(pair.rows[k])
@@ -323,7 +321,7 @@ def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: st
     if initializer in ("essential", "both"):
         from .core.essential import essential_candidates
 
-        extra = essential_candidates(obs.side, obs.points, obs.bearings)
+        extra = essential_candidates(obs.side, obs.points, obs.ensure_bearings())
     return estimate(obs, refine=refine, root_filter=root_filter, extra_candidates=extra,
                     use_minimal=initializer != "essential")
 

@@ -84,6 +84,22 @@ class PairProblem:
         obj.pixels, obj.K, obj.dist, obj.labels = pixels, K, dist, labels
         return obj
 
+    def ensure_bearings(self) -> np.ndarray:
+        """The unit rays, computed from the pixels if not yet known
+        (ObservationError naming the pixel that cannot be undistorted)."""
+        if self.bearings is None:
+            n = len(self.side)
+            b = np.empty((n, 3))
+            for i in range(n):
+                s = int(self.side[i])
+                if not undistort_kernel(self.K[s], self.dist[s], self.pixels[i], b[i]):
+                    u, v = self.pixels[i]
+                    label = self.labels[i] if self.labels is not None else f"observation {i}"
+                    raise ObservationError(f"{label}: pixel ({u:.2f}, {v:.2f}) cannot be undistorted with this "
+                                           "camera's calibration")
+            self.bearings = b
+        return self.bearings
+
     @property
     def mode(self) -> int:
         return MODE_PIXEL if self.pixels is not None else MODE_BEARING

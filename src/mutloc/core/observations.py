@@ -47,8 +47,20 @@ def _short(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+_isfinite = math.isfinite
+
+
 def _pixel(value: Any, where: str) -> tuple[float, float]:
     """Two finite numbers, else an ObservationError naming ``where``."""
+    tv = type(value)
+    if (tv is tuple or tv is list) and len(value) == 2:
+        u, v = value
+        if type(u) is float and type(v) is float and _isfinite(u) and _isfinite(v):
+            return u, v  # the common case, checked in full below otherwise
+    elif tv is np.ndarray and value.shape == (2,) and value.dtype == np.float64:
+        u, v = value.tolist()
+        if _isfinite(u) and _isfinite(v):
+            return u, v
     if isinstance(value, np.ndarray):
         items = value.tolist() if value.ndim == 1 else None
     elif isinstance(value, (list, tuple)):
@@ -67,6 +79,8 @@ def _pixel(value: Any, where: str) -> tuple[float, float]:
 
 
 def _name(key: Any, kind: str, where: str) -> str:
+    if type(key) is str and key.strip():
+        return key
     if isinstance(key, bool) or not isinstance(key, (str, int, np.integer)) or str(key).strip() == "":
         raise ObservationError(f"{where}: {kind} name must be a non-empty string, got {_short(key)}")
     return str(key)
@@ -118,7 +132,7 @@ class ObservationSet:
         ObservationSet is returned unchanged."""
         if isinstance(data, ObservationSet):
             return data
-        if not isinstance(data, Mapping):
+        if not isinstance(data, (dict, Mapping)):
             raise ObservationError(
                 f"{where}: expected a mapping {{observer: {{marker: [u, v]}}}}, got {type(data).__name__}")
         obs: list[str] = []
@@ -127,7 +141,7 @@ class ObservationSet:
         for okey, entries in data.items():
             observer = _name(okey, "observer", where)
             w = f"{where}[{observer!r}]"
-            if isinstance(entries, Mapping):
+            if isinstance(entries, (dict, Mapping)):
                 for mkey, value in entries.items():
                     marker = _name(mkey, "marker", w)
                     obs.append(observer)
@@ -141,7 +155,23 @@ class ObservationSet:
             else:
                 raise ObservationError(
                     f"{w}: expected a mapping {{marker: [u, v]}} or a list of [u, v], got {_short(entries)}")
-        return cls(obs, mk, uv, time)
+        return cls.trusted(obs, mk, uv, time)
+
+    @classmethod
+    def trusted(cls, observer: Sequence[str], marker: Sequence[str | None], uv: Any, time: Any = None,
+                score: Any = None) -> "ObservationSet":
+        """Build from columns already checked (finite pixels, times and scores)."""
+        n = len(observer)
+        obj = cls.__new__(cls)
+        uv = np.array(uv, dtype=float).reshape(n, 2)
+        time = np.full(n, np.nan if time is None else float(time))
+        score = np.ones(n) if score is None else np.asarray(score, dtype=float)
+        for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
+                     ("score", score)):
+            if isinstance(v, np.ndarray):
+                v.flags.writeable = False
+            object.__setattr__(obj, k, v)
+        return obj
 
     @classmethod
     def from_records(cls, records: Iterable[Observation]) -> "ObservationSet":
