@@ -21,14 +21,15 @@ from ..core.observations import MIN_OBSERVATIONS, ObservationSet
 from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
-from ..errors import InconsistentObservationsError, MutlocError
+from ..errors import InconsistentObservationsError, InputError, MutlocError
 from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
 from .frames import detect_markers, observations_of, prepare_pair
 from .sources import Frame
 from .status import FrameStatus
 
-__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "frame_rate", "DEFAULT_FPS", "CSV_EXTRA"]
+__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "check_streams", "frame_rate", "DEFAULT_FPS",
+           "CSV_EXTRA"]
 
 #: Frame rate assumed when neither the caller nor the streams say.
 DEFAULT_FPS = 30.0
@@ -189,6 +190,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             target: _Detector(rig, target, source, rate or DEFAULT_FPS)}
     writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
     rows: list[TrackRow] = []
+    checked = False
     pairs = pair_streams(iter(streams[source]), iter(streams[target]), tolerance)
     bar = tqdm(pairs, total=total, unit="frame", disable=not progress, desc="track")
     try:
@@ -205,6 +207,9 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 row.status = FrameStatus.CORRUPT
                 row.reason = fs.status if fs.image is None else ft.status
             else:
+                if not checked:
+                    check_streams(rig, source, target, fs.image, ft.image)
+                    checked = True
                 _solve_row(row, rig, source, target, {source: dets[source].detect(fs), target: dets[target].detect(ft)},
                            pixel_sigma, confidence)
             rows.append(row)
@@ -216,6 +221,24 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
         if writer is not None:
             writer.close()
     return Trajectory(source, target, rows, rate)
+
+
+def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image_t: np.ndarray) -> None:
+    """InputError when the first pair of images says the streams are wrong:
+    the same images for both robots (one video given twice), or each robot's
+    images showing its own markers and not the other's (streams swapped)."""
+    if image_s.shape == image_t.shape and np.array_equal(image_s, image_t):
+        raise InputError(f"the streams of {source!r} and {target!r} show the same images: one camera's video "
+                         "given for both robots?")
+    found = {}
+    for robot, image in ((source, image_s), (target, image_t)):
+        other = target if robot == source else source
+        own = detect_markers(rig, robot, image, targets=[robot])
+        theirs = detect_markers(rig, robot, image, targets=[other])
+        found[robot] = (len(own.detections), len(theirs.detections))
+    if all(own >= 2 and own > theirs for own, theirs in found.values()):
+        raise InputError(f"the streams look swapped: {source!r}'s images show {source!r}'s own markers and "
+                         f"{target!r}'s show {target!r}'s (check --stream/--topic)")
 
 
 def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, detections: dict[str, DetectionResult],
