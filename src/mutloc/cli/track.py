@@ -13,12 +13,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     """Register ``track``."""
     p = subparsers.add_parser(
         "track", parents=[RIG, PAIR, NOISE, PROGRESS],
-        help="relative pose over time from two videos, image folders or a ROS bag",
-        description="Pair two image streams by timestamp, detect the markers in each pair and localize; "
-        "writes the trajectory as TUM and CSV (every frame with its status and reason).",
+        help="relative pose over time from two videos, image folders, a ROS bag or an observation log",
+        description="Pair two image streams by timestamp, detect the markers in each pair and localize "
+        "(or localize every frame of an observation log); writes the trajectory as TUM and CSV (every "
+        "frame with its status and reason).",
     )
-    p.add_argument("--stream", required=True, action="append", type=robot_value, metavar="ROBOT=PATH",
-                   help="a video file, a folder of images, or a ROS 1/2 bag (with --topic); one per robot")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--stream", action="append", type=robot_value, metavar="ROBOT=PATH",
+                     help="a video file, a folder of images, or a ROS 1/2 bag (with --topic); one per robot")
+    src.add_argument("--observations", metavar="LOG", help="an observation log (JSON Lines) instead of images")
+    p.add_argument("--observations-out", metavar="LOG",
+                   help="also write every frame's detections as an observation log (JSON Lines)")
     p.add_argument("--topic", action="append", type=robot_value, default=[], metavar="ROBOT=TOPIC",
                    help="image topic of a robot's camera in a bag")
     p.add_argument("--camera-info", action="append", type=robot_value, default=[], metavar="ROBOT=TOPIC",
@@ -36,10 +41,17 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..io import load_rig
+    from ..io.logs import read_observation_log
     from ..track.sources import open_streams, rig_with_bag_cameras
-    from ..track.tracker import track
+    from ..track.tracker import track, track_log
 
     rig = load_rig(args.rig)
+    out = Path(args.out)
+    if args.observations:
+        traj = track_log(rig, read_observation_log(args.observations), args.source, args.target,
+                         pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress)
+        _write(traj, out)
+        return 0
     paths = robot_map(args.stream, "--stream")
     for robot in paths:
         rig.robot(robot)
@@ -49,9 +61,12 @@ def run(args: argparse.Namespace) -> int:
         rig = rig_with_bag_cameras(rig, paths, infos)
     traj = track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
                  tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence, fps=args.fps,
-                 annotate=args.annotate, progress=args.progress)
-    out = Path(args.out)
+                 annotate=args.annotate, observations_out=args.observations_out, progress=args.progress)
+    _write(traj, out)
+    return 0
+
+
+def _write(traj, out) -> None:
     traj.write_tum(out / "trajectory.tum")
     traj.write_csv(out / "trajectory.csv")
     print(f"{traj.summary()}; wrote {out / 'trajectory.tum'} and {out / 'trajectory.csv'}")
-    return 0

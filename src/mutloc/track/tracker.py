@@ -15,20 +15,21 @@ from typing import Any, Iterable, Iterator, Mapping
 import numpy as np
 from tqdm import tqdm
 
-from ..api import Estimate, localize
+from ..api import Estimate, load_rig, localize
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import MIN_OBSERVATIONS, ObservationSet
 from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import InconsistentObservationsError, InputError, MutlocError
+from ..io.logs import ObservationLogWriter
 from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
-from .frames import detect_markers, observations_of, prepare_pair
+from .frames import detect_markers, expanded_rig, observations_of, prepare_pair
 from .sources import Frame
 from .status import FrameStatus
 
-__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "check_streams", "frame_rate", "DEFAULT_FPS",
+__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "check_streams", "frame_rate", "DEFAULT_FPS",
            "CSV_EXTRA"]
 
 #: Frame rate assumed when neither the caller nor the streams say.
@@ -177,18 +178,21 @@ def _status_of(estimate: Estimate) -> FrameStatus:
 
 def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None = None, target: str | None = None, *,
           tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
-          fps: float | None = None,
-          annotate: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
+          fps: float | None = None, annotate: str | Path | None = None,
+          observations_out: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``).
 
     The frame rate (for blinking lights and the annotated video) is ``fps``,
     else the streams' own (``stream.fps``), else 30 frames/s.
+    ``observations_out`` writes every paired frame's detections as an
+    observation log (JSON Lines, SPEC "Observation logs").
     """
     rig, source, target = prepare_pair(rig, streams, source, target, "stream")
     rate = frame_rate(streams, fps)
     dets = {source: _Detector(rig, source, target, rate or DEFAULT_FPS),
             target: _Detector(rig, target, source, rate or DEFAULT_FPS)}
     writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
+    log = ObservationLogWriter(observations_out) if observations_out else None
     rows: list[TrackRow] = []
     checked = False
     pairs = pair_streams(iter(streams[source]), iter(streams[target]), tolerance)
@@ -210,8 +214,11 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 if not checked:
                     check_streams(rig, source, target, fs.image, ft.image)
                     checked = True
-                _solve_row(row, rig, source, target, {source: dets[source].detect(fs), target: dets[target].detect(ft)},
-                           pixel_sigma, confidence)
+                row.detections = {source: dets[source].detect(fs), target: dets[target].detect(ft)}
+                row.observations = observations_of(row.detections, row.t)
+                if log is not None:
+                    log.write(row.t, row.observations)
+                _solve_row(row, rig, source, target, pixel_sigma, confidence)
             rows.append(row)
             if writer is not None and fs is not None and ft is not None and fs.image is not None \
                     and ft.image is not None:
@@ -220,7 +227,27 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
         bar.close()
         if writer is not None:
             writer.close()
+        if log is not None:
+            log.close()
     return Trajectory(source, target, rows, rate)
+
+
+def track_log(rig: Any, frames: Iterable[ObservationSet], source: str | None = None, target: str | None = None, *,
+              pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, progress: bool = True,
+              total: int | None = None) -> Trajectory:
+    """Localize every frame of an observation log (``frames``: one
+    ObservationSet per time, as :func:`mutloc.io.logs.read_observation_log`
+    yields them)."""
+    rig = expanded_rig(load_rig(rig))
+    source, target = rig.default_pair(source, target)
+    rows: list[TrackRow] = []
+    for obs in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
+        times = obs.times
+        t = float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)
+        row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
+        _solve_row(row, rig, source, target, pixel_sigma, confidence)
+        rows.append(row)
+    return Trajectory(source, target, rows, None)
 
 
 def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image_t: np.ndarray) -> None:
@@ -241,15 +268,16 @@ def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image
                          f"{target!r}'s show {target!r}'s (check --stream/--topic)")
 
 
-def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, detections: dict[str, DetectionResult],
-               pixel_sigma: float, confidence: float) -> None:
-    row.detections = detections
-    row.observations = obs = observations_of(detections, row.t)
+def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float) -> None:
+    """Localize the row's observations; set its status, reason and estimate."""
+    obs = row.observations
+    assert obs is not None
     try:
         pair = obs.pair(rig, source, target)
         if pair.count < MIN_OBSERVATIONS:
             row.status = FrameStatus.TOO_FEW
-            row.reason = f"{pair.count} markers seen ({', '.join(f'{r}: {sorted(d.detections)}' for r, d in detections.items())})"
+            seen = {r: sorted(m or "?" for o, m in zip(obs.observer, obs.marker) if o == r) for r in (source, target)}
+            row.reason = f"{pair.count} markers seen ({', '.join(f'{r}: {v}' for r, v in seen.items())})"
             return
         row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
         row.status = _status_of(row.estimate)
