@@ -167,7 +167,7 @@ def refine_blob(
     ellipse off-axis).
     """
     cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
-    n_rays = int(np.clip(round(2 * math.pi * r), 24, 96))
+    n_rays = min(max(round(2 * math.pi * r), 24), 96)
     ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
     rexp = np.full(n_rays, r)
     for it in range(2):

@@ -67,16 +67,12 @@ class Fit:
     outline: np.ndarray
     centre_px: np.ndarray
     radii: np.ndarray
+    radius_px: float  # the mean of radii
     weights: np.ndarray
     rms: float
     direction: np.ndarray | None = None
     cos_theta: float = 0.0
     ellipse_centre: np.ndarray | None = None
-
-    @property
-    def radius_px(self) -> float:
-        """Mean radius of the outline (pixels)."""
-        return float(np.mean(self.radii))
 
 
 def fit_rim(rim: Rim, init: np.ndarray, cam: CameraModel | None, max_axis_ratio: float) -> Fit | None:
@@ -102,9 +98,11 @@ def fit_rim(rim: Rim, init: np.ndarray, cam: CameraModel | None, max_axis_ratio:
         if fit is None:
             return None
         outline, w, rms, centre = fit
-    cx, cy = float(outline[:, 0].mean()), float(outline[:, 1].mean())
+    # sum / n is what ndarray.mean computes, without its overhead.
+    n = len(outline)
+    cx, cy = float(outline[:, 0].sum() / n), float(outline[:, 1].sum() / n)
     radii = rim_radii(outline, cx, cy, rim.ang)
-    return Fit(outline, np.array([cx, cy]), radii, w, rms, direction, cos_t, centre)
+    return Fit(outline, np.array([cx, cy]), radii, float(radii.sum() / len(radii)), w, rms, direction, cos_t, centre)
 
 
 # ---------------------------------------------------------------------------

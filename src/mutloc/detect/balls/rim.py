@@ -49,7 +49,7 @@ def window(rexp: np.ndarray) -> float:
     Wide enough for the blur of a small ball and the error of the coarse
     circle, never reaching the centre.
     """
-    r = float(rexp.mean())
+    r = float(rexp.sum() / len(rexp))
     h = min(max(0.25 * r + 2.0, 2.5), 6.0)
     return min(h, max(float(rexp.min()) - 0.75, 1.5))
 
