@@ -12,7 +12,9 @@ is simply ``K @ C / C_z``.
 from __future__ import annotations
 
 import colorsys
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -20,8 +22,11 @@ import pytest
 
 from mutloc.core.camera import Camera
 from mutloc.core.rig import Marker
-from mutloc.detect.balls import detect_balls, time_detector
+from mutloc.detect.balls import BallParams, detect_balls
 from mutloc.errors import InputError
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from ball_tools import time_detector  # noqa: E402
 
 F = 800.0
 W, H = 960, 540
@@ -359,7 +364,7 @@ def add_occluder(scene: Scene, rng: np.random.Generator, depth: float = 0.45) ->
 
 def detect_one(img: np.ndarray, cname: str, camera: Camera | None = CAM, **kw):
     rgb = COLOURS[cname]
-    return detect_balls(img, {cname: marker(cname, rgb)}, camera=camera, **kw).detections.get(cname)
+    return detect_balls(img, {cname: marker(cname, rgb)}, camera=camera, params=BallParams(**kw)).detections.get(cname)
 
 
 def errors_px(cases, make_image, camera: Camera | None = CAM) -> np.ndarray:
@@ -549,7 +554,7 @@ def test_implausible_size_is_rejected(placements):
     cname, scene, lin = placements[0]
     img = encode(lin)
     assert detect_one(img, cname) is not None
-    res = detect_balls(img, {cname: marker(cname, COLOURS[cname])}, camera=CAM, distance_range_m=(5.0, 50.0))
+    res = detect_balls(img, {cname: marker(cname, COLOURS[cname])}, camera=CAM, params=BallParams(distance_range_m=(5.0, 50.0)))
     assert res.missing == [cname]
     # The marker's own radius (Marker.extra) sets the distance scale.
     big = detect_balls(img, {cname: marker(cname, COLOURS[cname], radius=0.3)}, camera=CAM)
@@ -647,9 +652,9 @@ def test_bad_arguments():
     with pytest.raises(InputError):
         detect_balls(img, mk, camera=K)  # a matrix is not a Camera
     with pytest.raises(InputError):
-        detect_balls(img, mk, hue_tol_deg=-1)
+        detect_balls(img, mk, params=BallParams(hue_tol_deg=-1))
     with pytest.raises(InputError):
-        detect_balls(img, mk, downscale=0)
+        detect_balls(img, mk, params=BallParams(downscale=0))
     with pytest.raises(InputError):
         detect_balls(img, [marker("M", (255, 0, 0))])
 

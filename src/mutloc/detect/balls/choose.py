@@ -1,0 +1,206 @@
+"""Choice: score the refined candidates and give each marker its blob.
+
+Each candidate is scored by the fraction of its rim that fits, the fit
+residual, the hue and chroma of the ball, how solid the blob is, its
+shading and the length of fitting rim (bigger blobs are stronger evidence).
+Balls of one robot are then chosen jointly, consistent with their known
+distances on the robot (:func:`choose_consistent`), and markers take their
+best blobs greedily so two never share one (:func:`assign`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .cues import evidence, hue_chroma, shading_contrast, vivid
+from .fit import CameraModel, Fit
+from .params import BallParams
+from .rim import Rim
+from .search import BallSearch
+
+__all__ = [
+    "Candidate",
+    "assign",
+    "choose_consistent",
+    "range_sigma",
+    "rig_mates",
+    "same_blob",
+    "score_candidate",
+]
+
+
+@dataclass
+class Candidate:
+    """A refined blob for one marker."""
+
+    search: BallSearch
+    uv: np.ndarray
+    centre_px: np.ndarray  # centre of the fitted image curve (ray origin)
+    radius_px: float
+    score: float
+    info: dict[str, Any] = field(default_factory=dict)
+    # With a camera: the ball's centre in the camera frame, from its
+    # direction and apparent size (metres).
+    xyz: np.ndarray | None = None
+    # The fitted outline (n, 2) pixels.
+    outline: np.ndarray | None = None
+
+
+def score_candidate(
+    img: np.ndarray,
+    lut: np.ndarray,
+    search: BallSearch,
+    fill: float,
+    rim: Rim,
+    fit: Fit,
+    cam: CameraModel | None,
+    params: BallParams,
+) -> Candidate | None:
+    """Score the ball that ``fit`` (through ``rim``) found for ``search``; None if implausible.
+
+    ``fill`` is the coarse blob's fill of its circle, ``lut`` the image's
+    unmixing values.  With a camera, a distance (from the apparent size and
+    the marker's radius) outside ``params.distance_range_m`` is implausible.
+    """
+    cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
+    r = fit.radius_px
+    inl = fit.weights > 0
+    n_rays = len(fit.weights)
+    rim_frac = float(inl.sum()) / n_rays
+    inner = rim.inner[inl]
+    # Hue of the ball as seen (inner colours of the inlier rays), vs nominal.
+    hue, chroma = hue_chroma(np.median(inner, axis=0), lut)
+    dh = abs((hue - search.hue_deg + 180.0) % 360.0 - 180.0)
+    colour = math.exp(-0.5 * (dh / (1.5 * params.hue_tol_deg)) ** 2)
+    shape = 1.0 / (1.0 + (fit.rms / 0.5) ** 2)
+    # A blob that fills little of its circle is a ring or a crescent.
+    solid = min(1.0, fill / 0.6)
+    # Shading is a soft cue: balls in perfectly diffuse light look flat too.
+    shading = shading_contrast(img, lut, cx, cy, inner)
+    relief = 0.6 + 0.4 * min(1.0, shading / 0.12)
+    score = rim_frac * colour * vivid(chroma) * shape * solid * evidence(rim_frac * 2.0 * math.pi * r) * relief
+    info: dict[str, Any] = {
+        "radius_px": r,
+        "rim_fraction": rim_frac,
+        "rms_px": float(fit.rms),
+        "hue_deg": float(hue),
+        "chroma": chroma,
+        "shading": shading,
+    }
+    xyz = None
+    if cam is not None:
+        assert fit.direction is not None
+        uv = cam.camera.project(fit.direction)
+        dist_m = search.radius_m / max(math.sqrt(max(1.0 - fit.cos_theta**2, 0.0)), 1e-12)
+        info["distance_m"] = float(dist_m)
+        if not (params.distance_range_m[0] <= dist_m <= params.distance_range_m[1]):
+            return None
+        xyz = fit.direction * dist_m
+    else:
+        uv = fit.ellipse_centre
+    if uv is None or not np.all(np.isfinite(uv)):
+        return None
+    return Candidate(search, np.asarray(uv, float), fit.centre_px, r, float(score), info, xyz, fit.outline)
+
+
+def same_blob(a: Candidate, b: Candidate) -> bool:
+    """Whether two candidates are (mostly) the same blob of the image."""
+    return bool(np.hypot(*(a.centre_px - b.centre_px)) < 0.5 * (a.radius_px + b.radius_px))
+
+
+def range_sigma(c: Candidate) -> float:
+    """Allowed error of a ball's distance (m): Z dr / r for dr = 0.2 px, plus 3 % for its true size."""
+    z = float(c.info["distance_m"])
+    return z * (0.03 + 0.2 / max(c.radius_px, 1e-9))
+
+
+def rig_mates(searches: Iterable[BallSearch]) -> dict[str, list[BallSearch]]:
+    """Per robot, its searched balls, for robots with two or more at distinct known places."""
+    groups: dict[str, list[BallSearch]] = {}
+    for s in searches:
+        if s.robot is not None and s.position is not None:
+            groups.setdefault(s.robot, []).append(s)
+    out = {}
+    for robot, g in groups.items():
+        pos = np.array([s.position for s in g])
+        if len(g) >= 2 and np.ptp(pos, axis=0).max() > 1e-6:
+            out[robot] = g
+    return out
+
+
+def choose_consistent(
+    group: list[BallSearch], per_marker: Mapping[str, list[Candidate]], params: BallParams
+) -> tuple[list[Candidate], bool]:
+    """The candidates of one robot's balls (or none of some) that best fit the rig.
+
+    Maximises the sum of log scores, with a marker left out costing a score
+    below ``params.min_score``, plus, for each pair of chosen balls, the
+    Gaussian log-likelihood of their distance in the camera frame (from
+    directions and apparent sizes) given their distance on the robot; the
+    error allowed grows with range (see :func:`range_sigma`).  Exhaustive: a
+    few markers with a few candidates each.  Also says whether the choice is
+    clean: every marker with a candidate has one and every pair is within 3
+    sigma.
+    """
+    top = [sorted(per_marker.get(s.name, []), key=lambda c: -c.score)[: params.max_joint_options] for s in group]
+    options: list[list[Candidate | None]] = [[None, *t] for t in top]
+    if math.prod(len(o) for o in options) > params.max_joint_combos:
+        # Too many to try (a robot with many balls): each marker's best.
+        return [t[0] for t in top if t], False
+    n = len(group)
+    miss = math.log(0.5 * params.min_score) if params.min_score > 0 else -math.inf
+    best_val = -math.inf
+    best: tuple[Candidate | None, ...] = tuple(None for _ in group)
+    best_worst = 0.0
+    for combo in itertools.product(*options):
+        val = 0.0
+        for c in combo:
+            val += miss if c is None else math.log(c.score)
+        if val <= best_val:
+            continue  # consistency can only lower it
+        worst = 0.0
+        for i in range(n):
+            ci = combo[i]
+            if ci is None or ci.xyz is None:
+                continue
+            for j in range(i + 1, n):
+                cj = combo[j]
+                if cj is None or cj.xyz is None:
+                    continue
+                if same_blob(ci, cj):
+                    val = -math.inf
+                    break
+                L = float(np.linalg.norm(group[i].position - group[j].position))  # type: ignore[operator]
+                if L < 1e-6:
+                    continue  # same place on the robot: nothing to check
+                z = (float(np.linalg.norm(ci.xyz - cj.xyz)) - L) / (0.01 + range_sigma(ci) + range_sigma(cj))
+                val -= 0.5 * z * z
+                worst = max(worst, abs(z))
+            if val == -math.inf:
+                break
+        if val > best_val:
+            best_val, best, best_worst = val, combo, worst
+    clean = best_worst <= 3.0 and all(c is not None or not opts[1:] for c, opts in zip(best, options))
+    return [c for c in best if c is not None], clean
+
+
+def assign(chosen: list[Candidate], rest: list[Candidate]) -> list[Candidate]:
+    """Greedy one-to-one assignment: at most one candidate per marker, no blob for two markers.
+
+    The rig-checked ``chosen`` go first, then ``rest``, each best score
+    first, so a blob is never reported for two markers of similar colour.
+    """
+    taken: list[Candidate] = []
+    names: set[str] = set()
+    for c in sorted(chosen, key=lambda c: -c.score) + sorted(rest, key=lambda c: -c.score):
+        if c.search.name in names or any(same_blob(c, t) for t in taken):
+            continue
+        taken.append(c)
+        names.add(c.search.name)
+    return taken

@@ -1,0 +1,189 @@
+"""The driver: run the stages of the ball detector over one image."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ...core.camera import Camera
+from ...core.rig import Marker
+from ...errors import InputError
+from ..base import Detection, DetectionResult, as_bgr
+from .choose import Candidate, assign, choose_consistent, rig_mates, score_candidate
+from .fit import CameraModel, ellipse_info, fit_rim
+from .params import BallParams, value_lut
+from .rim import sample_rim
+from .search import BallSearch, Blob, find_blobs, pick_downscale, value_floor
+
+__all__ = ["detect_balls", "refine_blob"]
+
+
+def detect_balls(
+    image: Any,
+    markers: Mapping[str, Marker],
+    *,
+    camera: Camera | None = None,
+    params: BallParams | None = None,
+) -> DetectionResult:
+    """Find the coloured balls of ``markers`` in a BGR image.
+
+    Parameters
+    ----------
+    image:
+        ``uint8`` BGR ``(H, W, 3)`` (grayscale and float images are converted
+        by :func:`~mutloc.detect.base.as_bgr`).
+    markers:
+        ``{name: Marker}``; markers without a ``color`` are ignored.  A colour
+        without a usable hue (white, grey, black) raises :class:`InputError`.
+        ``Marker.extra["radius"]`` (metres, default 0.03) is used with
+        ``camera`` to reject blobs of implausible size and to report distance.
+    camera:
+        The camera that took the image.  With it the reported pixel is the
+        projection of the sphere centre (perspective-corrected, distortion
+        aware); without it, the centre of the fitted ellipse.
+    params:
+        Tuning (:class:`BallParams`; its defaults when None).
+
+    Returns
+    -------
+    DetectionResult
+        ``detections[name]`` has ``uv``, ``score`` in (0, 1] and ``info``
+        (``radius_px``, ``rim_fraction`` (share of the rim that fits; lower
+        when occluded), ``rms_px``, ``hue_deg``, ``chroma``, ``shading``,
+        ``ellipse`` (the fitted outline) and, with a camera, ``distance_m``
+        to the ball's centre); every marker with a colour that was not found
+        is listed in ``missing``.  Never raises for "not found".
+    """
+    img = as_bgr(image)
+    if not isinstance(markers, Mapping):
+        raise InputError(f"markers must be a mapping name -> Marker, got {type(markers).__name__}")
+    if params is None:
+        params = BallParams()
+    elif not isinstance(params, BallParams):
+        raise InputError(f"params must be a BallParams, got {type(params).__name__}")
+    if camera is not None and not isinstance(camera, Camera):
+        raise InputError(f"camera must be a mutloc Camera, got {type(camera).__name__}")
+    searches = [
+        BallSearch.from_marker(str(name), m, params)
+        for name, m in markers.items()
+        if getattr(m, "color", None) is not None
+    ]
+    result = DetectionResult()
+    if not searches:
+        return result
+
+    Himg, Wimg = img.shape[:2]
+    rmax = float(params.max_radius_px) if params.max_radius_px is not None else min(Himg, Wimg) / 3.0
+    k = pick_downscale(params.downscale, params.min_radius_px, Wimg, Himg)
+    # Hybrid search (the default when min_radius_px needs full resolution):
+    # the coarse search runs at half resolution, which finds every ball of
+    # more than ~1.5 coarse pixels, and only markers it leaves without a
+    # candidate are searched again at full resolution, for small blobs.
+    fallback = params.downscale is None and k == 1 and min(Wimg, Himg) // 2 >= 120
+    if fallback:
+        k = 2
+    lut = value_lut(bool(params.srgb), float(params.mix_gamma))
+    # Exposure from the full image: the same floor whatever the search
+    # resolution.
+    v_floor = value_floor(img)
+    cam = CameraModel(camera) if camera is not None else None
+
+    def refine(s: BallSearch, blob: Blob) -> Candidate | None:
+        c = refine_blob(img, lut, s, blob, cam, rmax, params)
+        return c if c is not None and c.score >= params.min_score else None
+
+    per_marker: dict[str, list[Candidate]] = {}
+    skipped: dict[str, list[Blob]] = {}
+
+    def search(level: list[BallSearch], k: int, blob_rmax: float) -> None:
+        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params)):
+            good_r = math.inf
+            found: list[Candidate] = []
+            skipped[s.name] = []
+            for blob in blobs[: int(params.max_candidates)]:
+                # Once a blob fits well, a lower-ranked blob can only win by
+                # being bigger (more rim evidence): smaller ones are not
+                # refined (unless the rig check below asks for them), which
+                # saves time in cluttered scenes.
+                if good_r == math.inf or blob.radius > good_r:
+                    c = refine(s, blob)
+                    if c is not None:
+                        found.append(c)
+                        if c.score >= params.good_enough:
+                            good_r = min(good_r, c.radius_px)
+                else:
+                    skipped[s.name].append(blob)
+            per_marker[s.name] = found
+
+    search(searches, k, rmax)
+    if fallback:
+        lost = [s for s in searches if not per_marker[s.name]]
+        if lost:
+            # Balls big enough for the half-resolution search were found
+            # there: full resolution only looks for the small ones.
+            search(lost, 1, min(rmax, params.fallback_max_radius_px))
+
+    # Balls that share a robot with another searched ball at a different
+    # place are checked against each other (needs a camera for their 3-D
+    # positions).
+    mates = rig_mates(searches) if camera is not None else {}
+    chosen: list[Candidate] = []
+    for group in mates.values():
+        # Per robot, the combination of blobs (or none) that best agrees
+        # with the rig: balls of one robot keep their mutual distances.
+        picked, consistent = choose_consistent(group, per_marker, params)
+        if not consistent and any(skipped[g.name] for g in group):
+            # Something does not fit: the blobs passed over may hold the
+            # right ball.
+            for g in group:
+                per_marker[g.name] += [c for b in skipped[g.name] if (c := refine(g, b)) is not None]
+            picked, _ = choose_consistent(group, per_marker, params)
+        chosen.extend(picked)
+    rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
+
+    for c in assign(chosen, rest):
+        c.info["ellipse"] = ellipse_info(c.outline)
+        result.detections[c.search.name] = Detection(marker=c.search.name, uv=c.uv, score=c.score, info=c.info)
+    result.missing = [s.name for s in searches if s.name not in result.detections]
+    return result
+
+
+def refine_blob(
+    img: np.ndarray,
+    lut: np.ndarray,
+    s: BallSearch,
+    blob: Blob,
+    cam: CameraModel | None,
+    max_r: float,
+    params: BallParams,
+) -> Candidate | None:
+    """Sub-pixel fit and score of one coarse blob; None if it is not a plausible ball.
+
+    Two rounds of rim sampling and fitting: the second casts its rays from
+    the fitted centre, with its windows centred on the fitted outline (an
+    ellipse off-axis).
+    """
+    cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
+    n_rays = min(max(round(2 * math.pi * r), 24), 96)
+    ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
+    rexp = np.full(n_rays, r)
+    for it in range(2):
+        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px)
+        # Rays far off the expected rim are occluders, clutter or a bad
+        # coarse circle: the ones close to it are the initial inlier set.
+        tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
+        init = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol0)
+        if init.sum() < 6:
+            return None
+        fit = fit_rim(rim, init, cam, params.max_axis_ratio)
+        if fit is None:
+            return None
+        cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
+        rexp = fit.radii
+        r = fit.radius_px
+        if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not np.all(np.isfinite(rexp)):
+            return None
+    return score_candidate(img, lut, s, blob.fill, rim, fit, cam, params)

@@ -1,0 +1,98 @@
+"""Small compiled kernels shared by the stages (3x3 solve, circle fit, median).
+
+The stages run many tiny loops (a few dozen rays of a few dozen samples, a
+3x3 solve per IRLS step); in NumPy the per-call overhead alone would cost
+about a millisecond per ball, so they are compiled with Numba.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["kasa_circle", "median_inplace", "solve3"]
+
+
+@numba.njit(cache=True, fastmath=False)
+def solve3(M, b, x) -> bool:
+    """``x = M^-1 b`` for a 3x3 ``M`` by cofactors; False if singular."""
+    c00 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
+    c01 = M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]
+    c02 = M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]
+    det = M[0, 0] * c00 + M[0, 1] * c01 + M[0, 2] * c02
+    if not (abs(det) > 1e-300) or not math.isfinite(det):
+        return False
+    c10 = M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]
+    c11 = M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]
+    c12 = M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]
+    c20 = M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]
+    c21 = M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]
+    c22 = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+    x[0] = (c00 * b[0] + c10 * b[1] + c20 * b[2]) / det
+    x[1] = (c01 * b[0] + c11 * b[1] + c21 * b[2]) / det
+    x[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+    return True
+
+
+@numba.njit(cache=True, fastmath=False)
+def kasa_circle(pts, mask, out) -> bool:
+    """Algebraic least-squares circle of ``pts[mask]`` into ``out`` = (u, v, r); False if degenerate."""
+    n = pts.shape[0]
+    mx = 0.0
+    my = 0.0
+    k = 0
+    for i in range(n):
+        if mask[i]:
+            mx += pts[i, 0]
+            my += pts[i, 1]
+            k += 1
+    if k < 3:
+        return False
+    mx /= k
+    my /= k
+    # Centred for conditioning: x^2 + y^2 = a x + b y + c.
+    M = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    for i in range(n):
+        if mask[i]:
+            x = pts[i, 0] - mx
+            y = pts[i, 1] - my
+            z = x * x + y * y
+            row = (x, y, 1.0)
+            for r in range(3):
+                rhs[r] += row[r] * z
+                for c in range(3):
+                    M[r, c] += row[r] * row[c]
+    sol = np.empty(3)
+    if not solve3(M, rhs, sol):
+        return False
+    cx = 0.5 * sol[0]
+    cy = 0.5 * sol[1]
+    r2 = sol[2] + cx * cx + cy * cy
+    if not (r2 > 0.0) or not math.isfinite(r2):
+        return False
+    out[0] = cx + mx
+    out[1] = cy + my
+    out[2] = math.sqrt(r2)
+    return True
+
+
+@numba.njit(cache=True, fastmath=False)
+def median_inplace(a, k) -> float:
+    """Median of ``a[:k]`` (k >= 1; sorts it in place).
+
+    Insertion sort: k is at most a hundred, and it compiles in a fraction of
+    the time ``np.median`` takes.
+    """
+    for i in range(1, k):
+        x = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > x:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = x
+    if k % 2 == 1:
+        return a[k // 2]
+    return 0.5 * (a[k // 2 - 1] + a[k // 2])
