@@ -139,3 +139,25 @@ def test_scale_covariance_follows_the_observed_residual():
     s2 = scaled.consistency.chi2 * 100.0 / scaled.consistency.dof
     assert scaled.pixel_sigma == pytest.approx(np.sqrt(s2)) and 1.0 < scaled.pixel_sigma < 10.0
     np.testing.assert_allclose(scaled.covariance, fixed.covariance / 100.0 * s2, rtol=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_candidates_per_marker_are_chosen_by_the_geometry(seed):
+    """A detector unsure of a marker hands over two pixels; the wrong one
+    scored higher.  The localizer picks the one the mutual geometry supports
+    (the wrong one fails the consistency test)."""
+    rng = np.random.default_rng(400 + seed)
+    while True:
+        rig, obs, truth = _scene(rng, 2, 3)
+        if _in_image(obs):
+            break
+    clean = mutloc.localize(rig, obs)
+    name = sorted(obs["p"])[seed % 3]
+    true_uv = np.asarray(obs["p"][name], float)
+    recs = [mutloc.Observation(o, m, tuple(np.asarray(uv, float)), None, 0.8)
+            for o, d in obs.items() for m, uv in d.items()]
+    recs.append(mutloc.Observation("p", name, tuple(true_uv + [25.0, -10.0]), None, 0.95))
+    est = mutloc.localize(rig, mutloc.ObservationSet.from_records(recs))
+    assert est.status == "solved" and est.extra["combinations_tried"] == 2
+    assert est.pose.translation_error(clean.pose) < 1e-9
+    assert sorted(est.markers_used) == sorted(clean.markers_used)

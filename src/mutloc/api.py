@@ -207,7 +207,13 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
     if initializer not in ("minimal", "essential", "both"):
         raise InputError(f"initializer must be 'minimal', 'essential' or 'both', got {initializer!r}")
-    pair = ObservationSet.from_dict(observations).pair(rig, source, target)
+    observations = ObservationSet.from_dict(observations)
+    if observations.has_alternatives:
+        return _choose_alternatives(rig, observations, source, target, pixel_sigma=pixel_sigma, refine=refine,
+                                    root_filter=root_filter, initializer=initializer, confidence=confidence,
+                                    reject_outliers=reject_outliers, scale_covariance=scale_covariance,
+                                    allow_unverified=allow_unverified)
+    pair = observations.pair(rig, source, target)
     pair.require()
     obs = pair.parent
     results: list[tuple[float, np.ndarray, Solution, np.ndarray]] = []
@@ -298,6 +304,41 @@ def _inconsistency_message(est: Estimate, pair: PairObservations, rows: np.ndarr
             f"(chi2 {c.chi2:.1f} over {c.dof} degrees of freedom, above {c.threshold:.1f} at "
             f"{100 * c.confidence:g}%): a wrong detection, a wrong rig or more noise than --pixel-sigma says"
             f"{worst}")
+
+
+# Combinations of candidate pixels tried at most (the rest fall back to the
+# best-scored candidates and the consistent-subset search).
+MAX_COMBINATIONS = 256
+
+
+def _choose_alternatives(rig: Rig, obs: ObservationSet, source: str, target: str, **options: Any) -> Estimate:
+    """Where a detector handed over several candidates for a marker, the
+    combination the mutual geometry supports: of the combinations that pass
+    the consistency test, the one the detector scored highest (then the
+    smallest chi-square)."""
+    groups: dict[tuple, list[int]] = {}
+    for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
+        groups.setdefault((o, m if m is not None else f"#{i}"), []).append(i)
+    choices = [sorted(g, key=lambda i: -obs.score[i]) for g in groups.values()]
+    total = int(np.prod([len(c) for c in choices]))
+    best: Estimate | None = None
+    best_key = (-np.inf, 0.0)
+    if total <= MAX_COMBINATIONS:
+        strict = dict(options, reject_outliers=False, allow_unverified=True)
+        for combo in product(*choices):
+            try:
+                est = localize(rig, obs.take(np.array(combo)), source, target, **strict)
+            except InconsistentObservationsError:
+                continue
+            if est.consistency is None or not est.consistency.passed:
+                continue
+            key = (float(np.sum(obs.score[list(combo)])), -est.consistency.chi2)
+            if key > best_key:
+                best, best_key = est, key
+    if best is None:
+        return localize(rig, obs.best(), source, target, **options)
+    best.extra["combinations_tried"] = total
+    return best
 
 
 def localize_batch(rig: Any, frames: Sequence[ObservationSet | Mapping[str, Any]], source: str | None = None,

@@ -44,14 +44,17 @@ class DetectionResult:
 
     detections: dict[str, Detection] = field(default_factory=dict)
     missing: list[str] = field(default_factory=list)
+    #: Other candidates for a detected marker where the detector is unsure
+    #: (scored, best first); the localizer picks what the geometry supports.
+    alternatives: dict[str, list[Detection]] = field(default_factory=dict)
 
     def observations(self, observer: str, time: float | None = None) -> ObservationSet:
         """What ``observer``'s camera saw, as an :class:`ObservationSet` (the
         detector's score travels with each pixel)."""
-        names = list(self.detections)
-        uv = np.array([self.detections[n].uv for n in names], dtype=float).reshape(-1, 2)
-        return ObservationSet([observer] * len(names), names, uv, time,
-                              [float(self.detections[n].score) for n in names])
+        dets = list(self.detections.values()) + [a for alts in self.alternatives.values() for a in alts]
+        uv = np.array([d.uv for d in dets], dtype=float).reshape(-1, 2)
+        return ObservationSet([observer] * len(dets), [d.marker for d in dets], uv, time,
+                              [float(d.score) for d in dets])
 
     def pixels(self) -> dict[str, tuple[float, float]]:
         """``{marker: (u, v)}``: one observer's entry of the SPEC's observations dict."""
@@ -60,11 +63,16 @@ class DetectionResult:
     def merge(self, other: "DetectionResult") -> None:
         """Add ``other``'s detections; a marker found there is no longer missing."""
         self.detections.update(other.detections)
+        self.alternatives.update(other.alternatives)
         self.missing = [m for m in self.missing if m not in other.detections]
         self.missing.extend(m for m in other.missing if m not in self.missing and m not in self.detections)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"detections": {n: d.to_dict() for n, d in self.detections.items()}, "missing": list(self.missing)}
+        d: dict[str, Any] = {"detections": {n: d.to_dict() for n, d in self.detections.items()},
+                             "missing": list(self.missing)}
+        if self.alternatives:
+            d["alternatives"] = {n: [a.to_dict() for a in alts] for n, alts in self.alternatives.items()}
+        return d
 
 
 def as_bgr(image: Any, where: str = "image") -> np.ndarray:

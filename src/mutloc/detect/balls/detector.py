@@ -12,7 +12,7 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
-from .choose import Candidate, assign, choose_consistent, rig_mates, score_candidate
+from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate
 from .fit import CameraModel, ellipse_info, fit_rim
 from .params import BallParams, value_lut
 from .rim import sample_rim
@@ -144,9 +144,20 @@ def detect_balls(
         chosen.extend(picked)
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
 
-    for c in assign(chosen, rest):
+    taken = assign(chosen, rest)
+    for c in taken:
         c.info["ellipse"] = ellipse_info(c.outline)
         result.detections[c.search.name] = Detection(marker=c.search.name, uv=c.uv, score=c.score, info=c.info)
+    # Where another blob of a marker scored nearly as well, the detector is
+    # unsure: hand it over too, and let the mutual geometry decide.
+    for c in taken:
+        alts = [a for a in per_marker.get(c.search.name, [])
+                if a is not c and a.score >= params.alternative_ratio * c.score
+                and not any(same_blob(a, t) for t in taken)]
+        if alts:
+            result.alternatives[c.search.name] = [
+                Detection(marker=a.search.name, uv=a.uv, score=a.score, info=a.info)
+                for a in sorted(alts, key=lambda a: -a.score)[: params.max_alternatives]]
     result.missing = [s.name for s in searches if s.name not in result.detections]
     return result
 

@@ -100,6 +100,12 @@ class BallParams:
     #: fallback of the hybrid search looks for: the half-resolution search
     #: finds balls of 1.5 coarse pixels and more, so this leaves a wide margin.
     fallback_max_radius_px: float = 8.0
+    #: Another blob of a detected marker scoring at least this fraction of
+    #: the chosen one is handed over as an alternative (the localizer picks
+    #: the one the mutual geometry supports); 1 hands over none.
+    alternative_ratio: float = 0.8
+    #: Alternatives handed over per marker at most.
+    max_alternatives: int = 2
 
     def __post_init__(self) -> None:
         _positive("min_radius_px", self.min_radius_px)
@@ -129,7 +135,8 @@ class BallParams:
             _positive(what, getattr(self, what))
         _positive_int("max_joint_options", self.max_joint_options)
         _positive_int("max_joint_combos", self.max_joint_combos)
-        for what in ("min_score", "good_enough", "min_nominal_saturation", "min_nominal_value"):
+        _positive_int("max_alternatives", self.max_alternatives)
+        for what in ("min_score", "good_enough", "alternative_ratio", "min_nominal_saturation", "min_nominal_value"):
             val = getattr(self, what)
             if isinstance(val, bool) or not (isinstance(val, Real) and 0 <= val <= 1):
                 raise InputError(f"{what} must be a number in [0, 1], got {val!r}")
