@@ -37,19 +37,26 @@ def test_swapped_streams_are_refused():
         track(rig, {"p": iter(frames["q"]), "q": iter(frames["p"])}, fps=10.0, progress=False)
 
 
-@pytest.mark.parametrize("kind,seed", [("balls", 3), ("balls", 4), ("tags", 5), ("tags", 6)])
-def test_no_solved_frame_is_far_off(kind, seed, tmp_path):
+@pytest.mark.parametrize("kind,seed,n,fps,min_solved", [
+    ("balls", 3, 12, 10.0, 0.8), ("balls", 4, 12, 10.0, 0.8), ("tags", 5, 12, 10.0, 0.8), ("tags", 6, 12, 10.0, 0.8),
+    # Half the lights are off at any time: without the filter of the tracking
+    # issue most light frames have three markers or fewer (unverified, too_few).
+    pytest.param("lights", 0, 45, 30.0, 0.0, marks=pytest.mark.slow),
+    pytest.param("lights", 1, 45, 30.0, 0.0, marks=pytest.mark.slow),
+])
+def test_no_solved_frame_is_far_off(kind, seed, n, fps, min_solved, tmp_path):
     """Rendered rooms with posters and clutter: every frame called solved is
     within 5 cm and 2 degrees of the truth, and most frames are solved."""
-    fps = 10.0
-    rig, frames, truth = _sequence(kind, 12, fps, seed)
+    rig, frames, truth = _sequence(kind, n, fps, seed)
     video = tmp_path / "sub" / "annotated.mp4"
     streams = {r: Stream(iter(f), fps, r) for r, f in frames.items()}
     traj = track(rig, streams, progress=False, annotate=video)
     solved = [(r, T) for r, T in zip(traj.rows, truth) if r.status == "solved"]
     for r, T in solved:
         assert r.estimate.pose.translation_error(T) <= 0.05 and r.estimate.pose.rotation_error_deg(T) <= 2.0, r
-    assert len(solved) >= 0.8 * len(traj.rows), traj.summary()
+    assert len(solved) >= min_solved * len(traj.rows), traj.summary()
+    if kind == "lights":
+        assert any(r.status in ("unverified", "rejected") for r in traj.rows)  # the doubtful ones are flagged
     cap = cv2.VideoCapture(str(video))  # written at the stream's own rate, folder created
     assert cap.get(cv2.CAP_PROP_FPS) == pytest.approx(fps)
     cap.release()
