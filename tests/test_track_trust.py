@@ -6,23 +6,11 @@ import numpy as np
 import pytest
 
 from mutloc.errors import InputError
-from mutloc.sim.render import moving_world, relative_pose, render
+from mutloc.sim.render import render
 from mutloc.sim.world import standard_rig
-from mutloc.track.sources import Frame, Stream
+from mutloc.track.sources import Stream
 from mutloc.track.tracker import track
-
-
-def _sequence(kind, n, fps, seed):
-    rig = standard_rig(kind)
-    world = moving_world(rig, distance=2.0, seed=seed)
-    frames = {r: [] for r in ("p", "q")}
-    truth = []
-    for i in range(n):
-        t = i / fps
-        for r in ("p", "q"):
-            frames[r].append(Frame(i, t, render(world, r, t, seed=seed + i, noise_sigma=1.0)))
-        truth.append(relative_pose(world, "p", "q", t))
-    return rig, frames, truth
+from test_pipeline import _sequence
 
 
 def test_same_video_for_both_robots_is_refused():
