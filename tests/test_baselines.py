@@ -16,7 +16,7 @@ from mutloc.core.geometry import rotation_error_deg
 from mutloc.core.triangulate import triangulate_midpoint
 from mutloc.errors import DegenerateGeometryError, NoSolutionError, ObservationError
 from mutloc.io.pointcloud import read_ply, write_ply
-from mutloc.sim.render import project_markers, relative_pose, render, surface_distance, two_robot_world
+from mutloc.sim.render import relative_pose, render, surface_distance, two_robot_world
 from mutloc.sim.synthetic import facing_pose
 from mutloc.sim.world import standard_rig
 

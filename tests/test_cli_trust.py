@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from mutloc.cli.main import build_parser, main
+from mutloc.cli.main import build_parser
 from test_cli import run_error, run_ok, scene_observations, write_scene
 
 

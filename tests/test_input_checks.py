@@ -1,7 +1,6 @@
 """Inputs that look wrong get one clear line that says what and where
 (issue: never a silent wrong pose)."""
 
-import numpy as np
 import pytest
 
 import mutloc
