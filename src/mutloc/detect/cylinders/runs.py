@@ -1,0 +1,287 @@
+"""Stage 1-2 of the cylinder detector: dark pixels, dark runs, chains of runs and reading a chain as a marker's code."""
+
+from __future__ import annotations
+
+import math
+import statistics
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["Run", "stack_chains", "code_runs", "column_chains", "dark_mask", "dark_runs", "match"]
+
+@dataclass
+class Run:
+    top: int  # first dark row
+    bot: int  # last dark row
+    left: float  # median leftmost dark column
+    right: float  # median rightmost dark column
+    synthetic: bool = False  # placed from the code, not seen
+
+    @property
+    def width(self) -> float:
+        return self.right - self.left + 1
+
+    @property
+    def xc(self) -> float:
+        return 0.5 * (self.left + self.right)
+
+
+def dark_mask(gray: np.ndarray) -> np.ndarray:
+    g = gray.astype(np.float32)
+    # The reference is the local *light* level (the brightest smoothed value nearby), so the
+    # inside of a large dark band still reads as dark at close range.
+    local = cv2.dilate(cv2.blur(g, (5, 5)), np.ones((61, 61), np.uint8))
+    dark = ((g < 90) & (g < 0.6 * local)).astype(np.uint8)
+    return cv2.morphologyEx(dark, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+
+
+def dark_runs(dark: np.ndarray) -> list[Run]:
+    """Dark rectangles: vertical stacks of per-row dark segments of consistent extent.
+
+    Each row's dark segments are linked to the open tracks of the rows above
+    whose left and right ends they repeat (within a pixel or so).  A segment
+    that *contains* a track's extent (the band touching dark clutter beside it
+    on those rows) bridges the track for up to a band-width of rows, provided
+    clean rows of the same extent follow; a track that neither repeats nor is
+    bridged ends.  So a dark band keeps its own rows whatever touches it.
+    """
+    H, W = dark.shape
+    pad = np.zeros((H, W + 2), np.int8)
+    pad[:, 1:-1] = dark
+    d = np.diff(pad, axis=1)
+    sr, sc = np.nonzero(d == 1)
+    er, ec = np.nonzero(d == -1)  # same order: row-major, paired
+    seg_rows: dict[int, list[tuple[int, int]]] = {}
+    for r, a, b in zip(sr.tolist(), sc.tolist(), (ec - 1).tolist()):
+        segs = seg_rows.setdefault(r, [])
+        # A short gap (a specular highlight down the middle of a dark band) does not split a segment.
+        if segs and a - segs[-1][1] - 1 <= max(2.0, 0.35 * min(b - a + 1, segs[-1][1] - segs[-1][0] + 1)):
+            segs[-1] = (segs[-1][0], b)
+        else:
+            segs.append((a, b))
+    for r in seg_rows:
+        seg_rows[r] = [(a, b) for a, b in seg_rows[r] if b - a + 1 >= 3]
+    # track: [rows(list), lefts, rights, last_clean_row, last_seen_row]
+    open_tracks: list[list] = []
+    done: list[list] = []
+    for r in range(H):
+        segs = seg_rows.get(r, [])
+        still: list[list] = []
+        taken = [False] * len(segs)
+        for tr in open_tracks:
+            tl, trr = tr[1][-1], tr[2][-1]
+            w = trr - tl + 1
+            tol = max(1.5, 0.08 * w)
+            hit = None
+            for k, (a, b) in enumerate(segs):
+                if not taken[k] and abs(a - tl) <= tol and abs(b - trr) <= tol:
+                    hit = k
+                    break
+            if hit is not None:
+                taken[hit] = True
+                a, b = segs[hit]
+                tr[0].append(r)
+                tr[1].append(a)
+                tr[2].append(b)
+                tr[3] = tr[4] = r
+                still.append(tr)
+                continue
+            if (r - tr[3] <= max(2, w) and
+                    any(a <= tl + tol and b >= trr - tol for a, b in segs)):
+                tr[4] = r
+                still.append(tr)
+                continue
+            done.append(tr)
+        for k, (a, b) in enumerate(segs):
+            if not taken[k]:
+                still.append([[r], [a], [b], r, r])
+        open_tracks = still
+    done.extend(open_tracks)
+    runs: list[Run] = []
+    for rows, lefts, rights, _, _ in done:
+        if len(rows) < 2 or rows[-1] - rows[0] < 1:
+            continue
+        runs.append(Run(int(rows[0]), int(rows[-1]), float(np.median(lefts)), float(np.median(rights))))
+    return runs
+
+
+def column_chains(dark: np.ndarray, runs: list[Run], reach: float) -> list[list[Run]]:
+    """Chains read down the middle of each run's column.
+
+    A dark band touching dark clutter beside it over its whole height (a
+    poster's dark shape, text) never forms a run of its own width: its rows'
+    dark segments are wider.  But nothing can be *inside* a cylinder's
+    silhouette, so the middle of the columns of any clean run of the cylinder
+    shows its bands alone: rows whose middle half is all dark are the dark
+    bands, whatever touches them at the sides.  ``reach`` is how far above
+    and below a run to look, in run widths (the longest code over the
+    widest aspect).  Each run proposes one chain, of runs with its extent.
+    """
+    H, W = dark.shape
+    out: list[list[Run]] = []
+    seen: set[tuple] = set()
+    covered: list[tuple[int, int, int, int]] = []  # (top, bot, c0, c1) of bands already read
+    for run in runs:
+        w = run.width
+        if w < 5 or run.bot - run.top < 1:
+            continue
+        c0 = int(math.ceil(run.left + 0.25 * w))
+        c1 = int(math.floor(run.right - 0.25 * w))
+        if c1 < c0 or c0 < 0 or c1 >= W:
+            continue
+        # A run inside a band already read down a column like its own would
+        # read the same chain again.
+        if any(t <= run.top and run.bot <= b and a0 - 2 <= c0 and c1 <= a1 + 2 for t, b, a0, a1 in covered):
+            continue
+        r0 = max(0, int(run.top - reach * w))
+        r1 = min(H, int(run.bot + reach * w) + 1)
+        full = dark[r0:r1, c0:c1 + 1].min(axis=1) > 0
+        edges = np.diff(np.concatenate([[0], full.view(np.int8), [0]]))
+        starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+        # Beside a band, on one side at least, the silhouette's edge: not dark
+        # just outside its extent (a wide dark area is not a band).
+        xl = int(round(run.left)) - 1
+        xr = int(round(run.right)) + 1
+        span = int(math.ceil(2 * w))  # how far out a band's own extent is looked for
+        chain = []
+        for a, b in zip(starts.tolist(), ends.tolist()):
+            if b - a < 2 or a == 0 or b == r1 - r0:
+                continue  # too thin, or running out of the range: extent unknown
+            rows = slice(r0 + a, r0 + b)
+            free = 0.0
+            if xl - 2 >= 0:
+                free = max(free, float(np.mean(dark[rows, xl - 2:xl + 1].min(axis=1) == 0)))
+            if xr + 2 < W:
+                free = max(free, float(np.mean(dark[rows, xr:xr + 3].min(axis=1) == 0)))
+            if free < 0.5:
+                continue
+            # Its own extent: the dark segment through the middle, row by row
+            # (clutter beside the band widens only some rows, or one side).
+            lo = max(0, c0 - span)
+            left_part = dark[rows, lo:c0][:, ::-1] == 0  # outward from the middle
+            hit = left_part.any(axis=1)
+            lefts = np.where(hit, c0 - np.argmax(left_part, axis=1), lo)
+            hi = min(W, c1 + 1 + span)
+            right_part = dark[rows, c1 + 1:hi] == 0
+            hit = right_part.any(axis=1)
+            rights = np.where(hit, c1 + np.argmax(right_part, axis=1), hi - 1)
+            chain.append(Run(r0 + a, r0 + b - 1, float(np.median(lefts)), float(np.median(rights))))
+            covered.append((r0 + a, r0 + b - 1, c0, c1))
+        if len(chain) < 2:
+            continue
+        key = (round(run.left), round(run.right), tuple((r.top, r.bot) for r in chain))
+        if key in seen:
+            continue
+        seen.add(key)
+        out.append(chain)
+    return out
+
+
+def stack_chains(runs: list[Run]) -> list[list[Run]]:
+    """Maximal top-to-bottom chains of runs of similar width and centre."""
+    runs = sorted(runs, key=lambda r: r.top)
+    nxt: dict[int, list[int]] = {i: [] for i in range(len(runs))}
+    for i, a in enumerate(runs):
+        for j in range(i + 1, len(runs)):
+            b = runs[j]
+            wmax = max(a.width, b.width)
+            if (b.top > a.bot and abs(a.xc - b.xc) < 0.25 * wmax + 1.0
+                    and min(a.width, b.width) > 0.7 * wmax - 1.0 and b.top - a.bot < 6 * wmax):
+                nxt[i].append(j)
+    out: list[list[Run]] = []
+
+    def walk(path: list[int]) -> None:
+        ends = nxt[path[-1]]
+        if not ends or len(out) > 2000:
+            out.append([runs[k] for k in path])
+            return
+        for j in ends:
+            walk(path + [j])
+
+    has_prev = {j for v in nxt.values() for j in v}
+    for i in range(len(runs)):
+        if i not in has_prev:
+            walk([i])
+    return out
+
+
+def code_runs(code: np.ndarray) -> tuple[int, int, list[tuple[int, int]]] | None:
+    """First and last dark band and the dark runs ``(start, end_exclusive)`` of a code."""
+    ones = np.nonzero(code)[0]
+    if len(ones) == 0:
+        return None
+    runs = []
+    k = ones[0]
+    while k <= ones[-1]:
+        if code[k]:
+            s = k
+            while k <= ones[-1] and code[k]:
+                k += 1
+            runs.append((int(s), int(k)))
+        else:
+            k += 1
+    return int(ones[0]), int(ones[-1]) + 1, runs
+
+
+def match(chain: list[Run], code: np.ndarray, aspect: float) -> tuple[float, list[Run]] | None:
+    """Best (cost, runs) placing the code's dark runs on a contiguous part of ``chain``.
+
+    ``aspect`` is the cylinder's diameter over one band's height: a dark run's
+    width over the band height in the image must agree with it (perspective
+    changes both alike), within 30 %.  When all the code's dark runs are
+    present the band height comes from the span, else from the width and
+    ``aspect``: then one dark run may be missing (it touches dark clutter
+    over its whole height) and is put where the code says, marked
+    ``synthetic``; such a match costs 0.5 more and is only kept if
+    :func:`refine` verifies every band.
+    """
+    cr = code_runs(code)
+    if cr is None:
+        return None
+    first, last, druns = cr
+    m = len(druns)
+    best = None
+    subsets = [list(range(m))] + ([[k for k in range(m) if k != skip] for skip in range(m)] if m >= 2 else [])
+    for sub in subsets:
+        full = len(sub) == m
+        ms = len(sub)
+        for off in range(len(chain) - ms + 1):
+            part = chain[off:off + ms]
+            if any(r.synthetic for r in part):
+                continue
+            # The narrowest run: dark clutter touching a band only widens it.
+            unit_w = min(r.width for r in part) / aspect
+            if full:
+                unit = (part[-1].bot + 1 - part[0].top) / (last - first)
+            else:
+                unit = unit_w
+            if unit < 2.0 or not 0.7 < unit / unit_w < 1.3:
+                continue
+            obs = [druns[k] for k in sub]
+            # offset: v of code index 0 (least squares over the observed boundaries)
+            ends = ([r.top - s0 * unit for (s0, _), r in zip(obs, part)]
+                    + [r.bot + 1 - e0 * unit for (_, e0), r in zip(obs, part)])
+            o = sum(ends) / len(ends)
+            cost = 0.0
+            for (s0, e0), run in zip(obs, part):
+                cost = max(cost, abs((run.top - o) / unit - s0), abs((run.bot + 1 - o) / unit - e0))
+            if cost >= 0.35:
+                continue
+            runs, it = [], iter(part)
+            left = statistics.median(r.left for r in part)
+            right = statistics.median(r.right for r in part)
+            for k, (s0, e0) in enumerate(druns):
+                if k in sub:
+                    runs.append(next(it))
+                else:
+                    runs.append(Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right,
+                                     synthetic=True))
+            if not full:
+                cost += 0.5
+            if best is None or cost < best[0]:
+                best = (cost, runs)
+    return best
+
+
