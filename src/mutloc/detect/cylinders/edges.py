@@ -1,4 +1,5 @@
-"""Stage 3 of the cylinder detector: sub-pixel silhouette edges (across) and band boundaries (along), and the refined band centres."""
+"""Stage 3 of the cylinder detector: sub-pixel silhouette edges (across) and
+band boundaries (along), and the refined band centres."""
 
 from __future__ import annotations
 
@@ -20,8 +21,6 @@ __all__ = ["EDGE_LUT", "axis_u", "refine"]
 # sit ~0.2 px inside it (the bands read thinner, the code's pitch shorter);
 # JPEG's chroma subsampling, on the other hand, mixes encoded values.
 EDGE_LUT = ((np.arange(256) / 255.0) ** 1.7 * 255.0).astype(np.float32)
-
-
 
 
 def _edge(profile: np.ndarray, i0: int, i1: int, a: float, b: float) -> float | None:

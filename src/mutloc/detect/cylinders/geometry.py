@@ -1,4 +1,5 @@
-"""Band geometry of banded-cylinder markers: band names, points on the axis, and the rig with every band as a marker."""
+"""Band geometry of banded-cylinder markers: band names, points on the axis,
+and the rig with every band as a marker."""
 
 from __future__ import annotations
 

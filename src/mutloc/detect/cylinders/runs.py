@@ -1,4 +1,5 @@
-"""Stage 1-2 of the cylinder detector: dark pixels, dark runs, chains of runs and reading a chain as a marker's code."""
+"""Stage 1-2 of the cylinder detector: dark pixels, dark runs, chains of runs
+and reading a chain as a marker's code."""
 
 from __future__ import annotations
 

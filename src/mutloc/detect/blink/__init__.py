@@ -1,0 +1,8 @@
+"""Blinking-light markers: found and identified by their blink (see
+:mod:`mutloc.detect.blink.tracker` for how), in stages: motion, measure,
+association, identity."""
+
+from .motion import GlobalMotion
+from .tracker import BlinkTracker
+
+__all__ = ["BlinkTracker", "GlobalMotion"]

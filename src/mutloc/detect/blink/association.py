@@ -1,0 +1,160 @@
+"""Association stage of the light tracker: which measured spot continues which
+track (gating on the motion model), and the motion model itself."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .halo import CLIP_LEVEL
+from .state import Track
+
+__all__ = ["AssociationStage"]
+
+
+class AssociationStage:
+    """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
+
+    def _gate(self, tr: Track, t: float) -> float:
+        """How far from its prediction a track's light may be at time ``t`` (px)."""
+        # Until a track has a motion model its light may be moving at any
+        # plausible speed; after that only the model's error grows -- with
+        # time, not frames, and faster for a faster light.
+        if len(tr.samples) >= 2:
+            growth = self.gate_growth + 0.1 * float(np.hypot(*tr.vel))
+        else:
+            growth = self.max_speed
+        since = t - (tr.last_on_t if tr.last_on_pos is not None else tr.born_t)
+        return min(self.max_gate_px, self.gate_px + growth * since)
+
+    @staticmethod
+    def _inside(uv: np.ndarray, shape: tuple[int, ...]) -> bool:
+        return bool(-0.5 <= uv[0] <= shape[1] - 0.5 and -0.5 <= uv[1] <= shape[0] - 0.5)
+
+    def _observe(self, tr: Track, cur: np.ndarray, prev: np.ndarray, centre: np.ndarray,
+                 event_on: bool | None, backfill: bool = False) -> np.ndarray | None:
+        """Sample the track's light in this frame: history, levels, on/off.
+
+        ``centre`` is where to look, in image coordinates; ``prev`` is the
+        previous frame aligned to this one; ``event_on`` the polarity of the
+        candidate associated with the track, if any.  Returns the light's
+        centre (image coordinates) if it is on, else None.
+        """
+        tr.jump = math.inf
+        tr.dark = False
+        cx, cy = round(float(centre[0])), round(float(centre[1]))
+        r = self._reach(tr.spread)
+        h, w = cur.shape
+        x0, x1, y0, y1 = max(0, cx - r), min(w, cx + r + 1), max(0, cy - r), min(h, cy + r + 1)
+        if x0 >= x1 or y0 >= y1:  # predicted out of the image
+            tr.hist.append(tr.hist[-1] if tr.hist else 0.0)
+            tr.is_on = False
+            return None
+        patch = cur[y0:y1, x0:x1]
+        k = int(np.argmax(patch))
+        py, px = divmod(k, x1 - x0)
+        peak = float(patch[py, px])
+        peak_prev = float(prev[y0:y1, x0:x1].max())
+        if backfill:
+            tr.hist.append(peak_prev)  # the previous frame is known too
+        tr.hist.append(peak)
+        if event_on is not None:
+            tr.last_polarity_on = event_on
+        # A genuine switch changes the window's peak itself; a light merely
+        # moving while on (which also makes crescents of change) does not.
+        if abs(peak - peak_prev) >= 0.75 * self.diff_threshold:
+            hi, lo = max(peak, peak_prev), min(peak, peak_prev)
+            if math.isnan(tr.hi):
+                tr.hi, tr.lo = hi, lo
+            else:
+                tr.hi += 0.3 * (hi - tr.hi)
+                tr.lo += 0.3 * (lo - tr.lo)
+        if not math.isnan(tr.hi) and tr.hi - tr.lo >= 0.5 * self.diff_threshold:
+            tr.is_on = peak >= 0.5 * (tr.hi + tr.lo)
+        else:
+            tr.is_on = tr.last_polarity_on
+        if not tr.is_on and 0 <= cx < w and 0 <= cy < h:
+            # Clearly off, not partly lit: dim where the light is (the
+            # window's peak may be bright background).  What matters is the
+            # dark state of lights that clip when on (see _take_plate).
+            tr.dark = float(cur[max(0, cy - 1):cy + 2, max(0, cx - 1):cx + 2].max()) \
+                <= CLIP_LEVEL - 2 * self.diff_threshold
+        # What is bright must also look like the light -- a spot above its
+        # surroundings -- or a track whose light went dark over bright
+        # texture would follow the texture.
+        if tr.is_on:
+            # The ring lies beyond the glow around a saturated light (which
+            # on a bright background leaves little contrast just outside it).
+            tr.is_on = (self._contrast(cur, np.array([x0 + px, y0 + py], float), tr.spread, 80.0,
+                                       margin=self._glow_px)
+                        >= 0.5 * self.diff_threshold)
+        if not tr.is_on:
+            return None  # keep the prediction (or where a new track was born)
+        found = self._centroid(cur, x0 + px, y0 + py, peak, self._spot(tr.spread))
+        if found is None:
+            tr.is_on = False
+            return None
+        uv, rms = found
+        # The lit spot's own size keeps the windows fitted to the light --
+        # once the spot is taken to be the light (see _commit).
+        tr.measured_spread = rms
+        if peak >= CLIP_LEVEL:
+            # A clipped core: its outline depends on the background (see
+            # _halo_centre), so the centre comes from the halo if possible.
+            rs = self._spot(tr.spread)
+            win = cur[max(0, round(float(uv[1])) - rs):round(float(uv[1])) + rs + 1,
+                      max(0, round(float(uv[0])) - rs):round(float(uv[0])) + rs + 1]
+            tr.clip_radius = math.sqrt(np.count_nonzero(win >= CLIP_LEVEL) / math.pi)
+            better = self._halo_centre(tr, uv)
+            if better is not None:
+                uv = better
+        else:
+            tr.clip_radius = math.nan
+        return uv
+
+    @staticmethod
+    def _not_on(tr: Track) -> None:
+        """What the track saw was not its light: record it as off this frame."""
+        tr.is_on = False
+        if tr.hist and not math.isnan(tr.lo):
+            tr.hist[-1] = tr.lo
+
+    def _commit(self, tr: Track, uv: np.ndarray, jump: float, t: float, frame: int) -> None:
+        """The track's light is on at ``uv`` (image coordinates): update its motion."""
+        pos = uv - self._offset
+        tr.jump = jump
+        tr.pos = pos
+        tr.spread += 0.3 * (tr.measured_spread - tr.spread)
+        tr.last_on_pos = pos
+        tr.last_on_t = t
+        tr.last_on_frame = frame
+        tr.samples.append((t, pos))
+        while tr.samples and tr.samples[0][0] < t - self.fit_window_s:
+            tr.samples.popleft()
+        self._fit_motion(tr)
+
+    def _fit_motion(self, tr: Track) -> None:
+        """Velocity and acceleration at the last "on" centre, by least squares.
+
+        In motion-compensated coordinates robots move smoothly, so a quadratic
+        over the last ``fit_window_s`` predicts across an off period far better
+        than a velocity alone (which lags whenever the robot accelerates).
+        """
+        n = len(tr.samples)
+        if n < 2:
+            tr.vel, tr.acc = np.zeros(2), np.zeros(2)
+            return
+        ts = np.array([s[0] for s in tr.samples])
+        ps = np.array([s[1] for s in tr.samples])
+        tau = ts - ts[-1]
+        span = -tau[0]
+        # A quadratic needs samples spread over time; else a line.
+        if n >= 4 and span * self.fps >= 3.5:
+            a = np.column_stack([np.ones(n), tau, 0.5 * tau * tau])
+        else:
+            a = np.column_stack([np.ones(n), tau])
+        coef, *_ = np.linalg.lstsq(a, ps, rcond=None)
+        tr.vel = coef[1]
+        tr.acc = coef[2] if len(coef) > 2 else np.zeros(2)
+

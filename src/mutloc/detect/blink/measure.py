@@ -1,0 +1,294 @@
+"""Measurement stage of the light tracker: spots that changed, their contrast,
+and the centre of a light (centroid, or the halo of a clipped light against
+background plates)."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from .halo import CLIP_LEVEL, HALO_LEVELS, HALO_MIN_LEVEL, MAX_PLATES, SRGB_LUT, halo_kernel
+from .state import Plate, Track
+
+__all__ = ["MeasureStage"]
+
+
+class MeasureStage:
+    """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
+
+    def _blobs(self, cur: np.ndarray, prev: np.ndarray,
+               exposed: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Candidate light switches: ``(centroids (n, 2), turned_on (n,), spread (n,))``."""
+        # Morphological differential: blind to any motion <= motion_radius.
+        turned_on = cv2.subtract(cur, cv2.dilate(prev, self._kernel))
+        turned_off = cv2.subtract(prev, cv2.dilate(cur, self._kernel))
+        change = cv2.max(turned_on, turned_off)
+        # The border the camera motion uncovered has no previous frame.
+        sx, sy = exposed
+        r = self.motion_radius
+        if sx > 0:
+            change[:, : sx + r] = 0
+        elif sx < 0:
+            change[:, sx - r:] = 0
+        if sy > 0:
+            change[: sy + r] = 0
+        elif sy < 0:
+            change[sy - r:] = 0
+        _, mask = cv2.threshold(change, self.diff_threshold - 1, 255, cv2.THRESH_BINARY)  # >= threshold
+        pts = cv2.findNonZero(mask)
+        if pts is None:
+            return np.empty((0, 2)), np.empty(0, bool), np.empty(0)
+        pts = pts.reshape(-1, 2)
+        # Labels only (cheap); the statistics come from the sparse pixels.
+        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+        x, y = pts[:, 0].astype(float), pts[:, 1].astype(float)
+        lab = labels[pts[:, 1], pts[:, 0]]
+        area = np.bincount(lab, minlength=n).astype(float)
+        area[0] = 1.0  # background label: never kept, avoid 0/0
+        mx = np.bincount(lab, x, minlength=n) / area
+        my = np.bincount(lab, y, minlength=n) / area
+        # Spread (RMS radius, px): a light's is a few pixels; the strip swept
+        # by a moving edge is long.
+        var = (np.bincount(lab, x * x, minlength=n) / area - mx * mx
+               + np.bincount(lab, y * y, minlength=n) / area - my * my)
+        on_w = np.bincount(lab, turned_on[pts[:, 1], pts[:, 0]].astype(float), minlength=n)
+        off_w = np.bincount(lab, turned_off[pts[:, 1], pts[:, 0]].astype(float), minlength=n)
+        keep = (area <= self.max_blob_area) & (var <= self.max_blob_std**2)
+        keep[0] = False
+        idx = np.flatnonzero(keep)
+        cents = np.column_stack([mx[idx], my[idx]])
+        lit_now = on_w[idx] >= off_w[idx]
+        spread = np.sqrt(np.maximum(var[idx], 0.0))
+        # A light switching is a compact spot of change, and in the frame in
+        # which it is lit a spot brighter than its surroundings.  A moving
+        # edge or corner of a robot body sweeps a strip of change that
+        # continues through a ring around it, and the brightness it uncovers
+        # continues too.  (The ring's 80th percentile forgives a small bright
+        # neighbour.)
+        need = 0.5 * self.diff_threshold
+        is_light = np.array([
+            self._contrast(turned_on if on else turned_off, c, sp) >= need
+            and self._contrast(cur if on else prev, c, sp, 80.0, margin=self._glow_px) >= need
+            for c, on, sp in zip(cents, lit_now, spread)
+        ], bool)
+        return cents[is_light], lit_now[is_light], spread[is_light]
+
+    def _contrast(self, img: np.ndarray, c: np.ndarray, spread: float, ring_q: float = 100.0,
+                  reach: float = 2.0, margin: int = 0) -> float:
+        """How far the peak near ``c`` stands above a ring around it.
+
+        The inner square holds a light of RMS radius ``spread``; the ring
+        (square, cheap) lies just outside, ``reach`` RMS radii plus ``margin``
+        pixels out.  Against the ring's maximum
+        (``ring_q=100``), a compact spot scores high and a strip or edge that
+        continues through the ring scores low; a lower percentile forgives a
+        small bright neighbour touching the ring.
+        """
+        r_in = int(min(max(8, 3.0 * self.max_blob_std), max(2, math.ceil(reach * spread) + 1)) + margin)
+        r_out = r_in + 3
+        cx, cy = round(float(c[0])), round(float(c[1]))
+        h, w = img.shape
+        masks = self._ring_masks.get(r_in)
+        if masks is None:
+            ys, xs = np.mgrid[-r_out:r_out + 1, -r_out:r_out + 1]
+            d = np.maximum(np.abs(ys), np.abs(xs)).ravel()
+            masks = self._ring_masks[r_in] = (np.flatnonzero(d <= r_in), np.flatnonzero(d > r_in + 1))
+        if r_out <= cx < w - r_out and r_out <= cy < h - r_out:
+            patch = img[cy - r_out:cy + r_out + 1, cx - r_out:cx + r_out + 1].ravel()
+            inner, ring = patch[masks[0]], patch[masks[1]]
+        else:  # at the image border: the part of the window inside
+            x0, x1, y0, y1 = max(0, cx - r_out), min(w, cx + r_out + 1), max(0, cy - r_out), min(h, cy + r_out + 1)
+            ys, xs = np.ogrid[y0 - cy:y1 - cy, x0 - cx:x1 - cx]
+            d = np.maximum(np.abs(ys), np.abs(xs))
+            patch = img[y0:y1, x0:x1]
+            inner, ring = patch[d <= r_in], patch[d > r_in + 1]
+            if inner.size == 0 or ring.size == 0:
+                return 0.0
+        if ring_q >= 100:
+            level = float(ring.max())
+        else:
+            k = round(ring_q / 100.0 * (ring.size - 1))
+            level = float(np.partition(ring, k)[k])
+        return float(inner.max()) - level
+
+    @staticmethod
+    def _halo_radius(clip_radius: float) -> int:
+        """Half-size of the window over which the halo of a light whose
+        clipped core has radius ``clip_radius`` (px) is measured."""
+        return math.ceil(1.5 * clip_radius) + 12
+
+    def _take_plate(self, tr: Track, frame: int) -> None:
+        """Keep the neighbourhood of a dark light that clips when on: the
+        background its halo will be measured against.
+
+        A few plates are kept, with the light in different places: where the
+        dark light hides the background in the newest, an older one may show
+        it (a light moving by less than its halo's size per frame).
+        """
+        if not math.isfinite(tr.clip_radius) or self._colour is None:
+            return
+        # Room for the light to move before it is on again.
+        half = self._halo_radius(tr.clip_radius) + math.ceil(6.0 + 4.0 * float(np.hypot(*tr.vel)) / self.fps)
+        centre = tr.pos + self._offset
+        cx, cy = round(float(centre[0])), round(float(centre[1]))
+        h, w = self._colour.shape[:2]
+        x0, x1, y0, y1 = max(0, cx - half), min(w, cx + half + 1), max(0, cy - half), min(h, cy + half + 1)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            return
+        lin = SRGB_LUT[self._colour[y0:y1, x0:x1]]
+        plate = Plate(lin, x0, y0, self._offset.copy(), centre.copy(), frame)
+        plates = tr.plates
+        # The newest plate with the light (nearly) where it is now adds
+        # nothing an up-to-date one does not: replace it.
+        if plates and math.hypot(*((plates[-1].light - plates[-1].offset) - (centre - self._offset))) \
+                < 0.25 * tr.clip_radius + 1.0:
+            plates[-1] = plate
+        else:
+            plates.append(plate)
+        max_age = round(self.fps)
+        while plates and (len(plates) > MAX_PLATES or frame - plates[0].frame > max_age):
+            plates.pop(0)
+
+    def _halo_centre(self, tr: Track, uv: np.ndarray) -> np.ndarray | None:
+        """Centre of a lit light whose core is clipped, from its halo.
+
+        A light bright enough to clip is surrounded by its glow (lens bloom),
+        and where the glow adds to a bright background the image clips too:
+        the clipped region reaches further out over bright background than
+        over dark, so its centroid (or outline) is pulled towards the bright
+        side -- by over a pixel for a light beside a poster's edge.  The glow
+        itself is radially symmetric, so it is isolated by subtracting the
+        background seen around the light while it was off (the track's
+        plates, moved by the camera motion since; the newest that shows each
+        pixel), in linear light and in the light's own colour channel (the
+        one it brightens most).  Where the clipped core, the dark light in
+        the plates and their edges leave it unknown, rays from the centre
+        measure where the glow crosses a few levels; the crossings are fitted
+        robustly by circles (with second harmonics, for the slightly
+        elliptical image of a sphere) of one common centre.  None if there
+        is no plate or too little fits.
+        """
+        col = self._colour
+        max_age = round(self.fps)
+        plates = [p for p in tr.plates if self._frame - p.frame <= max_age]
+        if not plates or col is None:
+            return None
+        r_core = tr.clip_radius
+        rmax = self._halo_radius(r_core)
+        h, w = col.shape[:2]
+        cx, cy = round(float(uv[0])), round(float(uv[1]))
+        x0, x1, y0, y1 = max(0, cx - rmax), min(w, cx + rmax + 1), max(0, cy - rmax), min(h, cy + rmax + 1)
+        pw, ph = x1 - x0, y1 - y0
+        if pw < 8 or ph < 8:
+            return None
+        raw = col[y0:y1, x0:x1]
+        cur = SRGB_LUT[raw]
+        # The dark light in a plate: a disc about as large as the clipped
+        # core now (the glow widens the core, JPEG and blur narrow it a
+        # little), with a margin for the smoothing below.
+        r_mask = r_core + 1.5
+        ys, xs = np.ogrid[0:ph, 0:pw]
+        bg = np.full(cur.shape, np.nan, np.float32)
+        missing = np.ones((ph, pw), bool)
+        for plate in reversed(plates):  # newest first
+            # Where the static scene now is: the camera moved by the change
+            # of the cumulative offset since the plate was taken.
+            moved = self._offset - plate.offset
+            m = np.float32([[1, 0, x0 - moved[0] - plate.x0], [0, 1, y0 - moved[1] - plate.y0]])
+            b = cv2.warpAffine(plate.lin, m, (pw, ph), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=(math.nan,) * 4)
+            if b.ndim == 2:
+                b = b[:, :, None]
+            old = plate.light + moved - np.array([x0, y0])
+            use = missing & ~np.isnan(b[:, :, 0]) & ((xs - old[0]) ** 2 + (ys - old[1]) ** 2 > r_mask ** 2)
+            bg[use] = b[use]
+            missing &= ~use
+            if not missing.any():
+                break
+        glow = cur - bg
+        c = int(np.argmax(np.nansum(glow, axis=(0, 1))))
+        g = glow[:, :, c]
+        unknown = np.isnan(g)
+        g = np.where(unknown, np.float32(0.0), g)
+        g = cv2.GaussianBlur(g, (5, 5), 1.0)
+        unknown |= raw[:, :, c] >= CLIP_LEVEL
+        unknown = cv2.dilate(unknown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        g[unknown] = np.nan
+        b = bg[:, :, c]
+        fin = np.isfinite(b)
+        ref = float(np.median(b[fin])) if fin.any() else 0.0
+        levels = np.maximum(HALO_MIN_LEVEL, max(0.1, 1.0 - ref) * np.array(HALO_LEVELS))
+        out = np.empty(5)
+        if not halo_kernel(g, float(uv[0]) - x0, float(uv[1]) - y0, levels, 64, 0.5, float(rmax), 3, out):
+            return None
+        if out[2] < 16 or out[3] < 3:
+            return None
+        found = np.array([out[0] + x0, out[1] + y0])
+        if math.hypot(*(found - uv)) > max(2.0, 0.5 * r_core):
+            return None
+        return found
+
+    def _centroid(self, img: np.ndarray, px: int, py: int, peak: float,
+                  r: int) -> tuple[np.ndarray, float] | None:
+        """Intensity-weighted centroid of the bright spot around pixel (px, py),
+        and the spot's RMS radius (px).
+
+        The brightest pixel of a saturated spot may sit anywhere on its
+        plateau, so a window centred on it can clip the spot: if the centroid
+        lands more than half a pixel away, it is measured again around itself.
+        A spot that still reaches the window's edge is larger than the track
+        believed (a light coming closer): the window grows until it holds it.
+        """
+        r_max = max(r, math.ceil(3.0 * self.max_blob_std))
+        cx, cy = px, py
+        out = self._centroid_at(img, cx, cy, peak, r)
+        for _ in range(2):  # per frame; the track's size estimate adapts over frames
+            if out is None or not out[2] or r >= r_max:
+                break
+            r = min(r_max, math.ceil(1.5 * r))
+            cx, cy = round(float(out[0][0])), round(float(out[0][1]))
+            out = self._centroid_at(img, cx, cy, peak, r)
+        if out is None:
+            return None
+        if max(abs(out[0][0] - cx), abs(out[0][1] - cy)) > 0.5:
+            again = self._centroid_at(img, round(float(out[0][0])), round(float(out[0][1])), peak, r)
+            out = again if again is not None else out
+        return out[0], out[1]
+
+    def _centroid_at(self, img: np.ndarray, px: int, py: int, peak: float,
+                     r: int) -> tuple[np.ndarray, float, bool] | None:
+        h, w = img.shape
+        x0, x1 = max(0, px - r), min(w, px + r + 1)
+        y0, y1 = max(0, py - r), min(h, py + r + 1)
+        patch = img[y0:y1, x0:x1].astype(np.float32)
+        if patch.shape[0] < 3 or patch.shape[1] < 3:
+            return None
+        # Background from the window's border: local, and robust (median) to
+        # a bright neighbour touching it.
+        border = np.concatenate([patch[0], patch[-1], patch[1:-1, 0], patch[1:-1, -1]])
+        bg = float(np.median(border))
+        # A clipped (saturated) spot: its plateau's edge is what is sharp; the
+        # skirt around it is glow added to whatever background lies there,
+        # which pulls the centroid towards the brighter side.
+        level = self.centroid_level if peak < 250 else max(self.centroid_level, self._saturated_level)
+        thr = bg + level * (peak - bg)
+        wts = patch - thr
+        np.maximum(wts, 0.0, out=wts)
+        s = float(wts.sum())
+        if s <= 0:
+            return None
+        cols, rows = wts.sum(axis=0), wts.sum(axis=1)
+        xs, ys = np.arange(x1 - x0, dtype=np.float64), np.arange(y1 - y0, dtype=np.float64)
+        mu, mv = float(cols @ xs) / s, float(rows @ ys) / s
+        var = float(cols @ (xs - mu) ** 2) / s + float(rows @ (ys - mv) ** 2) / s
+        # Clipped by the window (not by the image border) -- unless most of
+        # the border is above the threshold: a bright area, not a spot.
+        clipped = bool((cols[0] > 0 and x0 > 0) or (cols[-1] > 0 and x1 < w)
+                       or (rows[0] > 0 and y0 > 0) or (rows[-1] > 0 and y1 < h))
+        clipped = clipped and 2 * int(np.count_nonzero(border > thr)) < border.size
+        return np.array([x0 + mu, y0 + mv]), math.sqrt(max(var, 0.0)), clipped
+
+    # -------------------------------------------------------------- identity
+

@@ -1,0 +1,70 @@
+"""What the light tracker keeps per candidate light: tracks and background plates."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Plate", "Track"]
+
+
+@dataclass
+class Plate:
+    """The neighbourhood of a light while it was off: the background its halo
+    is measured against when it is on (see BlinkTracker._halo_centre)."""
+
+    lin: np.ndarray  # float32 (h, w, channels), linear light
+    x0: int  # image column of lin[:, 0] then
+    y0: int  # image row of lin[0] then
+    offset: np.ndarray  # the tracker's cumulative camera offset then
+    light: np.ndarray  # where the dark light was (image coordinates then)
+    frame: int
+
+
+@dataclass
+class Track:
+    """One candidate light.  Positions are motion-compensated ("stabilised")
+    pixel coordinates: image ``uv = pos + offset`` with the tracker's current
+    cumulative camera offset."""
+
+    id: int
+    pos: np.ndarray  # best estimate in the current frame
+    conf: float
+    born_frame: int
+    born_t: float
+    hist: deque  # peak brightness near the light, one sample per frame
+    events: deque  # per frame: did the differential see this light switch?
+    samples: deque  # (t, pos) of recent "on" centres, for the motion model
+    vel: np.ndarray = field(default_factory=lambda: np.zeros(2))  # px / s
+    acc: np.ndarray = field(default_factory=lambda: np.zeros(2))  # px / s^2
+    hi: float = math.nan  # learned peak brightness when on
+    lo: float = math.nan  # learned peak brightness when off
+    is_on: bool = False
+    last_on_pos: np.ndarray | None = None
+    last_on_t: float = math.nan
+    last_on_frame: int = -1
+    last_polarity_on: bool = True
+    spread: float = 1.5  # RMS radius of the light's region of change (px): its size
+    jump: float = math.inf  # distance from prediction to this frame's measurement (px)
+    marker: str | None = None
+    score: float = 0.0
+    scores: dict[str, float] = field(default_factory=dict)
+    measured_spread: float = 1.5  # RMS radius of the spot found this frame (px)
+    dark: bool = False  # this frame: clearly off (a background plate may be taken)
+    clip_radius: float = math.nan  # radius (px) of the clipped core when last on
+    plates: list[Plate] = field(default_factory=list)  # oldest first
+
+    def predict(self, t: float, horizon: float) -> np.ndarray:
+        """Position at time ``t`` from the motion model (stabilised coordinates)."""
+        if self.last_on_pos is None:
+            return self.pos
+        dt = min(t - self.last_on_t, horizon)  # never extrapolate a curve far
+        return self.last_on_pos + self.vel * dt + 0.5 * self.acc * dt * dt
+
+    def last_seen_frame(self) -> int:
+        return self.last_on_frame if self.last_on_frame >= 0 else self.born_frame
+
+

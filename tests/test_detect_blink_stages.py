@@ -1,0 +1,98 @@
+"""The light tracker's stages, each against a known truth."""
+
+import math
+from collections import deque
+
+import numpy as np
+import pytest
+
+from mutloc.core.rig import Marker
+from mutloc.detect.blink import BlinkTracker, GlobalMotion
+from mutloc.detect.blink.halo import SRGB_LUT
+from mutloc.detect.blink.state import Track
+
+FPS = 30.0
+
+
+def _texture(shape=(200, 260), seed=0):
+    rng = np.random.default_rng(seed)
+    import cv2
+
+    img = rng.uniform(0, 255, (shape[0] // 4, shape[1] // 4)).astype(np.float32)
+    return cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC)
+
+
+@pytest.mark.parametrize("shift", [(3.0, -2.0), (-7.5, 4.25), (12.0, 0.5)])
+def test_global_motion_recovers_a_known_shift(shift):
+    import cv2
+
+    base = _texture()
+    M = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+    moved = cv2.warpAffine(base, M, (base.shape[1], base.shape[0]), borderMode=cv2.BORDER_REFLECT)
+    gm = GlobalMotion()
+    gm.update(np.clip(base, 0, 255).astype(np.uint8))
+    d = gm.update(np.clip(moved, 0, 255).astype(np.uint8))
+    np.testing.assert_allclose(d, shift, atol=0.25)
+
+
+def test_track_motion_model_predicts_constant_acceleration():
+    tr = Track(id=0, pos=np.zeros(2), conf=1.0, born_frame=0, born_t=0.0, hist=deque(), events=deque(),
+               samples=deque(), vel=np.array([10.0, -4.0]), acc=np.array([2.0, 0.0]),
+               last_on_pos=np.array([100.0, 50.0]), last_on_t=1.0)
+    np.testing.assert_allclose(tr.predict(1.5, horizon=1.0), [100 + 5 + 0.25, 50 - 2])
+    np.testing.assert_allclose(tr.predict(9.0, horizon=1.0), [100 + 10 + 1.0, 50 - 4])  # never far
+
+
+def _tracker(hz=(2.0, 3.0)):
+    lights = {f"L{i}": Marker(f"L{i}", "q", np.array([0.1 * i, 0.0, 0.0]), blink_hz=h) for i, h in enumerate(hz)}
+    return BlinkTracker(lights, FPS)
+
+
+def test_identity_basis_is_orthonormal_and_zero_mean():
+    tr = _tracker()
+    times = np.arange(40) / FPS
+    q = tr._basis(times)
+    assert q.shape == (40, 2 * 3 * 2)
+    for k in range(0, q.shape[1], 2):  # each probe frequency: an orthonormal cos/sin pair
+        block = q[:, k:k + 2]
+        np.testing.assert_allclose(block.T @ block, np.eye(2), atol=1e-9)
+        # spans the zero-mean cos/sin at its frequency
+        f = np.r_[tr.freqs, tr.freqs - tr._delta_hz, tr.freqs + tr._delta_hz][k // 2]
+        x = np.cos(2 * np.pi * f * (times - times[-1]))
+        x -= x.mean()
+        np.testing.assert_allclose(block @ (block.T @ x), x, atol=1e-9)
+    np.testing.assert_allclose(q.sum(axis=0), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("uv", [(60.3, 40.7), (61.0, 39.25), (59.55, 41.5)])
+def test_measurement_centroid_of_a_known_spot(uv):
+    tr = _tracker()
+    ys, xs = np.mgrid[0:80, 0:120]
+    img = 200.0 * np.exp(-((xs - uv[0]) ** 2 + (ys - uv[1]) ** 2) / (2 * 1.5 ** 2))
+    c, spread = tr._centroid(img.astype(np.float32), round(uv[0]), round(uv[1]), float(img.max()), 5)
+    np.testing.assert_allclose(c, uv, atol=0.05)  # sampling bias of a 1.5 px spot, well below the noise
+    assert 1.0 < spread < 3.0
+
+
+def test_identity_by_blink_frequency():
+    """Two lights at 2 and 3 Hz, same brightness and colour: told apart by their blink alone."""
+    tr = _tracker()
+    ys, xs = np.mgrid[0:120, 0:200]
+    spots = {"L0": (50.2, 60.4), "L1": (140.6, 58.3)}
+    res = None
+    for k in range(60):
+        img = np.full((120, 200), 40.0)
+        for name, (u, v) in spots.items():
+            hz = 2.0 if name == "L0" else 3.0
+            if math.fmod(hz * k / FPS, 1.0) < 0.5:
+                img += 200 * np.exp(-((xs - u) ** 2 + (ys - v) ** 2) / (2 * 1.5 ** 2))
+        res = tr.update(np.clip(img + 0.5, 0, 255).astype(np.uint8), t=k / FPS)
+    for name, uv in spots.items():
+        assert name in res.detections
+        assert np.linalg.norm(res.detections[name].uv - uv) < 0.5
+
+
+def test_srgb_table_is_the_standard_curve():
+    x = np.arange(256) / 255.0
+    ref = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    np.testing.assert_allclose(SRGB_LUT, ref, atol=1e-6)
