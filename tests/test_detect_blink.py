@@ -24,7 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mutloc.core.rig import Marker
-from mutloc.detect.blink import BlinkTracker, GlobalMotion
+from mutloc.detect.blink import BlinkParams, BlinkTracker, GlobalMotion
 from mutloc.errors import InputError
 
 W, H, FPS = 960, 540, 30.0
@@ -440,7 +440,7 @@ def test_pixel_convention_any_subpixel_position(u: float, v: float, sigma: float
 
 
 def test_gray_brightness_mode_and_float_images() -> None:
-    tr = BlinkTracker({"A": marker("A", 3.0)}, FPS, brightness="gray")
+    tr = BlinkTracker({"A": marker("A", 3.0)}, FPS, params=BlinkParams(brightness="gray"))
     for f in simple_frames(60, hz=3.0):
         res = tr.update(np.repeat(f[:, :, None], 3, axis=2).astype(np.float32) / 255.0)
     assert "A" in res.detections and res.missing == []
@@ -461,7 +461,7 @@ def test_input_errors() -> None:
     with pytest.raises(InputError, match="fps"):
         BlinkTracker({"A": marker("A", 2.0)}, 0.0)
     with pytest.raises(InputError, match="cannot tell them apart"):
-        BlinkTracker({"A": marker("A", 2.0), "B": marker("B", 2.2)}, FPS, window_s=1.0)
+        BlinkTracker({"A": marker("A", 2.0), "B": marker("B", 2.2)}, FPS, params=BlinkParams(window_s=1.0))
     with pytest.raises(InputError, match="cannot tell them apart"):  # two robots, same lights
         BlinkTracker({"A": marker("A", 2.0), "B": marker("B", 3.0), "C": marker("C", 2.0, "r")}, FPS)
     # The default window grows to resolve close frequencies.

@@ -3,6 +3,7 @@
 association, identity."""
 
 from .motion import GlobalMotion
+from .params import BlinkParams
 from .tracker import BlinkTracker
 
-__all__ = ["BlinkTracker", "GlobalMotion"]
+__all__ = ["BlinkParams", "BlinkTracker", "GlobalMotion"]

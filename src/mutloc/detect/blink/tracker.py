@@ -79,6 +79,7 @@ from .association import AssociationStage
 from .identity import IdentityStage
 from .measure import MeasureStage
 from .motion import GlobalMotion
+from .params import BlinkParams
 from .state import Track
 
 __all__ = ["BlinkTracker"]
@@ -102,60 +103,9 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         Nominal frame rate; frame ``k`` is at ``k / fps`` seconds unless
         :meth:`update` is given the time.  Every ``blink_hz`` must be below
         ``fps / 2`` (Nyquist).
-    diff_threshold:
-        Minimum brightness change (0-255) between consecutive frames that
-        counts as a light switching.
-    decay:
-        Factor applied to a track's confidence in each frame without support.
-    boost:
-        Added to a track's confidence (capped at 1) in each frame with support;
-        also a new track's confidence.
-    min_confidence:
-        Tracks below it are dropped.  Default: low enough that a track survives
-        1.5 half-periods of the slowest marker without support (a light only
-        produces a differential when it switches).
-    window_s:
-        Length of the brightness history used to estimate frequency.  Default:
-        long enough to resolve the two closest marker frequencies
-        (``1 / spacing``) and to hold two periods of the slowest, at least 1 s,
-        at most 10 s.
-    min_history_s:
-        History a track needs before it may be given an identity (default:
-        0.7 ``window_s``).
-    min_score:
-        Minimum fraction of a track's brightness variance explained at a
-        marker's frequency for the track to be that marker.
-    stabilize:
-        Estimate and compensate the camera's global image translation.
-    motion_radius:
-        Residual image motion (px per frame) of static things that must not
-        register as a light switching.
-    search_radius:
-        Half-size of the window, around a track's prediction, searched for its
-        light's peak.
-    spot_radius:
-        Half-size of the window, around the peak, over which the centroid is
-        computed (must hold the light's bright spot).
-    centroid_level:
-        Pixels weigh in the centroid by how much they exceed
-        ``background + centroid_level * (peak - background)``; the threshold
-        keeps textured background out of it.
-    gate_px, gate_growth, max_speed, max_gate_px:
-        A candidate may join a track, and a bright spot found near it counts
-        as its light, only within ``gate_px + growth * seconds_since_last_on``
-        pixels of its prediction (capped at ``max_gate_px``), where the growth
-        (px/s) is ``gate_growth`` plus a tenth of the light's image speed, or
-        ``max_speed`` (the fastest image motion of a light assumed, px/s)
-        while a track has no motion model yet.
-    fit_window_s:
-        "On" centres of the last this many seconds feed the motion model.
-    max_blob_area, max_blob_std:
-        Larger changed regions (a light switched in the room, a passing
-        object), or more spread out ones (RMS radius in px), are not lights.
-    max_tracks:
-        Cap on simultaneous tracks (identified, then confident ones kept).
-    brightness:
-        ``"max"`` (HSV value; coloured LEDs) or ``"gray"`` (luma).
+    params:
+        The tuning, :class:`~mutloc.detect.blink.params.BlinkParams` (each value
+        documented there); default ``BlinkParams()``.
     """
 
     def __init__(
@@ -163,28 +113,32 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         markers: Mapping[str, Marker],
         fps: float,
         *,
-        diff_threshold: int = 40,
-        decay: float = 0.8,
-        boost: float = 0.5,
-        min_confidence: float | None = None,
-        window_s: float | None = None,
-        min_history_s: float | None = None,
-        min_score: float = 0.45,
-        stabilize: bool = True,
-        motion_radius: int = 2,
-        search_radius: int = 6,
-        spot_radius: int = 5,
-        centroid_level: float = 0.3,
-        gate_px: float = 6.0,
-        gate_growth: float = 30.0,
-        max_speed: float | None = None,
-        max_gate_px: float = 40.0,
-        fit_window_s: float = 0.4,
-        max_blob_area: int | None = None,
-        max_blob_std: float | None = None,
-        max_tracks: int = 64,
-        brightness: str = "max",
+        params: BlinkParams | None = None,
     ) -> None:
+        p = params if params is not None else BlinkParams()
+        if not isinstance(p, BlinkParams):
+            raise InputError(f"BlinkTracker: params must be BlinkParams, got {type(p).__name__}")
+        diff_threshold = p.diff_threshold
+        decay = p.decay
+        boost = p.boost
+        min_confidence = p.min_confidence
+        window_s = p.window_s
+        min_history_s = p.min_history_s
+        min_score = p.min_score
+        stabilize = p.stabilize
+        motion_radius = p.motion_radius
+        search_radius = p.search_radius
+        spot_radius = p.spot_radius
+        centroid_level = p.centroid_level
+        gate_px = p.gate_px
+        gate_growth = p.gate_growth
+        max_speed = p.max_speed
+        max_gate_px = p.max_gate_px
+        fit_window_s = p.fit_window_s
+        max_blob_area = p.max_blob_area
+        max_blob_std = p.max_blob_std
+        max_tracks = p.max_tracks
+        brightness = p.brightness
         try:
             fps = float(fps)
         except (TypeError, ValueError):

@@ -1,0 +1,71 @@
+"""Tuning of the blinking-light tracker, in one frozen dataclass with
+documented defaults (validated by :class:`~mutloc.detect.blink.BlinkTracker`,
+which also needs the frame rate and the lights' frequencies to check them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["BlinkParams"]
+
+
+@dataclass(frozen=True)
+class BlinkParams:
+    """How the light tracker finds, follows and identifies lights."""
+
+    #: Minimum brightness change (0-255) between consecutive frames that counts
+    #: as a light switching.
+    diff_threshold: int = 40
+    #: Factor applied to a track's confidence in each frame without support.
+    decay: float = 0.8
+    #: Added to a track's confidence (capped at 1) in each frame with support;
+    #: also a new track's confidence.
+    boost: float = 0.5
+    #: Tracks below it are dropped.  None: low enough that a track survives 1.5
+    #: half-periods of the slowest marker without support (a light only produces
+    #: a differential when it switches).
+    min_confidence: float | None = None
+    #: Length (s) of the brightness history used to estimate frequency.  None:
+    #: long enough to resolve the two closest marker frequencies (1 / spacing)
+    #: and to hold two periods of the slowest, at least 1 s, at most 10 s.
+    window_s: float | None = None
+    #: History (s) a track needs before it may be given an identity (None: 0.7 window_s).
+    min_history_s: float | None = None
+    #: Minimum fraction of a track's brightness variance explained at a
+    #: marker's frequency for the track to be that marker.
+    min_score: float = 0.45
+    #: Estimate and compensate the camera's global image translation.
+    stabilize: bool = True
+    #: Residual image motion (px per frame) of static things that must not
+    #: register as a light switching.
+    motion_radius: int = 2
+    #: Half-size of the window, around a track's prediction, searched for its light's peak.
+    search_radius: int = 6
+    #: Half-size of the window, around the peak, over which the centroid is
+    #: computed (must hold the light's bright spot).
+    spot_radius: int = 5
+    #: Pixels weigh in the centroid by how much they exceed
+    #: ``background + centroid_level * (peak - background)``; the threshold keeps
+    #: textured background out of it.
+    centroid_level: float = 0.3
+    #: A candidate may join a track, and a bright spot near it counts as its
+    #: light, only within ``gate_px + growth * seconds_since_last_on`` pixels of
+    #: its prediction (capped at ``max_gate_px``); the growth (px/s) is
+    #: ``gate_growth`` plus a tenth of the light's image speed, or ``max_speed``
+    #: (the fastest image motion assumed, px/s; None: from the image size) while
+    #: a track has no motion model yet.
+    gate_px: float = 6.0
+    gate_growth: float = 30.0
+    max_speed: float | None = None
+    max_gate_px: float = 40.0
+    #: "On" centres of the last this many seconds feed the motion model.
+    fit_window_s: float = 0.4
+    #: Larger changed regions (a light switched in the room, a passing object),
+    #: or more spread out ones (RMS radius in px), are not lights (None: from
+    #: the image size).
+    max_blob_area: int | None = None
+    max_blob_std: float | None = None
+    #: Cap on simultaneous tracks (identified, then confident ones kept).
+    max_tracks: int = 64
+    #: ``"max"`` (HSV value; coloured LEDs) or ``"gray"`` (luma).
+    brightness: str = "max"
