@@ -12,9 +12,7 @@ is simply ``K @ C / C_z``.
 from __future__ import annotations
 
 import colorsys
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -25,8 +23,6 @@ from mutloc.core.rig import Marker
 from mutloc.detect.balls import BallParams, detect_balls
 from mutloc.errors import InputError
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from ball_tools import time_detector  # noqa: E402
 
 F = 800.0
 W, H = 960, 540
@@ -690,17 +686,3 @@ def test_flat_disc_loses_to_a_shaded_ball():
     d = detect_one(render_scene(scene, seed=22), "blue")
     assert d is not None and np.linalg.norm(d.uv - ball.truth_uv()) < 0.3
     assert d.info["shading"] > 0.12
-
-
-# ---------------------------------------------------------------------------
-# speed
-# ---------------------------------------------------------------------------
-
-
-def test_at_least_100_fps_for_four_markers():
-    """960x540, four markers, one thread (best of a few batches, see time_detector)."""
-    rng = np.random.default_rng(17)
-    _, _, img, markers = four_ball_frame(rng)
-    fps = time_detector(img, markers, CAM, repeats=150, threads=1)
-    print(f"\ndetect_balls: {fps:.0f} FPS (960x540, 4 markers, 1 thread)")
-    assert fps >= 100

@@ -322,12 +322,6 @@ def test_missing_markers(run: Run) -> None:
         assert sorted(list(res.detections) + res.missing) == sorted(MARKERS_ALL)
 
 
-def test_speed(run: Run) -> None:
-    fps = N_FRAMES / run.seconds
-    print(f"BlinkTracker.update: {fps:.0f} frames/s at {W}x{H} ({1e3 / fps:.2f} ms/frame)")
-    assert fps >= 30.0  # generous: the target is >= 100 on an idle machine
-
-
 @pytest.fixture(scope="module")
 def pan_run() -> Run:
     scene = pan_scene()
