@@ -31,6 +31,10 @@ def test_swapped_streams_are_refused():
     # issue most light frames have three markers or fewer (unverified, too_few).
     pytest.param("lights", 0, 45, 30.0, 0.0, marks=pytest.mark.slow),
     pytest.param("lights", 1, 45, 30.0, 0.0, marks=pytest.mark.slow),
+    # Frames 27-28 of this seed have all four lights off: their positions are
+    # predictions 5 px off, which four "observations" cannot expose (chi-square
+    # passed, pose 6 cm off). Such a frame is unverified, never solved.
+    pytest.param("lights", 3, 30, 30.0, 0.0, marks=pytest.mark.slow),
 ])
 def test_no_solved_frame_is_far_off(kind, seed, n, fps, min_solved, tmp_path):
     """Rendered rooms with posters and clutter: every frame called solved is

@@ -28,9 +28,14 @@ class Detection:
     # Tag corners (4, 2) in OpenCV's corner order, when the detector has them.
     corners: np.ndarray | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    #: The position is carried over from earlier images (a blinking light that
+    #: is off now), not measured in this one: it cannot verify a pose.
+    predicted: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"uv": [float(self.uv[0]), float(self.uv[1])], "score": float(self.score)}
+        if self.predicted:
+            d["predicted"] = True
         if self.corners is not None:
             d["corners"] = np.asarray(self.corners, float).tolist()
         if self.info:
@@ -55,6 +60,11 @@ class DetectionResult:
         uv = np.array([d.uv for d in dets], dtype=float).reshape(-1, 2)
         return ObservationSet([observer] * len(dets), [d.marker for d in dets], uv, time,
                               [float(d.score) for d in dets])
+
+    @property
+    def predicted(self) -> list[str]:
+        """The markers whose positions are predicted from earlier images, not measured in this one."""
+        return [n for n, d in self.detections.items() if d.predicted]
 
     def pixels(self) -> dict[str, tuple[float, float]]:
         """``{marker: (u, v)}``: one observer's entry of the SPEC's observations dict."""

@@ -281,6 +281,14 @@ def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, pixel_sigma: f
             return
         row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
         row.status = _status_of(row.estimate)
+        predicted = {m for d in (row.detections or {}).values() for m in d.predicted}
+        n_measured = sum(m not in predicted for m in row.estimate.markers_used)
+        if row.status == FrameStatus.SOLVED and n_measured < 4:
+            # A light that is off is where it was predicted to be, not where it
+            # was seen: its residual cannot expose a wrong pose.
+            row.status = FrameStatus.UNVERIFIED
+            row.reason = (f"only {n_measured} of the {len(row.estimate.markers_used)} markers used were measured "
+                          "in this frame (the others are lights that are off, at their predicted positions)")
         if row.estimate.rejected:
             row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
                                                 for r in row.estimate.rejected)

@@ -119,7 +119,7 @@ class IdentityStage:
                 res.missing.append(name)
                 continue
             res.detections[name] = Detection(
-                marker=name, uv=uv, score=tr.score,
+                marker=name, uv=uv, score=tr.score, predicted=not tr.is_on,
                 info={"track": tr.id, "on": bool(tr.is_on), "confidence": float(tr.conf),
                       "blink_hz": float(self.freqs[j]),
                       "frames_since_on": int(self._frame - tr.last_on_frame)},
