@@ -190,6 +190,10 @@ def parse_scale(spec: Any) -> list[tuple[str, str, float]]:
                 raise InputError(f"scale {it!r}: expected A:B=D (two markers of one robot and their distance in "
                                  "metres)")
             a, b, d = m.group(1), m.group(2), m.group(3)
+            try:
+                d = float(d)
+            except ValueError:
+                raise InputError(f"scale {it!r}: distance {d!r} is not a number (metres)") from None
         elif isinstance(it, (tuple, list)) and len(it) == 3:
             a, b, d = it
         else:
@@ -397,7 +401,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         v = Z @ np.linalg.eigh(0.5 * (Z.T @ adj.information @ Z + (Z.T @ adj.information @ Z).T))[1][:, 0]
         raise UnobservableMarkersError(
             f"the log cannot determine the markers: {_describe(v, names, marker_robot)} changes no pixel "
-            f"({frames_used} usable frames{motion.note}). {motion.advice}")
+            f"({frames_used} usable frames{motion.note}). {_advice(v, motion)}")
     w, V = np.linalg.eigh(cov)
     w = np.clip(w, 0.0, None)[::-1]
     V = V[:, ::-1]
@@ -406,14 +410,14 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         raise UnobservableMarkersError(
             f"the log cannot determine the markers: {_describe(V[:, 0], names, marker_robot)} is known only to "
             f"{sig[0] * 1000:.0f} mm (1 sigma at {pixel_sigma:g} px; {frames_used} usable frames{motion.note}). "
-            f"{motion.advice}")
+            f"{_advice(V[:, 0], motion)}")
     free = sig[: 3 * len(names) - len(constraints)]
     med = float(np.median(free)) if len(free) else 0.0
     weak = []
     for i in range(len(free)):
         if sig[i] > WEAK_RATIO * med and sig[i] > WEAK_MIN_M:
             v = V[:, i]
-            weak.append(WeakDirection(float(sig[i]), _describe(v, names, marker_robot), motion.advice,
+            weak.append(WeakDirection(float(sig[i]), _describe(v, names, marker_robot), _advice(v, motion),
                                       {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}))
 
     sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None)).reshape(-1, 3)
@@ -424,6 +428,9 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         spec = new_rig["robots"][m.robot]["markers"][n]
         spec["position"] = m.new.tolist()
         spec["position_sigma"] = m.sigma.tolist()
+    for n in unobserved:
+        # A sigma from an earlier calibration no longer describes this rig's position.
+        new_rig["robots"][rig.owner(n)]["markers"][n].pop("position_sigma", None)
     gate = chi2_quantile(confidence, 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
     e2 = np.sum(adj.residuals**2, axis=1)
     outliers = [{"frame": row_info[i][0], "observer": row_info[i][1], "marker": row_info[i][2],
@@ -488,6 +495,22 @@ def _describe(v: np.ndarray, names: Sequence[str], marker_robot: Sequence[str]) 
 class _Motion:
     note: str
     advice: str
+    specific: bool = True
+
+
+_ROLL_ADVICE = ("The robots hardly roll relative to each other: roll one robot about its optical axis during the "
+                "recording (or tilt it), or add a third robot that sees both")
+_TURN_ADVICE = ("The robots hardly turn relative to each other: turn one robot in place further (yaw) while it faces "
+                "the other, record from more distances, or add a third robot that sees both")
+
+
+def _advice(v: np.ndarray, motion: _Motion) -> str:
+    """The motion that would determine direction ``v``: the log's own
+    shortcoming when it has an obvious one, else by the axis ``v`` moves along."""
+    if motion.specific:
+        return motion.advice
+    shift = np.abs(np.asarray(v, float).reshape(-1, 3)).sum(axis=0)
+    return _ROLL_ADVICE if int(np.argmax(shift)) == 1 else _TURN_ADVICE
 
 
 def _motion_summary(groups: list[_Group], adj: Any, order: list[str]) -> _Motion:
@@ -525,5 +548,6 @@ def _motion_summary(groups: list[_Group], adj: Any, order: list[str]) -> _Motion
             axis = Vt[0] * np.sign(Vt[0][np.argmax(np.abs(Vt[0]))])
             k = int(np.argmax(np.abs(axis)))
             member = pair[0][1].members[0]
-            return _Motion(f"; the relative rotations all turn about one axis, {member}'s {'xyz'[k]}", general)
-    return _Motion("", general)
+            return _Motion(f"; the relative rotations all turn about one axis, {member}'s {'xyz'[k]}", general,
+                           specific=k == 1)
+    return _Motion("", general, specific=False)
