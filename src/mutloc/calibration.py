@@ -44,7 +44,7 @@ MAX_SIGMA_M = 0.5
 WEAK_RATIO = 4.0
 WEAK_MIN_M = 0.003
 # Frames this close in relative pose count as one pose (degree, metre).
-SAME_POSE_DEG = 1.0
+SAME_POSE_DEG = 3.0
 SAME_POSE_M = 0.01
 
 _AXIS_WORDS = (("moving {r}'s markers right (+x)", "moving {r}'s markers left (-x)"),
@@ -364,25 +364,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
                                                "distance cannot hold the scale")
     constraints = tuple((mindex[a], mindex[b], d) for a, b, d in constraints_named)
 
-    n_slots = max(1, max(len(g.members) for g in groups))
-    G = len(groups)
-    slot_used = np.zeros((G, n_slots), dtype=bool)
-    R0 = np.broadcast_to(np.eye(3), (G, n_slots, 3, 3)).copy()
-    t0 = np.zeros((G, n_slots, 3))
-    for gi, grp in enumerate(groups):
-        for s, r in enumerate(grp.members):
-            slot_used[gi, s] = True
-            R0[gi, s] = grp.poses[r].R
-            t0[gi, s] = grp.poses[r].t
-    arr = np.array([(r[0], r[1], r[2], r[3]) for r in rows], dtype=np.int64).reshape(-1, 4)
-    problem = BundleProblem(
-        group=np.ascontiguousarray(arr[:, 0]), observer_slot=np.ascontiguousarray(arr[:, 1]),
-        owner_slot=np.ascontiguousarray(arr[:, 2]), camera=np.ascontiguousarray(arr[:, 3]),
-        marker=np.array([mindex[r[4]] for r in rows], dtype=np.int64),
-        uv=np.array([(r[5], r[6]) for r in rows], dtype=float).reshape(-1, 2),
-        K=np.ascontiguousarray(np.stack([rig.robots[r].camera.K for r in order])),
-        dist=np.ascontiguousarray(np.stack([rig.robots[r].camera.dist for r in order])),
-        slot_used=slot_used, n_markers=len(names), constraints=constraints)
+    problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints)
     old = np.array([rig.marker(n).position for n in names])
     frames_used = len({g.frame for g in groups})
     if problem.dof < 0:
@@ -392,6 +374,20 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             f"{3 * len(names) - len(constraints)} marker unknowns; record more frames while the robots move "
             "(different distances, turning in place while facing each other, rolling)")
     adj = adjust(problem, old, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
+    # Observations failing their own chi-square test are reported and left
+    # out: the Huber loss bounds their pull but does not remove it.
+    gate = chi2_quantile(confidence, 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
+    e2 = np.sum(adj.residuals**2, axis=1)
+    outliers = [{"frame": row_info[i][0], "observer": row_info[i][1], "marker": row_info[i][2],
+                 "residual_px": float(np.sqrt(e2[i]))} for i in np.flatnonzero(e2 > gate)]
+    if outliers:
+        for gi, grp in enumerate(groups):
+            for s_, r in enumerate(grp.members):
+                grp.poses[r] = Pose(adj.R[gi, s_].copy(), adj.t[gi, s_].copy())
+        groups, rows = _without(groups, rows, e2 <= gate)
+        problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints)
+        adj = adjust(problem, adj.markers, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
+        e2 = np.sum(adj.residuals**2, axis=1)
     c, C = constraint_jacobian(adj.markers, constraints)
     cov, eig = adj.marker_covariance(C, pixel_sigma)
     marker_robot = [rig.owner(n) for n in names]
@@ -431,11 +427,6 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     for n in unobserved:
         # A sigma from an earlier calibration no longer describes this rig's position.
         new_rig["robots"][rig.owner(n)]["markers"][n].pop("position_sigma", None)
-    gate = chi2_quantile(confidence, 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
-    e2 = np.sum(adj.residuals**2, axis=1)
-    outliers = [{"frame": row_info[i][0], "observer": row_info[i][1], "marker": row_info[i][2],
-                 "residual_px": float(np.sqrt(e2[i]))} for i in np.flatnonzero(e2 > gate)]
-    inl = e2 <= gate
     poses = []
     for gi, grp in enumerate(groups):
         poses.append({"frame": grp.frame, "reference": grp.anchor,
@@ -443,9 +434,48 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     return CalibrationResult(
         rig=new_rig, markers=markers, weak_directions=weak, scale=list(constraints_named), pixel_sigma=pixel_sigma,
         covariance=cov, covariance_markers=names, frames_total=len(frames), frames_used=frames_used,
-        observations_used=len(rows), reprojection_rms_px=float(np.sqrt(np.mean(e2[inl]))) if inl.any() else math.nan,
+        observations_used=len(rows), reprojection_rms_px=float(np.sqrt(np.mean(e2))),
         chi2=adj.chi2, dof=problem.dof, iterations=adj.iterations, converged=adj.converged, outliers=outliers,
         unobserved=unobserved, skipped_frames=skipped, poses=poses)
+
+
+def _problem(rig: Rig, order: list[str], groups: list[_Group], rows: list[tuple], mindex: dict[str, int],
+             constraints: tuple) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
+    """The adjustment's problem and its start (the groups' poses)."""
+    n_slots = max(1, max(len(g.members) for g in groups))
+    G = len(groups)
+    slot_used = np.zeros((G, n_slots), dtype=bool)
+    R0 = np.broadcast_to(np.eye(3), (G, n_slots, 3, 3)).copy()
+    t0 = np.zeros((G, n_slots, 3))
+    for gi, grp in enumerate(groups):
+        for s, r in enumerate(grp.members):
+            slot_used[gi, s] = True
+            R0[gi, s] = grp.poses[r].R
+            t0[gi, s] = grp.poses[r].t
+    arr = np.array([(r[0], r[1], r[2], r[3]) for r in rows], dtype=np.int64).reshape(-1, 4)
+    problem = BundleProblem(
+        group=np.ascontiguousarray(arr[:, 0]), observer_slot=np.ascontiguousarray(arr[:, 1]),
+        owner_slot=np.ascontiguousarray(arr[:, 2]), camera=np.ascontiguousarray(arr[:, 3]),
+        marker=np.array([mindex[r[4]] for r in rows], dtype=np.int64),
+        uv=np.array([(r[5], r[6]) for r in rows], dtype=float).reshape(-1, 2),
+        K=np.ascontiguousarray(np.stack([rig.robots[r].camera.K for r in order])),
+        dist=np.ascontiguousarray(np.stack([rig.robots[r].camera.dist for r in order])),
+        slot_used=slot_used, n_markers=len(mindex), constraints=constraints)
+    return problem, R0, t0
+
+
+def _without(groups: list[_Group], rows: list[tuple], keep: np.ndarray) -> tuple[list[_Group], list[tuple]]:
+    """The groups and rows left when only rows ``keep`` are used; a group in
+    which a robot keeps fewer than three observations is dropped whole."""
+    count: dict[tuple[int, int], int] = {}
+    for r, k in zip(rows, keep):
+        if k:
+            for s_ in (r[1], r[2]):
+                count[(r[0], s_)] = count.get((r[0], s_), 0) + 1
+    ok = [all(count.get((gi, s_), 0) >= 3 for s_ in range(-1, len(g.members))) for gi, g in enumerate(groups)]
+    renum = {gi: k for k, gi in enumerate(gi for gi in range(len(groups)) if ok[gi])}
+    new_rows = [(renum[r[0]],) + tuple(r[1:]) for r, k in zip(rows, keep) if k and ok[r[0]]]
+    return [g for gi, g in enumerate(groups) if ok[gi]], new_rows
 
 
 def _default_scale(rig: Rig, order: list[str], observed: set[str]) -> tuple[str, str, float]:
@@ -539,7 +569,7 @@ def _motion_summary(groups: list[_Group], adj: Any, order: list[str]) -> _Motion
     axes = []
     for R in dR:
         w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-        if np.linalg.norm(w) > 1e-6:
+        if np.linalg.norm(w) > 2 * math.sin(math.radians(SAME_POSE_DEG)):
             axes.append(w / np.linalg.norm(w))
     if axes:
         A = np.array(axes)

@@ -23,7 +23,7 @@ from ..core.pose import Pose
 from .synthetic import USUAL_MARKERS, facing_pose, looking_pose
 
 __all__ = ["ball_rig", "perturb_rig", "CalibrationSequence", "pair_sequence", "team_sequence", "true_positions",
-           "robots_of", "held_out_errors", "ROBOT_NAMES"]
+           "robots_of", "held_out_errors", "observe", "pair_frames", "ROBOT_NAMES"]
 
 #: Robot names of the synthetic rigs, in order (SPEC's example: p, q).
 ROBOT_NAMES = ("p", "q", "r", "s", "u", "v")
@@ -78,7 +78,7 @@ class CalibrationSequence:
     truth: list[dict[str, Pose]]
 
 
-def _observe(rig: dict[str, Any], poses: dict[str, Pose], rng: np.random.Generator, sigma: float,
+def observe(rig: dict[str, Any], poses: dict[str, Pose], rng: np.random.Generator, sigma: float,
              time: float) -> ObservationSet | None:
     """Every marker each robot sees (pixels + noise); None if one is out of view."""
     obs, mk, uv = [], [], []
@@ -126,7 +126,7 @@ def pair_sequence(rig: dict[str, Any], n_frames: int, rng: np.random.Generator, 
         # q rolls about its own optical axis too: x_q' = Rz(-roll_q) x_q.
         T = Pose(so3_exp([rng.uniform(-pitch, pitch), 0.0, rng.uniform(-roll, roll)]), np.zeros(3)) @ T
         poses = {b: Pose.identity(), a: T}
-        ob = _observe(rig, poses, rng, pixel_sigma, len(frames) / fps)
+        ob = observe(rig, poses, rng, pixel_sigma, len(frames) / fps)
         if ob is None:
             continue
         frames.append(ob)
@@ -159,12 +159,27 @@ def team_sequence(rig: dict[str, Any], n_frames: int, rng: np.random.Generator, 
             world[n] = looking_pose(pos, look) @ Pose(so3_exp([0.0, 0.0, rng.uniform(-roll, roll)]), np.zeros(3))
         ref = world[names[0]].inverse()
         poses = {n: ref @ world[n] for n in names}
-        ob = _observe(rig, poses, rng, pixel_sigma, len(frames) / fps)
+        ob = observe(rig, poses, rng, pixel_sigma, len(frames) / fps)
         if ob is None:
             continue
         frames.append(ob)
         truth.append(poses)
     return CalibrationSequence(frames, truth)
+
+
+def pair_frames(rig: dict[str, Any], poses: list[Pose], rng: np.random.Generator, *, pixel_sigma: float = 0.5,
+                fps: float = 10.0) -> list[ObservationSet]:
+    """Frames of two robots (the rig's first two, p and q) at the given
+    poses T_qp (e.g. a degenerate motion); a frame with a marker out of view
+    raises RuntimeError."""
+    a, b = list(rig["robots"])[:2]
+    out = []
+    for k, T in enumerate(poses):
+        ob = observe(rig, {b: Pose.identity(), a: T}, rng, pixel_sigma, k / fps)
+        if ob is None:
+            raise RuntimeError(f"pose {k}: a marker is out of view")
+        out.append(ob)
+    return out
 
 
 def true_positions(rig: dict[str, Any]) -> dict[str, np.ndarray]:
