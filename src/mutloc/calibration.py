@@ -375,8 +375,10 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             "(different distances, turning in place while facing each other, rolling)")
     adj = adjust(problem, old, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
     # Observations failing their own chi-square test are reported and left
-    # out: the Huber loss bounds their pull but does not remove it.
-    gate = chi2_quantile(confidence, 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
+    # out: the Huber loss bounds their pull but does not remove it.  The test
+    # is at family-wise ``confidence``: a log without a stray detection passes
+    # whole with that probability, however long it is.
+    gate = chi2_quantile(1.0 - (1.0 - confidence) / len(rows), 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
     e2 = np.sum(adj.residuals**2, axis=1)
     outliers = [{"frame": row_info[i][0], "observer": row_info[i][1], "marker": row_info[i][2],
                  "residual_px": float(np.sqrt(e2[i]))} for i in np.flatnonzero(e2 > gate)]

@@ -193,8 +193,9 @@ def robots_of(rig: dict[str, Any]) -> dict[str, str]:
 
 
 def held_out_errors(rig: Any, sequence: CalibrationSequence, source: str, target: str, **options: Any) -> np.ndarray:
-    """Translation errors (m) of ``localize`` with ``rig`` on every frame of a
-    held-out ``sequence`` (T_target_source against the truth); NaN where it fails."""
+    """Errors of ``localize`` with ``rig`` on every frame of a held-out
+    ``sequence`` (T_target_source against the truth): (n, 2) translation (m)
+    and rotation (deg); NaN where it fails."""
     from ..api import localize
     from ..errors import MutlocError
 
@@ -203,8 +204,8 @@ def held_out_errors(rig: Any, sequence: CalibrationSequence, source: str, target
         T = truth[target].inverse() @ truth[source]
         try:
             est = localize(rig, frame, source, target, confidence=1.0, **options)
-            out.append(np.linalg.norm(est.t - T.t))
+            out.append((est.pose.translation_error(T), est.pose.rotation_error_deg(T)))
         except MutlocError:
-            out.append(np.nan)
-    return np.array(out)
+            out.append((np.nan, np.nan))
+    return np.array(out, dtype=float).reshape(-1, 2)
 
