@@ -80,7 +80,7 @@ class MarkerCalibration:
 
 @dataclass
 class WeakDirection:
-    """A weakly determined combination of marker positions: moving every
+    """A combination of marker positions the log determines weakly: moving every
     marker by ``sigma_m * shifts[name]`` changes the pixels as little as one
     standard deviation of noise does.  ``description`` says it in words,
     ``advice`` what motion during the recording would determine it."""
@@ -122,6 +122,7 @@ class CalibrationResult:
     dof: int
     iterations: int
     converged: bool
+    prior_sigma: float | None = None
     outliers: list[dict[str, Any]] = field(default_factory=list)
     unobserved: list[str] = field(default_factory=list)
     skipped_frames: list[dict[str, Any]] = field(default_factory=list)
@@ -134,7 +135,7 @@ class CalibrationResult:
             "markers": {n: m.to_dict() for n, m in self.markers.items()},
             "weak_directions": [w.to_dict() for w in self.weak_directions],
             "scale": [{"markers": [a, b], "distance_m": d} for a, b, d in self.scale],
-            "pixel_sigma": self.pixel_sigma,
+            "pixel_sigma": self.pixel_sigma, "prior_sigma": self.prior_sigma,
             "frames_total": self.frames_total, "frames_used": self.frames_used,
             "observations_used": self.observations_used, "reprojection_rms_px": self.reprojection_rms_px,
             "chi2": self.chi2, "dof": self.dof, "iterations": self.iterations, "converged": self.converged,
@@ -155,12 +156,14 @@ class CalibrationResult:
         lines.append(f"{self.frames_used} of {self.frames_total} frames, {self.observations_used} observations, "
                      f"reprojection RMS {self.reprojection_rms_px:.2f} px; scale held by "
                      + ", ".join(f"|{a}-{b}| = {d:g} m" for a, b, d in self.scale)
-                     + f"; sigmas for {self.pixel_sigma:g} px noise")
+                     + f"; sigmas for {self.pixel_sigma:g} px noise"
+                     + ("" if self.prior_sigma is None else f" and the given positions good to {self.prior_sigma:g} m"))
         if self.outliers:
             lines.append(f"{len(self.outliers)} observations down-weighted as outliers (largest "
                          f"{max(o['residual_px'] for o in self.outliers):.1f} px)")
         for w in self.weak_directions:
-            lines.append(f"weakly determined ({w.sigma_m * mm:.1f} mm, 1 sigma): {w.description}. {w.advice}")
+            lines.append(f"weakly determined by the log ({w.sigma_m * mm:.1f} mm, 1 sigma): {w.description}. "
+                         f"{w.advice}")
         if not self.weak_directions:
             lines.append("every marker coordinate is well determined")
         return "\n".join(lines)
@@ -278,8 +281,8 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
 
 
 def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sigma: float = 1.0, *,
-                      confidence: float = DEFAULT_CONFIDENCE, huber: float = HUBER_K,
-                      max_iter: int = 100) -> CalibrationResult:
+                      prior_sigma: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
+                      huber: float = HUBER_K, max_iter: int = 100) -> CalibrationResult:
     """Re-estimate every observed marker's position from a sequence of mutual
     observations (SPEC "Marker calibration").
 
@@ -293,12 +296,20 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     are reported as outliers (a Huber loss at ``huber`` sigma keeps them from
     pulling the fit).  Raises UnobservableMarkersError when the sequence
     cannot determine the markers.
+
+    ``prior_sigma`` (metres, 1 sigma per axis; default None: the log alone)
+    says how well the given positions were measured: they then count as a
+    measurement, and the combinations the log determines only weakly stay
+    near them instead of drifting (``position_sigma`` includes it; the weak
+    directions and the refusal are judged on the log alone).
     """
     from .api import load_rig
 
     rig = load_rig(rig)
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
     huber = positive_number(huber, "huber")
+    if prior_sigma is not None:
+        prior_sigma = positive_number(prior_sigma, "prior_sigma")
     order = list(rig.robots)
     frames = _read_frames(log_or_frames)
     constraints_named = parse_scale(scale)
@@ -364,8 +375,9 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
                                                "distance cannot hold the scale")
     constraints = tuple((mindex[a], mindex[b], d) for a, b, d in constraints_named)
 
-    problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints)
     old = np.array([rig.marker(n).position for n in names])
+    prior = (old, (pixel_sigma / prior_sigma) ** 2) if prior_sigma is not None else (None, 0.0)
+    problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints, prior)
     frames_used = len({g.frame for g in groups})
     if problem.dof < 0:
         raise UnobservableMarkersError(
@@ -387,16 +399,18 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             for s_, r in enumerate(grp.members):
                 grp.poses[r] = Pose(adj.R[gi, s_].copy(), adj.t[gi, s_].copy())
         groups, rows = _without(groups, rows, e2 <= gate)
-        problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints)
+        problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints, prior)
         adj = adjust(problem, adj.markers, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
         e2 = np.sum(adj.residuals**2, axis=1)
     c, C = constraint_jacobian(adj.markers, constraints)
-    cov, eig = adj.marker_covariance(C, pixel_sigma)
+    cov_post, _ = adj.marker_covariance(C, pixel_sigma)
+    cov, eig = adj.marker_covariance(C, pixel_sigma, data_only=True)
     marker_robot = [rig.owner(n) for n in names]
     motion = _motion_summary(groups, adj, order)
     if not np.all(np.isfinite(eig)) or eig[0] <= SINGULAR_RATIO * eig[-1]:
         Z = null_space(C, 3 * len(names))
-        v = Z @ np.linalg.eigh(0.5 * (Z.T @ adj.information @ Z + (Z.T @ adj.information @ Z).T))[1][:, 0]
+        S = adj.information - adj.prior_weight * np.eye(3 * len(names))
+        v = Z @ np.linalg.eigh(0.5 * (Z.T @ S @ Z + (Z.T @ S @ Z).T))[1][:, 0]
         raise UnobservableMarkersError(
             f"the log cannot determine the markers: {_describe(v, names, marker_robot)} changes no pixel "
             f"({frames_used} usable frames{motion.note}). {_advice(v, motion)}")
@@ -418,7 +432,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             weak.append(WeakDirection(float(sig[i]), _describe(v, names, marker_robot), _advice(v, motion),
                                       {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}))
 
-    sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None)).reshape(-1, 3)
+    sigma = np.sqrt(np.clip(np.diag(cov_post), 0.0, None)).reshape(-1, 3)
     markers = {n: MarkerCalibration(n, marker_robot[j], old[j], adj.markers[j].copy(), sigma[j])
                for j, n in enumerate(names)}
     new_rig = rig.to_dict()
@@ -435,14 +449,14 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
                       "poses": {r: Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy()) for s, r in enumerate(grp.members)}})
     return CalibrationResult(
         rig=new_rig, markers=markers, weak_directions=weak, scale=list(constraints_named), pixel_sigma=pixel_sigma,
-        covariance=cov, covariance_markers=names, frames_total=len(frames), frames_used=frames_used,
+        covariance=cov_post, covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames), frames_used=frames_used,
         observations_used=len(rows), reprojection_rms_px=float(np.sqrt(np.mean(e2))),
         chi2=adj.chi2, dof=problem.dof, iterations=adj.iterations, converged=adj.converged, outliers=outliers,
         unobserved=unobserved, skipped_frames=skipped, poses=poses)
 
 
 def _problem(rig: Rig, order: list[str], groups: list[_Group], rows: list[tuple], mindex: dict[str, int],
-             constraints: tuple) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
+             constraints: tuple, prior: tuple) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
     """The adjustment's problem and its start (the groups' poses)."""
     n_slots = max(1, max(len(g.members) for g in groups))
     G = len(groups)
@@ -462,7 +476,7 @@ def _problem(rig: Rig, order: list[str], groups: list[_Group], rows: list[tuple]
         uv=np.array([(r[5], r[6]) for r in rows], dtype=float).reshape(-1, 2),
         K=np.ascontiguousarray(np.stack([rig.robots[r].camera.K for r in order])),
         dist=np.ascontiguousarray(np.stack([rig.robots[r].camera.dist for r in order])),
-        slot_used=slot_used, n_markers=len(mindex), constraints=constraints)
+        slot_used=slot_used, n_markers=len(mindex), constraints=constraints, prior=prior[0], prior_weight=prior[1])
     return problem, R0, t0
 
 

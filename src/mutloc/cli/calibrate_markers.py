@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import NOISE, RIG
+from ._common import NOISE, RIG, positive_float
 
 ORDER = 45
 
@@ -26,6 +26,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--scale", action="append", metavar="A:B=D", default=None,
                    help="hold markers A and B (of one robot) D metres apart (repeatable); default: the two "
                         "markers farthest apart on the rig's first robot, at their given distance")
+    p.add_argument("--prior-sigma", type=positive_float, metavar="M",
+                   help="how well the rig's positions were measured (metres, 1 sigma per axis): they then count as "
+                        "a measurement and hold what the log determines only weakly (default: the log alone)")
     p.add_argument("--out", required=True, metavar="NEW_RIG", help="the calibrated rig (YAML, or JSON if .json)")
     p.add_argument("--report", metavar="FILE", help="also write the full result (JSON) here")
     return p
@@ -37,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io import load_rig, save_rig, write_json
 
     result = calibrate_markers(load_rig(args.rig), args.observations, scale=args.scale,
-                               pixel_sigma=args.pixel_sigma, confidence=args.confidence)
+                               pixel_sigma=args.pixel_sigma, prior_sigma=args.prior_sigma,
+                               confidence=args.confidence)
     save_rig(result.rig, args.out)
     if args.report:
         write_json(result.to_dict(), args.report)

@@ -57,6 +57,9 @@ class BundleProblem:
     positions), ``uv[k]`` the observed raw pixel.  ``slot_used`` (groups,
     slots) says which slots hold a robot.  ``constraints`` are ``(i, j, D)``:
     markers ``i`` and ``j`` (of one robot) held ``D`` metres apart.
+    ``prior`` (M, 3), when given, adds ``prior_weight * |m - prior|^2``
+    (pixels^2) to the cost: the given positions as a measurement
+    (``prior_weight = (pixel_sigma / prior_sigma)^2``).
     """
 
     group: np.ndarray
@@ -70,6 +73,8 @@ class BundleProblem:
     slot_used: np.ndarray
     n_markers: int
     constraints: tuple[tuple[int, int, float], ...]
+    prior: np.ndarray | None = None
+    prior_weight: float = 0.0
 
     @property
     def n_groups(self) -> int:
@@ -112,11 +117,18 @@ class Adjustment:
     iterations: int
     converged: bool
 
-    def marker_covariance(self, constraints_jacobian: np.ndarray, pixel_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    prior_weight: float = 0.0
+
+    def marker_covariance(self, constraints_jacobian: np.ndarray, pixel_sigma: float,
+                          data_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(covariance (3M, 3M) of the markers with the constraints held,
-        eigenvalues of the constrained information ``Z^T S Z``, ascending)."""
-        Z = null_space(constraints_jacobian, self.information.shape[0])
-        N = Z.T @ self.information @ Z
+        eigenvalues of the constrained information ``Z^T S Z``, ascending);
+        ``data_only``: without the prior (what the observations alone say)."""
+        S = self.information
+        if data_only and self.prior_weight > 0:
+            S = S - self.prior_weight * np.eye(S.shape[0])
+        Z = null_space(constraints_jacobian, S.shape[0])
+        N = Z.T @ S @ Z
         N = 0.5 * (N + N.T)
         w, V = np.linalg.eigh(N)
         if w[0] <= 0.0:
@@ -306,6 +318,12 @@ def _apply_step(R, t, M, used, dg, dm, Rn, tn, Mn):
 # ---------------------------------------------------------------------------
 
 
+def _prior_cost(p: BundleProblem, M: np.ndarray) -> float:
+    if p.prior is None or p.prior_weight <= 0:
+        return 0.0
+    return float(p.prior_weight * np.sum((M - p.prior) ** 2))
+
+
 class _System:
     """Buffers of the normal equations, reused across iterations."""
 
@@ -331,11 +349,16 @@ class _System:
                        sigma, huber, True, self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm, self.res, self.wts)
         ii = np.arange(self.Hgg.shape[1])
         self.Hgg[:, ii, ii] += self.pad
-        return c
+        if p.prior is not None and p.prior_weight > 0:
+            jm = np.arange(self.Hmm.shape[0])
+            self.Hmm[jm, jm] += p.prior_weight
+            self.gm += p.prior_weight * (M - p.prior).ravel()
+        return c + _prior_cost(p, M)
 
     def cost(self, p: BundleProblem, M, R, t, sigma: float, huber: float, res, wts) -> float:
-        return _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, M, R, t,
-                          sigma, huber, False, self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm, res, wts)
+        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, M, R, t,
+                       sigma, huber, False, self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm, res, wts)
+        return c + _prior_cost(p, M)
 
     def reduce(self, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(damped reduced marker matrix, its right-hand side, the groups'
@@ -432,4 +455,5 @@ def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.
     S0, _, _ = sys.reduce(0.0)
     res = sys.res.copy()
     return Adjustment(markers=M, R=R, t=t, information=S0, residuals=res, weights=sys.wts.copy(), cost=float(cost),
-                      chi2=float(np.sum(res * res)) / pixel_sigma**2, iterations=it, converged=converged)
+                      chi2=float(np.sum(res * res)) / pixel_sigma**2, iterations=it, converged=converged,
+                      prior_weight=p.prior_weight if p.prior is not None else 0.0)
