@@ -395,3 +395,19 @@ def test_cli_bad_scale_is_one_line_error(log_files, capsys):
     assert code == 2
     assert err.startswith("mutloc: error:") and err.count("\n") == 1 and "M7" in err
     assert not (d / "x.yaml").exists()
+
+
+def test_experiment_writes_results_report_and_plots(tmp_path):
+    from mutloc.experiments import run_calibration
+
+    res = run_calibration(tmp_path, seed=1, progress=False, frames=(40,), sigmas=(0.5,), seeds=1, held_out=5,
+                          team_frames=40)
+    out = tmp_path / "calibration"
+    data = json.loads((out / "results.json").read_text())
+    assert data["experiment"] == "calibration" and data["seed"] == 1
+    for rig in ("measured", "calibrated", "calibrated_prior", "true"):
+        assert data["methods"][rig]["median_translation_m"] >= 0
+    assert data["by_frames"]["40"]["distance_rms_mm"] == pytest.approx(res["by_frames"]["40"]["distance_rms_mm"])
+    assert set(data["team"]) == {"team", "roll45"}
+    assert (out / "error_vs_frames.png").stat().st_size > 0 and (out / "error_vs_sigma.png").stat().st_size > 0
+    assert "Marker self-calibration" in (out / "report.md").read_text()
