@@ -411,3 +411,17 @@ def test_experiment_writes_results_report_and_plots(tmp_path):
     assert set(data["team"]) == {"team", "roll45"}
     assert (out / "error_vs_frames.png").stat().st_size > 0 and (out / "error_vs_sigma.png").stat().st_size > 0
     assert "Marker self-calibration" in (out / "report.md").read_text()
+
+
+def test_cli_degenerate_log_is_one_line_error(tmp_path, capsys):
+    rng = np.random.default_rng(6)
+    truth = ball_rig(2)
+    frames = pair_frames(truth, [facing_pose(2.0, 0.1, -0.1, 0.05)] * 30, rng, pixel_sigma=SIGMA)
+    write_observation_log(tmp_path / "log.jsonl", frames)
+    (tmp_path / "rig.json").write_text(json.dumps(perturb_rig(truth, rng)))
+    code = main(["calibrate-markers", "--rig", str(tmp_path / "rig.json"), "--observations",
+                 str(tmp_path / "log.jsonl"), "--out", str(tmp_path / "new.yaml")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "cannot determine the markers" in err and "same relative pose" in err
+    assert not (tmp_path / "new.yaml").exists()
