@@ -113,9 +113,11 @@ def test_two_robots_distances_and_held_out_localize():
     """40 varied frames (1-3.5 m, yaw +-30 deg, roll +-15 deg), 0.5 px: the
     distances between markers of one robot within 2 mm RMS of the truth, and
     localize on held-out frames at least 1.5x more accurate in translation
-    with the calibrated rig than with the measured one (pooled over seeds)."""
+    with the calibrated rig than with the measured one (RMS pooled over 15
+    seeds: the log alone leaves centimetre-level weak combinations, so single
+    seeds vary from 0.2x to 6x)."""
     dist_err, old_err, new_err = [], [], []
-    for seed in range(6):
+    for seed in range(15):
         rng, truth, measured, res = _calibrated_pair(seed)
         tp, own = true_positions(truth), robots_of(truth)
         names = list(res.markers)
