@@ -427,3 +427,37 @@ def test_cli_degenerate_log_is_one_line_error(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1
     assert "cannot determine the markers" in err and "same relative pose" in err
     assert not (tmp_path / "new.yaml").exists()
+
+
+def test_bearings_never_fix_the_scale():
+    """Holding the distance at twice the value doubles every marker and every
+    sigma and leaves the fit's pixels unchanged: the scale is the held
+    distance's alone."""
+    rng = np.random.default_rng(8)
+    truth = ball_rig(2)
+    measured = perturb_rig(truth, rng)
+    frames = pair_sequence(truth, 30, rng, pixel_sigma=SIGMA).frames
+    a = calibrate_markers(measured, frames, scale="M3:M4=0.3", pixel_sigma=SIGMA)
+    b = calibrate_markers(measured, frames, scale="M3:M4=0.6", pixel_sigma=SIGMA)
+    for n in a.markers:
+        np.testing.assert_allclose(b.markers[n].new, 2 * a.markers[n].new, atol=1e-7)
+        np.testing.assert_allclose(b.markers[n].sigma, 2 * a.markers[n].sigma, rtol=1e-4)
+    assert b.reprojection_rms_px == pytest.approx(a.reprojection_rms_px, rel=1e-6)
+
+
+def test_cli_calibrates_a_team_log(tmp_path, capsys):
+    rng = np.random.default_rng(12)
+    truth = ball_rig(3, f=800.0, size=(1920, 1080))
+    measured = perturb_rig(truth, rng)
+    write_observation_log(tmp_path / "team.jsonl",
+                          team_sequence(truth, 60, rng, pixel_sigma=SIGMA, radius=(0.8, 1.5)).frames)
+    (tmp_path / "rig.json").write_text(json.dumps(measured))
+    code = main(["calibrate-markers", "--rig", str(tmp_path / "rig.json"), "--observations",
+                 str(tmp_path / "team.jsonl"), "--scale", "M3:M4=0.3", "--pixel-sigma", "0.5",
+                 "--out", str(tmp_path / "new.json")])
+    assert code == 0
+    assert "M5" in capsys.readouterr().out
+    rig = mutloc.load_rig(tmp_path / "new.json")
+    tp = true_positions(truth)
+    err = [np.linalg.norm(rig.marker(n).position - tp[n]) for n in tp]
+    assert np.sqrt(np.mean(np.square(err))) < 0.005
