@@ -16,7 +16,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -25,8 +25,7 @@ from .core.consistency import DEFAULT_CONFIDENCE, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
-from .errors import InputError, MutlocError, ObservationError, UnknownMarkerError, UnobservableMarkersError, \
-    positive_number
+from .errors import InputError, MutlocError, UnknownMarkerError, UnobservableMarkersError, positive_number
 
 __all__ = ["calibrate_markers", "CalibrationResult", "MarkerCalibration", "WeakDirection", "parse_scale"]
 
@@ -288,14 +287,15 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
 
     ``log_or_frames``: an observation log's path (JSON Lines) or a sequence
     of frames (ObservationSets or the SPEC's observation dicts), any number
-    of robots.  ``scale``: distances held fixed (``"A:B=D"`` strings or
-    ``(A, B, D)``; markers A and B of one robot); default the two markers of
-    the rig's first robot farthest apart, at their given distance.
-    ``pixel_sigma`` is the detection noise behind ``position_sigma``;
-    observations whose residual fails the chi-square test at ``confidence``
-    are reported as outliers (a Huber loss at ``huber`` sigma keeps them from
-    pulling the fit).  Raises UnobservableMarkersError when the sequence
-    cannot determine the markers.
+    of robots; markers of unknown identity are not used.  ``scale``:
+    distances held fixed (``"A:B=D"`` strings or ``(A, B, D)``; markers A
+    and B of one robot); default the two markers of the rig's first robot
+    farthest apart, at their given distance.  ``pixel_sigma`` is the
+    detection noise behind ``position_sigma``; observations whose residual
+    fails the chi-square test (family-wise at ``confidence`` over the log)
+    are reported as outliers and left out of a second fit (a Huber loss at
+    ``huber`` sigma bounds their pull in the first).  Raises
+    UnobservableMarkersError when the sequence cannot determine the markers.
 
     ``prior_sigma`` (metres, 1 sigma per axis; default None: the log alone)
     says how well the given positions were measured: they then count as a
@@ -312,8 +312,57 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         prior_sigma = positive_number(prior_sigma, "prior_sigma")
     order = list(rig.robots)
     frames = _read_frames(log_or_frames)
-    constraints_named = parse_scale(scale)
-    for a, b, _ in constraints_named:
+    named = _check_scale(rig, parse_scale(scale))
+    data = _collect(rig, frames, order, pixel_sigma)
+
+    # Unknowns: the observed markers, in rig order.
+    observed = {r[4] for r in data.rows}
+    names = [n for r in order for n in rig.robots[r].markers if n in observed]
+    unobserved = [n for r in order for n in rig.robots[r].markers if n not in observed]
+    mindex = {n: i for i, n in enumerate(names)}
+    named = named or [_default_scale(rig, order, observed)]
+    for a, b, _ in named:
+        for n in (a, b):
+            if n not in mindex:
+                raise UnobservableMarkersError(f"scale {a}:{b}: marker {n!r} is never observed in the log, so its "
+                                               "distance cannot hold the scale")
+    constraints = tuple((mindex[a], mindex[b], d) for a, b, d in named)
+    old = np.array([rig.marker(n).position for n in names])
+    prior = (old, (pixel_sigma / prior_sigma) ** 2) if prior_sigma is not None else (None, 0.0)
+    fit = _fit(rig, order, data, mindex, constraints, prior, old, pixel_sigma, huber, max_iter, confidence)
+    adj, groups = fit.adjustment, fit.groups
+
+    _, C = constraint_jacobian(adj.markers, constraints)
+    cov_post, _ = adj.marker_covariance(C, pixel_sigma)
+    marker_robot = [rig.owner(n) for n in names]
+    weak = _weak_directions(adj, C, names, marker_robot, _motion_summary(groups, adj, order), pixel_sigma,
+                            fit.frames_used)
+    sigma = np.sqrt(np.clip(np.diag(cov_post), 0.0, None)).reshape(-1, 3)
+    markers = {n: MarkerCalibration(n, marker_robot[j], old[j], adj.markers[j].copy(), sigma[j])
+               for j, n in enumerate(names)}
+    new_rig = rig.to_dict()
+    for n, m in markers.items():
+        spec = new_rig["robots"][m.robot]["markers"][n]
+        spec["position"] = m.new.tolist()
+        spec["position_sigma"] = m.sigma.tolist()
+    for n in unobserved:
+        # A sigma from an earlier calibration no longer describes this rig's position.
+        new_rig["robots"][rig.owner(n)]["markers"][n].pop("position_sigma", None)
+    poses = [{"frame": g.frame, "reference": g.anchor,
+              "poses": {r: Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy()) for s, r in enumerate(g.members)}}
+             for gi, g in enumerate(groups)]
+    return CalibrationResult(
+        rig=new_rig, markers=markers, weak_directions=weak, scale=list(named), pixel_sigma=pixel_sigma,
+        covariance=cov_post, covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames),
+        frames_used=fit.frames_used, observations_used=len(fit.rows),
+        reprojection_rms_px=float(np.sqrt(np.mean(np.sum(adj.residuals**2, axis=1)))), chi2=adj.chi2,
+        dof=fit.dof, iterations=adj.iterations, converged=adj.converged, outliers=fit.outliers,
+        unobserved=unobserved, skipped_frames=data.skipped, poses=poses)
+
+
+def _check_scale(rig: Rig, named: list[tuple[str, str, float]]) -> list[tuple[str, str, float]]:
+    """The held distances, each between two known markers of one robot."""
+    for a, b, _ in named:
         for n in (a, b):
             try:
                 rig.owner(n)
@@ -326,12 +375,20 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
                              "a held distance is between two markers of one robot")
         if a == b:
             raise InputError(f"scale {a}:{b}: a marker's distance to itself")
+    return named
 
-    # Every frame on its own: groups, initial poses, observation rows.
-    groups: list[_Group] = []
-    rows: list[tuple[int, int, int, int, str, float, float]] = []  # group, oslot, wslot, camera, marker, u, v
-    row_info: list[tuple[int, str, str]] = []
-    skipped: list[dict[str, Any]] = []
+
+@dataclass
+class _Collected:
+    groups: list[_Group]
+    rows: list[tuple]                     # group, observer slot, owner slot, camera, marker, u, v
+    row_info: list[tuple[int, str, str]]  # frame, observer, marker
+    skipped: list[dict[str, Any]]
+
+
+def _collect(rig: Rig, frames: list[ObservationSet], order: list[str], pixel_sigma: float) -> _Collected:
+    """Every frame on its own: its groups with their initial poses, and the observation rows."""
+    out = _Collected([], [], [], [])
     for k, frame in enumerate(frames):
         obs = frame.best()
         if any(m is None for m in obs.marker):
@@ -343,70 +400,77 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             raise type(exc)(f"{where}: {exc}") from None
         fg, why = _frame_groups(rig, obs, k, order, pixel_sigma)
         if not fg:
-            skipped.append({"frame": k, "reason": why})
+            out.skipped.append({"frame": k, "reason": why})
             continue
         for grp in fg:
-            gi = len(groups)
-            groups.append(grp)
+            gi = len(out.groups)
+            out.groups.append(grp)
             slot = {r: i for i, r in enumerate(grp.members)}
             slot[grp.anchor] = -1
             for o, m, (u, v) in zip(obs.observer, obs.marker, obs.uv.tolist()):
                 w = rig.owner(m)
                 if o in slot and w in slot:
-                    rows.append((gi, slot[o], slot[w], order.index(o), m, u, v))
-                    row_info.append((k, o, m))
-    if not groups:
+                    out.rows.append((gi, slot[o], slot[w], order.index(o), m, u, v))
+                    out.row_info.append((k, o, m))
+    if not out.groups:
         raise UnobservableMarkersError(
             f"no frame of the {len(frames)} could be localized with the given rig"
-            + (f" (frame 0: {skipped[0]['reason']})" if skipped else "")
+            + (f" (frame 0: {out.skipped[0]['reason']})" if out.skipped else "")
             + ": the log needs frames where two robots see at least four of each other's markers")
+    return out
 
-    # Unknowns: the observed markers, in rig order.
-    observed = {r[4] for r in rows}
-    names = [n for r in order for n in rig.robots[r].markers if n in observed]
-    unobserved = [n for r in order for n in rig.robots[r].markers if n not in observed]
-    mindex = {n: i for i, n in enumerate(names)}
-    if not constraints_named:
-        constraints_named = [_default_scale(rig, order, observed)]
-    for a, b, _ in constraints_named:
-        for n in (a, b):
-            if n not in mindex:
-                raise UnobservableMarkersError(f"scale {a}:{b}: marker {n!r} is never observed in the log, so its "
-                                               "distance cannot hold the scale")
-    constraints = tuple((mindex[a], mindex[b], d) for a, b, d in constraints_named)
 
-    old = np.array([rig.marker(n).position for n in names])
-    prior = (old, (pixel_sigma / prior_sigma) ** 2) if prior_sigma is not None else (None, 0.0)
+@dataclass
+class _Fit:
+    adjustment: Any
+    groups: list[_Group]
+    rows: list[tuple]
+    outliers: list[dict[str, Any]]
+    frames_used: int
+    dof: int
+
+
+def _fit(rig: Rig, order: list[str], data: _Collected, mindex: dict[str, int], constraints: tuple, prior: tuple,
+         start: np.ndarray, pixel_sigma: float, huber: float, max_iter: int, confidence: float) -> _Fit:
+    """The bundle adjustment; observations failing their own chi-square test
+    are reported and left out of a second fit (the Huber loss bounds their
+    pull but does not remove it).  The test is family-wise at
+    ``confidence``: a log without a stray detection passes whole with that
+    probability, however long it is."""
+    groups, rows = data.groups, data.rows
     problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints, prior)
     frames_used = len({g.frame for g in groups})
     if problem.dof < 0:
         raise UnobservableMarkersError(
             f"too few frames: {frames_used} usable frame{'s' if frames_used != 1 else ''} give "
             f"{2 * len(rows)} measurements for {problem.n_pose_parameters} pose and "
-            f"{3 * len(names) - len(constraints)} marker unknowns; record more frames while the robots move "
+            f"{3 * len(mindex) - len(constraints)} marker unknowns; record more frames while the robots move "
             "(different distances, turning in place while facing each other, rolling)")
-    adj = adjust(problem, old, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
-    # Observations failing their own chi-square test are reported and left
-    # out: the Huber loss bounds their pull but does not remove it.  The test
-    # is at family-wise ``confidence``: a log without a stray detection passes
-    # whole with that probability, however long it is.
+    adj = adjust(problem, start, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
     gate = chi2_quantile(1.0 - (1.0 - confidence) / len(rows), 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
     e2 = np.sum(adj.residuals**2, axis=1)
-    outliers = [{"frame": row_info[i][0], "observer": row_info[i][1], "marker": row_info[i][2],
+    info = data.row_info
+    outliers = [{"frame": info[i][0], "observer": info[i][1], "marker": info[i][2],
                  "residual_px": float(np.sqrt(e2[i]))} for i in np.flatnonzero(e2 > gate)]
     if outliers:
         for gi, grp in enumerate(groups):
-            for s_, r in enumerate(grp.members):
-                grp.poses[r] = Pose(adj.R[gi, s_].copy(), adj.t[gi, s_].copy())
+            for s, r in enumerate(grp.members):
+                grp.poses[r] = Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy())
         groups, rows = _without(groups, rows, e2 <= gate)
+        if not groups:
+            raise UnobservableMarkersError("no frame is left once the observations that fail their chi-square test "
+                                           f"at {pixel_sigma:g} px are set aside: is --pixel-sigma right?")
         problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints, prior)
+        frames_used = len({g.frame for g in groups})
         adj = adjust(problem, adj.markers, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
-        e2 = np.sum(adj.residuals**2, axis=1)
-    c, C = constraint_jacobian(adj.markers, constraints)
-    cov_post, _ = adj.marker_covariance(C, pixel_sigma)
+    return _Fit(adj, groups, rows, outliers, frames_used, problem.dof)
+
+
+def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: list[str], motion: "_Motion",
+                     pixel_sigma: float, frames_used: int) -> list[WeakDirection]:
+    """The combinations the log alone determines weakly, weakest first;
+    UnobservableMarkersError when one is not determined at all."""
     cov, eig = adj.marker_covariance(C, pixel_sigma, data_only=True)
-    marker_robot = [rig.owner(n) for n in names]
-    motion = _motion_summary(groups, adj, order)
     if not np.all(np.isfinite(eig)) or eig[0] <= SINGULAR_RATIO * eig[-1]:
         Z = null_space(C, 3 * len(names))
         S = adj.information - adj.prior_weight * np.eye(3 * len(names))
@@ -423,7 +487,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             f"the log cannot determine the markers: {_describe(V[:, 0], names, marker_robot)} is known only to "
             f"{sig[0] * 1000:.0f} mm (1 sigma at {pixel_sigma:g} px; {frames_used} usable frames{motion.note}). "
             f"{_advice(V[:, 0], motion)}")
-    free = sig[: 3 * len(names) - len(constraints)]
+    free = sig[: 3 * len(names) - C.shape[0]]
     med = float(np.median(free)) if len(free) else 0.0
     weak = []
     for i in range(len(free)):
@@ -431,28 +495,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             v = V[:, i]
             weak.append(WeakDirection(float(sig[i]), _describe(v, names, marker_robot), _advice(v, motion),
                                       {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}))
-
-    sigma = np.sqrt(np.clip(np.diag(cov_post), 0.0, None)).reshape(-1, 3)
-    markers = {n: MarkerCalibration(n, marker_robot[j], old[j], adj.markers[j].copy(), sigma[j])
-               for j, n in enumerate(names)}
-    new_rig = rig.to_dict()
-    for n, m in markers.items():
-        spec = new_rig["robots"][m.robot]["markers"][n]
-        spec["position"] = m.new.tolist()
-        spec["position_sigma"] = m.sigma.tolist()
-    for n in unobserved:
-        # A sigma from an earlier calibration no longer describes this rig's position.
-        new_rig["robots"][rig.owner(n)]["markers"][n].pop("position_sigma", None)
-    poses = []
-    for gi, grp in enumerate(groups):
-        poses.append({"frame": grp.frame, "reference": grp.anchor,
-                      "poses": {r: Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy()) for s, r in enumerate(grp.members)}})
-    return CalibrationResult(
-        rig=new_rig, markers=markers, weak_directions=weak, scale=list(constraints_named), pixel_sigma=pixel_sigma,
-        covariance=cov_post, covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames), frames_used=frames_used,
-        observations_used=len(rows), reprojection_rms_px=float(np.sqrt(np.mean(e2))),
-        chi2=adj.chi2, dof=problem.dof, iterations=adj.iterations, converged=adj.converged, outliers=outliers,
-        unobserved=unobserved, skipped_frames=skipped, poses=poses)
+    return weak
 
 
 def _problem(rig: Rig, order: list[str], groups: list[_Group], rows: list[tuple], mindex: dict[str, int],

@@ -33,7 +33,7 @@ from ..errors import InputError
 from .camera import project_jac_kernel, project_kernel
 from .refine import so3_exp_left
 
-__all__ = ["BundleProblem", "Adjustment", "adjust", "constraint_jacobian", "HUBER_K"]
+__all__ = ["BundleProblem", "Adjustment", "adjust", "constraint_jacobian", "null_space", "HUBER_K"]
 
 #: Huber threshold, in units of the pixel sigma: an observation whose residual
 #: is longer than this counts linearly (a Gaussian 2-D residual exceeds 3.5
@@ -148,7 +148,8 @@ def null_space(C: np.ndarray, n: int) -> np.ndarray:
     return Vt[rank:].T
 
 
-def constraint_jacobian(markers: np.ndarray, constraints: tuple[tuple[int, int, float], ...]) -> tuple[np.ndarray, np.ndarray]:
+def constraint_jacobian(markers: np.ndarray,
+                        constraints: tuple[tuple[int, int, float], ...]) -> tuple[np.ndarray, np.ndarray]:
     """Values ``|m_i - m_j| - D`` (nc,) and their Jacobian (nc, 3M)."""
     M = markers.shape[0]
     c = np.zeros(len(constraints))
