@@ -91,9 +91,12 @@ def test_normal_equations_match_finite_differences():
     np.testing.assert_allclose(system.gm, g[G * P:], rtol=1e-5, atol=1e-5 * np.abs(g).max())
 
 
-def test_noise_free_sequence_recovers_the_true_markers_exactly():
+@pytest.mark.parametrize("dist", [None, [-0.25, 0.08, 1e-3, -1e-3, 0.0]], ids=["pinhole", "distorted"])
+def test_noise_free_sequence_recovers_the_true_markers_exactly(dist):
+    """Exact pixels (through the camera's distortion when it has one): the
+    true markers come back from markers moved 1-2 cm."""
     rng = np.random.default_rng(3)
-    truth = ball_rig(2)
+    truth = ball_rig(2, dist=dist)
     measured = perturb_rig(truth, rng)
     seq = pair_sequence(truth, 30, rng, pixel_sigma=0.0)
     res = calibrate_markers(measured, seq.frames, scale=SCALE, pixel_sigma=SIGMA)

@@ -33,12 +33,14 @@ MAX_TRIES = 2000
 
 
 def ball_rig(n_robots: int = 2, *, markers_per_robot: int = 2, f: float = 800.0,
-             size: tuple[int, int] = (960, 540)) -> dict[str, Any]:
+             size: tuple[int, int] = (960, 540), dist: list[float] | None = None) -> dict[str, Any]:
     """A rig in rig-file form: ``n_robots`` robots, each with balls beside and
     below its camera (the usual mounting; a third marker sits above it).
-    Markers are named M1, M2 on q, M3, M4 on p (the SPEC's example), then on."""
+    Markers are named M1, M2 on q, M3, M4 on p (the SPEC's example), then on;
+    ``dist``: OpenCV distortion of every camera."""
     w, h = size
-    cam = {"K": [[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]], "dist": [], "size": [w, h]}
+    cam = {"K": [[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]], "dist": list(dist or []),
+           "size": [w, h]}
     layout = np.vstack([USUAL_MARKERS, [[0.0, -0.22, -0.05]], [[0.0, 0.12, -0.04]]])[:markers_per_robot]
     robots: dict[str, Any] = {}
     order = list(ROBOT_NAMES[:n_robots])
