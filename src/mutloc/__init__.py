@@ -20,8 +20,10 @@ __version__ = "0.1.0"
 
 # public name -> module that defines it
 _EXPORTS = {
+    "CalibrationResult": "calibration",
     "Camera": "core.camera",
     "Estimate": "api",
+    "calibrate_markers": "calibration",
     "FrameStatus": "track.status",
     "Marker": "core.rig",
     "MarkerKind": "core.rig",

@@ -66,6 +66,12 @@ class UnverifiedError(GeometryError):
         self.estimate = estimate
 
 
+class UnobservableMarkersError(GeometryError):
+    """An observation log cannot determine the markers' positions (one pose
+    repeated, pure translation along the line of sight, too few frames); the
+    message names what is undetermined and the motion that would fix it."""
+
+
 class NoSolutionError(GeometryError):
     """No pose explains the observations (e.g. every solution puts a marker
     behind a camera)."""
@@ -82,6 +88,7 @@ __all__ = [
     "GeometryError",
     "DegenerateGeometryError",
     "NoSolutionError",
+    "UnobservableMarkersError",
     "InconsistentObservationsError",
     "UnverifiedError",
     "positive_number",

@@ -7,7 +7,7 @@ results; :func:`run_all` runs them all and writes ``out_dir/report.md``.
 
 from __future__ import annotations
 
-__all__ = ["run_noise", "run_localization", "run_reconstruction", "run_all", "EXPERIMENTS"]
+__all__ = ["run_noise", "run_localization", "run_reconstruction", "run_calibration", "run_all", "EXPERIMENTS"]
 
 EXPERIMENTS = ("noise", "localization", "reconstruction")
 
@@ -29,6 +29,13 @@ def run_localization(*args, **kwargs):
 def run_reconstruction(*args, **kwargs):
     """See :func:`mutloc.experiments.reconstruction.run_reconstruction`."""
     from .reconstruction import run_reconstruction as _run
+
+    return _run(*args, **kwargs)
+
+
+def run_calibration(*args, **kwargs):
+    """See :func:`mutloc.experiments.calibration.run_calibration` (not part of ``all``: not the paper's)."""
+    from .calibration import run_calibration as _run
 
     return _run(*args, **kwargs)
 
