@@ -33,6 +33,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="largest time difference of a pair of frames (default 0.005 s)")
     p.add_argument("--out", required=True, metavar="DIR", help="writes DIR/trajectory.tum and DIR/trajectory.csv")
     p.add_argument("--annotate", metavar="VIDEO", help="also write a side-by-side annotated video (mp4)")
+    p.add_argument("--bag", metavar="DIR", help="also write the poses with covariance as a ROS 2 bag (a new folder): "
+                   "geometry_msgs/PoseWithCovarianceStamped on /mutloc/SOURCE_in_TARGET and tf2_msgs/TFMessage on /tf")
+    p.add_argument("--mcap", metavar="FILE", help="the same messages as an MCAP file")
+    f = p.add_argument_group("filter (SPEC \"Filtered tracking\")")
+    f.add_argument("--filter", choices=("cv", "none"), default="cv",
+                   help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
+                        "markers (even one or two); none: every frame on its own")
+    f.add_argument("--linear-noise", type=positive_float, default=0.5, metavar="A",
+                   help="white-noise acceleration of the relative translation, m/s^2/sqrt(Hz) (default 0.5)")
+    f.add_argument("--angular-noise", type=positive_float, default=0.2, metavar="A",
+                   help="white-noise angular acceleration, rad/s^2/sqrt(Hz) (default 0.2)")
     return p
 
 
@@ -41,16 +52,24 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..io import load_rig
-    from ..io.logs import read_observation_log
+    from ..core.filter import MotionNoise
+    from ..errors import FileFormatError
+    from ..io.logs import iter_observation_log
+    from ..track.filtering import FilterOptions
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.tracker import track, track_log
 
+    for path in (args.bag, args.mcap):
+        if path and Path(path).expanduser().exists():
+            raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
     rig = load_rig(args.rig)
     out = Path(args.out)
+    options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise))
     if args.observations:
-        traj = track_log(rig, read_observation_log(args.observations), args.source, args.target,
-                         pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress)
-        _write(traj, out)
+        traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
+                         pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
+                         filter=options)
+        _write(traj, out, args)
         return 0
     paths = robot_map(args.stream, "--stream")
     for robot in paths:
@@ -61,12 +80,17 @@ def run(args: argparse.Namespace) -> int:
         rig = rig_with_bag_cameras(rig, paths, infos)
     traj = track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
                  tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence, fps=args.fps,
-                 annotate=args.annotate, observations_out=args.observations_out, progress=args.progress)
-    _write(traj, out)
+                 annotate=args.annotate, observations_out=args.observations_out, progress=args.progress,
+                 filter=options)
+    _write(traj, out, args)
     return 0
 
 
-def _write(traj, out) -> None:
+def _write(traj, out, args) -> None:
     traj.write_tum(out / "trajectory.tum")
     traj.write_csv(out / "trajectory.csv")
-    print(f"{traj.summary()}; wrote {out / 'trajectory.tum'} and {out / 'trajectory.csv'}")
+    wrote = [str(out / "trajectory.tum"), str(out / "trajectory.csv")]
+    if args.bag or args.mcap:
+        traj.write_ros(bag=args.bag, mcap=args.mcap)
+        wrote += [p for p in (args.bag, args.mcap) if p]
+    print(f"{traj.summary()}; wrote {', '.join(wrote)}")

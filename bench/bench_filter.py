@@ -1,0 +1,147 @@
+#!/usr/bin/env python
+"""Filtered tracking: cost of one filter step per frame for a pair, next to
+``mutloc.localize`` on the same frames in the same run, and the accuracy
+figures of the README's "Filtered tracking" section.
+
+    python bench/bench_filter.py [--seeds 6] [--repeat 5]
+
+Frames: the synthetic sequence of tests/test_filter.py (10 s at 30 fps,
+2 px noise, 20% of frames missing a marker, two blind seconds, 2% outliers;
+mutloc.sim.tracking).  Timings (one core, wall clock, best of ``--repeat``):
+
+- ``kernel``: ConstantVelocityFilter.predict + update on frames with four
+  markers (what the 100 us target is about);
+- ``tracker``: PairTracker.step on every frame (observations -> row,
+  including the Estimate it reports);
+- ``localize``: mutloc.localize on the frames with four markers.
+
+Writes bench/filter_results.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import machine  # noqa: E402
+
+import mutloc  # noqa: E402
+import mutloc.errors  # noqa: E402
+from mutloc.core.filter import ConstantVelocityFilter, MotionNoise  # noqa: E402
+from mutloc.core.geometry import so3_log  # noqa: E402
+from mutloc.sim.render import default_path  # noqa: E402
+from mutloc.sim.tracking import observation_sequence  # noqa: E402
+from mutloc.sim.world import standard_rig  # noqa: E402
+from mutloc.track.filtering import FilterOptions, PairTracker  # noqa: E402
+from mutloc.track.status import FrameStatus  # noqa: E402
+from mutloc.track.tracker import TrackRow, track_log  # noqa: E402
+
+SIGMA = 2.0
+NOISE = MotionNoise(angular=0.1, linear=0.3)
+
+
+def _best(fn, repeat: int) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def timings(rig, seq, repeat: int) -> dict:
+    full = [(t, f) for t, f in zip(seq.times, seq.frames) if len(f) == 4 and not seq.outlier[list(seq.times).index(t)]]
+    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
+    problems = []
+    for t, f in full:
+        problems.append((t, tracker.problem(f.pair(rig, "p", "q"))))
+    T0 = seq.truth[0]
+    cov0 = np.diag([1e-3] * 3 + [1e-2] * 3) ** 2
+
+    def run_kernel():
+        flt = ConstantVelocityFilter(NOISE, SIGMA)
+        flt.reset(problems[0][0] - 1 / 30, T0, cov0)
+        for t, prob in problems:
+            flt.predict(t)
+            flt.update(prob)
+
+    def run_tracker():
+        tr = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
+        for t, f in zip(seq.times, seq.frames):
+            tr.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
+
+    def run_localize():
+        for _, f in full:
+            try:
+                mutloc.localize(rig, f, "p", "q", pixel_sigma=SIGMA)
+            except mutloc.errors.InconsistentObservationsError:
+                pass  # 1% of good frames fail the 99% test: same work done
+
+    run_kernel(), run_tracker(), run_localize()  # compile
+    k = _best(run_kernel, repeat) / len(problems)
+    tr = _best(run_tracker, repeat) / len(seq.frames)
+    lo = _best(run_localize, repeat) / len(full)
+    return {"frames_with_4_markers": len(full), "filter_predict_update_us": 1e6 * k,
+            "tracker_step_us": 1e6 * tr, "localize_us": 1e6 * lo, "filter_over_localize": k / lo}
+
+
+def accuracy(rig, seeds: int) -> dict:
+    out = {"per_frame_median_m": [], "filtered_median_m": [], "ratio_same_frames": [], "blind_median_m": [],
+           "normalised_error_mean_square": [], "nees_over_6": [], "outliers": 0, "outliers_rejected_or_dropped": 0}
+    for seed in range(seeds):
+        seq = observation_sequence(rig, default_path(2.0, 12.0, 0.3), pixel_sigma=SIGMA, seed=seed)
+        frames = list(zip(seq.times, seq.frames))
+        trajs = {k: track_log(rig, frames, pixel_sigma=SIGMA, progress=False, filter=FilterOptions(k, NOISE))
+                 for k in ("none", "cv")}
+        err = {k: np.array([r.estimate.pose.translation_error(T) if r.estimate else np.nan
+                            for r, T in zip(tr.rows, seq.truth)]) for k, tr in trajs.items()}
+        same = ~np.isnan(err["none"])
+        blind = np.array([b != "" for b in seq.blind])
+        z, nees = [], []
+        for r, T in zip(trajs["cv"].rows, seq.truth):
+            if r.estimate is None or r.status == "unverified":
+                continue
+            e = np.r_[so3_log(T.R @ r.estimate.R.T), T.t - r.estimate.t]
+            z.append(e / np.sqrt(np.diag(r.estimate.covariance)))
+            nees.append(e @ np.linalg.solve(r.estimate.covariance, e) / 6)
+        for i in np.flatnonzero(seq.outlier):
+            row = trajs["cv"].rows[i]
+            out["outliers"] += 1
+            out["outliers_rejected_or_dropped"] += int(row.status == "rejected" or "dropped" in row.reason)
+        out["per_frame_median_m"].append(float(np.nanmedian(err["none"])))
+        out["filtered_median_m"].append(float(np.nanmedian(err["cv"])))
+        out["ratio_same_frames"].append(float(np.median(err["cv"][same]) / np.median(err["none"][same])))
+        out["blind_median_m"].append(float(np.nanmedian(err["cv"][blind])))
+        out["normalised_error_mean_square"].append(float(np.mean(np.array(z) ** 2)))
+        out["nees_over_6"].append(float(np.mean(nees)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--out", default=str(Path(__file__).with_name("filter_results.json")))
+    args = ap.parse_args(argv)
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, default_path(2.0, 12.0, 0.3), pixel_sigma=SIGMA, seed=0)
+    res = {"machine": machine(), "timing": timings(rig, seq, args.repeat), "accuracy": accuracy(rig, args.seeds)}
+    t = res["timing"]
+    print(f"filter predict+update (4 markers): {t['filter_predict_update_us']:.1f} us/frame; "
+          f"tracker step: {t['tracker_step_us']:.1f} us/frame; localize: {t['localize_us']:.1f} us/frame; "
+          f"ratio filter/localize {t['filter_over_localize']:.2f}")
+    a = res["accuracy"]
+    for k, v in a.items():
+        print(f"{k}: {np.round(v, 4).tolist() if isinstance(v, list) else v}")
+    Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
