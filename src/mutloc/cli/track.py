@@ -36,6 +36,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--bag", metavar="DIR", help="also write the poses with covariance as a ROS 2 bag (a new folder): "
                    "geometry_msgs/PoseWithCovarianceStamped on /mutloc/SOURCE_in_TARGET and tf2_msgs/TFMessage on /tf")
     p.add_argument("--mcap", metavar="FILE", help="the same messages as an MCAP file")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording: images with detections, the "
+                   "robots' frames with covariance ellipsoids, the trajectory (open with: rerun FILE.rrd)")
     f = p.add_argument_group("filter (SPEC \"Filtered tracking\")")
     f.add_argument("--filter", choices=("cv", "none"), default="cv",
                    help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
@@ -68,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     if args.observations:
         traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
                          pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
-                         filter=options)
+                         filter=options, rerun=args.rerun)
         _write(traj, out, args)
         return 0
     paths = robot_map(args.stream, "--stream")
@@ -81,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     traj = track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
                  tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence, fps=args.fps,
                  annotate=args.annotate, observations_out=args.observations_out, progress=args.progress,
-                 filter=options)
+                 filter=options, rerun=args.rerun)
     _write(traj, out, args)
     return 0
 

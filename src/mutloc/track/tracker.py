@@ -197,8 +197,12 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
           tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
           fps: float | None = None, annotate: str | Path | None = None,
           observations_out: str | Path | None = None, progress: bool = True, total: int | None = None,
-          filter: str | FilterOptions = "cv") -> Trajectory:
+          filter: str | FilterOptions = "cv", rerun: str | Path | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``).
+
+    ``rerun`` writes a Rerun recording (``.rrd``: images with detections,
+    the robots' frames with covariance ellipsoids, the trajectory; see
+    :mod:`mutloc.io.rrd`).
 
     ``filter``: ``"cv"`` (default; the constant-velocity filter of SPEC
     "Filtered tracking"), ``"none"`` (every frame on its own) or
@@ -217,6 +221,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             target: _Detector(rig, target, source, rate or DEFAULT_FPS)}
     writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
     log = ObservationLogWriter(observations_out) if observations_out else None
+    viz = _rerun_writer(rerun, source, target)
     rows: list[TrackRow] = []
     checked = False
     pairs = pair_streams(iter(streams[source]), iter(streams[target]), tolerance)
@@ -244,6 +249,11 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                     log.write(row.t, row.observations)
                 tracker.step(row)
             rows.append(row)
+            if viz is not None:
+                images = {r: (f.image, row.detections[r].detections) for r, f in ((source, fs), (target, ft))
+                          if f is not None and f.image is not None and r in row.detections}
+                _rerun_row(viz, row, {r: (img, {n: d.uv for n, d in dets.items()})
+                                      for r, (img, dets) in images.items()})
             if writer is not None and fs is not None and ft is not None and fs.image is not None \
                     and ft.image is not None:
                 writer.write(fs.image, ft.image, row, source, target)
@@ -253,15 +263,18 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             writer.close()
         if log is not None:
             log.close()
+        if viz is not None:
+            viz.close()
     return Trajectory(source, target, rows, rate)
 
 
 def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, ObservationSet]], source: str | None = None,
               target: str | None = None, *, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
-              progress: bool = True, total: int | None = None, filter: str | FilterOptions = "cv") -> Trajectory:
+              progress: bool = True, total: int | None = None, filter: str | FilterOptions = "cv",
+              rerun: str | Path | None = None) -> Trajectory:
     """Track over an observation log: ``frames`` are ``(time, ObservationSet)``
     as :func:`mutloc.io.logs.iter_observation_log` yields them (or
-    ObservationSets stamped with their time); ``filter`` as :func:`track`."""
+    ObservationSets stamped with their time); ``filter`` and ``rerun`` as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
     source, target = rig.default_pair(source, target)
     tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
@@ -276,7 +289,27 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
         row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
         tracker.step(row)
         rows.append(row)
+    if rerun is not None:
+        with _rerun_writer(rerun, source, target) as viz:
+            for row in rows:
+                _rerun_row(viz, row)
     return Trajectory(source, target, rows, None)
+
+
+def _rerun_writer(path: str | Path | None, source: str, target: str) -> Any:
+    if path is None:
+        return None
+    try:
+        from ..io.rrd import RerunWriter
+    except ImportError:
+        raise InputError("--rerun needs the Rerun SDK: pip install rerun-sdk") from None
+    return RerunWriter(path, source, target)
+
+
+def _rerun_row(viz: Any, row: TrackRow, images: Mapping[str, Any] | None = None) -> None:
+    e = row.estimate
+    viz.frame(row.t, str(row.status), row.reason, None if e is None else e.pose, None if e is None else e.covariance,
+              images)
 
 
 def _options(filter: str | FilterOptions) -> FilterOptions:
