@@ -38,6 +38,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--mcap", metavar="FILE", help="the same messages as an MCAP file")
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording: images with detections, the "
                    "robots' frames with covariance ellipsoids, the trajectory (open with: rerun FILE.rrd)")
+    p.add_argument("--frames", choices=("camera", "base"), default="camera",
+                   help="poses between the cameras' optical frames (default) or between the robots' base frames "
+                        "(the rig's base_from_camera of both robots)")
     f = p.add_argument_group("filter (SPEC \"Filtered tracking\")")
     f.add_argument("--filter", choices=("cv", "none"), default="cv",
                    help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
@@ -55,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io import load_rig
     from ..core.filter import MotionNoise
-    from ..errors import FileFormatError
+    from ..errors import FileFormatError, RigError
     from ..io.logs import iter_observation_log
     from ..track.filtering import FilterOptions
     from ..track.sources import open_streams, rig_with_bag_cameras
@@ -66,12 +69,16 @@ def run(args: argparse.Namespace) -> int:
             raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
     rig = load_rig(args.rig)
     out = Path(args.out)
+    if args.frames == "base":
+        for robot in rig.default_pair(args.source, args.target):
+            if rig.robot(robot).base_from_camera is None:
+                raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
     options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise))
     if args.observations:
         traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
                          pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
                          filter=options, rerun=args.rerun)
-        _write(traj, out, args)
+        _write(traj, out, args, rig)
         return 0
     paths = robot_map(args.stream, "--stream")
     for robot in paths:
@@ -84,11 +91,13 @@ def run(args: argparse.Namespace) -> int:
                  tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence, fps=args.fps,
                  annotate=args.annotate, observations_out=args.observations_out, progress=args.progress,
                  filter=options, rerun=args.rerun)
-    _write(traj, out, args)
+    _write(traj, out, args, rig)
     return 0
 
 
-def _write(traj, out, args) -> None:
+def _write(traj, out, args, rig) -> None:
+    if args.frames == "base":
+        traj = traj.in_base_frames(rig)
     traj.write_tum(out / "trajectory.tum")
     traj.write_csv(out / "trajectory.csv")
     wrote = [str(out / "trajectory.tum"), str(out / "trajectory.csv")]

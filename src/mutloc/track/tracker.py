@@ -8,7 +8,7 @@ happens later in the files.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
@@ -18,7 +18,7 @@ from tqdm import tqdm
 from ..api import Estimate, load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
-from ..core.pose import Pose
+from ..core.pose import Pose, sandwich_covariance
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import InputError
@@ -59,6 +59,7 @@ class Trajectory:
     target: str
     rows: list[TrackRow]
     fps: float | None = None
+    frames: str = "camera"  # "camera": optical frames (SPEC); "base": the robots' base frames
 
     @property
     def solved(self) -> list[TrackRow]:
@@ -88,7 +89,30 @@ class Trajectory:
     def write_tum(self, path: str | Path) -> None:
         """TUM format: ``timestamp tx ty tz qx qy qz qw`` of the rows with a pose."""
         write_tum(path, self.times, self.poses,
-                  comment=f"mutloc: pose of {self.source} in {self.target}'s camera frame (T_qp)")
+                  comment=f"mutloc: pose of {self.source} in {self.target}'s {self.frames} frame (T_qp)")
+
+    def in_base_frames(self, rig: Any) -> "Trajectory":
+        """The same track between the robots' base frames (``base_from_camera``
+        in the rig): ``T = B_q @ T_qp @ inv(B_p)`` with its covariance; the
+        robots are then named ``NAME_base``."""
+        rig = load_rig(rig)
+        B = {}
+        for r in (self.source, self.target):
+            B[r] = rig.robot(r).base_from_camera
+            if B[r] is None:
+                raise InputError(f"base frames asked for, but robot {r!r} has no base_from_camera in the rig")
+        A, C = B[self.target], B[self.source].inverse()
+        src, tgt = f"{self.source}_base", f"{self.target}_base"
+        rows = []
+        for row in self.rows:
+            new = replace(row)
+            e = row.estimate
+            if e is not None:
+                new.estimate = replace(e, source=src, target=tgt, pose=A @ e.pose @ C,
+                                       covariance=sandwich_covariance(A, e.pose, C, e.covariance),
+                                       candidates=A @ e.candidates @ C)
+            rows.append(new)
+        return Trajectory(src, tgt, rows, self.fps, frames="base")
 
     @property
     def covariances(self) -> np.ndarray:
