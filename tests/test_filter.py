@@ -334,3 +334,54 @@ def test_cli_tracks_a_log(tmp_path, capsys):
         main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
               "--out", str(out), "--filter", "kalman"])
     assert info.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_the_track_picks_the_candidate_near_the_prediction():
+    """A detector unsure between two blobs (the wrong one scored higher): the
+    filtered track takes the one its prediction expects."""
+    from mutloc.core.observations import ObservationSet
+    from mutloc.track.filtering import PairTracker
+    from mutloc.track.status import FrameStatus
+    from mutloc.track.tracker import TrackRow
+
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=1.0, fps=30.0, pixel_sigma=1.0, seed=2, drop=0.0, blind=(),
+                               outliers=0.0)
+    tracker = PairTracker(rig, "p", "q", pixel_sigma=1.0, options=FilterOptions("cv", NOISE))
+    for k, (t, f) in enumerate(zip(seq.times, seq.frames)):
+        if k == 20:
+            i = f.marker.index("M1")
+            decoy = (f.observer[i], "M1", f.uv[i] + [0.0, -45.0])
+            f = ObservationSet(f.observer + (decoy[0],), f.marker + ("M1",), np.vstack([f.uv, decoy[2]]),
+                               t, np.r_[np.full(len(f), 0.5), 0.9])
+            assert f.has_alternatives
+        row = TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f)
+        tracker.step(row)
+        if k == 20:
+            assert row.status == "solved" and not row.reason
+            assert row.estimate.pose.translation_error(seq.truth[k]) < 0.01
+
+
+def test_rts_smoothing_uses_the_future():
+    """The offline smoother (used to compare with a smoother) is at least as
+    accurate as the filter on a track, and equal to it at the last frame."""
+    from mutloc.core.filter import rts_smooth
+    from mutloc.track.filtering import PairTracker
+    from mutloc.track.status import FrameStatus
+    from mutloc.track.tracker import TrackRow
+
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=3.0, fps=30.0, pixel_sigma=SIGMA, seed=7, blind=(),
+                               outliers=0.0)
+    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
+    tracker.history = []
+    for t, f in zip(seq.times, seq.frames):
+        tracker.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
+    hist = tracker.history
+    assert hist[0] is None and all(h is not None for h in hist[1:])
+    smooth = rts_smooth([h[0] for h in hist[1:]], [h[1] for h in hist[1:]])
+    ef = np.array([h[1].pose.translation_error(T) for h, T in zip(hist[1:], seq.truth[1:])])
+    es = np.array([s.pose.translation_error(T) for s, T in zip(smooth, seq.truth[1:])])
+    assert es[-1] == ef[-1]
+    assert np.median(es) < 0.9 * np.median(ef)
+    assert np.all(np.diag(smooth[10].covariance) <= np.diag(hist[11][1].covariance) + 1e-15)

@@ -41,8 +41,8 @@ from .estimate import PairProblem
 from .pose import Pose
 from .refine import MODE_PIXEL, WS_SIZE, residuals, so3_exp_left
 
-__all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "iekf_update",
-           "STATE_DIM"]
+__all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
+           "iekf_update", "rts_smooth", "STATE_DIM"]
 
 #: Error-state dimension: rotation, translation, angular and linear velocity.
 STATE_DIM = 12
@@ -140,15 +140,12 @@ def _left_jacobian(phi, out):
 
 
 @njit(cache=True)
-def cv_predict(R, t, vel, P, dt, q_ang, q_lin, R_out, t_out, P_out):
-    """Constant-velocity prediction over ``dt`` seconds (``q_ang``, ``q_lin``:
-    acceleration spectral densities); the velocity is unchanged."""
+def cv_transition(vel, dt, F):
+    """The error-state transition (12x12) of the constant-velocity motion over ``dt``."""
     phi = np.empty(3)
     for k in range(3):
         phi[k] = vel[k] * dt
-        t_out[k] = t[k] + vel[3 + k] * dt
-    so3_exp_left(phi, R, R_out)
-    F = np.eye(STATE_DIM)
+    F[:, :] = np.eye(STATE_DIM)
     E = np.empty((3, 3))
     so3_exp_left(phi, np.eye(3), E)
     Jl = np.empty((3, 3))
@@ -158,6 +155,19 @@ def cv_predict(R, t, vel, P, dt, q_ang, q_lin, R_out, t_out, P_out):
             F[i, j] = E[i, j]
             F[i, 6 + j] = Jl[i, j] * dt
         F[3 + i, 9 + i] = dt
+
+
+@njit(cache=True)
+def cv_predict(R, t, vel, P, dt, q_ang, q_lin, R_out, t_out, P_out):
+    """Constant-velocity prediction over ``dt`` seconds (``q_ang``, ``q_lin``:
+    acceleration spectral densities); the velocity is unchanged."""
+    phi = np.empty(3)
+    for k in range(3):
+        phi[k] = vel[k] * dt
+        t_out[k] = t[k] + vel[3 + k] * dt
+    so3_exp_left(phi, R, R_out)
+    F = np.empty((STATE_DIM, STATE_DIM))
+    cv_transition(vel, dt, F)
     FP = F @ P
     P_out[:, :] = FP @ F.T
     # Integrated white-noise acceleration, per axis: q [[dt^3/3, dt^2/2], [dt^2/2, dt]].
@@ -452,3 +462,30 @@ class ConstantVelocityFilter:
     def _rejected(self, prior: FilterState, n: int, reason: str) -> FilterUpdate:
         test = Consistency(math.inf, 2 * n, self.confidence, chi2_quantile(self.confidence, max(2 * n, 1)))
         return FilterUpdate(False, prior, test, np.empty(0, np.int64), np.arange(n), np.full(n, np.inf), reason)
+
+
+def rts_smooth(priors: list[FilterState], posteriors: list[FilterState]) -> list[FilterState]:
+    """Rauch-Tung-Striebel smoothing of one uninterrupted track (offline, for
+    comparison: what a smoother gains over the causal filter).
+
+    ``priors[k]`` is the prediction to frame k (``priors[0]`` unused) and
+    ``posteriors[k]`` the filter's state after frame k (its prediction when
+    the frame was rejected or empty).  Returns the smoothed states.
+    """
+    from .geometry import so3_exp, so3_log
+
+    n = len(posteriors)
+    out: list[FilterState] = [posteriors[-1]] * n
+    F = np.empty((STATE_DIM, STATE_DIM))
+    for k in range(n - 2, -1, -1):
+        post, prior_next, smooth_next = posteriors[k], priors[k + 1], out[k + 1]
+        cv_transition(post.velocity, prior_next.time - post.time, F)
+        G = post.covariance @ F.T @ np.linalg.inv(prior_next.covariance)
+        d = np.r_[so3_log(smooth_next.pose.R @ prior_next.pose.R.T), smooth_next.pose.t - prior_next.pose.t,
+                  smooth_next.velocity - prior_next.velocity]
+        e = G @ d
+        P = post.covariance + G @ (smooth_next.covariance - prior_next.covariance) @ G.T
+        pose = Pose(so3_exp(e[:3]) @ post.pose.R, post.pose.t + e[3:6])
+        out[k] = FilterState(post.time, pose, post.velocity + e[6:], 0.5 * (P + P.T))
+    return out
+

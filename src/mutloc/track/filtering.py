@@ -110,6 +110,10 @@ class PairTracker:
         self.options = options if options is not None else FilterOptions()
         self.filter = ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence)
         self.rejections = 0
+        self._restarted = False
+        #: When a list: per frame, (prediction, state after the frame) while the
+        #: track runs, None where it (re)starts or is lost -- for smoothing studies.
+        self.history: list[tuple[FilterState, FilterState] | None] | None = None
 
     @property
     def filtering(self) -> bool:
@@ -133,9 +137,24 @@ class PairTracker:
                 self.filter.state = None
         if self.filter.state is None:
             self._restart(row, lost)
+            self._record(None)
             return
+        self._restarted = False
         try:
-            pair = row.observations.pair(self.rig, self.source, self.target)
+            self._filtered_step(row, state)
+        finally:
+            self._record(None if self._restarted or self.filter.state is None else (state, self.filter.state))
+
+    def _record(self, entry: tuple[FilterState, FilterState] | None) -> None:
+        if self.history is not None:
+            self.history.append(entry)
+
+    def _filtered_step(self, row: "TrackRow", state: FilterState) -> None:
+        try:
+            obs = row.observations
+            if obs.has_alternatives:
+                obs = self._nearest_candidates(obs, state.pose)
+            pair = obs.pair(self.rig, self.source, self.target)
         except MutlocError as exc:
             row.status = FrameStatus.FAILED
             row.reason = " ".join(str(exc).split())
@@ -183,12 +202,25 @@ class PairTracker:
             est = trial.estimate
             self.filter.reset(row.t, est.pose, est.covariance)
             self.rejections = 0
+            self._restarted = True
             if trial is not row:
                 row.status, row.estimate, row.reason = trial.status, trial.estimate, trial.reason
         if why and (started or keep_failure):
             note = f"track {'restarted' if started else 'lost'}: {why}"
             row.reason = f"{note}; {row.reason}" if row.reason else note
         return started
+
+    def _nearest_candidates(self, obs: Any, pose: Pose) -> Any:
+        """Where a detector handed over several candidates for a marker, the
+        one nearest its predicted pixel (the track decides, not the score)."""
+        best: dict[tuple, tuple[float, int]] = {}
+        for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
+            key = (o, m if m is not None else f"#{i}")
+            one = obs.take(np.array([i])).pair(self.rig, self.source, self.target)
+            err = float(self.filter.residuals(self.problem(one), pose)[0]) if len(one.rows) else 0.0
+            if key not in best or err < best[key][0]:
+                best[key] = (err, i)
+        return obs.take(np.array(sorted(i for _, i in best.values()), dtype=np.int64))
 
     def _lost(self, state: FilterState) -> str:
         d = np.diag(state.covariance)
