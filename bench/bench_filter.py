@@ -56,8 +56,14 @@ def _best(fn, repeat: int) -> float:
     return best
 
 
-def smoothed_errors(rig, seq) -> np.ndarray:
-    """Translation error per frame of the RTS-smoothed track (NaN where the track did not run)."""
+LAGS = (10, 30)  # fixed lags studied, frames (1/3 s and 1 s at 30 fps)
+
+
+def smoothed_errors(rig, seq, lag: int | None = None) -> np.ndarray:
+    """Translation error per frame of the RTS-smoothed track (NaN where the
+    track did not run): over the whole stretch (``lag`` None), or fixed-lag --
+    frame k smoothed with the frames up to k + lag only (the last ``lag``
+    frames of a stretch as far as it goes)."""
     tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
     tracker.history = []
     for t, f in zip(seq.times, seq.frames):
@@ -73,9 +79,15 @@ def smoothed_errors(rig, seq) -> np.ndarray:
         while j < len(hist) and hist[j] is not None:
             j += 1
         # An uninterrupted stretch of filtered frames k..j-1.
-        smooth = rts_smooth([hist[i][0] for i in range(k, j)], [hist[i][1] for i in range(k, j)])
-        for i, s in zip(range(k, j), smooth):
-            err[i] = s.pose.translation_error(seq.truth[i])
+        priors, posts = [hist[i][0] for i in range(k, j)], [hist[i][1] for i in range(k, j)]
+        if lag is None:
+            for i, s in zip(range(k, j), rts_smooth(priors, posts)):
+                err[i] = s.pose.translation_error(seq.truth[i])
+        else:
+            for i in range(k, j):
+                end = min(i - k + lag + 1, j - k)
+                s = rts_smooth(priors[i - k:end], posts[i - k:end])[0]
+                err[i] = s.pose.translation_error(seq.truth[i])
         k = j
     return err
 
@@ -118,7 +130,8 @@ def timings(rig, seq, repeat: int) -> dict:
 
 def accuracy(rig, seeds: int) -> dict:
     out = {"per_frame_median_m": [], "filtered_median_m": [], "ratio_same_frames": [],
-           "smoothed_ratio_same_frames": [], "blind_median_m": [],
+           "smoothed_ratio_same_frames": [], **{f"fixed_lag_{n}_ratio_same_frames": [] for n in LAGS},
+           "blind_median_m": [],
            "normalised_error_mean_square": [], "nees_over_6": [], "outliers": 0, "outliers_rejected_or_dropped": 0}
     for seed in range(seeds):
         seq = observation_sequence(rig, default_path(2.0, 12.0, 0.3), pixel_sigma=SIGMA, seed=seed)
@@ -147,6 +160,10 @@ def accuracy(rig, seeds: int) -> dict:
         es = smoothed_errors(rig, seq)
         ok = same & ~np.isnan(es)
         out["smoothed_ratio_same_frames"].append(float(np.median(es[ok]) / np.median(err["none"][ok])))
+        for n in LAGS:
+            el = smoothed_errors(rig, seq, n)
+            ok = same & ~np.isnan(el)
+            out[f"fixed_lag_{n}_ratio_same_frames"].append(float(np.median(el[ok]) / np.median(err["none"][ok])))
         out["normalised_error_mean_square"].append(float(np.mean(np.array(z) ** 2)))
         out["nees_over_6"].append(float(np.mean(nees)))
     return out
