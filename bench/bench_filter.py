@@ -43,6 +43,7 @@ from mutloc.track.status import FrameStatus  # noqa: E402
 from mutloc.track.tracker import TrackRow, track_log  # noqa: E402
 
 SIGMA = 2.0
+LAGS = (10, 30)  # fixed lags studied (track --smooth-lag), frames: 1/3 s and 1 s at 30 fps
 NOISE = MotionNoise(angular=0.1, linear=0.3)
 
 
@@ -56,21 +57,16 @@ def _best(fn, repeat: int) -> float:
     return best
 
 
-LAGS = (10, 30)  # fixed lags studied, frames (1/3 s and 1 s at 30 fps)
-
-
-def smoothed_errors(rig, seq, lag: int | None = None) -> np.ndarray:
-    """Translation error per frame of the RTS-smoothed track (NaN where the
-    track did not run): over the whole stretch (``lag`` None), or fixed-lag --
-    frame k smoothed with the frames up to k + lag only (the last ``lag``
-    frames of a stretch as far as it goes)."""
+def smoothed_errors(rig, seq) -> np.ndarray:
+    """Translation error per frame of the track smoothed offline over each
+    whole uninterrupted stretch (RTS; NaN where the track did not run)."""
     tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
     tracker.history = []
     for t, f in zip(seq.times, seq.frames):
         tracker.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
     err = np.full(len(seq.frames), np.nan)
-    k = 0
     hist = tracker.history
+    k = 0
     while k < len(hist):
         if hist[k] is None:
             k += 1
@@ -78,16 +74,8 @@ def smoothed_errors(rig, seq, lag: int | None = None) -> np.ndarray:
         j = k
         while j < len(hist) and hist[j] is not None:
             j += 1
-        # An uninterrupted stretch of filtered frames k..j-1.
-        priors, posts = [hist[i][0] for i in range(k, j)], [hist[i][1] for i in range(k, j)]
-        if lag is None:
-            for i, s in zip(range(k, j), rts_smooth(priors, posts)):
-                err[i] = s.pose.translation_error(seq.truth[i])
-        else:
-            for i in range(k, j):
-                end = min(i - k + lag + 1, j - k)
-                s = rts_smooth(priors[i - k:end], posts[i - k:end])[0]
-                err[i] = s.pose.translation_error(seq.truth[i])
+        for i, s in zip(range(k, j), rts_smooth([h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]])):
+            err[i] = s.pose.translation_error(seq.truth[i])
         k = j
     return err
 
@@ -161,9 +149,11 @@ def accuracy(rig, seeds: int) -> dict:
         ok = same & ~np.isnan(es)
         out["smoothed_ratio_same_frames"].append(float(np.median(es[ok]) / np.median(err["none"][ok])))
         for n in LAGS:
-            el = smoothed_errors(rig, seq, n)
-            ok = same & ~np.isnan(el)
-            out[f"fixed_lag_{n}_ratio_same_frames"].append(float(np.median(el[ok]) / np.median(err["none"][ok])))
+            lagged = track_log(rig, frames, pixel_sigma=SIGMA, progress=False,
+                               filter=FilterOptions("cv", NOISE, smooth_lag=n))
+            el = np.array([r.estimate.pose.translation_error(T) if r.estimate else np.nan
+                           for r, T in zip(lagged.rows, seq.truth)])
+            out[f"fixed_lag_{n}_ratio_same_frames"].append(float(np.median(el[same]) / np.median(err["none"][same])))
         out["normalised_error_mean_square"].append(float(np.mean(np.array(z) ** 2)))
         out["nees_over_6"].append(float(np.mean(nees)))
     return out

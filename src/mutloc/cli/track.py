@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import NOISE, PAIR, PROGRESS, RIG, positive_float, robot_map, robot_value
+from ._common import NOISE, PAIR, PROGRESS, RIG, int_in_range, positive_float, robot_map, robot_value
 
 ORDER = 30
 
@@ -45,6 +45,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     f.add_argument("--filter", choices=("cv", "none"), default="cv",
                    help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
                         "markers (even one or two); none: every frame on its own")
+    f.add_argument("--smooth-lag", type=int_in_range(0, 300, "--smooth-lag"), default=0, metavar="N",
+                   help="report each pose smoothed with the N frames after it (fixed-lag smoothing; what a "
+                        "smoother would give N frames late); default 0: the filter's pose at once")
     f.add_argument("--linear-noise", type=positive_float, default=0.5, metavar="A",
                    help="white-noise acceleration of the relative translation, m/s^2/sqrt(Hz) (default 0.5)")
     f.add_argument("--angular-noise", type=positive_float, default=0.2, metavar="A",
@@ -73,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         for robot in rig.default_pair(args.source, args.target):
             if rig.robot(robot).base_from_camera is None:
                 raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
-    options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise))
+    options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
+                            smooth_lag=args.smooth_lag)
     if args.observations:
         traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
                          pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,

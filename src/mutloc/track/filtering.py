@@ -19,7 +19,7 @@ reference.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -27,7 +27,7 @@ import numpy as np
 from ..api import Estimate, localize
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.estimate import PairProblem
-from ..core.filter import ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise
+from ..core.filter import ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise, rts_smooth
 from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.pose import Pose
 from ..core.rig import Rig
@@ -51,7 +51,9 @@ class FilterOptions:
     motion model's :class:`~mutloc.core.filter.MotionNoise`;
     ``reinit_after``: rejected frames in a row after which a frame solved
     on its own restarts the track; ``lost_sigma_t`` (m) and
-    ``lost_sigma_r_deg``: a predicted 1-sigma beyond these loses the track.
+    ``lost_sigma_r_deg``: a predicted 1-sigma beyond these loses the track;
+    ``smooth_lag``: frames after each frame that also inform its reported
+    pose (fixed-lag RTS smoothing; 0 = the causal filter's pose).
     """
 
     kind: str = "cv"
@@ -59,12 +61,15 @@ class FilterOptions:
     reinit_after: int = 3
     lost_sigma_t: float = 0.5
     lost_sigma_r_deg: float = 20.0
+    smooth_lag: int = 0
 
     def __post_init__(self) -> None:
         if self.kind not in FILTERS:
             raise InputError(f"filter must be one of {', '.join(FILTERS)}, got {self.kind!r}")
         if not (isinstance(self.reinit_after, int) and self.reinit_after >= 1):
             raise InputError(f"reinit_after must be an integer >= 1, got {self.reinit_after!r}")
+        if not (isinstance(self.smooth_lag, int) and self.smooth_lag >= 0):
+            raise InputError(f"smooth_lag must be an integer >= 0 (frames), got {self.smooth_lag!r}")
         positive_number(self.lost_sigma_t, "lost_sigma_t")
         positive_number(self.lost_sigma_r_deg, "lost_sigma_r_deg")
 
@@ -111,9 +116,10 @@ class PairTracker:
         self.filter = ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence)
         self.rejections = 0
         self._restarted = False
-        #: When a list: per frame, (prediction, state after the frame) while the
-        #: track runs, None where it (re)starts or is lost -- for smoothing studies.
-        self.history: list[tuple[FilterState, FilterState] | None] | None = None
+        #: When a list: per frame, (prediction, state after the frame, row) while the
+        #: track runs, None where it (re)starts or is lost -- for smoothing.
+        self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
+            [] if self.options.smooth_lag > 0 and self.filtering else None
 
     @property
     def filtering(self) -> bool:
@@ -143,11 +149,40 @@ class PairTracker:
         try:
             self._filtered_step(row, state)
         finally:
-            self._record(None if self._restarted or self.filter.state is None else (state, self.filter.state))
+            self._record(None if self._restarted or self.filter.state is None else
+                         (state, self.filter.state, row))
 
-    def _record(self, entry: tuple[FilterState, FilterState] | None) -> None:
+    def _record(self, entry: tuple[FilterState, FilterState, Any] | None) -> None:
         if self.history is not None:
             self.history.append(entry)
+
+    def finish(self) -> None:
+        """With ``smooth_lag``: replace each filtered row's pose and covariance
+        by the fixed-lag smoothed ones (the frame and the ``smooth_lag``
+        frames after it in the same uninterrupted track) -- what a fixed-lag
+        smoother would report ``smooth_lag`` frames late."""
+        lag = self.options.smooth_lag
+        if not lag or not self.history:
+            return
+        hist = self.history
+        k = 0
+        while k < len(hist):
+            if hist[k] is None:
+                k += 1
+                continue
+            j = k
+            while j < len(hist) and hist[j] is not None:
+                j += 1
+            priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
+            for i in range(j - k):
+                state = rts_smooth(priors[i:i + lag + 1], posts[i:i + lag + 1])[0]
+                row = hist[k + i][2]
+                if row.estimate is not None:
+                    row.estimate = replace(row.estimate, pose=state.pose, covariance=state.pose_covariance.copy(),
+                                           candidates=Pose.concatenate([state.pose]),
+                                           extra=dict(row.estimate.extra, smooth_lag=lag,
+                                                      velocity=state.velocity.tolist()))
+            k = j
 
     def _filtered_step(self, row: "TrackRow", state: FilterState) -> None:
         try:
@@ -254,6 +289,4 @@ def _marker_of(label: str) -> str:
 
 
 def _copy_row(row: "TrackRow") -> "TrackRow":
-    from dataclasses import replace
-
     return replace(row, reason="", estimate=None)

@@ -289,6 +289,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             log.close()
         if viz is not None:
             viz.close()
+    tracker.finish()
     return Trajectory(source, target, rows, rate)
 
 
@@ -313,6 +314,7 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
         row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
         tracker.step(row)
         rows.append(row)
+    tracker.finish()
     if rerun is not None:
         with _rerun_writer(rerun, source, target) as viz:
             for row in rows:
