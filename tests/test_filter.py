@@ -410,3 +410,48 @@ def test_rts_smoothing_uses_the_future():
     assert es[-1] == ef[-1]
     assert np.median(es) < 0.9 * np.median(ef)
     assert np.all(np.diag(smooth[10].covariance) <= np.diag(hist[11][1].covariance) + 1e-15)
+
+
+def test_a_jump_restarts_the_track_from_a_solved_frame():
+    """p is carried 0.5 m sideways at t = 1 s: the track rejects the new
+    frames, then restarts from the first frame solved on its own, and is
+    right again."""
+    base = _path()
+
+    def jumped(t):
+        T = base(t)
+        return Pose(T.R, T.t + (np.array([0.5, 0.0, 0.0]) if t >= 1.0 else 0.0))
+
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, jumped, duration=2.0, fps=30.0, pixel_sigma=1.0, seed=3, drop=0.0, blind=(),
+                               outliers=0.0)
+    traj = track_log(rig, list(zip(seq.times, seq.frames)), pixel_sigma=1.0, progress=False,
+                     filter=FilterOptions("cv", NOISE))
+    st = [str(r.status) for r in traj.rows]
+    assert st[30:32] == ["rejected", "rejected"]
+    assert st[32] == "solved" and "track restarted" in traj.rows[32].reason
+    for r, T in zip(traj.rows[30:32], seq.truth[30:32]):
+        assert r.estimate.pose.translation_error(T) > 0.3  # the prediction, reported as such
+    err = _errors(traj, seq)
+    assert np.all(err[32:] < 0.03) and np.all(err[:30] < 0.03)
+
+
+def test_a_long_blackout_loses_the_track_and_restarts():
+    """Neither camera sees anything for 4 s: predicted rows while the
+    predicted sigma is small enough, then the track is lost (no pose) until
+    a frame is solved on its own again."""
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=7.0, fps=30.0, pixel_sigma=1.0, seed=4, drop=0.0,
+                               blind=((1.0, 5.0, "p"), (1.0, 5.0, "q")), outliers=0.0)
+    opts = FilterOptions("cv", MotionNoise(angular=0.1, linear=0.3), lost_sigma_t=0.3)
+    traj = track_log(rig, list(zip(seq.times, seq.frames)), pixel_sigma=1.0, progress=False, filter=opts)
+    st = [str(r.status) for r in traj.rows]
+    dark = st[30:150]
+    assert dark[0] == "predicted" and "too_few" in dark
+    first_lost = dark.index("too_few")
+    assert set(dark[:first_lost]) == {"predicted"} and set(dark[first_lost:]) == {"too_few"}
+    assert "track lost" in traj.rows[30 + first_lost].reason
+    sig = traj.rows[30 + first_lost - 1].estimate.covariance
+    assert np.sqrt(np.max(np.diag(sig)[3:])) <= 0.3
+    assert all(traj.rows[30 + k].estimate is None for k in range(first_lost, 120))
+    assert st[150] == "solved" and np.all(_errors(traj, seq)[150:] < 0.03)

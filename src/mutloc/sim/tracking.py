@@ -23,7 +23,7 @@ __all__ = ["ObservationSequence", "observation_sequence"]
 class ObservationSequence:
     """``frames[i]`` (stamped ``times[i]``) observed at true pose ``truth[i]``;
     ``outlier[i]``: frame i holds a detection moved far off (``outlier_marker[i]`` names it);
-    ``blind[i]``: the robot that sees none of the other's markers in frame i ('' if none)."""
+    ``blind[i]``: the robots that see none of the other's markers in frame i ('p', 'p+q'; '' if none)."""
 
     times: np.ndarray
     frames: list[ObservationSet]
@@ -74,9 +74,9 @@ def observation_sequence(rig: Rig, path: Callable[[float], Pose] | None = None, 
                 observer.append(obs_name)
                 marker.append(name)
                 uv.append(p + rng.normal(scale=pixel_sigma, size=2))
-        who = next((r for a, b, r in blind if a <= t < b), "")
-        blind_of.append(who)
-        keep = [k for k, o in enumerate(observer) if o != who]
+        who = {r for a, b, r in blind if a <= t < b}
+        blind_of.append("+".join(sorted(who)))
+        keep = [k for k, o in enumerate(observer) if o not in who]
         if keep and rng.random() < drop:
             keep.pop(int(rng.integers(len(keep))))
         out_marker.append("")
