@@ -3,7 +3,7 @@
 ``mutloc.localize`` on the same frames in the same run, and the accuracy
 figures of the README's "Filtered tracking" section.
 
-    python bench/bench_filter.py [--seeds 6] [--repeat 5]
+    python bench/bench_filter.py [--seeds 6] [--repeat 9] [--end-to-end 40]
 
 Frames: the synthetic sequence of tests/test_filter.py (10 s at 30 fps,
 2 px noise, 20% of frames missing a marker, two blind seconds, 2% outliers;
@@ -159,10 +159,37 @@ def accuracy(rig, seeds: int) -> dict:
     return out
 
 
+def end_to_end(frames_n: int) -> dict:
+    """``track`` on rendered 960x540 ball frames (the renderer of ``mutloc
+    simulate``), filter ``cv`` against ``none`` on the same frames, frames per
+    second of CPU time (process time: the machine is shared) and wall clock,
+    second of two runs each (the first compiles)."""
+    from mutloc.sim.render import moving_world, relative_pose, render
+    from mutloc.track.sources import Frame
+    from mutloc.track.tracker import track
+
+    rig = standard_rig("balls")
+    world = moving_world(rig, distance=2.0, seed=3)
+    frames = {r: [Frame(i, i / 30.0, render(world, r, i / 30.0, seed=3 + i, noise_sigma=1.0))
+                  for i in range(frames_n)] for r in ("p", "q")}
+    truth = [relative_pose(world, "p", "q", i / 30.0) for i in range(frames_n)]
+    out = {}
+    for kind in ("none", "cv", "none", "cv"):
+        c0, w0 = time.process_time(), time.perf_counter()
+        traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=30.0, progress=False, filter=kind)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        err = [r.estimate.pose.translation_error(T) for r, T in zip(traj.rows, truth) if r.estimate is not None]
+        out[kind] = {"fps_cpu": frames_n / cpu, "fps_wall": frames_n / wall, "summary": traj.summary(),
+                     "median_translation_error_m": float(np.median(err))}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=6)
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--repeat", type=int, default=9)
+    ap.add_argument("--end-to-end", type=int, default=40, metavar="N",
+                    help="also time track on N rendered 960x540 frame pairs, cv vs none (0: skip)")
     ap.add_argument("--out", default=str(Path(__file__).with_name("filter_results.json")))
     args = ap.parse_args(argv)
     rig = standard_rig("balls")
@@ -175,6 +202,11 @@ def main(argv: list[str] | None = None) -> int:
     a = res["accuracy"]
     for k, v in a.items():
         print(f"{k}: {np.round(v, 4).tolist() if isinstance(v, list) else v}")
+    if args.end_to_end:
+        res["end_to_end"] = end_to_end(args.end_to_end)
+        for kind, v in res["end_to_end"].items():
+            print(f"track end to end, filter {kind}: {v['fps_cpu']:.1f} FPS (CPU time), {v['fps_wall']:.1f} FPS "
+                  f"(wall), median error {100 * v['median_translation_error_m']:.2f} cm; {v['summary']}")
     Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
     return 0
 

@@ -285,6 +285,8 @@ def test_filter_refuses_misuse():
         MotionNoise(linear=-1.0)
     with pytest.raises(InputError):
         FilterOptions(kind="kalman")
+    with pytest.raises(InputError, match="needs the filter"):
+        FilterOptions(kind="none", smooth_lag=5)
 
 
 def test_iekf_matches_the_map_estimate_of_a_linear_gaussian_prior():

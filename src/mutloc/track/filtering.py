@@ -70,6 +70,8 @@ class FilterOptions:
             raise InputError(f"reinit_after must be an integer >= 1, got {self.reinit_after!r}")
         if not (isinstance(self.smooth_lag, int) and self.smooth_lag >= 0):
             raise InputError(f"smooth_lag must be an integer >= 0 (frames), got {self.smooth_lag!r}")
+        if self.smooth_lag and self.kind != "cv":
+            raise InputError("smoothing (--smooth-lag) needs the filter (--filter cv)")
         positive_number(self.lost_sigma_t, "lost_sigma_t")
         positive_number(self.lost_sigma_r_deg, "lost_sigma_r_deg")
 
