@@ -55,14 +55,15 @@ class MotionNoise:
     ``angular`` and ``linear`` are the square roots of the white-noise
     acceleration spectral densities (rad s^-2 Hz^-1/2, m s^-2 Hz^-1/2):
     over ``dt`` seconds the velocity drifts by about ``linear * sqrt(dt)``.
-    The defaults suit robots driving at walking pace (accelerations of a few
-    tenths of m/s^2 and rad/s^2); lower them for smoother motion.  ``initial_angular`` (rad/s) and
+    The defaults suit robots at walking pace (velocity changing by about
+    1 m/s and 0.5 rad/s within a second); lower them for smoother motion and
+    noisier detections, raise them for agile robots.  ``initial_angular`` (rad/s) and
     ``initial_linear`` (m/s) are the velocity's sigma when the track starts
     or restarts (from rest, as far as the filter knows).
     """
 
-    angular: float = 0.2
-    linear: float = 0.5
+    angular: float = 0.5
+    linear: float = 1.0
     initial_angular: float = 1.0
     initial_linear: float = 1.0
 
