@@ -10,10 +10,12 @@ Frames: the synthetic sequence of tests/test_filter.py (10 s at 30 fps,
 mutloc.sim.tracking).  Timings (one core, wall clock, best of ``--repeat``):
 
 - ``kernel``: ConstantVelocityFilter.predict + update on frames with four
-  markers (what the 100 us target is about);
+  markers, median over frames of each frame's best call (what the 100 us
+  target is about);
 - ``tracker``: PairTracker.step on every frame (observations -> row,
   including the Estimate it reports);
-- ``localize``: mutloc.localize on the frames with four markers.
+- ``localize``: mutloc.localize on the frames with four markers, timed as
+  ``kernel``.
 
 Writes bench/filter_results.json.
 """
@@ -90,11 +92,22 @@ def timings(rig, seq, repeat: int) -> dict:
     cov0 = np.diag([1e-3] * 3 + [1e-2] * 3) ** 2
 
     def run_kernel():
+        """Per frame: the best of ``repeat`` predict+update calls from the same
+        state (the machine is shared: the best call is the least disturbed)."""
         flt = ConstantVelocityFilter(NOISE, SIGMA)
         flt.reset(problems[0][0] - 1 / 30, T0, cov0)
+        per = []
         for t, prob in problems:
-            flt.predict(t)
-            flt.update(prob)
+            state = flt.state
+            best = np.inf
+            for _ in range(repeat):
+                flt.state = state
+                t0 = time.perf_counter()
+                flt.predict(t)
+                flt.update(prob)
+                best = min(best, time.perf_counter() - t0)
+            per.append(best)
+        return float(np.median(per))
 
     def run_tracker():
         tr = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
@@ -102,16 +115,24 @@ def timings(rig, seq, repeat: int) -> dict:
             tr.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
 
     def run_localize():
+        """Per frame: the best of ``repeat`` calls, as for the filter."""
+        per = []
         for _, f in full:
-            try:
-                mutloc.localize(rig, f, "p", "q", pixel_sigma=SIGMA)
-            except mutloc.errors.InconsistentObservationsError:
-                pass  # 1% of good frames fail the 99% test: same work done
+            best = np.inf
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                try:
+                    mutloc.localize(rig, f, "p", "q", pixel_sigma=SIGMA)
+                except mutloc.errors.InconsistentObservationsError:
+                    pass  # 1% of good frames fail the 99% test: same work done
+                best = min(best, time.perf_counter() - t0)
+            per.append(best)
+        return float(np.median(per))
 
     run_kernel(), run_tracker(), run_localize()  # compile
-    k = _best(run_kernel, repeat) / len(problems)
+    k = run_kernel()
     tr = _best(run_tracker, repeat) / len(seq.frames)
-    lo = _best(run_localize, repeat) / len(full)
+    lo = run_localize()
     return {"frames_with_4_markers": len(full), "filter_predict_update_us": 1e6 * k,
             "tracker_step_us": 1e6 * tr, "localize_us": 1e6 * lo, "filter_over_localize": k / lo}
 
