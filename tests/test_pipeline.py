@@ -139,11 +139,16 @@ def test_track_reports_bad_frames_and_keeps_the_rest(tmp_path):
     frames["q"][2] = Frame(2, frames["q"][2].t, None, "corrupt message: truncated")
     blank = np.zeros_like(frames["p"][3].image)
     frames["p"][3] = Frame(3, frames["p"][3].t, blank)
-    traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False)
+    traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False, filter="none")
     status = [r.status for r in traj.rows]
     assert status[2] == "corrupt" and status[3] == "too_few"
     assert "truncated" in traj.rows[2].reason
     assert [r.estimate is not None for r in traj.rows] == [True, True, False, False, True]
+    # Filtered (the default): q still sees p's two markers in frame 3, which update the track.
+    traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False)
+    status = [r.status for r in traj.rows]
+    assert status == ["solved", "solved", "corrupt", "partial", "solved"]
+    assert traj.rows[3].estimate.pose.translation_error(truth[3]) < 0.02
 
 
 def test_localize_images_with_banded_cylinders():

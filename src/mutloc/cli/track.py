@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import NOISE, PAIR, PROGRESS, RIG, positive_float, robot_map, robot_value
+from ._common import NOISE, PAIR, PROGRESS, RIG, int_in_range, positive_float, robot_map, robot_value
 
 ORDER = 30
 
@@ -33,6 +33,25 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="largest time difference of a pair of frames (default 0.005 s)")
     p.add_argument("--out", required=True, metavar="DIR", help="writes DIR/trajectory.tum and DIR/trajectory.csv")
     p.add_argument("--annotate", metavar="VIDEO", help="also write a side-by-side annotated video (mp4)")
+    p.add_argument("--bag", metavar="DIR", help="also write the poses with covariance as a ROS 2 bag (a new folder): "
+                   "geometry_msgs/PoseWithCovarianceStamped on /mutloc/SOURCE_in_TARGET and tf2_msgs/TFMessage on /tf")
+    p.add_argument("--mcap", metavar="FILE", help="the same messages as an MCAP file")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording: images with detections, the "
+                   "robots' frames with covariance ellipsoids, the trajectory (open with: rerun FILE.rrd)")
+    p.add_argument("--frames", choices=("camera", "base"), default="camera",
+                   help="poses between the cameras' optical frames (default) or between the robots' base frames "
+                        "(the rig's base_from_camera of both robots)")
+    f = p.add_argument_group("filter (SPEC \"Filtered tracking\")")
+    f.add_argument("--filter", choices=("cv", "none"), default="cv",
+                   help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
+                        "markers (even one or two); none: every frame on its own")
+    f.add_argument("--smooth-lag", type=int_in_range(0, 300, "--smooth-lag"), default=0, metavar="N",
+                   help="report each pose smoothed with the N frames after it (fixed-lag smoothing; what a "
+                        "smoother would give N frames late); default 0: the filter's pose at once")
+    f.add_argument("--linear-noise", type=positive_float, default=1.0, metavar="A",
+                   help="white-noise acceleration of the relative translation, m/s^2/sqrt(Hz) (default 1.0)")
+    f.add_argument("--angular-noise", type=positive_float, default=0.5, metavar="A",
+                   help="white-noise angular acceleration, rad/s^2/sqrt(Hz) (default 0.5)")
     return p
 
 
@@ -41,16 +60,29 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..io import load_rig
-    from ..io.logs import read_observation_log
+    from ..core.filter import MotionNoise
+    from ..errors import FileFormatError, RigError
+    from ..io.logs import iter_observation_log
+    from ..track.filtering import FilterOptions
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.tracker import track, track_log
 
+    for path in (args.bag, args.mcap):
+        if path and Path(path).expanduser().exists():
+            raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
     rig = load_rig(args.rig)
     out = Path(args.out)
+    if args.frames == "base":
+        for robot in rig.default_pair(args.source, args.target):
+            if rig.robot(robot).base_from_camera is None:
+                raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
+    options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
+                            smooth_lag=args.smooth_lag)
     if args.observations:
-        traj = track_log(rig, read_observation_log(args.observations), args.source, args.target,
-                         pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress)
-        _write(traj, out)
+        traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
+                         pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
+                         filter=options, rerun=args.rerun)
+        _write(traj, out, args, rig)
         return 0
     paths = robot_map(args.stream, "--stream")
     for robot in paths:
@@ -61,12 +93,19 @@ def run(args: argparse.Namespace) -> int:
         rig = rig_with_bag_cameras(rig, paths, infos)
     traj = track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
                  tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence, fps=args.fps,
-                 annotate=args.annotate, observations_out=args.observations_out, progress=args.progress)
-    _write(traj, out)
+                 annotate=args.annotate, observations_out=args.observations_out, progress=args.progress,
+                 filter=options, rerun=args.rerun)
+    _write(traj, out, args, rig)
     return 0
 
 
-def _write(traj, out) -> None:
+def _write(traj, out, args, rig) -> None:
+    if args.frames == "base":
+        traj = traj.in_base_frames(rig)
     traj.write_tum(out / "trajectory.tum")
     traj.write_csv(out / "trajectory.csv")
-    print(f"{traj.summary()}; wrote {out / 'trajectory.tum'} and {out / 'trajectory.csv'}")
+    wrote = [str(out / "trajectory.tum"), str(out / "trajectory.csv")]
+    if args.bag or args.mcap:
+        traj.write_ros(bag=args.bag, mcap=args.mcap)
+        wrote += [p for p in (args.bag, args.mcap) if p]
+    print(f"{traj.summary()}; wrote {', '.join(wrote)}")

@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import InputError
 from .geometry import (
     matrix_from_quaternion_xyzw,
+    skew,
     quaternion_xyzw_from_matrix,
     rotation_error_deg,
     so3_exp,
@@ -24,7 +25,7 @@ from .geometry import (
     translation_error,
 )
 
-__all__ = ["Pose"]
+__all__ = ["Pose", "sandwich_covariance"]
 
 
 def _per_matrix(fn: Any, R: np.ndarray, width: int) -> np.ndarray:
@@ -198,3 +199,16 @@ class Pose:
         if self.single:
             return f"Pose(rotvec={np.round(self.rotvec, 6).tolist()}, t={np.round(self.t, 6).tolist()})"
         return f"Pose(stack of shape {self.shape})"
+
+
+def sandwich_covariance(A: Pose, T: Pose, C: Pose, covariance: np.ndarray) -> np.ndarray:
+    """Covariance of ``A @ T @ C`` for exactly known ``A`` and ``C`` (single
+    poses), from the 6x6 ``covariance`` of ``T``; both in the SPEC's
+    convention (rotation vector on the left, then translation):
+    ``dtheta' = R_A dtheta``, ``dt' = R_A (dt - [R_T t_C]x dtheta)``."""
+    RA = A.R
+    J = np.zeros((6, 6))
+    J[:3, :3] = RA
+    J[3:, 3:] = RA
+    J[3:, :3] = -RA @ skew(T.R @ C.t)
+    return J @ np.asarray(covariance, dtype=float) @ J.T

@@ -166,7 +166,7 @@ def cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t):
 
 
 @njit(cache=True)
-def _so3_exp_left(w, R, out):
+def so3_exp_left(w, R, out):
     """out = exp([w]x) @ R (Rodrigues, written out: no BLAS for 3x3)."""
     th2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
     th = np.sqrt(th2)
@@ -290,7 +290,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             if np.sqrt(step) < 1e-10:
                 small = True
                 break
-            _so3_exp_left(delta[:3], R, Rn)
+            so3_exp_left(delta[:3], R, Rn)
             for k in range(3):
                 tn[k] = t[k] + delta[3 + k]
             cn = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J, ws)

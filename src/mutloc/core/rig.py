@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import ObservationError, RigError, UnknownMarkerError
 from .camera import Camera
+from .pose import Pose
 
 __all__ = ["Marker", "MarkerKind", "Robot", "Rig", "PairTable", "DETECTED_KINDS"]
 
@@ -98,6 +99,8 @@ class Robot:
     name: str
     camera: Camera
     markers: Mapping[str, Marker]
+    #: Pose of the camera in the robot's base frame (``x_base = R @ x_camera + t``), if the rig gives it.
+    base_from_camera: Pose | None = None
 
     def marker_positions(self, names: list[str] | None = None) -> np.ndarray:
         names = list(self.markers) if names is None else names
@@ -213,6 +216,9 @@ class Rig:
             "robots": {
                 rname: {
                     "camera": robot.camera.to_dict(),
+                    **({} if robot.base_from_camera is None else
+                       {"base_from_camera": {"R": robot.base_from_camera.R.tolist(),
+                                             "t": robot.base_from_camera.t.tolist()}}),
                     "markers": {m.name: m.to_dict() for m in robot.markers.values()},
                 }
                 for rname, robot in self.robots.items()

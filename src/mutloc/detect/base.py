@@ -54,9 +54,12 @@ class DetectionResult:
     alternatives: dict[str, list[Detection]] = field(default_factory=dict)
 
     def observations(self, observer: str, time: float | None = None) -> ObservationSet:
-        """What ``observer``'s camera saw, as an :class:`ObservationSet` (the
-        detector's score travels with each pixel)."""
-        dets = list(self.detections.values()) + [a for alts in self.alternatives.values() for a in alts]
+        """What ``observer``'s camera measured, as an :class:`ObservationSet`
+        (the detector's score travels with each pixel).  Predicted positions
+        (a blinking light that is off) are not measurements and are left out:
+        they would count earlier frames twice and cannot expose a wrong pose."""
+        dets = [d for d in self.detections.values() if not d.predicted]
+        dets += [a for alts in self.alternatives.values() for a in alts]
         uv = np.array([d.uv for d in dets], dtype=float).reshape(-1, 2)
         return ObservationSet([observer] * len(dets), [d.marker for d in dets], uv, time,
                               [float(d.score) for d in dets])

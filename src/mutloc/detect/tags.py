@@ -43,6 +43,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -386,7 +387,7 @@ def expand_tag_corners(rig: Rig | Mapping[str, Any] | str) -> Rig:
                     raise RigError(f"robot {rname!r}: marker {cname!r} exists, so tag {name!r}'s corner "
                                    "markers cannot be added")
                 new[cname] = Marker(name=cname, robot=rname, position=X, extra={"tag_of": name, "tag_corner": k})
-        robots[rname] = Robot(name=rname, camera=robot.camera, markers=new)
+        robots[rname] = replace(robot, markers=new)  # keeps the camera and base frame
     return Rig(robots)
 
 

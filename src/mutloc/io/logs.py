@@ -17,7 +17,7 @@ from ..core.observations import ObservationSet
 from ..errors import FileFormatError, MutlocError, ObservationError
 from ._files import PathLike
 
-__all__ = ["read_observation_log", "write_observation_log", "ObservationLogWriter"]
+__all__ = ["read_observation_log", "iter_observation_log", "write_observation_log", "ObservationLogWriter"]
 
 # A log line is one frame's detections: far below this.
 _MAX_LINE = 1024 * 1024
@@ -25,6 +25,13 @@ _MAX_LINE = 1024 * 1024
 
 def read_observation_log(path: PathLike) -> Iterator[ObservationSet]:
     """The frames of a log, in file order, each an ObservationSet stamped with its time."""
+    return (obs for _, obs in iter_observation_log(path))
+
+
+def iter_observation_log(path: PathLike) -> Iterator[tuple[float, ObservationSet]]:
+    """``(time, observations)`` per line, in file order: the time is kept
+    for a frame that saw nothing (``"observations": {}``), which the tracker
+    reports as a row of its own."""
     p = Path(path).expanduser()
     if p.is_dir():
         raise FileFormatError(f"{p}: is a folder, not an observation log")
@@ -54,7 +61,8 @@ def read_observation_log(path: PathLike) -> Iterator[ObservationSet]:
                 raise FileFormatError(f"{where}: time {t} goes back (previous line {last})")
             last = float(t)
             try:
-                yield ObservationSet.from_dict(entry["observations"], time=float(t), where=f"{where}: observations")
+                yield float(t), ObservationSet.from_dict(entry["observations"], time=float(t),
+                                                         where=f"{where}: observations")
             except MutlocError as exc:
                 raise ObservationError(str(exc)) from None
 

@@ -22,7 +22,9 @@ import numpy as np
 import yaml
 
 from ..core.camera import Camera
-from ..core.rig import Marker, Rig, Robot
+from ..core.geometry import so3_exp, so3_log
+from ..core.pose import Pose
+from ..core.rig import MAX_MARKER_DISTANCE_M, Marker, Rig, Robot
 from ..errors import FileFormatError, MutlocError, RigError
 from ._files import (
     PathLike,
@@ -43,13 +45,16 @@ __all__ = ["load_rig", "save_rig", "load_camera_file", "rig_from_dict"]
 # Marker keys with a meaning of their own; EXTRA_MARKER_KEYS are kept in
 # Marker.extra.  Any other key is a mistake (a misspelt key would otherwise
 # silently change how a marker is found).
-MARKER_KEYS = ("position", "color", "blink_hz", "tag")
+MARKER_KEYS = ("position", "color", "blink_hz", "tag", "frame")
 EXTRA_MARKER_KEYS = ("radius", "phase", "intensity", "cylinder", "position_sigma",
                      "tag_of", "tag_corner", "cylinder_of", "band")  # the last four: derived points
 # Keys of the user's own (kept in Marker.extra, never interpreted) start with this.
 USER_KEY_PREFIX = "x_"
 TAG_KEYS = ("family", "id", "size", "rotation")
-ROBOT_KEYS = ("camera", "markers")
+ROBOT_KEYS = ("camera", "markers", "base_from_camera")
+BASE_KEYS = ("R", "rotation", "quaternion_xyzw", "t")
+# Where a marker's position (and a tag's rotation) is given: the camera's optical frame or the robot's base.
+MARKER_FRAMES = ("camera", "base")
 RIG_KEYS = ("robots",)
 # A tag larger than this (metres) is a unit mistake (millimetres?).
 MAX_TAG_SIZE_M = 2.0
@@ -187,17 +192,52 @@ def _robot(name: str, spec: Any, where: str, base: Path) -> Robot:
         if key not in spec:
             raise RigError(f"{w}: missing key {key!r}")
     camera = _camera(spec["camera"], f"{w}: camera", base)
+    bfc = _base_from_camera(spec.get("base_from_camera"), f"{w}: base_from_camera")
 
     mspec = spec["markers"]
     if not isinstance(mspec, Mapping):
         raise RigError(f"{w}: 'markers' must be a mapping of marker name to {{position, ...}}, got {short(mspec)}")
     markers: dict[str, Marker] = {}
     for mname, mval in named_items(mspec, "marker", f"{w}: markers", RigError):
-        markers[mname] = _marker(mname, name, mval, f"{w}: marker {mname!r}")
-    return Robot(name=name, camera=camera, markers=markers)
+        markers[mname] = _marker(mname, name, mval, f"{w}: marker {mname!r}", bfc)
+    return Robot(name=name, camera=camera, markers=markers, base_from_camera=bfc)
 
 
-def _marker(name: str, robot: str, spec: Any, w: str) -> Marker:
+def _base_from_camera(spec: Any, w: str) -> Pose | None:
+    """The camera's pose in the robot's base frame: ``{R | rotation | quaternion_xyzw, t}``."""
+    if spec is None:
+        return None
+    if not isinstance(spec, Mapping):
+        raise RigError(f"{w}: must be a mapping {{R or rotation or quaternion_xyzw, t}}, got {short(spec)}")
+    check_keys(spec, BASE_KEYS, w)
+    given = [k for k in ("R", "rotation", "quaternion_xyzw") if k in spec]
+    if len(given) != 1 or "t" not in spec:
+        raise RigError(f"{w}: needs 't' (metres) and exactly one of 'R' (3x3), 'rotation' (rotation vector, "
+                       f"radians) or 'quaternion_xyzw', got keys {sorted(spec)}")
+    t = as_float_array(spec["t"])
+    if t is None or t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise RigError(f"{w}: t must be 3 finite numbers (metres), got {short(spec['t'])}")
+    if float(np.linalg.norm(t)) > MAX_MARKER_DISTANCE_M:
+        raise RigError(f"{w}: t is {float(np.linalg.norm(t)):g} m from the base: positions are in metres "
+                       "(millimetres given?)")
+    key = given[0]
+    v = as_float_array(spec[key])
+    shape = {"R": (3, 3), "rotation": (3,), "quaternion_xyzw": (4,)}[key]
+    if v is None or v.shape != shape or not np.all(np.isfinite(v)):
+        raise RigError(f"{w}: {key} must be {'a 3x3 matrix' if key == 'R' else f'{shape[0]} finite numbers'}, "
+                       f"got {short(spec[key])}")
+    if key == "R":
+        if not (np.allclose(v @ v.T, np.eye(3), atol=1e-6) and np.linalg.det(v) > 0):
+            raise RigError(f"{w}: R is not a rotation matrix (orthonormal, determinant +1)")
+        return Pose(v, t)
+    if key == "rotation":
+        return Pose.from_rotvec(v, t)
+    if not float(np.linalg.norm(v)) > 0:
+        raise RigError(f"{w}: quaternion_xyzw must not be zero")
+    return Pose.from_quaternion_xyzw(v, t)
+
+
+def _marker(name: str, robot: str, spec: Any, w: str, base_from_camera: Pose | None = None) -> Marker:
     if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping with at least 'position', got {short(spec)}")
     check_keys(spec, MARKER_KEYS + EXTRA_MARKER_KEYS, w)
@@ -212,6 +252,22 @@ def _marker(name: str, robot: str, spec: Any, w: str) -> Marker:
     color = _color(spec.get("color"), w)
     blink = _blink(spec.get("blink_hz"), w)
     tag = _tag(spec.get("tag"), w)
+    frame = spec.get("frame", "camera")
+    if frame not in MARKER_FRAMES:
+        raise RigError(f"{w}: frame must be 'camera' or 'base', got {short(frame)}")
+    if frame == "base":
+        # Stored in the camera frame like every marker: the solvers never see the base.
+        if base_from_camera is None:
+            raise RigError(f"{w}: frame 'base' needs the robot's base_from_camera")
+        if spec.get("cylinder") is not None:
+            raise RigError(f"{w}: a banded cylinder's axis is the camera's y: give it in the camera frame")
+        cam_from_base = base_from_camera.inverse()
+        pos = cam_from_base.apply(pos)
+        if tag is not None and "rotation" in tag:
+            rot = as_float_array(tag["rotation"])
+            if rot is None or rot.shape != (3,):
+                raise RigError(f"{w}: tag: rotation must be 3 numbers (rotation vector, radians)")
+            tag = dict(tag, rotation=so3_log(cam_from_base.R @ so3_exp(rot)).tolist())
 
     extra: dict[str, Any] = {}
     for k, v in spec.items():

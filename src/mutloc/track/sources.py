@@ -8,7 +8,7 @@ the caller records it and carries on with the rest of the file.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator, Mapping
 
@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.rig import Rig, Robot
+from ..core.rig import Rig
 from ..errors import FileFormatError, InputError
 
 __all__ = ["Frame", "Stream", "folder_frames", "video_frames", "bag_frames", "bag_camera", "open_source",
@@ -299,5 +299,5 @@ def rig_with_bag_cameras(rig: Rig, bags: Mapping[str, str | Path], topics: Mappi
         cam = bag_camera(bags[robot], topic) if robot in bags else None
         if cam is None:
             raise InputError(f"no camera_info message for robot {robot!r} on {topic!r}")
-        robots[robot] = Robot(old.name, cam, old.markers)
+        robots[robot] = replace(old, camera=cam)
     return Rig(robots)

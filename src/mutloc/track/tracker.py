@@ -8,23 +8,24 @@ happens later in the files.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 from tqdm import tqdm
 
-from ..api import Estimate, load_rig, localize
+from ..api import Estimate, load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
-from ..core.observations import MIN_OBSERVATIONS, ObservationSet
-from ..core.pose import Pose
+from ..core.observations import ObservationSet
+from ..core.pose import Pose, sandwich_covariance
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
-from ..errors import InconsistentObservationsError, InputError, MutlocError
+from ..errors import InputError
 from ..io.logs import ObservationLogWriter
 from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
+from .filtering import FilterOptions, PairTracker
 from .frames import detect_markers, expanded_rig, observations_of, prepare_pair
 from .sources import Frame
 from .status import FrameStatus
@@ -58,6 +59,7 @@ class Trajectory:
     target: str
     rows: list[TrackRow]
     fps: float | None = None
+    frames: str = "camera"  # "camera": optical frames (SPEC); "base": the robots' base frames
 
     @property
     def solved(self) -> list[TrackRow]:
@@ -87,7 +89,50 @@ class Trajectory:
     def write_tum(self, path: str | Path) -> None:
         """TUM format: ``timestamp tx ty tz qx qy qz qw`` of the rows with a pose."""
         write_tum(path, self.times, self.poses,
-                  comment=f"mutloc: pose of {self.source} in {self.target}'s camera frame (T_qp)")
+                  comment=f"mutloc: pose of {self.source} in {self.target}'s {self.frames} frame (T_qp)")
+
+    def in_base_frames(self, rig: Any) -> "Trajectory":
+        """The same track between the robots' base frames (``base_from_camera``
+        in the rig): ``T = B_q @ T_qp @ inv(B_p)`` with its covariance; the
+        robots are then named ``NAME_base``."""
+        rig = load_rig(rig)
+        B = {}
+        for r in (self.source, self.target):
+            B[r] = rig.robot(r).base_from_camera
+            if B[r] is None:
+                raise InputError(f"base frames asked for, but robot {r!r} has no base_from_camera in the rig")
+        A, C = B[self.target], B[self.source].inverse()
+        src, tgt = f"{self.source}_base", f"{self.target}_base"
+        rows = []
+        for row in self.rows:
+            new = replace(row)
+            e = row.estimate
+            if e is not None:
+                new.estimate = replace(e, source=src, target=tgt, pose=A @ e.pose @ C,
+                                       covariance=sandwich_covariance(A, e.pose, C, e.covariance),
+                                       candidates=A @ e.candidates @ C)
+            rows.append(new)
+        return Trajectory(src, tgt, rows, self.fps, frames="base")
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(n, 6, 6): every row's pose covariance, SPEC order (NaN where a row has none)."""
+        out = np.full((len(self.rows), 6, 6), np.nan)
+        for i, r in enumerate(self.rows):
+            if r.estimate is not None:
+                out[i] = r.estimate.covariance
+        return out
+
+    def write_ros(self, bag: str | Path | None = None, mcap: str | Path | None = None) -> None:
+        """The poses with their covariances as ROS 2 messages (PoseWithCovarianceStamped and /tf):
+        a rosbag2 folder ``bag`` and/or an MCAP file ``mcap`` (see :mod:`mutloc.io.ros`)."""
+        from ..io.ros import write_mcap, write_ros2_bag
+
+        args = (self.times, self.poses, self.covariances, self.source, self.target)
+        if bag is not None:
+            write_ros2_bag(bag, *args)
+        if mcap is not None:
+            write_mcap(mcap, *args)
 
     def write_csv(self, path: str | Path) -> None:
         """SPEC's ``trajectory.csv``: every frame with its status, pose and sigmas."""
@@ -172,15 +217,20 @@ def frame_rate(streams: Mapping[str, Any], fps: float | None) -> float | None:
     return min(rates) if rates else None
 
 
-def _status_of(estimate: Estimate) -> FrameStatus:
-    return FrameStatus.SOLVED if estimate.status == "solved" else FrameStatus.UNVERIFIED
-
-
 def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None = None, target: str | None = None, *,
           tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
           fps: float | None = None, annotate: str | Path | None = None,
-          observations_out: str | Path | None = None, progress: bool = True, total: int | None = None) -> Trajectory:
+          observations_out: str | Path | None = None, progress: bool = True, total: int | None = None,
+          filter: str | FilterOptions = "cv", rerun: str | Path | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``).
+
+    ``rerun`` writes a Rerun recording (``.rrd``: images with detections,
+    the robots' frames with covariance ellipsoids, the trajectory; see
+    :mod:`mutloc.io.rrd`).
+
+    ``filter``: ``"cv"`` (default; the constant-velocity filter of SPEC
+    "Filtered tracking"), ``"none"`` (every frame on its own) or
+    :class:`~mutloc.track.filtering.FilterOptions`.
 
     The frame rate (for blinking lights and the annotated video) is ``fps``,
     else the streams' own (``stream.fps``), else 30 frames/s.
@@ -188,11 +238,14 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     observation log (JSON Lines, SPEC "Observation logs").
     """
     rig, source, target = prepare_pair(rig, streams, source, target, "stream")
+    tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
+                          options=_options(filter))
     rate = frame_rate(streams, fps)
     dets = {source: _Detector(rig, source, target, rate or DEFAULT_FPS),
             target: _Detector(rig, target, source, rate or DEFAULT_FPS)}
     writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
     log = ObservationLogWriter(observations_out) if observations_out else None
+    viz = _rerun_writer(rerun, source, target)
     rows: list[TrackRow] = []
     checked = False
     pairs = pair_streams(iter(streams[source]), iter(streams[target]), tolerance)
@@ -218,8 +271,13 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 row.observations = observations_of(row.detections, row.t)
                 if log is not None:
                     log.write(row.t, row.observations)
-                _solve_row(row, rig, source, target, pixel_sigma, confidence)
+                tracker.step(row)
             rows.append(row)
+            if viz is not None:
+                images = {r: (f.image, row.detections[r].detections) for r, f in ((source, fs), (target, ft))
+                          if f is not None and f.image is not None and r in row.detections}
+                _rerun_row(viz, row, {r: (img, {n: d.uv for n, d in dets.items()})
+                                      for r, (img, dets) in images.items()})
             if writer is not None and fs is not None and ft is not None and fs.image is not None \
                     and ft.image is not None:
                 writer.write(fs.image, ft.image, row, source, target)
@@ -229,25 +287,59 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             writer.close()
         if log is not None:
             log.close()
+        if viz is not None:
+            viz.close()
+    tracker.finish()
     return Trajectory(source, target, rows, rate)
 
 
-def track_log(rig: Any, frames: Iterable[ObservationSet], source: str | None = None, target: str | None = None, *,
-              pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, progress: bool = True,
-              total: int | None = None) -> Trajectory:
-    """Localize every frame of an observation log (``frames``: one
-    ObservationSet per time, as :func:`mutloc.io.logs.read_observation_log`
-    yields them)."""
+def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, ObservationSet]], source: str | None = None,
+              target: str | None = None, *, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
+              progress: bool = True, total: int | None = None, filter: str | FilterOptions = "cv",
+              rerun: str | Path | None = None) -> Trajectory:
+    """Track over an observation log: ``frames`` are ``(time, ObservationSet)``
+    as :func:`mutloc.io.logs.iter_observation_log` yields them (or
+    ObservationSets stamped with their time); ``filter`` and ``rerun`` as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
     source, target = rig.default_pair(source, target)
+    tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
+                          options=_options(filter))
     rows: list[TrackRow] = []
-    for obs in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
-        times = obs.times
-        t = float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)
+    for item in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
+        if isinstance(item, ObservationSet):
+            times = item.times
+            t, obs = (float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)), item
+        else:
+            t, obs = float(item[0]), item[1]
         row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
-        _solve_row(row, rig, source, target, pixel_sigma, confidence)
+        tracker.step(row)
         rows.append(row)
+    tracker.finish()
+    if rerun is not None:
+        with _rerun_writer(rerun, source, target) as viz:
+            for row in rows:
+                _rerun_row(viz, row)
     return Trajectory(source, target, rows, None)
+
+
+def _rerun_writer(path: str | Path | None, source: str, target: str) -> Any:
+    if path is None:
+        return None
+    try:
+        from ..io.rrd import RerunWriter
+    except ImportError:
+        raise InputError("--rerun needs the Rerun SDK: pip install rerun-sdk") from None
+    return RerunWriter(path, source, target)
+
+
+def _rerun_row(viz: Any, row: TrackRow, images: Mapping[str, Any] | None = None) -> None:
+    e = row.estimate
+    viz.frame(row.t, str(row.status), row.reason, None if e is None else e.pose, None if e is None else e.covariance,
+              images)
+
+
+def _options(filter: str | FilterOptions) -> FilterOptions:
+    return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter)
 
 
 def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image_t: np.ndarray) -> None:
@@ -266,37 +358,3 @@ def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image
     if all(own >= 2 and own > theirs for own, theirs in found.values()):
         raise InputError(f"the streams look swapped: {source!r}'s images show {source!r}'s own markers and "
                          f"{target!r}'s show {target!r}'s (check --stream/--topic)")
-
-
-def _solve_row(row: TrackRow, rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float) -> None:
-    """Localize the row's observations; set its status, reason and estimate."""
-    obs = row.observations
-    assert obs is not None
-    try:
-        pair = obs.pair(rig, source, target)
-        if pair.count < MIN_OBSERVATIONS:
-            row.status = FrameStatus.TOO_FEW
-            seen = {r: sorted(m or "?" for o, m in zip(obs.observer, obs.marker) if o == r) for r in (source, target)}
-            row.reason = f"{pair.count} markers seen ({', '.join(f'{r}: {v}' for r, v in seen.items())})"
-            return
-        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
-        row.status = _status_of(row.estimate)
-        predicted = {m for d in (row.detections or {}).values() for m in d.predicted}
-        n_measured = sum(m not in predicted for m in row.estimate.markers_used)
-        if row.status == FrameStatus.SOLVED and n_measured < 4:
-            # A light that is off is where it was predicted to be, not where it
-            # was seen: its residual cannot expose a wrong pose.
-            row.status = FrameStatus.UNVERIFIED
-            row.reason = (f"only {n_measured} of the {len(row.estimate.markers_used)} markers used were measured "
-                          "in this frame (the others are lights that are off, at their predicted positions)")
-        if row.estimate.rejected:
-            row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
-                                                for r in row.estimate.rejected)
-    except InconsistentObservationsError as exc:
-        row.status = FrameStatus.REJECTED
-        row.reason = " ".join(str(exc).split())
-    except MutlocError as exc:
-        row.status = FrameStatus.FAILED
-        row.reason = " ".join(str(exc).split())
-
-

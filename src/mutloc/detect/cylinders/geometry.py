@@ -4,6 +4,7 @@ and the rig with every band as a marker."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -62,7 +63,7 @@ def expand_cylinder_bands(rig: Rig | Mapping[str, Any] | str) -> Rig:
                     raise RigError(f"robot {rname!r}: marker {bname!r} exists, so cylinder {name!r}'s band "
                                    "markers cannot be added")
                 new[bname] = Marker(name=bname, robot=rname, position=X, extra={"cylinder_of": name, "band": k})
-        robots[rname] = Robot(name=rname, camera=robot.camera, markers=new)
+        robots[rname] = replace(robot, markers=new)  # keeps the camera and base frame
     return Rig(robots)
 
 

@@ -1,0 +1,492 @@
+"""Filtered tracking of one relative pose: a constant-velocity model on
+SE(3) and an iterated error-state Kalman filter whose update uses each
+frame's pixel observations directly (SPEC "Filtered tracking").
+
+State: the pose ``T_qp = (R, t)`` and its velocity ``(w, v)`` -- angular
+velocity (rad/s) and the rate of ``t`` (m/s), both in q's frame -- with a
+12x12 covariance over the error state ``(dtheta, dt, dw, dv)``, where
+``R_true = expm(skew(dtheta)) @ R`` and ``t_true = t + dt`` exactly as the
+SPEC's covariance, so the top-left 6x6 block *is* the pose covariance.
+
+Motion: ``R <- exp(w dt) R``, ``t <- t + v dt``, velocity constant up to
+white-noise acceleration (spectral densities ``MotionNoise.angular**2``,
+``MotionNoise.linear**2``).
+
+Update: Gauss-Newton on the posterior (the iterated EKF) over the two-way
+pixel reprojection residuals of :mod:`mutloc.core.refine`, through each
+camera's ``K`` and distortion, so one or two markers update the state as well
+as ten.  The update is gated: the innovation's Mahalanobis distance (the
+posterior cost ``e' P^-1 e + |r|^2 / sigma^2``) against the chi-square
+quantile with ``2n`` degrees of freedom at ``confidence``.  A frame that fails
+is retried without each single observation; when exactly one such subset
+passes, that observation is dropped, else the frame is rejected and the
+state stays the prediction.
+
+Nothing here reads files: the tracker (:mod:`mutloc.track.filtering`) turns
+frames into :class:`~mutloc.core.estimate.PairProblem` and rows.  A team
+filter is one of these per robot against the reference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from ..errors import InputError, positive_number
+from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
+from .estimate import PairProblem
+from .pose import Pose
+from .refine import MODE_PIXEL, WS_SIZE, residuals, so3_exp_left
+
+__all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
+           "iekf_update", "rts_smooth", "STATE_DIM"]
+
+#: Error-state dimension: rotation, translation, angular and linear velocity.
+STATE_DIM = 12
+
+
+@dataclass(frozen=True)
+class MotionNoise:
+    """The constant-velocity model's noise (all 1-sigma, SI units).
+
+    ``angular`` and ``linear`` are the square roots of the white-noise
+    acceleration spectral densities (rad s^-2 Hz^-1/2, m s^-2 Hz^-1/2):
+    over ``dt`` seconds the velocity drifts by about ``linear * sqrt(dt)``.
+    The defaults suit robots at walking pace (velocity changing by about
+    1 m/s and 0.5 rad/s within a second); lower them for smoother motion and
+    noisier detections, raise them for agile robots.  ``initial_angular`` (rad/s) and
+    ``initial_linear`` (m/s) are the velocity's sigma when the track starts
+    or restarts (from rest, as far as the filter knows).
+    """
+
+    angular: float = 0.5
+    linear: float = 1.0
+    initial_angular: float = 1.0
+    initial_linear: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("angular", "linear", "initial_angular", "initial_linear"):
+            positive_number(getattr(self, name), f"MotionNoise.{name}")
+
+
+@dataclass(frozen=True)
+class FilterState:
+    """The filter at ``time``: pose ``T_qp``, velocity ``(w, v)`` (6,) and
+    the 12x12 covariance over ``(dtheta, dt, dw, dv)``."""
+
+    time: float
+    pose: Pose
+    velocity: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        """6x6 over (left rotation vector, translation): the SPEC's covariance."""
+        return self.covariance[:6, :6]
+
+
+@dataclass(frozen=True)
+class FilterUpdate:
+    """What one frame's observations did.
+
+    ``accepted``: the state was updated (``state`` is the posterior); else
+    ``state`` is the prediction.  ``test`` is the gate on the observations
+    used (or, when rejected, on all of them); ``used`` and ``dropped`` index
+    the problem's rows; ``residuals_px`` are each row's reprojection error at
+    ``state``; ``reason`` says why a frame was rejected.
+    """
+
+    accepted: bool
+    state: FilterState
+    test: Consistency
+    used: np.ndarray
+    dropped: np.ndarray
+    residuals_px: np.ndarray
+    reason: str = ""
+    iterations: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def rms_px(self) -> float:
+        """Reprojection RMS (pixels) of the observations used."""
+        r = self.residuals_px[self.used] if self.accepted else self.residuals_px
+        return float(np.sqrt(np.mean(r**2))) if len(r) else 0.0
+
+
+@njit(cache=True)
+def _left_jacobian(phi, out):
+    """SO(3) left Jacobian J_l(phi) into out (3, 3)."""
+    th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    th = np.sqrt(th2)
+    if th < 1e-6:
+        a = 0.5 - th2 / 24.0
+        b = 1.0 / 6.0 - th2 / 120.0
+    else:
+        a = (1.0 - np.cos(th)) / th2
+        b = (th - np.sin(th)) / (th2 * th)
+    x, y, z = phi[0], phi[1], phi[2]
+    # I + a [phi]x + b [phi]x^2, with [phi]x^2 = phi phi^T - th2 I
+    out[0, 0] = 1.0 + b * (x * x - th2)
+    out[1, 1] = 1.0 + b * (y * y - th2)
+    out[2, 2] = 1.0 + b * (z * z - th2)
+    out[0, 1] = -a * z + b * x * y
+    out[1, 0] = a * z + b * x * y
+    out[0, 2] = a * y + b * x * z
+    out[2, 0] = -a * y + b * x * z
+    out[1, 2] = -a * x + b * y * z
+    out[2, 1] = a * x + b * y * z
+
+
+@njit(cache=True)
+def cv_transition(vel, dt, F):
+    """The error-state transition (12x12) of the constant-velocity motion over ``dt``."""
+    phi = np.empty(3)
+    for k in range(3):
+        phi[k] = vel[k] * dt
+    F[:, :] = np.eye(STATE_DIM)
+    E = np.empty((3, 3))
+    so3_exp_left(phi, np.eye(3), E)
+    Jl = np.empty((3, 3))
+    _left_jacobian(phi, Jl)
+    for i in range(3):
+        for j in range(3):
+            F[i, j] = E[i, j]
+            F[i, 6 + j] = Jl[i, j] * dt
+        F[3 + i, 9 + i] = dt
+
+
+@njit(cache=True)
+def cv_predict(R, t, vel, P, dt, q_ang, q_lin, R_out, t_out, P_out):
+    """Constant-velocity prediction over ``dt`` seconds (``q_ang``, ``q_lin``:
+    acceleration spectral densities); the velocity is unchanged."""
+    phi = np.empty(3)
+    for k in range(3):
+        phi[k] = vel[k] * dt
+        t_out[k] = t[k] + vel[3 + k] * dt
+    so3_exp_left(phi, R, R_out)
+    F = np.empty((STATE_DIM, STATE_DIM))
+    cv_transition(vel, dt, F)
+    FP = F @ P
+    P_out[:, :] = FP @ F.T
+    # Integrated white-noise acceleration, per axis: q [[dt^3/3, dt^2/2], [dt^2/2, dt]].
+    d3 = dt * dt * dt / 3.0
+    d2 = dt * dt / 2.0
+    for i in range(6):
+        q = q_ang if i < 3 else q_lin
+        v = i + 6
+        P_out[i, i] += q * d3
+        P_out[i, v] += q * d2
+        P_out[v, i] += q * d2
+        P_out[v, v] += q * dt
+    for i in range(STATE_DIM):
+        for j in range(i):
+            s = 0.5 * (P_out[i, j] + P_out[j, i])
+            P_out[i, j] = s
+            P_out[j, i] = s
+
+
+@njit(cache=True)
+def _cholesky(A, L):
+    """Lower Cholesky factor of SPD A into L; False if A is not positive definite."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+        for j in range(i + 1, n):
+            L[i, j] = 0.0
+    return True
+
+
+@njit(cache=True)
+def _cho_solve(L, b, x):
+    """Solve (L L^T) x = b."""
+    n = L.shape[0]
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+
+
+@njit(cache=True)
+def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_iter, R, t, vel, P, res_px):
+    """Iterated EKF update of the prior ``(R0, t0, vel0, P0)`` with pixel
+    observations (``side``/``pts``/``meas``/cameras as in
+    :func:`mutloc.core.refine.residuals`); posterior into ``R, t, vel, P``
+    and each observation's reprojection error (px) at it into ``res_px``.
+
+    Returns ``(chi2, iterations)``: the innovation's Mahalanobis distance
+    squared (``2n`` degrees of freedom), inf if a marker falls behind the
+    camera seeing it or the innovation covariance is not positive definite.
+    """
+    n = side.shape[0]
+    m = 2 * n
+    basis = np.zeros((n, 3, 3))
+    ws = np.empty(WS_SIZE)
+    r = np.empty(m)
+    J = np.empty((m, 6))
+    e = np.zeros(STATE_DIM)
+    e_new = np.empty(STATE_DIM)
+    innov = np.empty(m)
+    y = np.empty(m)
+    S = np.empty((m, m))
+    L = np.empty((m, m))
+    PH = np.empty((STATE_DIM, m))
+    s2 = sigma * sigma
+    R[:, :] = R0
+    t[:] = t0
+    chi2 = np.inf
+    it = 0
+    for it in range(1, max_iter + 1):
+        if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, r, J, True, ws):
+            return np.inf, it
+        # PH = P0[:, :6] J^T, S = J P0[:6, :6] J^T + s2 I  (H = [J 0])
+        for i in range(STATE_DIM):
+            for k in range(m):
+                s = 0.0
+                for c in range(6):
+                    s += P0[i, c] * J[k, c]
+                PH[i, k] = s
+        for a in range(m):
+            for b in range(a + 1):
+                s = 0.0
+                for c in range(6):
+                    s += J[a, c] * PH[c, b]
+                S[a, b] = s
+                S[b, a] = s
+            S[a, a] += s2
+        for k in range(m):
+            s = -r[k]
+            for c in range(6):
+                s += J[k, c] * e[c]
+            innov[k] = s
+        if not _cholesky(S, L):
+            return np.inf, it
+        _cho_solve(L, innov, y)
+        chi2 = 0.0
+        for k in range(m):
+            chi2 += innov[k] * y[k]
+        step = 0.0
+        for i in range(STATE_DIM):
+            s = 0.0
+            for k in range(m):
+                s += PH[i, k] * y[k]
+            e_new[i] = s
+            step += (s - e[i]) ** 2
+        e[:] = e_new
+        so3_exp_left(e[:3], R0, R)
+        for k in range(3):
+            t[k] = t0[k] + e[3 + k]
+        if step < 1e-18:
+            break
+    for k in range(6):
+        vel[k] = vel0[k] + e[6 + k]
+    # Joseph form with the last linearisation: P = (I - K H) P0 (I - K H)^T + s2 K K^T, K = PH S^-1.
+    Kg = np.empty((STATE_DIM, m))
+    col = np.empty(m)
+    row = np.empty(m)
+    for i in range(STATE_DIM):
+        for k in range(m):
+            row[k] = PH[i, k]
+        _cho_solve(L, row, col)
+        for k in range(m):
+            Kg[i, k] = col[k]
+    A = np.eye(STATE_DIM)
+    for i in range(STATE_DIM):
+        for c in range(6):
+            s = 0.0
+            for k in range(m):
+                s += Kg[i, k] * J[k, c]
+            A[i, c] -= s
+    P[:, :] = A @ P0 @ A.T + s2 * (Kg @ Kg.T)
+    for i in range(STATE_DIM):
+        for j in range(i):
+            s = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = s
+            P[j, i] = s
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, r, J, False, ws):
+        return np.inf, it
+    for i in range(n):
+        res_px[i] = np.sqrt(r[2 * i] ** 2 + r[2 * i + 1] ** 2)
+    return chi2, it
+
+
+class ConstantVelocityFilter:
+    """One relative pose tracked over time (see the module docstring).
+
+    ``reset`` starts (or restarts) the track from a pose and its 6x6
+    covariance, ``predict`` moves it to a later time, ``update`` folds in
+    one frame's observations (a :class:`PairProblem` with pixels; any number
+    of rows) and says whether they were consistent with the track.
+    """
+
+    def __init__(self, noise: MotionNoise | None = None, pixel_sigma: float = 1.0,
+                 confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 5) -> None:
+        self.noise = noise if noise is not None else MotionNoise()
+        self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+        if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
+            raise InputError(f"confidence must be a number in (0, 1], got {confidence!r}")
+        self.confidence = float(confidence)
+        self.max_iter = int(max_iter)
+        self.state: FilterState | None = None
+
+    # -- the track ----------------------------------------------------------
+
+    def reset(self, time: float, pose: Pose, covariance: np.ndarray, velocity: np.ndarray | None = None) -> FilterState:
+        """Start the track at ``pose`` (6x6 ``covariance``), velocity zero with
+        the noise's initial sigmas unless given."""
+        P = np.zeros((STATE_DIM, STATE_DIM))
+        P[:6, :6] = np.asarray(covariance, dtype=float)
+        n = self.noise
+        P[6:9, 6:9] = np.eye(3) * n.initial_angular**2
+        P[9:12, 9:12] = np.eye(3) * n.initial_linear**2
+        vel = np.zeros(6) if velocity is None else np.asarray(velocity, dtype=float).copy()
+        self.state = FilterState(float(time), Pose(pose.R.copy(), pose.t.copy()), vel, P)
+        return self.state
+
+    def predict(self, time: float) -> FilterState:
+        """Move the state to ``time`` (no earlier than the state's) by the motion model."""
+        s = self._require()
+        dt = float(time) - s.time
+        if dt < 0.0:
+            raise InputError(f"time goes back: {time} after {s.time}")
+        R = np.empty((3, 3))
+        t = np.empty(3)
+        P = np.empty((STATE_DIM, STATE_DIM))
+        cv_predict(s.pose.R, s.pose.t, s.velocity, s.covariance, dt, self.noise.angular**2, self.noise.linear**2,
+                   R, t, P)
+        self.state = FilterState(float(time), Pose(R, t), s.velocity, P)
+        return self.state
+
+    def update(self, problem: PairProblem) -> FilterUpdate:
+        """Fold in one frame's pixel observations (at the state's time; call
+        :meth:`predict` first).  Gated; see the module docstring."""
+        prior = self._require()
+        n = len(problem.side)
+        all_rows = np.arange(n)
+        first = self._try(problem, all_rows)
+        if first is None:
+            return self._rejected(prior, n, "a marker would be behind the camera seeing it at the predicted pose")
+        state, test, res, iters = first
+        if test.passed is not False:
+            self.state = state
+            return FilterUpdate(True, state, test, all_rows, np.empty(0, np.int64), res, iterations=iters)
+        passing = []
+        if n >= 2:
+            for k in range(n):
+                keep = np.delete(all_rows, k)
+                alt = self._try(problem, keep)
+                if alt is not None and alt[1].passed:
+                    passing.append((k, keep, alt))
+        if len(passing) == 1:
+            k, keep, (state, alt_test, res, iters) = passing[0]
+            self.state = state
+            return FilterUpdate(True, state, alt_test, keep, np.array([k]), res, iterations=iters)
+        worst = int(np.argmax(first[2])) if n else -1
+        label = problem.labels[worst] if problem.labels is not None and worst >= 0 else f"observation {worst}"
+        reason = (f"inconsistent with the track: chi2 {test.chi2:.1f} over {test.dof} degrees of freedom, above "
+                  f"{test.threshold:.1f} at {100 * test.confidence:g}%; worst {label} off by "
+                  f"{first[2][worst]:.1f} px from the filtered pose")
+        return FilterUpdate(False, prior, test, np.empty(0, np.int64), all_rows, self.residuals(problem, prior.pose),
+                            reason, iters)
+
+    def residuals(self, problem: PairProblem, pose: Pose) -> np.ndarray:
+        """Each row's reprojection error (px) at ``pose`` (inf behind a camera)."""
+        n = len(problem.side)
+        out = np.empty(n)
+        r = np.empty(2 * n)
+        J = np.empty((1, 6))
+        ws = np.empty(WS_SIZE)
+        side, pts, meas, Kp, dp, Kq, dq = self._arrays(problem)
+        basis = np.zeros((n, 3, 3))
+        if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, pose.R, pose.t, r, J, False, ws):
+            out[:] = np.inf
+            return out
+        return np.hypot(r[0::2], r[1::2])
+
+    # -- internals ------------------------------------------------------------
+
+    def _require(self) -> FilterState:
+        if self.state is None:
+            raise InputError("the filter has no state yet: reset() it from a pose first")
+        return self.state
+
+    @staticmethod
+    def _arrays(problem: PairProblem) -> tuple:
+        if problem.pixels is None or problem.K is None or problem.dist is None:
+            raise InputError("the filter's update needs pixel observations with their cameras")
+        return (np.ascontiguousarray(problem.side, dtype=np.int64), np.ascontiguousarray(problem.points, float),
+                np.ascontiguousarray(problem.pixels, float), problem.K[0], problem.dist[0], problem.K[1],
+                problem.dist[1])
+
+    def _try(self, problem: PairProblem, rows: np.ndarray):
+        """Posterior, test and residuals from the observations ``rows``, or None."""
+        s = self.state
+        side, pts, meas, Kp, dp, Kq, dq = self._arrays(problem)
+        if len(rows) != len(side):
+            side, pts, meas = side[rows], pts[rows], meas[rows]
+        n = len(side)
+        R = np.empty((3, 3))
+        t = np.empty(3)
+        vel = np.empty(6)
+        P = np.empty((STATE_DIM, STATE_DIM))
+        res = np.empty(n)
+        chi2, iters = iekf_update(side, pts, meas, Kp, dp, Kq, dq, self.pixel_sigma, s.pose.R, s.pose.t,
+                                  s.velocity, s.covariance, self.max_iter, R, t, vel, P, res)
+        if not math.isfinite(chi2):
+            return None
+        dof = 2 * n
+        test = Consistency(float(chi2), dof, self.confidence,
+                           chi2_quantile(self.confidence, dof) if self.confidence < 1.0 else math.inf)
+        full = np.full(len(problem.side), np.nan)
+        full[rows] = res
+        if len(rows) != len(problem.side):
+            full = self.residuals(problem, Pose(R, t))
+        return FilterState(s.time, Pose(R, t), vel, P), test, full, int(iters)
+
+    def _rejected(self, prior: FilterState, n: int, reason: str) -> FilterUpdate:
+        test = Consistency(math.inf, 2 * n, self.confidence, chi2_quantile(self.confidence, max(2 * n, 1)))
+        return FilterUpdate(False, prior, test, np.empty(0, np.int64), np.arange(n), np.full(n, np.inf), reason)
+
+
+def rts_smooth(priors: list[FilterState], posteriors: list[FilterState]) -> list[FilterState]:
+    """Rauch-Tung-Striebel smoothing of one uninterrupted track (offline, for
+    comparison: what a smoother gains over the causal filter).
+
+    ``priors[k]`` is the prediction to frame k (``priors[0]`` unused) and
+    ``posteriors[k]`` the filter's state after frame k (its prediction when
+    the frame was rejected or empty).  Returns the smoothed states.
+    """
+    from .geometry import so3_exp, so3_log
+
+    n = len(posteriors)
+    out: list[FilterState] = [posteriors[-1]] * n
+    F = np.empty((STATE_DIM, STATE_DIM))
+    for k in range(n - 2, -1, -1):
+        post, prior_next, smooth_next = posteriors[k], priors[k + 1], out[k + 1]
+        cv_transition(post.velocity, prior_next.time - post.time, F)
+        G = post.covariance @ F.T @ np.linalg.inv(prior_next.covariance)
+        d = np.r_[so3_log(smooth_next.pose.R @ prior_next.pose.R.T), smooth_next.pose.t - prior_next.pose.t,
+                  smooth_next.velocity - prior_next.velocity]
+        e = G @ d
+        P = post.covariance + G @ (smooth_next.covariance - prior_next.covariance) @ G.T
+        pose = Pose(so3_exp(e[:3]) @ post.pose.R, post.pose.t + e[3:6])
+        out[k] = FilterState(post.time, pose, post.velocity + e[6:], 0.5 * (P + P.T))
+    return out
+

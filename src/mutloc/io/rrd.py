@@ -1,0 +1,95 @@
+"""A track as a Rerun recording (``.rrd`` file; the Rerun SDK, no viewer).
+
+Entities (time line ``time``, seconds):
+
+- ``world`` -- the target robot's camera frame (OpenCV axes: right, down,
+  forward); ``world/TARGET`` its axes (static);
+- ``world/SOURCE`` -- the source robot's camera frame: a ``Transform3D``
+  (T_qp) per frame with a pose, drawn as axes;
+- ``world/SOURCE_uncertainty`` -- the 3-sigma ellipsoid of its position
+  (eigen-decomposition of the translation covariance);
+- ``world/trajectory`` -- every position of the track, one line strip
+  (static, written at the end);
+- ``status`` -- each frame's status and reason (``TextLog``);
+- ``images/ROBOT`` and ``images/ROBOT/detections`` -- when tracking from
+  images: each camera's image and the detected markers, labelled with their
+  names (``Points2D``).
+
+Read it back with ``rerun.chunk.RrdReader(path)``, or open it in the viewer
+(``rerun FILE.rrd``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..core.pose import Pose
+from ..errors import FileFormatError
+from ._files import PathLike
+
+__all__ = ["RerunWriter", "SIGMA_SCALE"]
+
+#: Ellipsoid half-axes in standard deviations.
+SIGMA_SCALE = 3.0
+
+
+class RerunWriter:
+    """Streams one track into an ``.rrd`` file; use as a context manager."""
+
+    def __init__(self, path: PathLike, source: str, target: str, application_id: str = "mutloc") -> None:
+        import rerun as rr
+
+        self.rr = rr
+        self.path = Path(path).expanduser()
+        if self.path.is_dir():
+            raise FileFormatError(f"{self.path}: is a folder (--rerun takes a .rrd file)")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.source, self.target = source, target
+        self.rec = rr.RecordingStream(application_id)
+        self.rec.save(str(self.path))
+        self.positions: list[np.ndarray] = []
+        self.rec.log("world", rr.ViewCoordinates.RDF, static=True)
+        self.rec.log(f"world/{target}", rr.TransformAxes3D(0.2), static=True)
+
+    def frame(self, t: float, status: str, reason: str = "", pose: Pose | None = None,
+              covariance: np.ndarray | None = None,
+              images: Mapping[str, tuple[np.ndarray, Mapping[str, Any]]] | None = None) -> None:
+        """One frame at time ``t``: its status, the pose and covariance (SPEC
+        order) if it has one, and ``images`` ``{robot: (BGR image,
+        {marker: (u, v)})}`` if tracking from images."""
+        rr, rec = self.rr, self.rec
+        rec.set_time("time", duration=float(t))
+        rec.log("status", rr.TextLog(f"{status}: {reason}" if reason else str(status)))
+        if pose is not None and pose.isfinite():
+            rec.log(f"world/{self.source}", rr.Transform3D(translation=pose.t, mat3x3=pose.R),
+                    rr.TransformAxes3D(0.2))
+            self.positions.append(np.asarray(pose.t, float).copy())
+            if covariance is not None and np.all(np.isfinite(covariance)):
+                w, V = np.linalg.eigh(np.asarray(covariance, float)[3:, 3:])
+                if np.linalg.det(V) < 0:
+                    V[:, 2] = -V[:, 2]
+                q = Pose(V, np.zeros(3)).quaternion_xyzw
+                rec.log(f"world/{self.source}_uncertainty",
+                        rr.Ellipsoids3D(centers=[pose.t], half_sizes=[SIGMA_SCALE * np.sqrt(np.maximum(w, 0.0))],
+                                        quaternions=[q], labels=[f"{status}"]))
+        for robot, (image, detections) in (images or {}).items():
+            rec.log(f"images/{robot}", rr.Image(image, color_model="BGR" if image.ndim == 3 else "L"))
+            names = list(detections)
+            pts = np.array([detections[n] for n in names], float).reshape(-1, 2)
+            rec.log(f"images/{robot}/detections", rr.Points2D(pts, labels=names, radii=6.0, show_labels=True))
+
+    def close(self) -> None:
+        """Write the whole trajectory and close the file."""
+        if self.positions:
+            self.rec.log("world/trajectory", self.rr.LineStrips3D([np.array(self.positions)]), static=True)
+        self.rec.flush()
+        self.rec.disconnect()
+
+    def __enter__(self) -> "RerunWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,91 @@
+"""Synthetic observation sequences for tracking: a known smooth trajectory
+of ``T_qp``, every marker projected through the rig's cameras, then the
+troubles a tracker must survive -- pixel noise, markers missing, stretches
+where one camera sees nothing, detections far off.  No rendering; the
+tests, the filter benchmark and the README's figures use it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..core.observations import ObservationSet
+from ..core.pose import Pose
+from ..core.rig import Rig
+
+__all__ = ["ObservationSequence", "observation_sequence"]
+
+
+@dataclass
+class ObservationSequence:
+    """``frames[i]`` (stamped ``times[i]``) observed at true pose ``truth[i]``;
+    ``outlier[i]``: frame i holds a detection moved far off (``outlier_marker[i]`` names it);
+    ``blind[i]``: the robots that see none of the other's markers in frame i ('p', 'p+q'; '' if none)."""
+
+    times: np.ndarray
+    frames: list[ObservationSet]
+    truth: Pose
+    outlier: np.ndarray
+    blind: list[str]
+    outlier_marker: list[str] = field(default_factory=list)
+
+
+def observation_sequence(rig: Rig, path: Callable[[float], Pose] | None = None, *, duration: float = 10.0,
+                         fps: float = 30.0, pixel_sigma: float = 2.0, drop: float = 0.2,
+                         blind: Sequence[tuple[float, float, str]] = ((2.0, 3.0, "p"), (6.0, 7.0, "q")),
+                         outliers: float = 0.02, outlier_px: tuple[float, float] = (30.0, 60.0), seed: int = 0,
+                         source: str | None = None, target: str | None = None) -> ObservationSequence:
+    """Observations of ``source`` (p) and ``target`` (q) along ``path``
+    (``T_qp(t)``; default :func:`mutloc.sim.render.default_path` at 2 m).
+
+    Each frame: every marker in front of the camera and inside its image is
+    seen with Gaussian noise ``pixel_sigma``; with probability ``drop`` one
+    marker (at random) is missing; during each ``blind`` stretch ``(start,
+    end, robot)`` that robot sees nothing; with probability ``outliers`` one
+    remaining detection is moved ``outlier_px`` pixels (uniform) in a random
+    direction.
+    """
+    from .render import default_path
+
+    source, target = rig.default_pair(source, target)
+    path = path if path is not None else default_path(2.0, 8.0, 0.3)
+    rng = np.random.default_rng(seed)
+    n = int(round(duration * fps))
+    times = np.arange(n) / fps
+    poses = [path(float(t)) for t in times]
+    frames: list[ObservationSet] = []
+    is_out = np.zeros(n, bool)
+    blind_of: list[str] = []
+    out_marker: list[str] = []
+    robots = {r: rig.robot(r) for r in (source, target)}
+    for i, (t, T) in enumerate(zip(times, poses)):
+        observer, marker, uv = [], [], []
+        for obs_name, other, to_obs in ((source, target, T.inverse()), (target, source, T)):
+            cam = robots[obs_name].camera
+            names = list(robots[other].markers)
+            X = to_obs.apply(robots[other].marker_positions(names))
+            px = cam.project(X)
+            for name, x, p in zip(names, X, px):
+                if x[2] <= 0 or not np.all(np.isfinite(p)) or (cam.size is not None and not cam.in_image(p)):
+                    continue
+                observer.append(obs_name)
+                marker.append(name)
+                uv.append(p + rng.normal(scale=pixel_sigma, size=2))
+        who = {r for a, b, r in blind if a <= t < b}
+        blind_of.append("+".join(sorted(who)))
+        keep = [k for k, o in enumerate(observer) if o not in who]
+        if keep and rng.random() < drop:
+            keep.pop(int(rng.integers(len(keep))))
+        out_marker.append("")
+        if keep and rng.random() < outliers:
+            k = keep[int(rng.integers(len(keep)))]
+            ang = rng.uniform(0, 2 * np.pi)
+            uv[k] = uv[k] + rng.uniform(*outlier_px) * np.array([np.cos(ang), np.sin(ang)])
+            is_out[i] = True
+            out_marker[-1] = marker[k]
+        frames.append(ObservationSet([observer[k] for k in keep], [marker[k] for k in keep],
+                                     np.array([uv[k] for k in keep]).reshape(-1, 2), float(t)))
+    return ObservationSequence(times, frames, Pose.concatenate(poses), is_out, blind_of, out_marker)

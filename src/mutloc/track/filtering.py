@@ -1,0 +1,294 @@
+"""Frame by frame, what a track reports: each frame's observations either
+localized on their own (``--filter none``) or folded into the
+constant-velocity filter of :mod:`mutloc.core.filter` (``--filter cv``).
+
+With the filter (SPEC "Filtered tracking"): the track starts from the first
+frame ``localize`` solves (four or more markers, consistent with their
+noise); after that every frame updates it -- ``solved`` with three or more
+markers consistent with the track (the prior confirms three-marker frames),
+``partial`` with one or two, ``predicted`` with none, ``rejected`` (with the
+predicted pose and the reason) when the observations contradict the track.
+After ``reinit_after`` rejected frames in a row, a frame that ``localize``
+solves on its own restarts the track (the track had gone wrong, e.g. a
+robot was carried); when the predicted uncertainty grows past
+``lost_sigma_t``/``lost_sigma_r_deg`` the track is lost and restarts the
+same way.  A team tracker is one :class:`PairTracker` per robot against the
+reference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..api import Estimate, localize
+from ..core.consistency import DEFAULT_CONFIDENCE
+from ..core.estimate import PairProblem
+from ..core.filter import ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise, rts_smooth
+from ..core.observations import MIN_OBSERVATIONS, PairObservations
+from ..core.pose import Pose
+from ..core.rig import Rig
+from ..errors import InconsistentObservationsError, InputError, MutlocError, positive_number
+from .status import FrameStatus
+
+if TYPE_CHECKING:
+    from .tracker import TrackRow
+
+__all__ = ["FILTERS", "FilterOptions", "PairTracker", "solve_row"]
+
+#: ``--filter`` choices: the constant-velocity filter, or every frame on its own.
+FILTERS = ("cv", "none")
+
+
+@dataclass(frozen=True)
+class FilterOptions:
+    """How a track is filtered (documented defaults).
+
+    ``kind``: ``"cv"`` (constant velocity) or ``"none"``; ``noise``: the
+    motion model's :class:`~mutloc.core.filter.MotionNoise`;
+    ``reinit_after``: rejected frames in a row after which a frame solved
+    on its own restarts the track; ``lost_sigma_t`` (m) and
+    ``lost_sigma_r_deg``: a predicted 1-sigma beyond these loses the track;
+    ``smooth_lag``: frames after each frame that also inform its reported
+    pose (fixed-lag RTS smoothing; 0 = the causal filter's pose).
+    """
+
+    kind: str = "cv"
+    noise: MotionNoise = field(default_factory=MotionNoise)
+    reinit_after: int = 3
+    lost_sigma_t: float = 0.5
+    lost_sigma_r_deg: float = 20.0
+    smooth_lag: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in FILTERS:
+            raise InputError(f"filter must be one of {', '.join(FILTERS)}, got {self.kind!r}")
+        if not (isinstance(self.reinit_after, int) and self.reinit_after >= 1):
+            raise InputError(f"reinit_after must be an integer >= 1, got {self.reinit_after!r}")
+        if not (isinstance(self.smooth_lag, int) and self.smooth_lag >= 0):
+            raise InputError(f"smooth_lag must be an integer >= 0 (frames), got {self.smooth_lag!r}")
+        if self.smooth_lag and self.kind != "cv":
+            raise InputError("smoothing (--smooth-lag) needs the filter (--filter cv)")
+        positive_number(self.lost_sigma_t, "lost_sigma_t")
+        positive_number(self.lost_sigma_r_deg, "lost_sigma_r_deg")
+
+
+def solve_row(row: "TrackRow", rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float) -> None:
+    """Localize the row's observations on their own; set its status, reason and estimate."""
+    obs = row.observations
+    assert obs is not None
+    try:
+        pair = obs.pair(rig, source, target)
+        if pair.count < MIN_OBSERVATIONS:
+            row.status = FrameStatus.TOO_FEW
+            row.reason = f"{pair.count} markers seen ({_seen(pair, source, target)})"
+            return
+        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
+        row.status = FrameStatus.SOLVED if row.estimate.status == "solved" else FrameStatus.UNVERIFIED
+        if row.estimate.rejected:
+            row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
+                                                for r in row.estimate.rejected)
+    except InconsistentObservationsError as exc:
+        row.status = FrameStatus.REJECTED
+        row.reason = " ".join(str(exc).split())
+    except MutlocError as exc:
+        row.status = FrameStatus.FAILED
+        row.reason = " ".join(str(exc).split())
+
+
+def _seen(pair: PairObservations, source: str, target: str) -> str:
+    obs = pair.parent
+    seen = {r: sorted(m or "?" for o, m in zip(obs.observer, obs.marker) if o == r) for r in (source, target)}
+    return ", ".join(f"{r}: {v}" for r, v in seen.items())
+
+
+class PairTracker:
+    """Turns each frame (a :class:`~mutloc.track.tracker.TrackRow` with its
+    observations) into its reported status and pose, in time order."""
+
+    def __init__(self, rig: Rig, source: str, target: str, *, pixel_sigma: float = 1.0,
+                 confidence: float = DEFAULT_CONFIDENCE, options: FilterOptions | None = None) -> None:
+        self.rig, self.source, self.target = rig, source, target
+        self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+        self.confidence = confidence
+        self.options = options if options is not None else FilterOptions()
+        self.filter = ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence)
+        self.rejections = 0
+        self._restarted = False
+        #: When a list: per frame, (prediction, state after the frame, row) while the
+        #: track runs, None where it (re)starts or is lost -- for smoothing.
+        self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
+            [] if self.options.smooth_lag > 0 and self.filtering else None
+
+    @property
+    def filtering(self) -> bool:
+        return self.options.kind == "cv"
+
+    def step(self, row: "TrackRow") -> None:
+        """Set ``row``'s status, reason and estimate from its observations
+        (rows without observations -- unpaired, corrupt -- are left alone)."""
+        if row.observations is None:
+            return
+        if not self.filtering:
+            solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+            return
+        if self.filter.state is not None and row.t < self.filter.state.time:
+            raise InputError(f"frame at {row.t} s comes before the previous one ({self.filter.state.time} s)")
+        lost = ""
+        if self.filter.state is not None:
+            state = self.filter.predict(row.t)
+            lost = self._lost(state)
+            if lost:
+                self.filter.state = None
+        if self.filter.state is None:
+            self._restart(row, lost)
+            self._record(None)
+            return
+        self._restarted = False
+        try:
+            self._filtered_step(row, state)
+        finally:
+            self._record(None if self._restarted or self.filter.state is None else
+                         (state, self.filter.state, row))
+
+    def _record(self, entry: tuple[FilterState, FilterState, Any] | None) -> None:
+        if self.history is not None:
+            self.history.append(entry)
+
+    def finish(self) -> None:
+        """With ``smooth_lag``: replace each filtered row's pose and covariance
+        by the fixed-lag smoothed ones (the frame and the ``smooth_lag``
+        frames after it in the same uninterrupted track) -- what a fixed-lag
+        smoother would report ``smooth_lag`` frames late."""
+        lag = self.options.smooth_lag
+        if not lag or not self.history:
+            return
+        hist = self.history
+        k = 0
+        while k < len(hist):
+            if hist[k] is None:
+                k += 1
+                continue
+            j = k
+            while j < len(hist) and hist[j] is not None:
+                j += 1
+            priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
+            for i in range(j - k):
+                state = rts_smooth(priors[i:i + lag + 1], posts[i:i + lag + 1])[0]
+                row = hist[k + i][2]
+                if row.estimate is not None:
+                    row.estimate = replace(row.estimate, pose=state.pose, covariance=state.pose_covariance.copy(),
+                                           candidates=Pose.concatenate([state.pose]),
+                                           extra=dict(row.estimate.extra, smooth_lag=lag,
+                                                      velocity=state.velocity.tolist()))
+            k = j
+
+    def _filtered_step(self, row: "TrackRow", state: FilterState) -> None:
+        try:
+            obs = row.observations
+            if obs.has_alternatives:
+                obs = self._nearest_candidates(obs, state.pose)
+            pair = obs.pair(self.rig, self.source, self.target)
+        except MutlocError as exc:
+            row.status = FrameStatus.FAILED
+            row.reason = " ".join(str(exc).split())
+            return
+        if len(pair.rows) == 0:
+            row.status = FrameStatus.PREDICTED
+            row.reason = "no markers seen" if pair.count == 0 else \
+                f"{pair.count} markers of unknown identity (the filter needs named markers)"
+            row.estimate = self._estimate(state, [], 0.0, None)
+            return
+        problem = self.problem(pair)
+        upd = self.filter.update(problem)
+        if upd.accepted:
+            self.rejections = 0
+            self._accepted(row, problem, upd)
+            return
+        self.rejections += 1
+        if self.rejections >= self.options.reinit_after:
+            restarted = self._restart(row, f"{self.rejections} frames in a row inconsistent with the track",
+                                      keep_failure=False)
+            if restarted:
+                return
+        row.status = FrameStatus.REJECTED
+        row.reason = upd.reason
+        row.estimate = self._estimate(upd.state, [], upd.rms_px, upd.test)
+
+    # -- internals ------------------------------------------------------------
+
+    def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
+        names = [problem.labels[k] for k in upd.used.tolist()]
+        row.status = FrameStatus.SOLVED if len(upd.used) >= MIN_OBSERVATIONS else FrameStatus.PARTIAL
+        if len(upd.dropped):
+            row.reason = "dropped " + ", ".join(
+                f"{problem.labels[k]} ({upd.residuals_px[k]:.1f} px off)" for k in upd.dropped.tolist())
+        row.estimate = self._estimate(upd.state, [_marker_of(n) for n in names], upd.rms_px, upd.test)
+
+    def _restart(self, row: "TrackRow", why: str, keep_failure: bool = True) -> bool:
+        """Localize the row on its own; a solved frame (re)starts the track.
+        Returns whether it did; with ``keep_failure`` the row keeps the
+        per-frame result either way."""
+        trial = row if keep_failure else _copy_row(row)
+        solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+        started = trial.status == FrameStatus.SOLVED and trial.estimate is not None
+        if started:
+            est = trial.estimate
+            self.filter.reset(row.t, est.pose, est.covariance)
+            self.rejections = 0
+            self._restarted = True
+            if trial is not row:
+                row.status, row.estimate, row.reason = trial.status, trial.estimate, trial.reason
+        if why and (started or keep_failure):
+            note = f"track {'restarted' if started else 'lost'}: {why}"
+            row.reason = f"{note}; {row.reason}" if row.reason else note
+        return started
+
+    def _nearest_candidates(self, obs: Any, pose: Pose) -> Any:
+        """Where a detector handed over several candidates for a marker, the
+        one nearest its predicted pixel (the track decides, not the score)."""
+        best: dict[tuple, tuple[float, int]] = {}
+        for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
+            key = (o, m if m is not None else f"#{i}")
+            one = obs.take(np.array([i])).pair(self.rig, self.source, self.target)
+            err = float(self.filter.residuals(self.problem(one), pose)[0]) if len(one.rows) else 0.0
+            if key not in best or err < best[key][0]:
+                best[key] = (err, i)
+        return obs.take(np.array(sorted(i for _, i in best.values()), dtype=np.int64))
+
+    def _lost(self, state: FilterState) -> str:
+        d = np.diag(state.covariance)
+        st = math.sqrt(max(d[3:6].max(), 0.0))
+        sr = math.degrees(math.sqrt(max(d[0:3].max(), 0.0)))
+        o = self.options
+        if st > o.lost_sigma_t or sr > o.lost_sigma_r_deg:
+            return (f"predicted sigma {st:.2f} m / {sr:.1f} deg beyond {o.lost_sigma_t:g} m / "
+                    f"{o.lost_sigma_r_deg:g} deg")
+        return ""
+
+    def problem(self, pair: PairObservations) -> PairProblem:
+        """The named observations of a frame in the filter's form (labels "p saw M1")."""
+        table = pair.table
+        obs = pair.parent
+        rows = pair.rows
+        labels = [f"{obs.observer[r]} saw {obs.marker[r]}" for r in rows.tolist()]
+        return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), None,
+                                   np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels)
+
+    def _estimate(self, state: FilterState, markers: list[str], rms: float, test: Any) -> Estimate:
+        return Estimate(source=self.source, target=self.target, pose=state.pose,
+                        covariance=state.pose_covariance.copy(), pixel_sigma=self.pixel_sigma,
+                        reprojection_rms_px=float(rms), markers_used=markers,
+                        candidates=Pose.concatenate([state.pose]), consistency=test,
+                        extra={"velocity": state.velocity.tolist(), "filter": self.options.kind})
+
+
+def _marker_of(label: str) -> str:
+    return label.rsplit(" saw ", 1)[-1]
+
+
+def _copy_row(row: "TrackRow") -> "TrackRow":
+    return replace(row, reason="", estimate=None)

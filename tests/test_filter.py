@@ -1,0 +1,459 @@
+"""Filtered tracking (SPEC "Filtered tracking") against a known trajectory.
+
+Observations are the rig's markers projected along a smooth path of T_qp
+(mutloc.sim.tracking; no rendering), with the issue's troubles: 2 px noise,
+20% of frames missing a marker, two 1-second stretches where one camera sees
+none of the other's markers, 2% of frames with a detection 30-60 px off.
+"""
+
+import numpy as np
+import pytest
+
+from mutloc.cli.main import main
+from mutloc.core.estimate import PairProblem
+from mutloc.core.filter import ConstantVelocityFilter, MotionNoise, cv_predict, iekf_update
+from mutloc.core.geometry import so3_exp, so3_log
+from mutloc.core.pose import Pose
+from mutloc.errors import InputError
+from mutloc.io import save_rig
+from mutloc.io.logs import write_observation_log
+from mutloc.io.trajectory import CSV_COLUMNS, read_trajectory_csv, read_tum
+from mutloc.sim.render import default_path
+from mutloc.sim.tracking import observation_sequence
+from mutloc.sim.world import standard_rig
+from mutloc.track.filtering import FilterOptions
+from mutloc.track.tracker import track_log
+
+SIGMA = 2.0
+# Tuned to the path below (p sways 0.6 m and moves 0.3 m in depth over 12 s:
+# accelerations of a few tenths of m/s^2 and rad/s^2).
+NOISE = MotionNoise(angular=0.1, linear=0.3)
+
+
+def _path():
+    return default_path(2.0, 12.0, 0.3)
+
+
+def _run(seed, kind, lag=0):
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=10.0, fps=30.0, pixel_sigma=SIGMA, seed=seed)
+    traj = track_log(rig, list(zip(seq.times, seq.frames)), pixel_sigma=SIGMA, progress=False,
+                     filter=FilterOptions(kind, NOISE, smooth_lag=lag))
+    return seq, traj
+
+
+def _errors(traj, seq):
+    return np.array([r.estimate.pose.translation_error(T) if r.estimate is not None else np.nan
+                     for r, T in zip(traj.rows, seq.truth)])
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {seed: {"none": _run(seed, "none"), "cv": _run(seed, "cv"), "lag10": _run(seed, "cv", 10)}
+            for seed in (0, 1, 2)}
+
+
+def test_every_frame_has_a_row_and_a_pose(runs):
+    for seed, r in runs.items():
+        seq, traj = r["cv"]
+        assert len(traj.rows) == len(seq.frames) == 300
+        statuses = {str(row.status) for row in traj.rows}
+        assert statuses <= {"solved", "unverified", "partial", "predicted", "rejected"}, statuses
+        # Once the track has started every row carries a pose with a covariance.
+        start = next(i for i, row in enumerate(traj.rows) if row.status == "solved")
+        assert start < 10
+        for row in traj.rows[start:]:
+            assert row.estimate is not None and np.all(np.linalg.eigvalsh(row.estimate.covariance) > 0)
+        for row in traj.rows:
+            if row.status == "partial":
+                assert 1 <= len(row.estimate.markers_used) <= 2
+            if row.status == "solved":
+                assert len(row.estimate.markers_used) >= 3
+
+
+def test_blind_stretches_are_tracked(runs):
+    for seed, r in runs.items():
+        seq, traj = r["cv"]
+        blind = np.array([b != "" for b in seq.blind])
+        assert blind.sum() == 60
+        st = [str(traj.rows[i].status) for i in np.flatnonzero(blind)]
+        assert set(st) <= {"partial", "predicted", "rejected"}, set(st)
+        assert st.count("partial") + st.count("predicted") >= 0.9 * len(st)
+        err = _errors(traj, seq)[blind]
+        assert np.median(err) <= 0.05, (seed, np.median(err))
+        # Per frame, these frames have two markers at most: no pose at all.
+        seq_n, traj_n = r["none"]
+        assert all(traj_n.rows[i].estimate is None for i in np.flatnonzero(blind))
+
+
+def test_filter_beats_per_frame(runs):
+    """Median translation error over the frames the per-frame solver solves,
+    pooled over three seeds: the filter's is at most 0.6 of it."""
+    e_cv, e_none = [], []
+    for seed, r in runs.items():
+        seq, traj_n = r["none"]
+        _, traj_c = r["cv"]
+        en, ec = _errors(traj_n, seq), _errors(traj_c, seq)
+        same = ~np.isnan(en)
+        e_none.append(en[same])
+        e_cv.append(ec[same])
+    ratio = np.median(np.concatenate(e_cv)) / np.median(np.concatenate(e_none))
+    print(f"filtered / per-frame median translation error: {ratio:.2f}")
+    assert ratio <= 0.6
+
+
+def test_outliers_are_rejected_or_harmless(runs):
+    n_out = 0
+    for seed, r in runs.items():
+        seq, traj = r["cv"]
+        err = _errors(traj, seq)
+        med = np.nanmedian(err)
+        for i in np.flatnonzero(seq.outlier):
+            n_out += 1
+            row = traj.rows[i]
+            who = [o for o, m in zip(seq.frames[i].observer, seq.frames[i].marker) if m == seq.outlier_marker[i]][0]
+            dropped = f"dropped {who} saw {seq.outlier_marker[i]}" in row.reason
+            if row.status in ("rejected", "unverified") or dropped:
+                continue  # not used, or flagged as unconfirmed
+            assert err[i] <= 2 * med, (seed, i, str(row.status), row.reason, err[i], med)
+            if row.status == "solved":
+                # Used in full and still close: the prior could not tell; never far off.
+                assert seq.outlier_marker[i] in row.estimate.markers_used
+    assert n_out >= 3
+
+
+def test_fixed_lag_smoothing_does_better_still(runs):
+    """--smooth-lag 10: each pose also informed by the next 10 frames (1/3 s):
+    smaller errors than the filter on the same frames, same statuses, sigmas
+    still calibrated."""
+    e_cv, e_lag = [], []
+    for seed, r in runs.items():
+        seq, traj_c = r["cv"]
+        _, traj_l = r["lag10"]
+        assert [str(a.status) for a in traj_c.rows] == [str(b.status) for b in traj_l.rows]
+        e_cv.append(_errors(traj_c, seq))
+        e_lag.append(_errors(traj_l, seq))
+        z = []
+        for row, T in zip(traj_l.rows, seq.truth):
+            if row.estimate is not None and row.status != "unverified":
+                e = np.r_[so3_log(T.R @ row.estimate.R.T), T.t - row.estimate.t]
+                z.append(e / np.sqrt(np.diag(row.estimate.covariance)))
+        assert 0.5 <= np.mean(np.array(z) ** 2) <= 2.0
+    e_cv, e_lag = np.concatenate(e_cv), np.concatenate(e_lag)
+    ok = ~np.isnan(e_cv)
+    assert np.median(e_lag[ok]) <= 0.8 * np.median(e_cv[ok])
+
+
+def test_sigmas_are_calibrated(runs):
+    """Normalised errors (error over the reported sigma, per SPEC component)
+    have a mean square near 1: over seeds 0-5 we measured 0.70-0.84 (NEES / 6,
+    the 6-D Mahalanobis form: 0.77-0.88; python bench/bench_filter.py), the
+    sigmas slightly conservative.  [0.5, 2] flags sigmas off by more than a
+    factor of 1.4 either way while leaving room for seed-to-seed spread
+    (300 strongly correlated frames per seed)."""
+    for seed, r in runs.items():
+        seq, traj = r["cv"]
+        z, nees = [], []
+        for row, T in zip(traj.rows, seq.truth):
+            if row.estimate is None or row.status == "unverified":
+                continue
+            e = np.r_[so3_log(T.R @ row.estimate.R.T), T.t - row.estimate.t]
+            C = row.estimate.covariance
+            z.append(e / np.sqrt(np.diag(C)))
+            nees.append(e @ np.linalg.solve(C, e) / 6)
+        z = np.array(z)
+        assert 0.5 <= np.mean(z**2) <= 2.0, (seed, np.mean(z**2, axis=0))
+        assert 0.5 <= np.mean(nees) <= 2.0, (seed, np.mean(nees))
+
+
+def test_none_is_every_frame_on_its_own(runs):
+    seq, traj = runs[0]["none"]
+    st = {str(r.status) for r in traj.rows}
+    assert "partial" not in st and "predicted" not in st and "too_few" in st
+
+
+# -- the filter's maths on its own ------------------------------------------------
+
+
+def test_prediction_moves_by_the_velocity_and_grows_the_covariance():
+    R = so3_exp([0.1, 2.0, -0.2])
+    t = np.array([0.3, -0.1, 2.0])
+    vel = np.array([0.0, 0.5, 0.1, 0.2, 0.0, -0.3])
+    P = np.eye(12) * 1e-4
+    Ro, to, Po = np.empty((3, 3)), np.empty(3), np.empty((12, 12))
+    cv_predict(R, t, vel, P, 0.5, 0.01, 0.04, Ro, to, Po)
+    np.testing.assert_allclose(Ro, so3_exp(vel[:3] * 0.5) @ R, atol=1e-12)
+    np.testing.assert_allclose(to, t + vel[3:] * 0.5, atol=1e-12)
+    assert np.all(np.diag(Po)[:6] > np.diag(P)[:6]) and np.allclose(Po, Po.T)
+    # Monte Carlo of the error state through the exact motion: the first-order covariance matches.
+    rng = np.random.default_rng(0)
+    L = np.diag([1e-3, 2e-3, 1e-3, 1e-2, 1e-2, 2e-2, 0.05, 0.02, 0.05, 0.1, 0.1, 0.1])
+    cv_predict(R, t, vel, L @ L.T, 0.5, 1e-12, 1e-12, Ro, to, Po)
+    samples = []
+    for _ in range(4000):
+        d = L @ rng.normal(size=12)
+        Rs, ts, ws = so3_exp(d[:3]) @ R, t + d[3:6], vel + d[6:]
+        R1, t1 = so3_exp(ws[:3] * 0.5) @ Rs, ts + ws[3:] * 0.5
+        samples.append(np.r_[so3_log(R1 @ Ro.T), t1 - to])
+    C = np.cov(np.array(samples).T)
+    np.testing.assert_allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(Po)[:6]), rtol=0.06)
+
+
+def _problem(rig, T, markers=None, noise=0.0, rng=None):
+    """Pixels of the rig's markers at T_qp as a PairProblem (p sees q's, q sees p's)."""
+    table = rig.pair_table("p", "q")
+    side, prow, uv = [], [], []
+    for name, (s, row) in table.index.items():
+        if markers is not None and name not in markers:
+            continue
+        X = T.inverse().apply(table.points[row]) if s == 0 else T.apply(table.points[row])
+        cam = rig.robot("p" if s == 0 else "q").camera
+        p = cam.project(X) + (0 if rng is None else rng.normal(scale=noise, size=2))
+        side.append(s)
+        prow.append(row)
+        uv.append(p)
+    return PairProblem.trusted(np.array(side, np.int64), np.ascontiguousarray(table.points[prow]), None,
+                               np.array(uv), table.K, table.dist, [f"m{k}" for k in range(len(side))])
+
+
+def test_update_is_the_map_estimate():
+    """One update from a prior 5 cm / 1 degree off: the posterior is the
+    minimiser of ``e' P^-1 e + |r(e)|^2 / sigma^2`` (found here by SciPy),
+    and with exact pixels it lands near the truth."""
+    from scipy.optimize import least_squares
+
+    rig = standard_rig("balls")
+    T = _path()(1.0)
+    prob = _problem(rig, T, noise=1.0, rng=np.random.default_rng(1))
+    P6 = np.diag([0.02] * 3 + [0.05] * 3) ** 2
+    prior = Pose(so3_exp([0.01, -0.02, 0.005]) @ T.R, T.t + np.array([0.03, -0.02, 0.05]))
+    f = ConstantVelocityFilter(MotionNoise(), pixel_sigma=1.0, max_iter=20)
+    f.reset(0.0, prior, P6)
+    upd = f.update(prob)
+    assert upd.accepted
+    Li = np.linalg.cholesky(np.linalg.inv(P6))
+
+    def res(e):
+        Tp = Pose(so3_exp(e[:3]) @ prior.R, prior.t + e[3:])
+        return np.r_[Li.T @ e, (_problem(rig, Tp).pixels - prob.pixels).ravel()]
+
+    e = least_squares(res, np.zeros(6), xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+    ref = Pose(so3_exp(e[:3]) @ prior.R, prior.t + e[3:])
+    assert upd.state.pose.translation_error(ref) < 2e-5 and upd.state.pose.rotation_error_deg(ref) < 1e-3
+    assert upd.state.pose.translation_error(T) < 0.01 < prior.translation_error(T)
+    # The gate's chi-square is the minimum of that cost (2n degrees of freedom).
+    assert upd.test.chi2 == pytest.approx(np.sum(res(e) ** 2), rel=0.02) and upd.test.dof == 8
+    # Two markers seen by one camera: four constraints on six unknowns; the
+    # covariance shrinks, but not in every direction.
+    f.reset(0.0, prior, P6)
+    upd = f.update(_problem(rig, T, markers={"M1", "M2"}))
+    assert upd.accepted and len(upd.used) == 2
+    from scipy.linalg import eigh
+
+    ratio = eigh(upd.state.pose_covariance, P6, eigvals_only=True)  # posterior over prior, per direction
+    # two directions the two rays cannot see keep the prior exactly; four shrink
+    assert np.sum(np.abs(ratio - 1) < 1e-6) == 2 and np.sum(ratio < 0.5) == 4, ratio
+
+
+def test_a_far_off_detection_is_dropped_and_named():
+    rig = standard_rig("balls")
+    T = _path()(2.0)
+    rng = np.random.default_rng(3)
+    f = ConstantVelocityFilter(MotionNoise(), pixel_sigma=1.0)
+    f.reset(0.0, T, np.diag([0.002] * 3 + [0.01] * 3) ** 2)
+    prob = _problem(rig, T, noise=1.0, rng=rng)
+    prob.pixels[2] += [35.0, -20.0]
+    upd = f.update(prob)
+    assert upd.accepted and upd.dropped.tolist() == [2] and upd.residuals_px[2] > 25
+    # Alone, that detection is not enough to tell which one is wrong: rejected, with the prediction.
+    f.reset(0.0, T, np.diag([0.002] * 3 + [0.01] * 3) ** 2)
+    bad = _problem(rig, T, markers={"M1"})
+    bad.pixels[0] += [40.0, 0.0]
+    upd = f.update(bad)
+    assert not upd.accepted and "inconsistent with the track" in upd.reason
+    assert upd.state.pose.translation_error(T) == 0.0
+
+
+def test_filter_refuses_misuse():
+    f = ConstantVelocityFilter()
+    with pytest.raises(InputError):
+        f.predict(1.0)
+    f.reset(1.0, Pose.identity(), np.eye(6))
+    with pytest.raises(InputError, match="back"):
+        f.predict(0.5)
+    with pytest.raises(InputError):
+        MotionNoise(linear=-1.0)
+    with pytest.raises(InputError):
+        FilterOptions(kind="kalman")
+    with pytest.raises(InputError, match="needs the filter"):
+        FilterOptions(kind="none", smooth_lag=5)
+
+
+def test_iekf_matches_the_map_estimate_of_a_linear_gaussian_prior():
+    """One update from a prior centred on the truth with exact pixels: nothing moves,
+    the covariance is the information sum (P^-1 + J^T J / sigma^2)^-1."""
+    rig = standard_rig("balls")
+    T = _path()(3.0)
+    prob = _problem(rig, T)
+    P0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [0.1] * 6) ** 2
+    R, t, vel, P, res = np.empty((3, 3)), np.empty(3), np.empty(6), np.empty((12, 12)), np.empty(4)
+    chi2, _ = iekf_update(prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1], 2.0,
+                          T.R, T.t, np.zeros(6), P0, 5, R, t, vel, P, res)
+    assert chi2 < 1e-12 and np.max(res) < 1e-9
+    # J by finite differences of the projection, independent of the kernel's Jacobian.
+    def pix(dx):
+        Tp = Pose(so3_exp(dx[:3]) @ T.R, T.t + dx[3:])
+        return _problem(rig, Tp).pixels.ravel()
+    J = np.array([(pix(h) - pix(-h)) / 2e-7 for h in np.eye(6) * 1e-7]).T
+    info = np.linalg.inv(P0[:6, :6]) + J.T @ J / 4.0
+    np.testing.assert_allclose(P[:6, :6], np.linalg.inv(info), rtol=1e-5, atol=1e-12)
+
+
+# -- through the command line, on a log file -----------------------------------------
+
+
+def test_cli_tracks_a_log(tmp_path, capsys):
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=4.0, fps=30.0, pixel_sigma=SIGMA, seed=5,
+                               blind=((1.0, 2.0, "q"),))
+    frames = list(seq.frames)
+    frames[50] = frames[50].take(np.zeros(len(frames[50]), bool))  # a frame that saw nothing at all
+    save_rig(rig, tmp_path / "rig.yaml")
+    # The writer takes each frame's time from its observations: the empty frame's line is added by hand.
+    write_observation_log(tmp_path / "log.jsonl", [f for f in frames if len(f)])
+    lines = (tmp_path / "log.jsonl").read_text().splitlines()
+    lines.insert(50, '{"time": %r, "observations": {}}' % float(seq.times[50]))
+    (tmp_path / "log.jsonl").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+                 "--out", str(out), "--pixel-sigma", str(SIGMA), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    rows = read_trajectory_csv(out / "trajectory.csv")
+    assert len(rows) == 120 and "120 frames" in printed
+    header = (out / "trajectory.csv").read_text().splitlines()[0].split(",")
+    assert tuple(header[:15]) == CSV_COLUMNS
+    np.testing.assert_allclose([r["t"] for r in rows], seq.times, atol=1e-9)
+    assert rows[50]["status"] == "predicted" and rows[50]["pose"] is not None
+    st = [r["status"] for r in rows]
+    assert "partial" in st[30:60]
+    errs = [r["pose"].translation_error(T) for r, T in zip(rows, seq.truth) if r["pose"] is not None]
+    assert np.median(errs) < 0.03
+    for r in rows:
+        if r["pose"] is not None:
+            assert r["sigma"] is not None and np.all(r["sigma"] > 0)
+    # --pixel-sigma is behind every sigma: twice the noise, (about) twice the sigmas.
+    assert main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+                 "--out", str(tmp_path / "out4"), "--pixel-sigma", str(2 * SIGMA), "--no-progress"]) == 0
+    rows4 = read_trajectory_csv(tmp_path / "out4" / "trajectory.csv")
+    ratio = np.median([b["sigma"][3:] / a["sigma"][3:] for a, b in zip(rows, rows4)
+                       if a["sigma"] is not None and b["sigma"] is not None and a["status"] == "solved"])
+    assert 1.3 < ratio < 2.1
+    times, poses = read_tum(out / "trajectory.tum")
+    assert len(times) == sum(r["pose"] is not None for r in rows)
+    # --filter none: every frame on its own; the blind frames have no pose.
+    assert main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+                 "--out", str(tmp_path / "none"), "--filter", "none", "--no-progress"]) == 0
+    rows_n = read_trajectory_csv(tmp_path / "none" / "trajectory.csv")
+    assert [r["status"] for r in rows_n][50] == "too_few"
+    assert not any(r["status"] in ("partial", "predicted") for r in rows_n)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+              "--out", str(out), "--filter", "kalman"])
+    assert info.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_the_track_picks_the_candidate_near_the_prediction():
+    """A detector unsure between two blobs (the wrong one scored higher): the
+    filtered track takes the one its prediction expects."""
+    from mutloc.core.observations import ObservationSet
+    from mutloc.track.filtering import PairTracker
+    from mutloc.track.status import FrameStatus
+    from mutloc.track.tracker import TrackRow
+
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=1.0, fps=30.0, pixel_sigma=1.0, seed=2, drop=0.0, blind=(),
+                               outliers=0.0)
+    tracker = PairTracker(rig, "p", "q", pixel_sigma=1.0, options=FilterOptions("cv", NOISE))
+    for k, (t, f) in enumerate(zip(seq.times, seq.frames)):
+        if k == 20:
+            i = f.marker.index("M1")
+            decoy = (f.observer[i], "M1", f.uv[i] + [0.0, -45.0])
+            f = ObservationSet(f.observer + (decoy[0],), f.marker + ("M1",), np.vstack([f.uv, decoy[2]]),
+                               t, np.r_[np.full(len(f), 0.5), 0.9])
+            assert f.has_alternatives
+        row = TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f)
+        tracker.step(row)
+        if k == 20:
+            assert row.status == "solved" and not row.reason
+            assert row.estimate.pose.translation_error(seq.truth[k]) < 0.01
+
+
+def test_rts_smoothing_uses_the_future():
+    """The offline smoother (used to compare with a smoother) is at least as
+    accurate as the filter on a track, and equal to it at the last frame."""
+    from mutloc.core.filter import rts_smooth
+    from mutloc.track.filtering import PairTracker
+    from mutloc.track.status import FrameStatus
+    from mutloc.track.tracker import TrackRow
+
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=3.0, fps=30.0, pixel_sigma=SIGMA, seed=7, blind=(),
+                               outliers=0.0)
+    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
+    tracker.history = []
+    for t, f in zip(seq.times, seq.frames):
+        tracker.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
+    hist = tracker.history
+    assert hist[0] is None and all(h is not None for h in hist[1:])
+    smooth = rts_smooth([h[0] for h in hist[1:]], [h[1] for h in hist[1:]])
+    ef = np.array([h[1].pose.translation_error(T) for h, T in zip(hist[1:], seq.truth[1:])])
+    es = np.array([s.pose.translation_error(T) for s, T in zip(smooth, seq.truth[1:])])
+    assert es[-1] == ef[-1]
+    assert np.median(es) < 0.9 * np.median(ef)
+    assert np.all(np.diag(smooth[10].covariance) <= np.diag(hist[11][1].covariance) + 1e-15)
+
+
+def test_a_jump_restarts_the_track_from_a_solved_frame():
+    """p is carried 0.5 m sideways at t = 1 s: the track rejects the new
+    frames, then restarts from the first frame solved on its own, and is
+    right again."""
+    base = _path()
+
+    def jumped(t):
+        T = base(t)
+        return Pose(T.R, T.t + (np.array([0.5, 0.0, 0.0]) if t >= 1.0 else 0.0))
+
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, jumped, duration=2.0, fps=30.0, pixel_sigma=1.0, seed=3, drop=0.0, blind=(),
+                               outliers=0.0)
+    traj = track_log(rig, list(zip(seq.times, seq.frames)), pixel_sigma=1.0, progress=False,
+                     filter=FilterOptions("cv", NOISE))
+    st = [str(r.status) for r in traj.rows]
+    assert st[30:32] == ["rejected", "rejected"]
+    assert st[32] == "solved" and "track restarted" in traj.rows[32].reason
+    for r, T in zip(traj.rows[30:32], seq.truth[30:32]):
+        assert r.estimate.pose.translation_error(T) > 0.3  # the prediction, reported as such
+    err = _errors(traj, seq)
+    assert np.all(err[32:] < 0.03) and np.all(err[:30] < 0.03)
+
+
+def test_a_long_blackout_loses_the_track_and_restarts():
+    """Neither camera sees anything for 4 s: predicted rows while the
+    predicted sigma is small enough, then the track is lost (no pose) until
+    a frame is solved on its own again."""
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, _path(), duration=7.0, fps=30.0, pixel_sigma=1.0, seed=4, drop=0.0,
+                               blind=((1.0, 5.0, "p"), (1.0, 5.0, "q")), outliers=0.0)
+    opts = FilterOptions("cv", MotionNoise(angular=0.1, linear=0.3), lost_sigma_t=0.3)
+    traj = track_log(rig, list(zip(seq.times, seq.frames)), pixel_sigma=1.0, progress=False, filter=opts)
+    st = [str(r.status) for r in traj.rows]
+    dark = st[30:150]
+    assert dark[0] == "predicted" and "too_few" in dark
+    first_lost = dark.index("too_few")
+    assert set(dark[:first_lost]) == {"predicted"} and set(dark[first_lost:]) == {"too_few"}
+    assert "track lost" in traj.rows[30 + first_lost].reason
+    sig = traj.rows[30 + first_lost - 1].estimate.covariance
+    assert np.sqrt(np.max(np.diag(sig)[3:])) <= 0.3
+    assert all(traj.rows[30 + k].estimate is None for k in range(first_lost, 120))
+    assert st[150] == "solved" and np.all(_errors(traj, seq)[150:] < 0.03)
