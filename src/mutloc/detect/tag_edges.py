@@ -105,13 +105,20 @@ def diagonal_centre(corners: Any, camera: Camera | None = None) -> np.ndarray:
 _PROFILE_STEP = 0.25
 # Profile half-length: a fraction of a tag cell, so the profile stays inside
 # the one-cell black border and the (at least one-cell) white quiet zone.
-_PROFILE_CELL_FRACTION = 0.45
+_PROFILE_CELL_FRACTION = 0.6
 _PROFILE_MIN_PX = 1.5
 _PROFILE_MAX_PX = 6.0
 # A refined corner further than this (pixels, or this fraction of a cell) from
 # OpenCV's is not trusted: the edge fit latched onto something else.  Not
 # tighter: OpenCV's own corners were measured up to 1.6 px off on 30 px tags.
 _MAX_SHIFT_PX = 2.0
+# Passes of the edge fit, each re-centring the profiles on the previous sides
+# (a short profile is biased towards its own centre, so the fit is iterated to
+# its fixed point: measured on 27 px tags with 0.8 px blur, 2 passes left a
+# 2.5 cm range bias at 3.5 m, 4 passes 0.4 cm, more passes no change), and the
+# corner shift below which it has converged.
+_PASSES = 4
+_CONVERGED_PX = 0.002
 _MAX_SHIFT_CELLS = 0.5
 
 
@@ -283,8 +290,9 @@ def refine_edges(gray: np.ndarray, corners: np.ndarray, cells: int, camera: Came
     """Corners from straight-line fits to the four sides of the black square.
 
     ``corners`` (4, 2) are OpenCV's (sub-pixel) corners, the starting point.
-    Two passes: the second re-centres the profiles on the first pass's sides,
-    so its plateaus are symmetric about the edge.  With a distorting
+    Each pass re-centres the profiles on the previous pass's sides, so their
+    plateaus end up symmetric about the edge (up to :data:`_PASSES`, until
+    the corners move less than :data:`_CONVERGED_PX`).  With a distorting
     ``camera`` the edge points are undistorted before the line fit (sides are
     straight only there).  Returns the corners and the RMS distance (px) of
     the edge points from their sides -- a quality figure: noise, blur and
@@ -309,7 +317,7 @@ def refine_edges(gray: np.ndarray, corners: np.ndarray, cells: int, camera: Came
     lines = np.empty((4, 3))
     rms = np.empty(4)
     gray = np.ascontiguousarray(gray, dtype=np.float32)
-    for _ in range(2):
+    for _ in range(_PASSES):
         _side_points(gray, c, r, float(origin[0]), float(origin[1]), pts, wts, counts)
         for k in range(4):
             p = pts[k, :counts[k]]
@@ -327,11 +335,13 @@ def refine_edges(gray: np.ndarray, corners: np.ndarray, cells: int, camera: Came
             if q is None:
                 return None
             new.append(q)
-        c = np.array(new)
+        prev, c = c, np.array(new)
         if undistort:
             c = _to_pixels(camera, c)  # type: ignore[arg-type]
         if not np.all(np.isfinite(c)):
             return None
+        if np.max(np.abs(c - prev)) < _CONVERGED_PX:
+            break
     if np.max(np.linalg.norm(c - c0, axis=1)) > max(_MAX_SHIFT_PX, _MAX_SHIFT_CELLS * cell):
         return None
     return c, float(np.sqrt(np.mean(np.square(rms))))
