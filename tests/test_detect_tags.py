@@ -181,13 +181,13 @@ def _line_intersection(p1, p2, p3, p4) -> np.ndarray:
 
 def _corner_errors(n: int, seed: int, **render_kw: Any) -> tuple[dict[str, np.ndarray], dict[str, int]]:
     """Corner errors of ours and OpenCV's on the tags every detector found, and how many each found."""
-    import pupil_apriltags
+    from mutloc.detect.apriltag_lib import peer_detector
 
     rng = np.random.default_rng(seed)
     markers = {"T": tag_marker("T")}
     errs: dict[str, list[np.ndarray]] = {"ours": [], "opencv_default": [], "opencv_subpix": []}
     found = {"ours": 0, "opencv": 0, "apriltag_lib": 0}
-    peer = pupil_apriltags.Detector(families="tag36h11")
+    peer = peer_detector("tag36h11")
     gamma = render_kw.get("gamma", "srgb")
     for _ in range(n):
         rvec, tvec = random_pose(rng)

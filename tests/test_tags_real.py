@@ -13,12 +13,12 @@ import functools
 
 import cv2
 import numpy as np
-import pupil_apriltags
 import pytest
 
 import mutloc
 from mutloc.core.geometry import rotation_error_deg
 from mutloc.core.rig import Marker, Rig, Robot
+from mutloc.detect.apriltag_lib import peer_detector
 from mutloc.detect.base import DetectionResult
 from mutloc.detect.tag_edges import linearize
 from mutloc.detect.tags import aruco_dictionary, canonical_family, detect_tags, expand_tag_corners, tag_observations
@@ -114,7 +114,7 @@ def test_linearisation_removes_the_gamma_range_bias() -> None:
 
 
 def _library_ids(image: np.ndarray, family: str) -> set[int]:
-    peer = pupil_apriltags.Detector(families=family)
+    peer = peer_detector(family)
     return {d.tag_id for d in peer.detect(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))}
 
 

@@ -112,6 +112,9 @@ _PROFILE_MAX_PX = 6.0
 # OpenCV's is not trusted: the edge fit latched onto something else.  Not
 # tighter: OpenCV's own corners were measured up to 1.6 px off on 30 px tags.
 _MAX_SHIFT_PX = 2.0
+# Profiles per side at most (one per pixel up to this): a long side's line is
+# pinned down well by fewer, and the fit's cost grows with their number.
+_MAX_PROFILES = 40
 # Passes of the edge fit, each re-centring the profiles on the previous sides
 # (a short profile is biased towards its own centre, so the fit is iterated to
 # its fixed point: measured on 27 px tags with 0.8 px blur, 2 passes left a
@@ -133,7 +136,7 @@ def _bilinear(img: np.ndarray, x: float, y: float) -> float:
 
 
 @numba.njit(cache=True, fastmath=False)
-def _side_points(gray: np.ndarray, c: np.ndarray, r: float, ox: float, oy: float,
+def _side_points(gray: np.ndarray, c: np.ndarray, rs: np.ndarray, ox: float, oy: float,
                  pts: np.ndarray, wts: np.ndarray, counts: np.ndarray) -> None:
     """Sub-pixel points on the tag's outer edge along each side k (c[k] -> c[k+1]).
 
@@ -143,14 +146,13 @@ def _side_points(gray: np.ndarray, c: np.ndarray, r: float, ox: float, oy: float
     plateau levels, the edge sits at ``s* = s_max - integral(I - I0) ds / (I1 - I0)``:
     exact for a step blurred by any symmetric kernel, and it uses every
     sample rather than one threshold crossing.  Points go to ``pts[k, :counts[k]]``
-    (image pixels), their contrast ``|I1 - I0|`` to ``wts`` (used as weights).
+    (image pixels), their contrast ``|I1 - I0|`` to ``wts`` (used as weights);
+    ``rs[k]`` is side k's profile half-length.
     """
     h, w = gray.shape
-    ns = int(math.floor(2.0 * r / _PROFILE_STEP + 0.5)) + 1
-    kk = max(2, ns // 6)  # plateau: the outer sixth of each end
     cx = 0.25 * (c[0, 0] + c[1, 0] + c[2, 0] + c[3, 0])
     cy = 0.25 * (c[0, 1] + c[1, 1] + c[2, 1] + c[3, 1])
-    prof = np.empty(ns)
+    prof = np.empty(int(2.0 * rs.max() / _PROFILE_STEP) + 3)
     maxn = pts.shape[1]
     off = np.empty(maxn)
     con = np.empty(maxn)
@@ -158,6 +160,9 @@ def _side_points(gray: np.ndarray, c: np.ndarray, r: float, ox: float, oy: float
     by = np.empty(maxn)
     for k in range(4):
         counts[k] = 0
+        r = rs[k]
+        ns = int(math.floor(2.0 * r / _PROFILE_STEP + 0.5)) + 1
+        kk = max(2, ns // 6)  # plateau: the outer sixth of each end
         ax, ay = c[k, 0], c[k, 1]
         dx, dy = c[(k + 1) % 4, 0] - ax, c[(k + 1) % 4, 1] - ay
         length = math.hypot(dx, dy)
@@ -169,7 +174,7 @@ def _side_points(gray: np.ndarray, c: np.ndarray, r: float, ox: float, oy: float
         nx, ny = dy, -dx
         if nx * (ax + 0.5 * length * dx - cx) + ny * (ay + 0.5 * length * dy - cy) < 0:  # n points out
             nx, ny = -nx, -ny
-        nt = min(maxn, max(4, int(length - 2.0 * margin) + 1))
+        nt = min(maxn, _MAX_PROFILES, max(4, int(length - 2.0 * margin) + 1))
         m = 0
         for i in range(nt):
             t = margin + (length - 2.0 * margin) * i / (nt - 1)
@@ -285,6 +290,50 @@ def _robust_line(pts: np.ndarray, wts: np.ndarray, px: float, line: np.ndarray) 
     return math.sqrt(ss / keep.sum()) / px
 
 
+@numba.njit(cache=True, fastmath=False)
+def _refine_pinhole(gray: np.ndarray, c: np.ndarray, rs: np.ndarray, ox: float, oy: float, passes: int,
+                    converged: float) -> float:
+    """The whole edge fit without lens distortion, in place on ``c``: RMS (px), or -1 on failure."""
+    maxn = int(max(math.hypot(c[1, 0] - c[0, 0], c[1, 1] - c[0, 1]),
+                             math.hypot(c[2, 0] - c[1, 0], c[2, 1] - c[1, 1]),
+                             math.hypot(c[3, 0] - c[2, 0], c[3, 1] - c[2, 1]),
+                             math.hypot(c[0, 0] - c[3, 0], c[0, 1] - c[3, 1]))) + 8
+    pts = np.empty((4, maxn, 2))
+    wts = np.empty((4, maxn))
+    counts = np.zeros(4, np.int64)
+    lines = np.empty((4, 3))
+    rms = np.empty(4)
+    new = np.empty((4, 2))
+    for _ in range(passes):
+        _side_points(gray, c, rs, ox, oy, pts, wts, counts)
+        for k in range(4):
+            n = counts[k]
+            rms[k] = _robust_line(pts[k, :n], wts[k, :n], 1.0, lines[k])
+            if rms[k] < 0:
+                return -1.0
+        shift = 0.0
+        for k in range(4):
+            l1 = lines[(k + 3) % 4]
+            l2 = lines[k]
+            x = l1[1] * l2[2] - l1[2] * l2[1]
+            y = l1[2] * l2[0] - l1[0] * l2[2]
+            w = l1[0] * l2[1] - l1[1] * l2[0]
+            if abs(w) <= 1e-12:
+                return -1.0
+            new[k, 0] = x / w
+            new[k, 1] = y / w
+            shift = max(shift, abs(new[k, 0] - c[k, 0]), abs(new[k, 1] - c[k, 1]))
+        c[:, :] = new
+        if not np.all(np.isfinite(c)):
+            return -1.0
+        if shift < converged:
+            break
+    ss = 0.0
+    for k in range(4):
+        ss += rms[k] * rms[k]
+    return math.sqrt(ss / 4.0)
+
+
 def refine_edges(gray: np.ndarray, corners: np.ndarray, cells: int, camera: Camera | None,
                  origin: tuple[int, int] = (0, 0)) -> tuple[np.ndarray, float] | None:
     """Corners from straight-line fits to the four sides of the black square.
@@ -305,20 +354,30 @@ def refine_edges(gray: np.ndarray, corners: np.ndarray, cells: int, camera: Came
     c0 = np.asarray(corners, dtype=float)
     side = float(np.mean(np.linalg.norm(c0 - np.roll(c0, -1, axis=0), axis=1)))
     cell = side / cells
-    r = float(np.clip(_PROFILE_CELL_FRACTION * cell, _PROFILE_MIN_PX, _PROFILE_MAX_PX))
+    # Profile half-length per side, from the cell size across that side (the
+    # shorter adjacent side over the cells): under strong perspective a
+    # mean-cell profile would reach past the border into the data cells.
+    lens = np.linalg.norm(c0 - np.roll(c0, -1, axis=0), axis=1)
+    across = np.minimum(np.roll(lens, 1), np.roll(lens, -1)) / cells
+    rs = np.clip(_PROFILE_CELL_FRACTION * across, _PROFILE_MIN_PX, _PROFILE_MAX_PX)
     undistort = _distorted(camera)
     # One pixel in the line-fit coordinates (normalized ones when undistorting).
     px = 1.0 / float(camera.K[0, 0]) if undistort else 1.0  # type: ignore[union-attr]
     c = c0.copy()
+    gray = np.ascontiguousarray(gray, dtype=np.float32)
+    if not undistort:
+        total = _refine_pinhole(gray, c, rs, float(origin[0]), float(origin[1]), _PASSES, _CONVERGED_PX)
+        if total < 0 or np.max(np.linalg.norm(c - c0, axis=1)) > max(_MAX_SHIFT_PX, _MAX_SHIFT_CELLS * cell):
+            return None
+        return c, float(total)
     maxn = int(side) + 8
     pts = np.empty((4, maxn, 2))
     wts = np.empty((4, maxn))
     counts = np.zeros(4, np.int64)
     lines = np.empty((4, 3))
     rms = np.empty(4)
-    gray = np.ascontiguousarray(gray, dtype=np.float32)
     for _ in range(_PASSES):
-        _side_points(gray, c, r, float(origin[0]), float(origin[1]), pts, wts, counts)
+        _side_points(gray, c, rs, float(origin[0]), float(origin[1]), pts, wts, counts)
         for k in range(4):
             p = pts[k, :counts[k]]
             if undistort and len(p):

@@ -163,6 +163,7 @@ def tag_cells(family: str) -> int:
     return apriltag_lib.family_layout(family).square_cells
 
 
+@functools.cache
 def tag_id_count(family: str) -> int:
     """How many ids ``family`` (canonical spelling) has."""
     if family in _DICTIONARIES:

@@ -55,10 +55,11 @@ def scene_camera(width: int = 960, height: int = 540, f: float | None = None) ->
 def tag_scene(seed: int, *, n_tags: int = 12, family: str = "tag36h11", size: float = 0.12,
               distance: tuple[float, float] = (1.2, 3.5), max_tilt_deg: float = 50.0,
               camera: Camera | None = None, psf_sigma_px: float = 0.7, noise_sigma: float = 2.0,
-              jpeg_quality: int | None = None, partial: bool = True) -> TagScene:
+              jpeg_quality: int | None = None, partial: bool = True, exposure: float = 1.0) -> TagScene:
     """Render ``n_tags`` tags of ``family`` in front of a camera (see the module docstring).
 
-    ``partial=False`` keeps every tag inside the image and unoccluded.
+    ``partial=False`` keeps every tag inside the image and unoccluded;
+    ``exposure`` scales the light reaching the sensor (0.2: a dim scene).
     Deterministic in ``seed``.
     """
     if not isinstance(n_tags, int) or n_tags < 1:
@@ -118,7 +119,7 @@ def tag_scene(seed: int, *, n_tags: int = 12, family: str = "tag36h11", size: fl
             robots[f"O{i}"] = WorldRobot(Robot(f"O{i}", cam, {f"O{i}": ball}), T_wc @ Pose(np.eye(3), X_o),
                                          body=False)
     world = World(robots=robots, room=room_around([T_wc.t, T_wc.apply([0.0, 0.0, distance[1]])], int(seed)),
-                  sensor=dataclasses.replace(Sensor(), psf_sigma_px=float(psf_sigma_px)))
+                  sensor=dataclasses.replace(Sensor(), psf_sigma_px=float(psf_sigma_px), exposure=float(exposure)))
     image = render(world, "cam", seed=int(seed), noise_sigma=float(noise_sigma), jpeg_quality=jpeg_quality)
     T_cw = T_wc.inverse()
     corners: dict[str, np.ndarray] = {}
