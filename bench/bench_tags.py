@@ -19,7 +19,9 @@ conversion is part of every one of them):
   (``Detector(families="tag36h11")``, its defaults: decimation 2);
 * ``mutloc``: :func:`mutloc.detect.tags.detect_tags` defaults (the same
   library, then the sub-pixel edge fit in linearised grey levels);
-* ``mutloc_no_refine``: ``detect_tags(refine="none")`` (the library's corners).
+* ``mutloc_no_refine``: ``detect_tags(refine="none")`` (the library's corners);
+* ``mutloc_decimate_1.5``: ``detect_tags(params={"quad_decimate": 1.5})``
+  (the library's quad search on a finer image: more small tags).
 
 Recall: tags found / tags placed, and over the tags fully in view and not
 occluded.  Corner error: for the peers the nearest true corner (their corner
@@ -89,8 +91,9 @@ def _mutloc(**kw):
 
 
 DETECTORS = {"opencv_aruco": _opencv, "apriltag3": _apriltag3, "mutloc": _mutloc,
-             "mutloc_no_refine": lambda: _mutloc(refine="none")}
-ORDERED = {"mutloc", "mutloc_no_refine"}  # corner k is true corner k
+             "mutloc_no_refine": lambda: _mutloc(refine="none"),
+             "mutloc_decimate_1.5": lambda: _mutloc(params={"quad_decimate": 1.5})}
+ORDERED = {"mutloc", "mutloc_no_refine", "mutloc_decimate_1.5"}  # corner k is true corner k
 
 
 def corner_errors(found: np.ndarray, truth: np.ndarray, ordered: bool) -> np.ndarray:
@@ -150,10 +153,10 @@ def main() -> None:
             DETECTORS[name]()(scenes[0].image, scenes[0].markers)
         rows = {name: evaluate(scenes, name, repeat) for name in DETECTORS}
         results["sizes"][f"{size[0]}x{size[1]}"] = rows
-        print(f"{'detector':18s} {'found/placed':>12s} {'visible':>9s} {'false':>5s} {'corner med/p90 px':>18s} "
+        print(f"{'detector':20s} {'found/placed':>12s} {'visible':>9s} {'false':>5s} {'corner med/p90 px':>18s} "
               f"{'FPS':>6s} {'FPS(cpu)':>8s}")
         for name, r in rows.items():
-            print(f"{name:18s} {r['found']:>5d}/{r['placed']:<6d} {r['found_fully_visible']:>4d}/{r['fully_visible']:<4d} "
+            print(f"{name:20s} {r['found']:>5d}/{r['placed']:<6d} {r['found_fully_visible']:>4d}/{r['fully_visible']:<4d} "
                   f"{r['false']:>5d} {r['corner_median_px']:>8.3f} / {r['corner_p90_px']:<7.3f} {r['fps']:>6.1f} "
                   f"{r['fps_cpu']:>8.1f}")
         ratio = rows["mutloc"]["fps_cpu"] / rows["apriltag3"]["fps_cpu"]

@@ -203,7 +203,14 @@ class AprilTagDetection:
 
 
 class _Handle:
-    """A configured library detector (not thread-safe: one call at a time)."""
+    """A configured library detector (not thread-safe: one call at a time).
+
+    Never destroyed: the library keeps each family's decode table in the
+    family itself and frees it with any detector that holds the family, so
+    detectors sharing a family must outlive each other.  A new setting
+    combination rebuilds the (same) table and leaks the old one (36h11:
+    ~19 MB), hence the small cache of handles.
+    """
 
     def __init__(self, families: tuple[str, ...], params: tuple[tuple[str, Any], ...]) -> None:
         lib = _lib()
