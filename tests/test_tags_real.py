@@ -14,6 +14,8 @@ import functools
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mutloc
 from mutloc.core.geometry import rotation_error_deg
@@ -238,3 +240,54 @@ def test_family_names_and_bad_input() -> None:
     with pytest.raises(InputError, match="gamma"):
         detect_tags(image, m41, gamma="sRGB-ish")
     assert detect_tags(image, m41).missing_reasons == {"A": "not_found"}
+
+
+# ---------------------------------------------------------------------------
+# the edge-fit stage on drawn quadrilaterals (independent of the renderer)
+# ---------------------------------------------------------------------------
+
+
+def _encoded_square(corners: np.ndarray, blur: float, shape=(110, 150), ss: int = 16) -> np.ndarray:
+    """A dark quadrilateral (albedo 0.03) on white (0.8): area coverage by
+    supersampling (edges quantised to 1/ss px), Gaussian blur in linear light,
+    then sRGB-encoded to uint8."""
+    # Sub-sample centres in image pixels (pixel centres at integers), tested
+    # against each side of the convex quadrilateral (cv2.fillPoly would add
+    # its right and bottom boundary rows).
+    v, u = np.mgrid[0:shape[0] * ss, 0:shape[1] * ss].astype(np.float32)
+    u, v = (u + 0.5) / ss - 0.5, (v + 0.5) / ss - 0.5
+    inside = np.ones(u.shape, bool)
+    for k in range(4):
+        a, b = corners[k], corners[(k + 1) % 4]
+        inside &= (b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0]) >= 0  # clockwise in image axes
+    cover = cv2.resize(inside.astype(np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    lin = 0.8 - 0.77 * cover
+    if blur > 0:
+        lin = cv2.GaussianBlur(lin, (0, 0), blur)
+    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.clip(lin, 0, 1) ** (1 / 2.4) - 0.055)
+    return np.clip(np.round(255 * srgb), 0, 255).astype(np.uint8)
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.floats(50, 100), st.floats(45, 65), st.floats(40, 60), st.floats(-0.6, 0.6), st.floats(0.5, 1.3),
+       st.integers(0, 2**31 - 1))
+def test_edge_fit_on_srgb_blurred_squares(cx: float, cy: float, side: float, angle: float, blur: float,
+                                          seed: int) -> None:
+    """Linearised, the fit recovers the corners of a blurred sRGB square; read as
+    linear, the same edges move towards the dark side (the square shrinks)."""
+    from mutloc.detect.tag_edges import refine_edges
+
+    rng = np.random.default_rng(seed)
+    c, s = np.cos(angle), np.sin(angle)
+    local = 0.5 * side * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
+    truth = np.array([cx, cy]) + local @ np.array([[c, s], [-s, c]])
+    img = _encoded_square(truth, blur)
+    start = truth + rng.uniform(-0.7, 0.7, truth.shape)  # a detector's rough corners
+    fit = refine_edges(linearize(img, "srgb"), start, 8, None)
+    assert fit is not None
+    assert np.abs(fit[0] - truth).max() < 0.06  # the drawing's own quantisation is 1/32 px
+    naive = refine_edges(linearize(img, "linear"), start, 8, None)
+    assert naive is not None
+    centre = truth.mean(axis=0)
+    inward = np.linalg.norm(truth - centre, axis=1) - np.linalg.norm(naive[0] - centre, axis=1)
+    assert inward.mean() > 0.1 * blur  # the gamma-encoded edges sit inside the true square
