@@ -49,6 +49,12 @@ class DetectionResult:
 
     detections: dict[str, Detection] = field(default_factory=dict)
     missing: list[str] = field(default_factory=list)
+    #: Why each missing marker is missing, a short code: ``"not_found"`` (no
+    #: candidate in the image), ``"rejected"`` (candidates failed a quality
+    #: check), ``"occluded"``, ``"too_small"``, ``"ambiguous"``; a detector may
+    #: append detail after a colon.  Per-detection quality figures (decision
+    #: margin, edge residual, visible fraction) are in ``Detection.info``.
+    missing_reasons: dict[str, str] = field(default_factory=dict)
     #: Other candidates for a detected marker where the detector is unsure
     #: (scored, best first); the localizer picks what the geometry supports.
     alternatives: dict[str, list[Detection]] = field(default_factory=dict)
@@ -79,10 +85,14 @@ class DetectionResult:
         self.alternatives.update(other.alternatives)
         self.missing = [m for m in self.missing if m not in other.detections]
         self.missing.extend(m for m in other.missing if m not in self.missing and m not in self.detections)
+        reasons = {**self.missing_reasons, **other.missing_reasons}
+        self.missing_reasons = {m: reasons[m] for m in self.missing if m in reasons}
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"detections": {n: d.to_dict() for n, d in self.detections.items()},
                              "missing": list(self.missing)}
+        if self.missing_reasons:
+            d["missing_reasons"] = dict(self.missing_reasons)
         if self.alternatives:
             d["alternatives"] = {n: [a.to_dict() for a in alts] for n, alts in self.alternatives.items()}
         return d

@@ -53,11 +53,13 @@ from ..core.camera import Camera
 from ..core.geometry import so3_exp
 from ..core.rig import Marker, Rig, Robot
 from ..errors import InputError, RigError
+from . import apriltag_lib
 from .base import Detection, DetectionResult, as_bgr
-from .tag_edges import diagonal_centre, refine_edges
+from .tag_edges import diagonal_centre, linearize, refine_edges
 
 __all__ = [
     "CORNER_SEPARATOR",
+    "BACKENDS",
     "REFINE_METHODS",
     "aruco_dictionary",
     "canonical_family",
@@ -65,7 +67,10 @@ __all__ = [
     "detect_tags",
     "diagonal_centre",
     "expand_tag_corners",
+    "tag_cells",
     "tag_corner_points",
+    "tag_id_count",
+    "tag_library",
     "tag_observations",
 ]
 
@@ -73,6 +78,16 @@ __all__ = [
 CORNER_SEPARATOR = "#"
 
 REFINE_METHODS = ("edges", "subpix", "contour", "apriltag", "none")
+# Which library finds the tags: "auto" = the AprilTag 3 library for its own
+# families (unless an OpenCV-only corner refinement is asked for), OpenCV's
+# aruco module for the rest.
+BACKENDS = ("auto", "apriltag", "opencv")
+_OPENCV_ONLY_REFINE = ("subpix", "contour", "apriltag")
+# The AprilTag library's families in lower case -> its spelling.
+_APRILTAG = {f.lower(): f for f in apriltag_lib.APRILTAG_FAMILIES}
+# Decision margin (the library's mean grey-level distance of the data bits
+# from their threshold) at which a detection's score reaches 1.
+_FULL_MARGIN = 100.0
 
 # Canonical family name -> cv2.aruco predefined dictionary attribute.
 _DICTIONARIES: dict[str, str] = {
@@ -110,24 +125,51 @@ def canonical_family(family: Any) -> str:
     """The canonical spelling of a tag family name, or :class:`RigError`.
 
     Accepts AprilTag names (``tag36h11``, ``apriltag_36h11``, ``36h11``,
-    ``DICT_APRILTAG_36h11``) and ArUco names (``4x4_50``, ``aruco_5x5_100``,
-    ``DICT_6X6_250``, ``aruco_original``), case-insensitively.
+    ``DICT_APRILTAG_36h11``, ``tagStandard41h12``, ``Standard52h13``) and
+    ArUco names (``4x4_50``, ``aruco_5x5_100``, ``DICT_6X6_250``,
+    ``aruco_original``), case-insensitively.  The AprilTag library's own
+    families keep its spelling (``tagStandard41h12``).
     """
     if not isinstance(family, str) or not family.strip():
         raise RigError(f"tag family must be a non-empty string (e.g. tag36h11), got {family!r}")
     s = family.strip().lower().replace("-", "_")
     s = s.removeprefix("dict_")
-    if s in _DICTIONARIES:
-        return s
+    candidates = [s]
     for prefix in ("apriltag_", "apriltag", "tag_", "tag"):
-        if s.startswith(prefix) and "tag" + s[len(prefix):] in _DICTIONARIES:
-            return "tag" + s[len(prefix):]
-    if "tag" + s in _DICTIONARIES:  # bare "36h11"
-        return "tag" + s
-    if s.startswith("aruco_") and s[6:] in _DICTIONARIES:  # "aruco_4x4_50"
-        return s[6:]
-    known = ", ".join(sorted(_DICTIONARIES))
+        if s.startswith(prefix):
+            candidates.append("tag" + s[len(prefix):])
+    candidates.append("tag" + s)  # bare "36h11", "standard41h12"
+    if s.startswith("aruco_"):
+        candidates.append(s[6:])  # "aruco_4x4_50"
+    for c in candidates:
+        if c in _DICTIONARIES:
+            return c
+        if c in _APRILTAG:
+            return _APRILTAG[c]
+    known = ", ".join(sorted(set(_DICTIONARIES) | set(_APRILTAG.values())))
     raise RigError(f"unknown tag family {family!r} (known: {known})")
+
+
+def tag_library(family: str) -> str:
+    """``"apriltag"`` when the AprilTag 3 library decodes ``family`` (canonical spelling), else ``"opencv"``."""
+    return "apriltag" if family in apriltag_lib.APRILTAG_FAMILIES else "opencv"
+
+
+def tag_cells(family: str) -> int:
+    """Cells across the square whose corners are the tag's corners (its side is the rig's ``size``):
+    the black square of the classic families, the inner edge of the black ring for the
+    reversed-border ones (``tagStandard41h12``: 5 of its 9 cells)."""
+    if family in _DICTIONARIES:
+        return int(_dictionary(family).markerSize) + 2  # data bits plus the one-cell black border
+    return apriltag_lib.family_layout(family).square_cells
+
+
+@functools.cache
+def tag_id_count(family: str) -> int:
+    """How many ids ``family`` (canonical spelling) has."""
+    if family in _DICTIONARIES:
+        return int(_dictionary(family).bytesList.shape[0])
+    return apriltag_lib.family_layout(family).n_codes
 
 
 @functools.cache
@@ -136,8 +178,12 @@ def _dictionary(family: str) -> Any:
 
 
 def aruco_dictionary(family: str) -> Any:
-    """The ``cv2.aruco.Dictionary`` of a tag family (any spelling :func:`canonical_family` accepts)."""
-    return _dictionary(canonical_family(family))
+    """The ``cv2.aruco.Dictionary`` of a tag family (any spelling :func:`canonical_family` accepts);
+    :class:`RigError` for the families only the AprilTag library has."""
+    fam = canonical_family(family)
+    if fam not in _DICTIONARIES:
+        raise RigError(f"OpenCV's aruco module has no {fam} dictionary (the AprilTag library decodes it)")
+    return _dictionary(fam)
 
 
 @functools.lru_cache(maxsize=64)
@@ -155,12 +201,11 @@ def _detector(family: str, refine: str, params: tuple[tuple[str, Any], ...]) -> 
 def _params_key(params: Mapping[str, Any] | None) -> tuple[tuple[str, Any], ...]:
     if params is None:
         return ()
-    if not isinstance(params, Mapping):
-        raise InputError("params must be a mapping of cv2.aruco.DetectorParameters attributes")
     probe = cv2.aruco.DetectorParameters()
     for key, value in params.items():
         if not isinstance(key, str) or key.startswith("_") or not hasattr(probe, key):
-            raise InputError(f"params: {key!r} is not a cv2.aruco.DetectorParameters attribute")
+            raise InputError(f"params: {key!r} is neither an AprilTag detector setting nor a "
+                             "cv2.aruco.DetectorParameters attribute")
         try:
             setattr(probe, key, value)
         except (cv2.error, TypeError, ValueError, OverflowError) as exc:
@@ -193,7 +238,7 @@ def tag_spec(marker: Marker) -> tuple[str, int, float]:
     tid = tag["id"]
     if isinstance(tid, (bool, np.bool_)) or not isinstance(tid, (int, np.integer)) or tid < 0:
         raise RigError(f"{where}: tag id must be a non-negative integer, got {tid!r}")
-    n_ids = int(_dictionary(family).bytesList.shape[0])
+    n_ids = tag_id_count(family)
     if tid >= n_ids:
         raise RigError(f"{where}: tag id {tid} does not exist in {family} (ids 0..{n_ids - 1})")
     size = tag["size"]
@@ -203,8 +248,59 @@ def tag_spec(marker: Marker) -> tuple[str, int, float]:
     return family, int(tid), float(size)
 
 
+def _split_params(params: Mapping[str, Any] | None) -> tuple[tuple, tuple]:
+    """(OpenCV key, AprilTag-library key) of ``params``: each name goes to the library that has it."""
+    if params is None:
+        return (), ()
+    if not isinstance(params, Mapping):
+        raise InputError("params must be a mapping of detector settings")
+    at = {k: v for k, v in params.items() if k in apriltag_lib.PARAMS}
+    ocv = {k: v for k, v in params.items() if k not in apriltag_lib.PARAMS}
+    return _params_key(ocv or None), apriltag_lib.check_params(at)
+
+
+def _backend_for(family: str, refine: str, backend: str) -> str:
+    if backend == "opencv" or (backend == "auto" and (refine in _OPENCV_ONLY_REFINE or
+                                                      tag_library(family) == "opencv")):
+        if family not in _DICTIONARIES:
+            raise InputError(f"{family} is decoded by the AprilTag library only: refine must be 'edges' or "
+                             f"'none' and backend 'auto' or 'apriltag' (got {refine!r}, {backend!r})")
+        return "opencv"
+    if tag_library(family) != "apriltag":
+        raise InputError(f"backend='apriltag': the AprilTag library does not decode {family}")
+    if refine in _OPENCV_ONLY_REFINE:
+        raise InputError(f"refine={refine!r} is OpenCV's; with backend='apriltag' use 'edges' or 'none'")
+    return "apriltag"
+
+
+def _check_gamma(gamma: Any) -> float | str:
+    if gamma in ("srgb", "linear"):
+        return gamma
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not (math.isfinite(gamma) and gamma > 0):
+        raise InputError(f"gamma must be 'srgb', 'linear' or a finite number > 0, got {gamma!r}")
+    return "linear" if gamma == 1.0 else float(gamma)
+
+
+# Pixels around a tag's corners that its edge fit may read (profile length, second-pass shift).
+_ROI_PAD = 12
+
+
+def _refine(gray: np.ndarray, quad: np.ndarray, cells: int, camera: Camera | None,
+            gamma: float | str) -> tuple[np.ndarray, float] | None:
+    """The edge fit on the tag's neighbourhood only, in linearised grey levels."""
+    h, w = gray.shape
+    lo = np.floor(quad.min(axis=0)).astype(int) - _ROI_PAD
+    hi = np.ceil(quad.max(axis=0)).astype(int) + _ROI_PAD
+    x0, y0 = max(0, int(lo[0])), max(0, int(lo[1]))
+    x1, y1 = min(w, int(hi[0]) + 1), min(h, int(hi[1]) + 1)
+    if x1 - x0 < 4 or y1 - y0 < 4:
+        return None
+    roi = linearize(gray[y0:y1, x0:x1], gamma)
+    return refine_edges(roi, quad, cells, camera, origin=(x0, y0))
+
+
 def detect_tags(image: Any, markers: Mapping[str, Marker] | Robot, *, refine: str = "edges",
-                camera: Camera | None = None, gamma: float = 1.0,
+                camera: Camera | None = None, gamma: float | str = "srgb", backend: str = "auto",
                 params: Mapping[str, Any] | None = None) -> DetectionResult:
     """Find the printed tags of ``markers`` in ``image``.
 
@@ -214,39 +310,60 @@ def detect_tags(image: Any, markers: Mapping[str, Marker] | Robot, *, refine: st
     corner mean) and ``corners`` its four corners (4, 2) in OpenCV's order --
     top-left, top-right, bottom-right, bottom-left of the tag image -- all in
     mutloc's pixel convention (raw, distorted pixels).  Tags not found are
-    listed in ``missing``.  Both follow the order of ``markers``.  ``info``
-    holds ``family``, ``id``, ``side_px`` (mean side length), ``refine`` (the
-    method that produced the corners: ``"subpix"`` when the edge fit was
-    rejected), ``edge_rms_px`` (edge fit only: RMS distance of the edge
-    points from the fitted sides, a quality figure) and, when the id was seen
-    more than once, ``duplicates`` (the largest copy is kept, being the most
-    accurately measured).
+    listed in ``missing`` with the reason in ``missing_reasons``
+    (``"not_found"``: no tag of that family and id was decoded).  Both follow
+    the order of ``markers``.
 
-    ``refine``: ``"edges"`` (default; OpenCV's sub-pixel corners re-fitted
-    from the four sides, the most accurate), or OpenCV's own corner
-    refinement ``"subpix"``, ``"contour"``, ``"apriltag"``, ``"none"``.
+    Quality: ``score`` is the AprilTag library's decision margin / 100,
+    capped at 1 (1 on the OpenCV path, which has no margin); ``info`` holds
+    ``family``, ``id``, ``library``, ``side_px`` (mean side length),
+    ``refine`` (the method that produced the corners: the library's own when
+    the edge fit was rejected), ``decision_margin`` and ``hamming`` (bits
+    corrected; AprilTag library), ``edge_rms_px`` (edge fit: RMS distance of
+    the edge points from the fitted sides -- noise, blur and occlusion raise
+    it) and, when the id was seen more than once, ``duplicates`` (the
+    largest copy is kept, being the most accurately measured).
+
+    ``backend``: ``"auto"`` (default) decodes the AprilTag library's families
+    (tag16h5, tag25h9, tag36h11, tagStandard41h12, tagStandard52h13, the
+    Circle and Custom families) with the AprilTag 3 library and the ArUco
+    dictionaries (and tag36h10) with OpenCV; ``"apriltag"`` / ``"opencv"``
+    force one.  ``refine``: ``"edges"`` (default: the detector's corners
+    re-fitted from the four sides, the most accurate), ``"none"`` (the
+    detector's corners as they are), or OpenCV's own corner refinements
+    ``"subpix"``, ``"contour"``, ``"apriltag"`` (these use OpenCV).
     ``camera`` (optional) lets the edge fit and the centre account for lens
-    distortion.  ``gamma``: the edge fit assumes intensities proportional to
-    light; for a gamma-encoded image (sRGB: about 2.2) pass the exponent and
-    intensities are linearized first -- otherwise blur moves every edge
-    towards the dark side (measured ~1 px inwards at 1.5 px blur), which
-    shrinks the tag and biases range.  ``params`` overrides ``cv2.aruco.DetectorParameters``
+    distortion.  ``gamma``: how grey levels encode light, for the edge fit,
+    which needs intensities proportional to light: ``"srgb"`` (default: what
+    cameras and image files deliver), ``"linear"`` (raw sensor data), or a
+    power-law exponent (2.2).  Measured on gamma-encoded renders, fitting
+    the encoded levels moves every blurred edge towards the dark side, which
+    shrinks the tag and biases range (see tests/test_tags_real.py).
+    ``params`` overrides detector settings: the AprilTag library's
+    (``quad_decimate``, ``quad_sigma``, ``decode_sharpening``,
+    ``min_cluster_pixels``, ...) or ``cv2.aruco.DetectorParameters``
     attributes (e.g. ``{"minMarkerPerimeterRate": 0.01}`` for tiny tags).
+
+    Corner order of the families both libraries know (tag16h5, tag25h9,
+    tag36h11) follows OpenCV's ``generateImageMarker`` image, which is the
+    AprilTag library's own drawing turned half a turn; the library's corners
+    are turned to match, so both backends report the same corner order.
 
     Raises :class:`RigError` for an unknown family, an id outside it, or two
     markers using the same tag (they could not be told apart).
     """
     if refine not in REFINE_METHODS:
         raise InputError(f"refine must be one of {', '.join(REFINE_METHODS)}; got {refine!r}")
+    if backend not in BACKENDS:
+        raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     if camera is not None and not isinstance(camera, Camera):
         raise InputError(f"camera must be a mutloc Camera, got {type(camera).__name__}")
     if isinstance(markers, Robot):
         markers = markers.markers
     if not isinstance(markers, Mapping):
         raise InputError("markers must be a mapping {name: Marker}")
-    pkey = _params_key(params)
-    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not (math.isfinite(gamma) and gamma > 0):
-        raise InputError(f"gamma must be a finite number > 0, got {gamma!r}")
+    ocv_key, at_key = _split_params(params)
+    gamma = _check_gamma(gamma)
 
     wanted: dict[str, dict[int, str]] = {}  # family -> id -> marker name
     for name, marker in markers.items():
@@ -264,49 +381,61 @@ def detect_tags(image: Any, markers: Mapping[str, Marker] | Robot, *, refine: st
     result = DetectionResult()
     if not wanted:
         return result
-    gray = cv2.cvtColor(as_bgr(image), cv2.COLOR_BGR2GRAY)
-    gray_f: np.ndarray | None = None
+    libs = {family: _backend_for(family, refine, backend) for family in wanted}
+    img = as_bgr(image) if not (isinstance(image, np.ndarray) and image.ndim == 2 and image.dtype == np.uint8) \
+        else image
+    gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
 
-    # One detector pass per family; every copy of each id it found.
-    copies: dict[tuple[str, int], list[np.ndarray]] = {}
+    # Every copy of each wanted id: (corners, what the detector says about it).
+    copies: dict[tuple[str, int], list[tuple[np.ndarray, dict[str, Any]]]] = {}
+    at_families = tuple(f for f in wanted if libs[f] == "apriltag")
+    if at_families:
+        for d in apriltag_lib.detect(gray, at_families, at_key):
+            if d.id not in wanted.get(d.family, {}):
+                continue
+            quad = np.roll(d.corners, 2, axis=0) if d.family in _DICTIONARIES else d.corners
+            copies.setdefault((d.family, d.id), []).append(
+                (quad, {"decision_margin": d.decision_margin, "hamming": d.hamming}))
     for family in wanted:
-        found, found_ids, _ = _detector(family, refine, pkey).detectMarkers(gray)
+        if libs[family] != "opencv":
+            continue
+        found, found_ids, _ = _detector(family, refine, ocv_key).detectMarkers(gray)
         if found_ids is not None:
             for quad, tid in zip(found, np.asarray(found_ids).ravel()):
-                copies.setdefault((family, int(tid)), []).append(np.asarray(quad, dtype=float).reshape(4, 2))
+                copies.setdefault((family, int(tid)), []).append((np.asarray(quad, dtype=float).reshape(4, 2), {}))
 
     for family, ids in wanted.items():
-        cells = int(_dictionary(family).markerSize) + 2  # data bits plus the one-cell black border
+        cells = tag_cells(family)
         for tid, name in ids.items():
             quads = copies.get((family, tid))
             if not quads:
+                result.missing_reasons[name] = "not_found"
                 continue
-            quad = max(quads, key=lambda q: abs(cv2.contourArea(q.astype(np.float32))))
-            method = refine
-            info: dict[str, Any] = {"family": family, "id": tid}
+            quad, extra = max(quads, key=lambda q: abs(cv2.contourArea(q[0].astype(np.float32))))
+            method = refine if refine != "edges" else ("apriltag_lib" if libs[family] == "apriltag" else "subpix")
+            if refine == "none" and libs[family] == "apriltag":
+                method = "apriltag_lib"
+            info: dict[str, Any] = {"family": family, "id": tid, "library": libs[family], **extra}
             if refine == "apriltag":
                 quad = quad - _APRILTAG_ORIGIN_SHIFT
             elif refine == "edges":
-                if gray_f is None:
-                    gray_f = gray.astype(np.float32)
-                    if gamma != 1.0:
-                        gray_f = 255.0 * (gray_f / 255.0) ** np.float32(gamma)
-                better = refine_edges(gray_f, quad, cells, camera)
-                if better is None:
-                    method = "subpix"  # edge fit failed (occluded side, image border): keep OpenCV's
-                else:
+                better = _refine(gray, quad, cells, camera, gamma)
+                if better is not None:  # else (occluded side, image border) keep the detector's corners
                     quad, info["edge_rms_px"] = better
+                    method = "edges"
             info["side_px"] = float(np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)))
             info["refine"] = method
             if len(quads) > 1:
                 info["duplicates"] = len(quads)
-            result.detections[name] = Detection(marker=name, uv=diagonal_centre(quad, camera), score=1.0,
+            score = min(1.0, extra["decision_margin"] / _FULL_MARGIN) if "decision_margin" in extra else 1.0
+            result.detections[name] = Detection(marker=name, uv=diagonal_centre(quad, camera), score=score,
                                                 corners=quad, info=info)
 
     # Report in the caller's marker order, whatever the family grouping.
     order = [n for n in markers if markers[n].tag is not None]
     result.detections = {n: result.detections[n] for n in order if n in result.detections}
     result.missing = [n for n in order if n not in result.detections]
+    result.missing_reasons = {n: result.missing_reasons[n] for n in result.missing}
     return result
 
 

@@ -40,7 +40,6 @@ from ..errors import InputError
 from .synthetic import looking_pose
 from .world import (
     LIGHT_EMISSION,
-    TAG_MARGIN_CELLS,
     Room,
     World,
     WorldRobot,
@@ -50,6 +49,7 @@ from .world import (
     light_is_on,
     room_textures,
     tag_image,
+    tag_scale,
     tag_spec,
 )
 
@@ -802,8 +802,7 @@ def _marker_extent(m: Any) -> tuple[np.ndarray, np.ndarray]:
     kind = m.kind
     if kind == "tag":
         fam, tid, size, _R = tag_spec(m)
-        n = tag_image(fam, tid).shape[0]
-        e = 0.5 * size * n / (n - 2 * TAG_MARGIN_CELLS) * math.sqrt(2.0)
+        e = 0.5 * size * tag_scale(fam, tid) * math.sqrt(2.0)
     elif kind == "cylinder":
         r, h, _ = cylinder_spec(m)
         e = math.hypot(r, 0.5 * h)
@@ -871,8 +870,7 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
             scene.add(np.concatenate([c, [r], albedo, emission]), (_SPHERE, -1, 0), (name, m.name), c, r)
         elif kind == "tag":
             fam, tid, size, Rt = tag_spec(m)
-            n = tag_image(fam, tid).shape[0]
-            half = 0.5 * size * n / (n - 2 * TAG_MARGIN_CELLS)
+            half = 0.5 * size * tag_scale(fam, tid)
             u = R @ Rt[:, 0]
             v = -(R @ Rt[:, 1])  # texture "up" is the tag's -y
             row = _quad_row(c, u, v, half, half, np.ones(3), 0.0, _lin_bgr((200, 200, 200)))
@@ -1021,7 +1019,8 @@ def render(world: World, observer: str, t: float = 0.0, *, seed: int = 0, noise_
 
     Pipeline: anti-aliased ray casting (linear light) -> bloom around lit
     lights -> linear motion blur of ``blur_px`` pixels along
-    ``world.sensor.blur_angle_deg`` -> ``gain * exposure`` -> sRGB -> additive
+    ``world.sensor.blur_angle_deg`` -> optical blur (``sensor.psf_sigma_px``)
+    -> ``gain * exposure`` -> sRGB -> additive
     Gaussian noise of ``noise_sigma * gain`` grey levels -> 8 bits -> optional
     JPEG round trip at ``jpeg_quality``.  Deterministic: the same arguments
     give the same image; the noise depends on ``seed``, ``observer`` and ``t``.
@@ -1047,6 +1046,8 @@ def render(world: World, observer: str, t: float = 0.0, *, seed: int = 0, noise_
         rgb[y0:y1, x0:x1] += sensor.bloom_strength * glow
     if blur_px > 0:
         rgb = _motion_blur(rgb, float(blur_px), sensor.blur_angle_deg)
+    if sensor.psf_sigma_px > 0:
+        rgb = cv2.GaussianBlur(rgb, (0, 0), float(sensor.psf_sigma_px), borderType=cv2.BORDER_REPLICATE)
     h, w = rgb.shape[:2]
     if noise_sigma > 0:
         noise = _seed_for(int(seed), observer, float(t)).standard_normal((h, w, 3)) * (noise_sigma * sensor.gain)

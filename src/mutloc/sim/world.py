@@ -11,9 +11,10 @@ World frame: z up, the floor is the plane z = 0, metres.
 How each rig marker is drawn (first match wins):
 
 - ``tag: {family, id, size, rotation?}``: the printed tag, OpenCV's own
-  ``cv2.aruco.generateImageMarker`` image on a square card with a white
+  ``cv2.aruco.generateImageMarker`` image (families only the AprilTag
+  library has: that library's layout) on a square card with a white
   margin of :data:`TAG_MARGIN_CELLS` cells.  ``size`` is the side of the
-  black square.  Tag frame as in :mod:`mutloc.detect.tags` (the AprilTag
+  square whose corners are the tag's corners (:func:`mutloc.detect.tags.tag_cells`).  Tag frame as in :mod:`mutloc.detect.tags` (the AprilTag
   library's): x right and y down as printed, z into the tag;
   ``X_robot = expm([rotation]x) @ X_tag + position``.  Default rotation
   :data:`DEFAULT_TAG_ROTATION` (pi about y): the tag faces forward (robot +z),
@@ -45,7 +46,7 @@ from ..core.camera import Camera
 from ..core.pose import Pose
 from ..core.rig import Marker, MarkerKind, Rig, Robot
 from ..errors import InputError, ObservationError, RigError
-from ..detect.tags import aruco_dictionary, square_corners, tag_rotation
+from ..detect.tags import aruco_dictionary, square_corners, tag_cells, tag_library, tag_rotation
 from ..detect.tags import tag_spec as detect_tag_spec
 
 __all__ = [
@@ -70,6 +71,7 @@ __all__ = [
     "standard_rig",
     "tag_corners",
     "tag_image",
+    "tag_scale",
     "tag_spec",
 ]
 
@@ -133,12 +135,22 @@ def tag_spec(marker: Marker) -> tuple[str, int, float, np.ndarray]:
     return family, tid, size, tag_rotation(marker, DEFAULT_TAG_ROTATION)
 
 
+def tag_scale(family: str, tag_id: int) -> float:
+    """Side of the whole card (:func:`tag_image`) over the rig's tag ``size``."""
+    return tag_image(family, tag_id).shape[0] / tag_cells(family)
+
+
 @functools.lru_cache(maxsize=256)
 def tag_image(family: str, tag_id: int) -> np.ndarray:
     """The tag as printed, one pixel per cell, uint8 (n, n), white margin included."""
-    d = aruco_dictionary(family)
-    cells = int(d.markerSize) + 2
-    img = cv2.aruco.generateImageMarker(d, int(tag_id), cells, borderBits=1)
+    if tag_library(family) == "apriltag" and family not in ("tag16h5", "tag25h9", "tag36h11"):
+        from ..detect.apriltag_lib import tag_image as library_tag_image
+
+        img = library_tag_image(family, int(tag_id))
+    else:
+        d = aruco_dictionary(family)
+        cells = int(d.markerSize) + 2
+        img = cv2.aruco.generateImageMarker(d, int(tag_id), cells, borderBits=1)
     img = np.where(img > 127, _TAG_WHITE, _TAG_BLACK).astype(np.uint8)
     m = TAG_MARGIN_CELLS
     out = np.pad(img, m, constant_values=_TAG_WHITE)
@@ -202,6 +214,9 @@ class Sensor:
     exposure: float = 1.0
     gain: float = 1.0
     blur_angle_deg: float = 0.0
+    #: Optical blur (defocus, lens): a Gaussian point-spread function of this
+    #: standard deviation in pixels, applied in linear light before encoding.
+    psf_sigma_px: float = 0.0
     bloom_sigma_px: float = 4.0
     bloom_strength: float = 0.6
 
