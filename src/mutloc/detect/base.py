@@ -59,12 +59,14 @@ class DetectionResult:
     #: (scored, best first); the localizer picks what the geometry supports.
     alternatives: dict[str, list[Detection]] = field(default_factory=dict)
 
-    def observations(self, observer: str, time: float | None = None) -> ObservationSet:
+    def observations(self, observer: str, time: float | None = None, *,
+                     include_predicted: bool = False) -> ObservationSet:
         """What ``observer``'s camera measured, as an :class:`ObservationSet`
         (the detector's score travels with each pixel).  Predicted positions
         (a blinking light that is off) are not measurements and are left out:
-        they would count earlier frames twice and cannot expose a wrong pose."""
-        dets = [d for d in self.detections.values() if not d.predicted]
+        they would count earlier frames twice and cannot expose a wrong pose
+        (``include_predicted`` keeps them, e.g. to start a track)."""
+        dets = [d for d in self.detections.values() if include_predicted or not d.predicted]
         dets += [a for alts in self.alternatives.values() for a in alts]
         uv = np.array([d.uv for d in dets], dtype=float).reshape(-1, 2)
         return ObservationSet([observer] * len(dets), [d.marker for d in dets], uv, time,

@@ -77,7 +77,29 @@ class FilterOptions:
 
 
 def solve_row(row: "TrackRow", rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float) -> None:
-    """Localize the row's observations on their own; set its status, reason and estimate."""
+    """Localize the row's observations on their own; set its status, reason and estimate.
+
+    Where too few markers were measured but blinking lights that are off
+    have predicted positions, the frame is localized with those too: the
+    pose is reported, always ``unverified`` (a prediction cannot expose a
+    wrong pose)."""
+    _solve_observations(row, rig, source, target, pixel_sigma, confidence)
+    if row.status != FrameStatus.TOO_FEW or not any(d.predicted for d in (row.detections or {}).values()):
+        return
+    from .frames import observations_of
+
+    attempt = replace(row, reason="", estimate=None,
+                      observations=observations_of(row.detections, row.t, include_predicted=True))
+    _solve_observations(attempt, rig, source, target, pixel_sigma, confidence)
+    if attempt.estimate is not None:
+        n_pred = sum(len(d.predicted) for d in row.detections.values())
+        row.estimate, row.status = attempt.estimate, FrameStatus.UNVERIFIED
+        row.reason = (f"{row.reason}; localized with {n_pred} predicted position(s) of lights that are off "
+                      "(unverified)")
+
+
+def _solve_observations(row: "TrackRow", rig: Rig, source: str, target: str, pixel_sigma: float,
+                        confidence: float) -> None:
     obs = row.observations
     assert obs is not None
     try:
@@ -234,7 +256,10 @@ class PairTracker:
         per-frame result either way."""
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
-        started = trial.status == FrameStatus.SOLVED and trial.estimate is not None
+        # Solved on its own, or consistent with four or more markers of which
+        # some are lights that are off (the frame stays unverified; the
+        # lights measured next confirm the track or reject it).
+        started = trial.estimate is not None and trial.estimate.status == "solved"
         if started:
             est = trial.estimate
             self.filter.reset(row.t, est.pose, est.covariance)

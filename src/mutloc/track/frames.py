@@ -119,9 +119,12 @@ def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target
     return rig, source, target
 
 
-def observations_of(detections: Mapping[str, DetectionResult], time: float | None = None) -> ObservationSet:
-    """One :class:`ObservationSet` from each observer's detections."""
-    return ObservationSet.concatenate([d.observations(r, time) for r, d in detections.items()])
+def observations_of(detections: Mapping[str, DetectionResult], time: float | None = None, *,
+                    include_predicted: bool = False) -> ObservationSet:
+    """One :class:`ObservationSet` from each observer's detections (measured
+    positions only, unless ``include_predicted``)."""
+    return ObservationSet.concatenate([d.observations(r, time, include_predicted=include_predicted)
+                                       for r, d in detections.items()])
 
 
 def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = None, target: str | None = None, *,
