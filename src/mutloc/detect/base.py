@@ -28,11 +28,19 @@ class Detection:
     # Tag corners (4, 2) in OpenCV's corner order, when the detector has them.
     corners: np.ndarray | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    #: Quality, where the detector measures it: the share (0..1) of the
+    #: marker's outline seen unhidden ...
+    visible_fraction: float | None = None
+    #: ... and the RMS residual (pixels) of the outline's fit.
+    residual_px: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"uv": [float(self.uv[0]), float(self.uv[1])], "score": float(self.score)}
         if self.corners is not None:
             d["corners"] = np.asarray(self.corners, float).tolist()
+        for what in ("visible_fraction", "residual_px"):
+            if getattr(self, what) is not None:
+                d[what] = float(getattr(self, what))
         if self.info:
             d["info"] = self.info
         return d
@@ -47,6 +55,9 @@ class DetectionResult:
     #: Other candidates for a detected marker where the detector is unsure
     #: (scored, best first); the localizer picks what the geometry supports.
     alternatives: dict[str, list[Detection]] = field(default_factory=dict)
+    #: Why a missing marker is missing, where the detector can tell
+    #: (``{marker: one-line reason}``, e.g. hidden behind something).
+    reasons: dict[str, str] = field(default_factory=dict)
 
     def observations(self, observer: str, time: float | None = None) -> ObservationSet:
         """What ``observer``'s camera saw, as an :class:`ObservationSet` (the
@@ -66,10 +77,14 @@ class DetectionResult:
         self.alternatives.update(other.alternatives)
         self.missing = [m for m in self.missing if m not in other.detections]
         self.missing.extend(m for m in other.missing if m not in self.missing and m not in self.detections)
+        self.reasons.update(other.reasons)
+        self.reasons = {m: r for m, r in self.reasons.items() if m in self.missing}
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"detections": {n: d.to_dict() for n, d in self.detections.items()},
                              "missing": list(self.missing)}
+        if self.reasons:
+            d["reasons"] = dict(self.reasons)
         if self.alternatives:
             d["alternatives"] = {n: [a.to_dict() for a in alts] for n, alts in self.alternatives.items()}
         return d

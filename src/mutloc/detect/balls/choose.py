@@ -61,11 +61,14 @@ def score_candidate(
     fit: Fit,
     cam: CameraModel | None,
     params: BallParams,
+    *,
+    gains: np.ndarray | None = None,
 ) -> Candidate | None:
     """Score the ball that ``fit`` (through ``rim``) found for ``search``; None if implausible.
 
     ``fill`` is the coarse blob's fill of its circle, ``lut`` the image's
-    unmixing values.  With a camera, a distance (from the apparent size and
+    unmixing values, ``gains`` the light's colour divided out (in those
+    values) before the hue is compared.  With a camera, a distance (from the apparent size and
     the marker's radius) outside ``params.distance_range_m`` is implausible.
     """
     cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
@@ -75,7 +78,12 @@ def score_candidate(
     rim_frac = float(inl.sum()) / n_rays
     inner = rim.inner[inl]
     # Hue of the ball as seen (inner colours of the inlier rays), vs nominal.
-    hue, chroma = hue_chroma(np.median(inner, axis=0), lut)
+    ball = np.median(inner, axis=0)
+    if gains is not None:
+        # As under white light (gains in the rim values, see .light).
+        ball = ball * gains
+        ball = ball / max(1.0, float(ball.max()))
+    hue, chroma = hue_chroma(ball, lut)
     dh = abs((hue - search.hue_deg + 180.0) % 360.0 - 180.0)
     colour = math.exp(-0.5 * (dh / (1.5 * params.hue_tol_deg)) ** 2)
     shape = 1.0 / (1.0 + (fit.rms / 0.5) ** 2)
