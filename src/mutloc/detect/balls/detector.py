@@ -145,6 +145,12 @@ def detect_balls(
             per_marker[s.name] = found
 
     search(searches, k, rmax)
+    for s in searches:
+        if not per_marker[s.name] and skipped[s.name]:
+            # Nothing of the best-ranked blobs was a ball: a partly hidden
+            # ball ranks low among look-alikes (its coarse blob is a piece).
+            per_marker[s.name] = [c for b in skipped[s.name] if (c := refine(s, b)) is not None]
+            skipped[s.name] = []
     if fallback:
         lost = [s for s in searches if not per_marker[s.name]]
         if lost:
