@@ -99,7 +99,7 @@ def _disc_share(a: float, b: float) -> float:
 
 
 def hidden_share(offset: float, half_width: float) -> float:
-    """Share of a disc of unit radius hidden by a band ``offset +- half_width`` (``inf``: a half-plane)."""
+    """Share of a disc of unit radius hidden by a straight band ``offset +- half_width`` (in disc radii)."""
     return _disc_share(offset - half_width, offset + half_width)
 
 
@@ -110,7 +110,8 @@ def occluder(world: World, observer: str, marker: str, share: float, kind: str =
 
     ``kind``: ``"pole"`` (vertical, 2 cm thick), ``"cable"`` (8 mm,
     ``tilt_deg`` off vertical) or ``"box"`` (a box whose vertical edge
-    crosses the ball).  The prop stands ``gap`` metres in front of the ball
+    crosses the ball).  A pole or cable too thin to hide ``share`` even
+    across the middle of the ball is made thicker.  The prop stands ``gap`` metres in front of the ball
     (towards the camera); ``side`` (+-1) picks which side of the ball it
     comes from.  The share is that of a flat disc and the prop's nearest
     point; :func:`~mutloc.sim.render.ball_visibility` measures the truth.
@@ -144,6 +145,9 @@ def occluder(world: World, observer: str, marker: str, share: float, kind: str =
     else:
         thick = 0.01 if kind == "pole" else 0.004
         half_w = thick / s / alpha
+        while hidden_share(0.0, half_w) < min(0.98, share + 0.1):
+            half_w *= 1.1
+        thick = half_w * s * alpha
     # Offset of the occluder's centre line (in ball radii) hiding `share`.
     lo, hi = -1.0 - (half_w if math.isfinite(half_w) else 0.0), 1.0 + (half_w if math.isfinite(half_w) else 0.0)
     if math.isfinite(half_w):
