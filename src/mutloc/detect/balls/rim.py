@@ -206,6 +206,19 @@ def unmix_edge(P, j0, j1, step, alpha, B):
     det = bb * gg - bg * bg
     sin2 = det / max(bb * gg, 1e-30)
     wch = min(max((sin2 - 0.02) / 0.08, 0.0), 1.0)
+    # Brightness trends of the ball and of the background towards the edge
+    # (a sphere darkens or brightens steeply at its limb under a hard
+    # light): the ball's share in each sample is unmixed against the
+    # shading extrapolated to it, not against the window's ends.
+    sb = 0.0
+    sg = 0.0
+    if wch > 0.0 and j1 - j0 >= 8:
+        b0, _ = _unmix2(P, j0, B, G, bb, gg, bg, det)
+        b2, _ = _unmix2(P, j0 + 2, B, G, bb, gg, bg, det)
+        _, g0 = _unmix2(P, j1, B, G, bb, gg, bg, det)
+        _, g2 = _unmix2(P, j1 - 2, B, G, bb, gg, bg, det)
+        sb = 0.5 * (b2 - b0)
+        sg = 0.5 * (g0 - g2)
     for j in range(j0, j1 + 1):
         pb = 0.0
         pg = 0.0
@@ -218,6 +231,12 @@ def unmix_edge(P, j0, j1, step, alpha, B):
         if wch > 0.0:
             gam = (bb * pg - bg * pb) / det
             bet = (gg * pb - bg * pg) / det
+            # Shading at this sample, extrapolated from each side, kept
+            # within a factor of two of the ends'.
+            s_b = min(max(1.0 + sb * (j - j0 - 0.5), 0.5), 2.0)
+            s_g = min(max(1.0 + sg * (j1 - 0.5 - j), 0.5), 2.0)
+            bet /= s_b
+            gam /= s_g
             # Floor on the denominator: a pixel much darker than both sides
             # (noise) must not blow up.
             a = wch * bet / max(bet + gam, 0.25) + (1.0 - wch) * a
@@ -237,6 +256,17 @@ def unmix_edge(P, j0, j1, step, alpha, B):
     # hold a second edge (occluder, clutter) inside the window.
     ok = math.isfinite(edge) and amax < 1.35 and amin > -0.35 and tv < 1.8
     return ok, edge, contrast
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _unmix2(P, j, B, G, bb, gg, bg, det):
+    """(beta, gamma) of sample ``j``: ``P[j] ~ beta B + gamma G``."""
+    pb = 0.0
+    pg = 0.0
+    for c in range(3):
+        pb += P[j, c] * B[c]
+        pg += P[j, c] * G[c]
+    return (gg * pb - bg * pg) / det, (bb * pg - bg * pb) / det
 
 
 @numba.njit(cache=True, fastmath=False)
