@@ -67,8 +67,9 @@ def score_candidate(
     """Score the ball that ``fit`` (through ``rim``) found for ``search``; None if implausible.
 
     ``fill`` is the coarse blob's fill of its circle, ``lut`` the image's
-    unmixing values, ``gains`` the light's colour divided out (in those
-    values) before the hue is compared.  With a camera, a distance (from the apparent size and
+    unmixing values, ``gains`` the light's colour to divide out of the
+    rim's colours (in those values) before the hue is compared, unless
+    :func:`~.rim.sample_rim` did already.  With a camera, a distance (from the apparent size and
     the marker's radius) outside ``params.distance_range_m`` is implausible.
     """
     cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
@@ -82,7 +83,8 @@ def score_candidate(
     if gains is not None:
         # As under white light (gains in the rim values, see .light).
         ball = ball * gains
-        ball = ball / max(1.0, float(ball.max()))
+    # Colours corrected for the light may exceed full scale.
+    ball = ball / max(1.0, float(ball.max()))
     hue, chroma = hue_chroma(ball, lut)
     dh = abs((hue - search.hue_deg + 180.0) % 360.0 - 180.0)
     colour = math.exp(-0.5 * (dh / (1.5 * params.hue_tol_deg)) ** 2)

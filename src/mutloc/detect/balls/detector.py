@@ -226,6 +226,8 @@ def refine_blob(
     ``v_floor`` and ``gains`` (the light's colour) are as in the coarse search.
     """
     cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
+    # Rims are measured in colours as under white light.
+    lg = lut_gains(gains, params) if gains is not None else None
     recentred = moved = False
     it = 0
     while it < 2:
@@ -233,7 +235,7 @@ def refine_blob(
             n_rays = min(max(round(2 * math.pi * r), 24), 96)
             ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
             rexp = np.full(n_rays, r)
-        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px)
+        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, lg)
         # Rays far off the expected rim are occluders, clutter or a bad
         # coarse circle: the ones close to it are the initial inlier set.
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
@@ -261,4 +263,4 @@ def refine_blob(
     # The coarse blob of a split ball is one piece of it, filling little of
     # its circle: the visible rim (in the score) is the better judge then.
     fill = max(blob.fill, 0.6) if moved else blob.fill
-    return score_candidate(img, lut, s, fill, rim, fit, cam, params, gains=lut_gains(gains, params))
+    return score_candidate(img, lut, s, fill, rim, fit, cam, params)

@@ -56,25 +56,29 @@ def window(rexp: np.ndarray) -> float:
 
 def sample_rim(
     img: np.ndarray, lut: np.ndarray, cx: float, cy: float, ang: np.ndarray, rexp: np.ndarray,
-    local_half_window: float, step: float,
+    local_half_window: float, step: float, gains: np.ndarray | None = None,
 ) -> Rim:
     """Measure the rim along rays at angles ``ang`` from ``(cx, cy)``, expected at radii ``rexp``.
 
     ``lut`` maps uint8 values to the values colours are unmixed in; the
     window is :func:`window` wide, refined to ``+- local_half_window``
-    around the first edge, sampled every ``step`` pixels.
+    around the first edge, sampled every ``step`` pixels.  ``gains``
+    (per channel B, G, R, in ``lut``'s values) divide out the light's
+    colour first: the unmixing itself does not care, but whether ball and
+    background differ enough in colour to unmix does.
     """
+    g = np.ones(3) if gains is None else np.ascontiguousarray(gains, dtype=np.float64)
     n = len(ang)
     e = np.empty(n)
     valid = np.empty(n, np.bool_)
     inner = np.empty((n, 3))
     contrast = np.empty(n)
-    edges_kernel(img, lut, cx, cy, ang, rexp, window(rexp), local_half_window, step, e, valid, inner, contrast)
+    edges_kernel(img, lut, g, cx, cy, ang, rexp, window(rexp), local_half_window, step, e, valid, inner, contrast)
     return Rim(cx, cy, ang, e, valid, inner, contrast)
 
 
 @numba.njit(cache=True, fastmath=False)
-def _sample(img, lut, x, y, out) -> None:
+def _sample(img, lut, gain, x, y, out) -> None:
     """Bilinear sample of the image in ``lut``'s values at ``(x, y)`` in [0, W-1] x [0, H-1]."""
     H = img.shape[0]
     W = img.shape[1]
@@ -90,7 +94,7 @@ def _sample(img, lut, x, y, out) -> None:
     w10 = (1.0 - fx) * fy
     w11 = fx * fy
     for c in range(3):
-        out[c] = (
+        out[c] = gain[c] * (
             w00 * lut[img[y0, x0, c]]
             + w01 * lut[img[y0, x0 + 1, c]]
             + w10 * lut[img[y0 + 1, x0, c]]
@@ -99,7 +103,7 @@ def _sample(img, lut, x, y, out) -> None:
 
 
 @numba.njit(cache=True, fastmath=False)
-def edges_kernel(img, lut, cx, cy, ang, rexp, h, w2, step, e, valid, inner, contrast) -> None:
+def edges_kernel(img, lut, gain, cx, cy, ang, rexp, h, w2, step, e, valid, inner, contrast) -> None:
     """Sub-pixel rim radius along each ray ``(cx, cy) + t (cos a, sin a)``.
 
     The window ``t in rexp[i] +- h`` is sampled every ``step`` pixels, and
@@ -151,7 +155,7 @@ def edges_kernel(img, lut, cx, cy, ang, rexp, h, w2, step, e, valid, inner, cont
             continue
         for j in range(K):
             t = t0 + j * step
-            _sample(img, lut, cx + cs * t, cy + sn * t, P[j])
+            _sample(img, lut, gain, cx + cs * t, cy + sn * t, P[j])
         # First over the whole window, then over a window of +-w2 around
         # that first edge: the colours next to the rim are the ones that
         # mix in its pixels (a background that changes a few pixels out, a
