@@ -125,9 +125,14 @@ def same_blob(a: Candidate, b: Candidate) -> bool:
 
 
 def range_sigma(c: Candidate) -> float:
-    """Allowed error of a ball's distance (m): Z dr / r for dr = 0.2 px, plus 3 % for its true size."""
+    """Allowed error of a ball's distance (m): Z dr / r for dr = 0.2 px, plus 3 % for its true size.
+
+    A partly hidden ball's size comes from a shorter arc: dr grows as the
+    visible share of its rim falls (0.2 px / share^2).
+    """
     z = float(c.info["distance_m"])
-    return z * (0.03 + 0.2 / max(c.radius_px, 1e-9))
+    vis = min(max(float(c.info.get("rim_fraction", 1.0)), 0.1), 1.0)
+    return z * (0.03 + 0.2 / (vis * vis) / max(c.radius_px, 1e-9))
 
 
 def rig_mates(searches: Iterable[BallSearch]) -> dict[str, list[BallSearch]]:

@@ -128,7 +128,7 @@ def detect_balls(
             found: list[Candidate] = []
             # Blobs ranked below max_candidates are kept for the rig check's
             # second look (a ball ranked low among look-alikes).
-            skipped[s.name] = list(blobs[int(params.max_candidates): 3 * int(params.max_candidates)])
+            skipped[s.name] = list(blobs[int(params.max_candidates): 5 * int(params.max_candidates)])
             for blob in blobs[: int(params.max_candidates)]:
                 # Once a blob fits well, a lower-ranked blob can only win by
                 # being bigger (more rim evidence): smaller ones are not
