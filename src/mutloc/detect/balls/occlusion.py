@@ -30,12 +30,12 @@ import numpy as np
 from .light import correct
 from .numeric import kasa_circle
 from .params import BallParams
-from .search import BallSearch, Blob, hue_masks
+from .search import BallSearch, Blob
 
 __all__ = ["outline_points", "recentre", "smooth_rim"]
 
 # Fixed random draws: detections are repeatable.
-_DRAWS = np.random.default_rng(2718).random((96, 3))
+_DRAWS = np.random.default_rng(2718).random((48, 3))
 
 
 def outline_points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -45,20 +45,34 @@ def outline_points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (its sign is not used).  Holes (a highlight, a logo) are not outlines.
     """
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    pts, nrm = [], []
-    for c in contours:
-        p = c.reshape(-1, 2).astype(np.float64)
-        if len(p) < 8:
-            continue
-        t = np.roll(p, -2, axis=0) - np.roll(p, 2, axis=0)
-        n = np.column_stack([-t[:, 1], t[:, 0]])
-        ln = np.hypot(n[:, 0], n[:, 1])
-        ok = ln > 0
-        pts.append(p[ok])
-        nrm.append(n[ok] / ln[ok, None])
-    if not pts:
+    contours = [c for c in contours if len(c) >= 8]
+    if not contours:
         return np.zeros((0, 2)), np.zeros((0, 2))
-    return np.concatenate(pts), np.concatenate(nrm)
+    lens = np.array([len(c) for c in contours], np.int64)
+    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    nrm = np.empty_like(pts)
+    _normals(pts, lens, nrm)
+    return pts, nrm
+
+
+@numba.njit(cache=True, fastmath=False)
+def _normals(pts, lens, nrm) -> None:
+    start = 0
+    for L in lens:
+        for k in range(L):
+            a = start + (k + 2) % L
+            b = start + (k - 2) % L
+            tx = pts[a, 0] - pts[b, 0]
+            ty = pts[a, 1] - pts[b, 1]
+            ln = math.hypot(tx, ty)
+            i = start + k
+            if ln > 0.0:
+                nrm[i, 0] = -ty / ln
+                nrm[i, 1] = tx / ln
+            else:  # a one-pixel spike: no direction, never an inlier
+                nrm[i, 0] = 0.0
+                nrm[i, 1] = 0.0
+        start += L
 
 
 def recentre(
@@ -79,7 +93,7 @@ def recentre(
         return None
     roi = correct(np.ascontiguousarray(img[y0:y1, x0:x1]), gains)
     hsv = cv2.cvtColor(roi, cv2.COLOR_BGR2HSV_FULL)
-    mask = hue_masks(hsv, [s], params.hue_tol_deg, v_floor)[0]
+    mask = _hue_mask(hsv, s, params.hue_tol_deg, v_floor)
     pts, nrm = outline_points(mask)
     if len(pts) < 12:
         return None
@@ -94,6 +108,20 @@ def recentre(
     if not ok or k < max(10.0, 0.25 * 0.87 * 2.0 * math.pi * r):
         return None
     return u + x0, v + y0, r + 0.5
+
+
+def _hue_mask(hsv: np.ndarray, s: BallSearch, tol_deg: float, v_floor: int) -> np.ndarray:
+    """The coarse search's mask (:func:`~.search.hue_masks`) for one marker, by ranges (red wraps around)."""
+    s_floor = int(np.clip(0.4 * 255 * s.saturation, 40, 110))
+    lo = (s.hue_deg - tol_deg - 0.71) * 256.0 / 360.0
+    hi = (s.hue_deg + tol_deg + 0.71) * 256.0 / 360.0
+    a, b = int(math.ceil(lo)), int(math.floor(hi))
+    if a < 0 or b > 255:
+        a, b = a % 256, b % 256
+        m1 = cv2.inRange(hsv, (a, s_floor, v_floor), (255, 255, 255))
+        m2 = cv2.inRange(hsv, (0, s_floor, v_floor), (b, 255, 255))
+        return cv2.bitwise_or(m1, m2)
+    return cv2.inRange(hsv, (a, s_floor, v_floor), (b, 255, 255))
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -165,23 +193,29 @@ def smooth_rim(radius: np.ndarray, valid: np.ndarray, ang: np.ndarray, max_slope
     """Rays whose rim point's outline is nearly perpendicular to the ray (the normal test on the sub-pixel rim).
 
     The outline's angle against the ray is ``atan(dr / (r dphi))`` between
-    neighbouring rays; a point passes if on at least one side it is below
-    ``max_slope_deg`` (the last point of an arc before an occluder has a
-    steep step on one side only).  Points without a valid neighbour pass.
+    neighbouring rays (``ang`` evenly spaced around the circle); a point
+    passes if on at least one side it is below ``max_slope_deg`` (the last
+    point of an arc before an occluder has a steep step on one side only).
+    Points without a valid neighbour pass.
     """
-    n = len(radius)
-    if n < 3:
-        return valid.copy()
-    r = np.where(valid, radius, np.nan)
-    dphi = 2.0 * math.pi / n
-    lim = math.tan(math.radians(max_slope_deg))
-    with np.errstate(invalid="ignore"):
-        nxt = np.abs(np.roll(r, -1) - r) / (np.maximum(r, 1e-9) * dphi)
-        prv = np.abs(np.roll(r, 1) - r) / (np.maximum(r, 1e-9) * dphi)
-        steep_n = np.where(np.isnan(nxt), -1.0, nxt)
-        steep_p = np.where(np.isnan(prv), -1.0, prv)
-        # Missing on both sides: nothing to judge by.
-        lone = (steep_n < 0) & (steep_p < 0)
-        ok_n = (steep_n >= 0) & (steep_n <= lim)
-        ok_p = (steep_p >= 0) & (steep_p <= lim)
-    return valid & (ok_n | ok_p | lone)
+    out = np.empty(len(radius), np.bool_)
+    _smooth_kernel(radius, valid, math.tan(math.radians(max_slope_deg)) * 2.0 * math.pi / max(len(radius), 1), out)
+    return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def _smooth_kernel(radius, valid, lim_dphi, out):
+    n = radius.shape[0]
+    for i in range(n):
+        out[i] = valid[i]
+        if not valid[i] or n < 3:
+            continue
+        r = max(radius[i], 1e-9)
+        seen = False
+        ok = False
+        for j in ((i + 1) % n, (i - 1) % n):
+            if valid[j]:
+                seen = True
+                if abs(radius[j] - radius[i]) <= lim_dphi * r:
+                    ok = True
+        out[i] = ok or not seen

@@ -113,7 +113,8 @@ class BallParams:
     min_visible_fraction: float = 0.25
     #: When fewer of the first round's rim points than this share lie near
     #: the coarse circle (an occluder split the blob or cut into it), the
-    #: circle is searched again at full resolution (:mod:`.occlusion`).
+    #: circle is searched again at full resolution from the visible
+    #: outline (:mod:`.occlusion`).
     recentre_below: float = 0.85
     #: Rim points where the measured outline turns more than this against
     #: the ray (degrees: the edge's normal is not radial) lie on an
