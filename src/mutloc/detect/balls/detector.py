@@ -186,10 +186,15 @@ def detect_balls(
             marker=c.search.name, uv=c.uv, score=c.score, info=c.info,
             visible_fraction=float(c.info["rim_fraction"]), residual_px=float(c.info["rms_px"]))
     # Where another blob of a marker scored nearly as well, the detector is
-    # unsure: hand it over too, and let the mutual geometry decide.
+    # unsure: hand it over too, and let the mutual geometry decide.  Scores
+    # are compared per share of visible rim: a partly hidden ball scores
+    # low for being hidden, not for looking less like a ball.
+    def per_rim(c: Candidate) -> float:
+        return c.score / max(float(c.info["rim_fraction"]), params.min_visible_fraction, 1e-9)
+
     for c in taken:
         alts = [a for a in per_marker.get(c.search.name, [])
-                if a is not c and a.score >= params.alternative_ratio * c.score
+                if a is not c and per_rim(a) >= params.alternative_ratio * per_rim(c)
                 and not any(same_blob(a, t) for t in taken)]
         if alts:
             result.alternatives[c.search.name] = [
