@@ -63,7 +63,7 @@ def main() -> None:
             except MutlocError:
                 errs.append((np.inf, np.inf))
         e = np.array(errs)
-        print(f"{cond:10s} {np.median(e[:, 0]):9.3f} {np.quantile(e[:, 0], 0.9, method="higher"):8.3f} "
+        print(f"{cond:10s} {np.median(e[:, 0]):9.3f} {np.quantile(e[:, 0], 0.9, method='higher'):8.3f} "
               f"{np.median(e[:, 1]):10.4f} {int(np.sum(~np.isfinite(e[:, 0]))):7d}", flush=True)
 
 
