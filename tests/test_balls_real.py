@@ -203,14 +203,13 @@ def test_partly_hidden_balls_pose_accuracy(occluded_runs):
     err = np.array([(et, er) for et, er, _, _ in occluded_runs])
     truly = [v for *_, hidden in occluded_runs for v in hidden.values()]
     assert min(truly) < 0.72 and max(truly) > 0.3  # the scenes do hide 30-70 %
-    # Measured: median 0.13 cm / 0.02 deg; 2 of 12 scenes go wrong (a
-    # look-alike blob taken for the hidden ball, or the ball lost among
-    # look-alikes, leaving three observations).  Issue 12 asks for a median
-    # of 0.1 cm and a 90th percentile of 0.5 cm: not reached yet.
+    # Measured: median 0.13 cm / 0.02 deg, 90th percentile 0.42 cm, no
+    # scene without a pose.  Issue 12 asks for a median of 0.1 cm (not
+    # reached yet) and a 90th percentile of 0.5 cm.
     assert np.median(err[:, 0]) <= 0.002, err
     assert np.median(err[:, 1]) <= 0.05, err
-    assert np.percentile(err[:, 0], 75) <= 0.005, err
-    assert np.sum(err[:, 0] > 0.01) <= 2, err
+    assert np.percentile(err[:, 0], 90) <= 0.005, err
+    assert np.all(np.isfinite(err)), err
 
 
 @pytest.mark.slow

@@ -271,7 +271,9 @@ def find_blobs(
     for mask in hue_masks(hsv, searches, params.hue_tol_deg, v_floor):
         blobs = []
         for b in coarse_blobs(mask, sx, sy, params.min_radius_px, max_r):
-            if b.quality >= 0.25:
+            # A ball split by a pole leaves half-discs: support ~0.5 of
+            # their circle, filling ~0.4 of it.
+            if b.quality >= 0.15:
                 blobs.append(Blob(b.u, b.v, b.radius, b.quality, b.fill, _blob_chroma(coarse, b, sx, sy)))
         blobs.sort(key=lambda b: -b.quality * evidence(2.0 * math.pi * b.radius) * vivid(b.chroma))
         out.append(blobs)
