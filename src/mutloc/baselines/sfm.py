@@ -263,6 +263,11 @@ class SfmScene:
         opt.mapper.random_seed = self.seed
         opt.triangulation.random_seed = self.seed
         opt.extract_colors = False
+        # COLMAP's FAQ settings for faster incremental mapping of larger sets:
+        # global bundle adjustment less often and with fewer iterations.
+        opt.ba_global_frames_ratio = 1.2
+        opt.ba_global_points_ratio = 1.2
+        opt.ba_global_max_num_iterations = 20
         return opt
 
     def reconstruct(self, scale: ScaleReference | None = None) -> SfmResult:

@@ -20,8 +20,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
             "Run one of the paper's experiments and write OUT/NAME/results.json, report.md and plots; "
             "'all' runs every one and writes OUT/report.md. "
             "noise: Gaussian noise on the detected ball centres (Sec. V-B); "
-            "localization: grid of positions, mutual localization against a one-sided tag, egomotion and "
-            "the Dugas closed form (Sec. V-A, Table II); "
+            "localization: grid of positions, mutual localization against a one-sided tag, Bundler (COLMAP "
+            "structure from motion over every image), two-frame egomotion and the Dugas closed form "
+            "(Sec. V-A, Table II); "
             "reconstruction: points triangulated with each method's poses (Sec. V-C)."
         ),
     )
