@@ -289,7 +289,10 @@ class SfmScene:
         shutil.rmtree(out, ignore_errors=True)
         out.mkdir()
         pycolmap.set_random_seed(self.seed)
-        models = pycolmap.incremental_mapping(self.database, self.image_dir, out, options=self._mapping_options())
+        try:
+            models = pycolmap.incremental_mapping(self.database, self.image_dir, out, options=self._mapping_options())
+        except RuntimeError as e:  # COLMAP's checks surface as RuntimeError
+            raise NoSolutionError(f"structure from motion failed: {e}") from None
         if not models:
             raise NoSolutionError("structure from motion built no model (too few verified matches)")
         rec = max(models.values(), key=lambda r: r.num_reg_images())
@@ -343,8 +346,11 @@ class SfmScene:
         opt = self._mapping_options()
         opt.image_names = [n + ".png" for n in poses]
         opt.extract_colors = True
-        rec = pycolmap.triangulate_points(rec, self.database, self.image_dir, out, clear_points=True, options=opt,
-                                          refine_intrinsics=False)
+        try:
+            rec = pycolmap.triangulate_points(rec, self.database, self.image_dir, out, clear_points=True, options=opt,
+                                              refine_intrinsics=False)
+        except RuntimeError as e:
+            raise NoSolutionError(f"triangulation failed: {e}") from None
         pts = [p for p in rec.points3D.values() if p.track.length() >= min_track]
         X = np.array([p.xyz for p in pts], float).reshape(-1, 3)
         err = np.array([p.error for p in pts], float)
