@@ -113,3 +113,19 @@ def test_images_that_share_nothing_give_no_model():
     with SfmScene(images, CAM, seed=0) as scene:
         with pytest.raises(NoSolutionError):
             scene.reconstruct()
+
+
+def test_walkaround_views_stay_in_the_room_and_look_at_the_centre():
+    room = Room(center=(1.0, -0.5), size=(6.0, 4.0))
+    centre = np.array([1.5, -0.5])
+    poses = walkaround_poses(centre, 12, radius=2.5, height=0.9, pitch_deg=0.0, room=room, margin=0.4)
+    assert len(poses) == 12
+    for T in poses:
+        assert np.all(np.abs(T.t[:2] - np.array(room.center)) <= np.array(room.size) / 2 - 0.4 + 1e-9)
+        assert T.t[2] == pytest.approx(0.9)
+        fwd = T.R[:, 2]  # the optical axis in the world points at the centre, level
+        to_c = centre - T.t[:2]
+        assert fwd[2] == pytest.approx(0.0, abs=1e-12)
+        assert np.dot(fwd[:2], to_c / np.linalg.norm(to_c)) == pytest.approx(1.0, abs=1e-9)
+    with pytest.raises(InputError):
+        walkaround_poses(centre, 0)
