@@ -284,6 +284,9 @@ def run_localization(out_dir: str | Path, *, seed: int = 0, grid_x_ft: Sequence[
                       "solved": len(ok), "positions": len(usable),
                       "failures": _failure_counts(r[m] for r in usable if not isinstance(r[m], tuple))}
     methods["bundler"].update(bundler_info)
+    solved_b = [r["bundler"] for r in usable if isinstance(r.get("bundler"), tuple)]
+    if solved_b:  # SfM errors are correlated across positions: say how much they spread
+        methods["bundler"]["rotation_range_deg"] = [min(e[1] for e in solved_b), max(e[1] for e in solved_b)]
     mt = methods["mutual"]["median_translation_m"]
     improvement = {m: (methods[m]["median_translation_m"] / mt if mt > 0 else float("nan"))
                    for m in METHODS if m != "mutual"}
@@ -394,6 +397,18 @@ def _plots(rows: list[dict[str, Any]], results: dict[str, Any], out: Path) -> No
         save_figure(fig, out / fname, 120)
 
 
+def _spread(rng: list[float] | None) -> str:
+    """The Bundler rotation errors' range, and whether they are one shared misalignment."""
+    if not rng:
+        return ""
+    lo, hi = rng
+    txt = f" Its rotation error ranges from {lo:.3f} to {hi:.3f} deg over the positions"
+    if hi > 0 and hi - lo < 0.2 * hi:
+        txt += (": nearly the same everywhere, one shared misalignment of the robots' frames rather than "
+                "independent per-position errors")
+    return txt + "."
+
+
 def _factor(f: float | None) -> str:
     """An improvement factor: n/a, infinite, or x-fold."""
     if f is None or (isinstance(f, float) and math.isnan(f)):
@@ -441,7 +456,8 @@ def _report(results: dict[str, Any]) -> str:
                      f"{fmt(b.get('mean_reprojection_px', float('nan')), 1, 2)} px" if b.get("sfm_points") else "")
                   + (f"; scale from the true distance between walk-around photos {ref['a']} and {ref['b']} "
                      f"({ref['distance_m']:.3f} m)" if ref else "")
-                  + f"; {b['elapsed_s']:.0f} s."]
+                  + f"; {b['elapsed_s']:.0f} s."
+                  + _spread(b.get("rotation_range_deg"))]
     fails = {m: ms[m]["failures"] for m in METHODS if ms[m]["failures"]}
     if fails:
         lines += ["", "Failures (positions a method could not solve), by reason:", ""]
