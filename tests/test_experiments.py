@@ -96,3 +96,36 @@ def test_reconstruction_points_lie_on_the_true_surface(quick_all):
     ego = res["methods"]["egomotion"]
     if ego["points"]:
         assert math.isfinite(ego["mean_nn_distance_m"])
+
+
+def test_bundler_baseline_runs_inside_both_experiments(quick_all):
+    """Structure from motion over every image: its bookkeeping, per position and in results.json."""
+    _, out = quick_all
+    res = json.loads((out / "localization" / "results.json").read_text())
+    b = res["methods"]["bundler"]
+    setup = res["setup"]
+    assert b["robot_frames"] == 2 * setup["visible_positions"]
+    assert b["walkaround_views"] == setup["walkaround_views"] == QUICK["walkaround_views"]
+    assert b["images"] == b["robot_frames"] + b["walkaround_views"]
+    assert 0 <= b["solved"] <= b["positions"] and b["registered_images"] <= b["images"]
+    with open(out / "localization" / "positions.csv") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:  # a visible position is solved or says why not
+        if r["visible"] == "1":
+            assert bool(r["bundler_translation_m"]) != bool(r["bundler_failure"])
+    imp = res["improvement"]["bundler"]
+    assert imp["positions"] == b["positions"] and imp["common_positions"] <= b["solved"]
+    if b["solved"]:
+        ref = b["scale_reference"]
+        assert ref["a"].startswith("w") and ref["b"].startswith("w") and ref["distance_m"] > 0
+        # Per-position errors are the CSV's, and positions both solved give the common factor.
+        both = [r for r in rows if r["bundler_translation_m"] and r["mutual_translation_m"]]
+        assert imp["common_positions"] == len(both)
+        want = (np.median([float(r["bundler_translation_m"]) for r in both])
+                / np.median([float(r["mutual_translation_m"]) for r in both]))
+        assert imp["translation_common"] == pytest.approx(want, rel=1e-3)
+    rec = json.loads((out / "reconstruction" / "results.json").read_text())
+    assert set(rec["methods"]) == {"mutual", "bundler", "egomotion"}
+    for m, block in rec["methods"].items():
+        pts, _ = read_ply(out / "reconstruction" / f"{m}.ply")
+        assert len(pts) == block["points"]

@@ -5,6 +5,9 @@
 - :mod:`.egomotion`: feature matches between the two cameras' views of the
   shared scene, five-point essential matrix with RANSAC (Bundler-like); the
   scale is not observable and comes from an oracle.
+- :mod:`.sfm`: structure from motion over every image (COLMAP through
+  ``pycolmap``): the paper's Bundler baseline; metric scale from one known
+  distance.
 - :mod:`.dugas`: a closed form for two lights beside each camera, in the
   setting of Dugas, Giguere and Rekleitis (ISRR 2013).
 
@@ -14,7 +17,7 @@ can be rerun on the same rendered frames.
 
 from __future__ import annotations
 
-__all__ = ["tag_pose", "egomotion_pose", "match_features", "dugas_pose"]
+__all__ = ["tag_pose", "egomotion_pose", "match_features", "dugas_pose", "SfmScene"]
 
 
 def __getattr__(name: str):
@@ -26,6 +29,10 @@ def __getattr__(name: str):
         from . import egomotion
 
         return getattr(egomotion, name)
+    if name == "SfmScene":
+        from .sfm import SfmScene
+
+        return SfmScene
     if name == "dugas_pose":
         from .dugas import dugas_pose
 

@@ -18,7 +18,7 @@ def versions() -> dict[str, str]:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {"python": platform.python_version()}
-    for pkg in ("mutloc", "numpy", "scipy", "numba", "opencv-python-headless", "matplotlib"):
+    for pkg in ("mutloc", "numpy", "scipy", "numba", "opencv-python-headless", "matplotlib", "pycolmap"):
         try:
             out[pkg] = version(pkg)
         except PackageNotFoundError:
