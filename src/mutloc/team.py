@@ -1,0 +1,194 @@
+"""Teams: :func:`localize_team` estimates every robot's pose in one
+reference robot's frame, jointly, from all observations (SPEC "Teams")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from .api import Estimate, load_rig
+from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
+from .core.observations import ObservationSet
+from .core.pose import Pose
+from .core.rig import Rig
+from .core.team import TeamProblem, TeamSolution, relative_jacobian, solve_team
+from .errors import InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError, positive_number
+
+__all__ = ["TeamEstimate", "localize_team", "team_problem"]
+
+
+@dataclass(eq=False)
+class TeamEstimate:
+    """Every localized robot's pose ``T_ref_r`` (``x_ref = R @ x_r + t``)
+    in the frame of robot ``reference``, with the joint covariance."""
+
+    reference: str
+    poses: dict[str, Pose]
+    robots: list[str]
+    unlocalized: list[str]
+    joint_covariance: np.ndarray
+    pixel_sigma: float
+    reprojection_rms_px: float
+    observations_used: int
+    consistency: Consistency
+    markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def status(self) -> str:
+        """``"solved"`` (the joint residual passed its chi-square test) or
+        ``"unverified"`` (no redundancy: as many equations as unknowns)."""
+        passed = self.consistency.passed
+        return "unverified" if passed is None else ("solved" if passed else "rejected")
+
+    def _block(self, name: str) -> int:
+        if name == self.reference:
+            return -1
+        if name in self.unlocalized:
+            raise ObservationError(f"robot {name!r} is not localized (nothing ties it to {self.reference!r})")
+        if name not in self.poses:
+            raise ObservationError(f"unknown robot {name!r} (team has {sorted([*self.poses, *self.unlocalized])})")
+        return self.robots.index(name)
+
+    def covariance(self, name: str) -> np.ndarray:
+        """6x6 covariance of ``T_ref_name`` (zero for the reference)."""
+        i = self._block(name)
+        if i < 0:
+            return np.zeros((6, 6))
+        return self.joint_covariance[6 * i:6 * i + 6, 6 * i:6 * i + 6].copy()
+
+    def relative(self, a: str, b: str) -> Estimate:
+        """``T_ba`` (``x_b = R @ x_a + t``) as an :class:`Estimate` whose
+        covariance is propagated from the joint one (correlations included)."""
+        ia, ib = self._block(a), self._block(b)
+        if a == b:
+            raise ObservationError(f"relative pose of robot {a!r} to itself")
+        Ta, Tb = self.poses[a], self.poses[b]
+        Ja, Jb = relative_jacobian(Ta.R, Ta.t, Tb.R, Tb.t)
+        blocks = [(Ja, ia), (Jb, ib)]
+        cov = np.zeros((6, 6))
+        for J1, i1 in blocks:
+            for J2, i2 in blocks:
+                if i1 >= 0 and i2 >= 0:
+                    cov += J1 @ self.joint_covariance[6 * i1:6 * i1 + 6, 6 * i2:6 * i2 + 6] @ J2.T
+        pose = Tb.inverse() @ Ta
+        return Estimate(source=a, target=b, pose=pose, covariance=0.5 * (cov + cov.T), pixel_sigma=self.pixel_sigma,
+                        reprojection_rms_px=self.reprojection_rms_px,
+                        markers_used=list(self.markers_between.get(frozenset((a, b)), [])),
+                        candidates=Pose.concatenate([pose]), consistency=self.consistency,
+                        extra={"team_reference": self.reference})
+
+    def to_dict(self) -> dict[str, Any]:
+        """The team result JSON of SPEC (plus ``status`` and ``consistency``)."""
+        robots = {}
+        for name in self.robots:
+            d = self.poses[name].to_dict()
+            d["covariance"] = self.covariance(name).tolist()
+            robots[name] = d
+        return {"reference": self.reference, "robots": robots, "unlocalized": list(self.unlocalized),
+                "reprojection_rms_px": float(self.reprojection_rms_px), "pixel_sigma": float(self.pixel_sigma),
+                "observations_used": int(self.observations_used), "status": self.status,
+                "consistency": self.consistency.to_dict()}
+
+
+def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, list[str], list[str]]:
+    """The solver's form of named observations (checked against the rig):
+    the problem, the robot names (rig order) and each row's marker name."""
+    obs = observations.check(rig)
+    if obs.has_alternatives:
+        obs = obs.best()
+    if any(m is None for m in obs.marker):
+        raise ObservationError("teams need named markers (a list of unnamed pixels is ambiguous across robots)")
+    times = obs.time[~np.isnan(obs.time)]
+    if times.size and np.unique(times).size > 1:
+        raise ObservationError("observations of several times: localize one frame at a time (at_time)")
+    names = list(rig.robots)
+    index = {n: i for i, n in enumerate(names)}
+    cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
+    owners = [rig.owner(m) for m in obs.marker]
+    own = np.array([index[o] for o in owners], dtype=np.int64)
+    points = np.array([rig.robots[o].markers[m].position for o, m in zip(owners, obs.marker)]).reshape(-1, 3)
+    K = np.array([rig.robots[n].camera.K for n in names])
+    dist = np.array([rig.robots[n].camera.dist for n in names])
+    return TeamProblem(cam, own, points, obs.uv, K, dist), names, list(obs.marker)
+
+
+def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], reference: str | None = None, *,
+                  pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
+                  initial: Mapping[str, Pose] | None = None, max_iter: int = 50) -> TeamEstimate:
+    """Every robot's pose in robot ``reference``'s frame (default: the rig's
+    first robot), estimated jointly: one maximum-likelihood problem over the
+    pixel reprojection error of every observation (any camera seeing any
+    other robot's marker, mutual or one-sided), with the joint covariance for
+    isotropic detection noise ``pixel_sigma``.
+
+    Robots nothing ties to the reference are listed in ``unlocalized``
+    (never guessed); a robot is tied once three observations link it to
+    robots already tied (see :func:`mutloc.core.team.initial_poses`).
+    ``initial`` (``{robot: T_ref_robot}``, e.g. the previous frame's poses)
+    replaces the initialisation from the pair solvers; robots missing from
+    it are unlocalized.  The joint residual is tested against its noise
+    (chi-square, ``2n - 6k`` degrees of freedom for ``n`` observations and
+    ``k`` robots); failing it raises
+    :class:`~mutloc.errors.InconsistentObservationsError` carrying the
+    estimate (``confidence=1`` disables the test).
+    """
+    rig = load_rig(rig)
+    pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+    if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
+        raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
+    names = list(rig.robots)
+    if len(names) < 2:
+        raise ObservationError(f"a team needs at least two robots; the rig has {len(names)}")
+    if reference is None:
+        reference = names[0]
+    if not isinstance(reference, str) or reference not in rig.robots:
+        raise ObservationError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
+    problem, names, markers = team_problem(rig, ObservationSet.from_dict(observations))
+    ref = names.index(reference)
+    start = None
+    if initial is not None:
+        Rs = np.tile(np.eye(3), (len(names), 1, 1))
+        ts = np.zeros((len(names), 3))
+        loc = np.zeros(len(names), dtype=bool)
+        for n, T in initial.items():
+            if n not in rig.robots:
+                raise ObservationError(f"initial: unknown robot {n!r}")
+            i = names.index(n)
+            Rs[i], ts[i], loc[i] = T.R, T.t, True
+        start = (Rs, ts, loc)
+    sol = solve_team(problem, ref, initial=start, max_iter=max_iter)
+    if len(sol.order) == 0:
+        seen = sorted({names[i] for i in np.r_[problem.cam, problem.own].tolist()})
+        raise TooFewObservationsError(
+            f"no robot is tied to the reference {reference!r} by three or more observations "
+            f"({len(problem.cam)} observations among {seen or 'no robots'})")
+    return _estimate(sol, names, markers, problem, reference, pixel_sigma, confidence)
+
+
+def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: TeamProblem, reference: str,
+              sigma: float, confidence: float) -> TeamEstimate:
+    robots = [names[i] for i in sol.order]
+    poses = {names[i]: Pose(sol.Rs[i].copy(), sol.ts[i].copy()) for i in np.flatnonzero(sol.localized)}
+    poses[reference] = Pose.identity()
+    # as a pair's test (core.consistency) with six unknowns per robot
+    dof = 2 * sol.n_obs - 6 * len(robots)
+    threshold = chi2_quantile(confidence, dof) if dof > 0 else np.inf
+    test = Consistency(float(sol.cost) / sigma**2, dof, confidence, threshold)
+    between: dict[frozenset, list[str]] = {}
+    for j in sol.used.tolist():
+        between.setdefault(frozenset((names[problem.cam[j]], names[problem.own[j]])), []).append(markers[j])
+    est = TeamEstimate(
+        reference=reference, poses=poses, robots=robots,
+        unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],
+        joint_covariance=sol.covariance(sigma), pixel_sigma=sigma,
+        reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
+        consistency=test, markers_between=between, extra={"iterations": sol.iterations})
+    if test.passed is False and confidence < 1.0:
+        raise InconsistentObservationsError(
+            f"the team's observations do not fit one set of poses with {sigma:g} px noise (chi2 {test.chi2:.1f} "
+            f"over {dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%): a wrong "
+            "detection, a wrong rig or more noise than --pixel-sigma says", est)
+    return est
