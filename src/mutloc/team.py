@@ -13,7 +13,7 @@ from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
-from .core.team import TeamProblem, TeamSolution, relative_jacobian, solve_team
+from .core.team import MIN_TIES, TeamProblem, TeamSolution, relative_jacobian, solve_team
 from .errors import InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError, positive_number
 
 __all__ = ["TeamEstimate", "localize_team", "team_problem"]
@@ -22,7 +22,11 @@ __all__ = ["TeamEstimate", "localize_team", "team_problem"]
 @dataclass(eq=False)
 class TeamEstimate:
     """Every localized robot's pose ``T_ref_r`` (``x_ref = R @ x_r + t``)
-    in the frame of robot ``reference``, with the joint covariance."""
+    in the frame of robot ``reference``, with the joint covariance.
+
+    ``unverified`` lists robots held by exactly three observations: several
+    poses fit those exactly and nothing can confirm the one chosen (as a
+    pair's ``"unverified"`` status)."""
 
     reference: str
     poses: dict[str, Pose]
@@ -33,6 +37,7 @@ class TeamEstimate:
     reprojection_rms_px: float
     observations_used: int
     consistency: Consistency
+    unverified: list[str] = field(default_factory=list)
     markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -90,7 +95,7 @@ class TeamEstimate:
         return {"reference": self.reference, "robots": robots, "unlocalized": list(self.unlocalized),
                 "reprojection_rms_px": float(self.reprojection_rms_px), "pixel_sigma": float(self.pixel_sigma),
                 "observations_used": int(self.observations_used), "status": self.status,
-                "consistency": self.consistency.to_dict()}
+                "consistency": self.consistency.to_dict(), "unverified": list(self.unverified)}
 
 
 def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, list[str], list[str]]:
@@ -178,14 +183,20 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
     threshold = chi2_quantile(confidence, dof) if dof > 0 else np.inf
     test = Consistency(float(sol.cost) / sigma**2, dof, confidence, threshold)
     between: dict[frozenset, list[str]] = {}
+    ties = np.zeros(len(names), dtype=np.int64)
     for j in sol.used.tolist():
-        between.setdefault(frozenset((names[problem.cam[j]], names[problem.own[j]])), []).append(markers[j])
+        a, b = int(problem.cam[j]), int(problem.own[j])
+        between.setdefault(frozenset((names[a], names[b])), []).append(markers[j])
+        ties[a] += 1
+        ties[b] += 1
+    # a robot held by three observations fits several poses exactly
+    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES]
     est = TeamEstimate(
         reference=reference, poses=poses, robots=robots,
         unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],
         joint_covariance=sol.covariance(sigma), pixel_sigma=sigma,
         reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
-        consistency=test, markers_between=between, extra={"iterations": sol.iterations})
+        consistency=test, unverified=unverified, markers_between=between, extra={"iterations": sol.iterations})
     if test.passed is False and confidence < 1.0:
         raise InconsistentObservationsError(
             f"the team's observations do not fit one set of poses with {sigma:g} px noise (chi2 {test.chi2:.1f} "

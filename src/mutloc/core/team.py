@@ -29,6 +29,7 @@ for what is well posed.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -44,6 +45,8 @@ __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_l
 
 #: Observations that tie a robot to the already placed ones, at least.
 MIN_TIES = 3
+#: Observations each way the pair solver gets when placing a robot.
+INIT_PER_SIDE = 3
 # Condition number of the Jacobi-scaled information matrix beyond which
 # some pose is not isolated (as for a pair).
 _MAX_COND = 1e14
@@ -385,11 +388,40 @@ def _checked_inverse(H: np.ndarray) -> np.ndarray:
     return (Li.T @ Li) / d[:, None] / d[None, :]
 
 
+def _spread(rows: np.ndarray, k: int) -> np.ndarray:
+    """At most ``k`` of ``rows``, spread evenly over them."""
+    if len(rows) <= k:
+        return rows
+    return rows[np.round(np.linspace(0, len(rows) - 1, k)).astype(np.int64)]
+
+
 def _to_frame(T: tuple[np.ndarray, np.ndarray], X: np.ndarray) -> np.ndarray:
     """Points ``X`` (n, 3) in the reference frame, expressed in the frame
     of the robot whose pose ``T = (R, t)`` is."""
     R, t = T
     return (X - t) @ R
+
+
+def _candidates(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, r: int, c: int, sees: np.ndarray,
+                seen: np.ndarray, per_side: int | None) -> Pose | None:
+    """Candidate poses ``T_cr`` of the pair problem made of r's views
+    ``sees`` (of placed markers, expressed in c's frame) and c's views
+    ``seen`` of r's markers -- at most ``per_side`` of each (spread), all
+    when None -- the refined best first; None when it has no solution."""
+    a = sees if per_side is None else _spread(sees, per_side)
+    b = seen if per_side is None else _spread(seen, per_side)
+    Xref = np.einsum("nij,nj->ni", Rs[problem.own[a]], problem.points[a]) + ts[problem.own[a]]
+    Xc = _to_frame((Rs[c], ts[c]), Xref)
+    pair = PairProblem.trusted(
+        np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)],
+        np.ascontiguousarray(np.vstack([Xc, problem.points[b]])), None,
+        np.ascontiguousarray(np.vstack([problem.uv[a], problem.uv[b]])),
+        (problem.K[r], problem.K[c]), (problem.dist[r], problem.dist[c]))
+    try:
+        sol = estimate(pair)
+    except MutlocError:
+        return None
+    return Pose.concatenate([sol.pose, sol.candidates])
 
 
 def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -> tuple[np.ndarray, np.ndarray,
@@ -418,6 +450,7 @@ def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -
     ts = np.zeros((N, 3))
     Rs[:] = np.eye(3)
     cam, own = problem.cam, problem.own
+    failed_at = np.full(N, -1)
     while True:
         # ties of each unplaced robot: its views of placed robots' markers
         # plus the views of the best placed camera of it
@@ -425,7 +458,7 @@ def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -
         into = np.where(placed[:, None], C, 0)
         best_cam = np.argmax(into, axis=0)
         score = out + into[best_cam, np.arange(N)]
-        score[placed] = -1
+        score[placed | (failed_at == placed.sum())] = -1
         r = int(np.argmax(score))
         if score[r] < MIN_TIES:
             break
@@ -436,47 +469,36 @@ def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -
             c = int(np.flatnonzero(placed)[np.argmax(C[r, placed])])
         sees = np.flatnonzero((cam == r) & placed[own])
         seen = np.flatnonzero((cam == c) & (own == r))
-        # the markers r sees, in c's frame
-        Xref = np.einsum("nij,nj->ni", Rs[own[sees]], problem.points[sees]) + ts[own[sees]]
-        Xc = _to_frame((Rs[c], ts[c]), Xref)
-        pair = PairProblem.trusted(
-            np.r_[np.zeros(len(sees), np.int64), np.ones(len(seen), np.int64)],
-            np.ascontiguousarray(np.vstack([Xc, problem.points[seen]])), None,
-            np.ascontiguousarray(np.vstack([problem.uv[sees], problem.uv[seen]])),
-            (problem.K[r], problem.K[c]), (problem.dist[r], problem.dist[c]))
-        try:
-            sol = estimate(pair)
-        except MutlocError:
-            # no pose explains them (or degenerate): r cannot be placed from here
-            C[:, r] = 0
-            C[r, :] = 0
-            continue
-        # every candidate (the refined best first) against all of r's
-        # observations with placed robots; keep the best, refined on them
         ties = np.flatnonzero(((cam == r) & placed[own]) | ((own == r) & placed[cam]))
         sub = problem.take(ties)
         var = np.full(N, -1, dtype=np.int64)
         var[r] = 0
         best = (np.inf, None, None)
-        cands = Pose.concatenate([sol.pose, sol.candidates])
-        for T in cands:
-            Rr = Rs[c] @ T.R
-            tr = Rs[c] @ T.t + ts[c]
-            Rtry, ttry = Rs.copy(), ts.copy()
-            Rtry[r], ttry[r] = Rr, tr
-            cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
-            if cost < best[0]:
-                best = (cost, Rr, tr)
+        # a few observations each way make the candidates (cheap); every
+        # candidate is scored on all of r's ties (this also picks among the
+        # exact poses of three observations); all observations when the few
+        # give nothing that fits
+        for per_side in (INIT_PER_SIDE, None):
+            cands = _candidates(problem, Rs, ts, r, c, sees, seen, per_side)
+            if cands is not None:
+                Rtry, ttry = Rs.copy(), ts.copy()
+                for Rq, tq in zip(cands.R, cands.t):
+                    Rtry[r] = Rs[c] @ Rq
+                    ttry[r] = Rs[c] @ tq + ts[c]
+                    cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
+                    if cost < best[0]:
+                        best = (cost, Rtry[r].copy(), ttry[r].copy())
+            if np.isfinite(best[0]) or (len(sees) <= INIT_PER_SIDE and len(seen) <= INIT_PER_SIDE):
+                break
         if not np.isfinite(best[0]):
-            C[:, r] = 0
-            C[r, :] = 0
+            # no pose explains them: try r again once more robots are placed
+            failed_at[r] = placed.sum()
             continue
+        Rtry[r], ttry[r] = best[1], best[2]
+        cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
+        if np.isfinite(cost):
+            best = (cost, Rtry[r], ttry[r])
         Rs[r], ts[r] = best[1], best[2]
-        if len(ties) > len(sees) + len(seen):
-            Rtry, ttry = Rs.copy(), ts.copy()
-            cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
-            if np.isfinite(cost):
-                Rs[r], ts[r] = Rtry[r], ttry[r]
         placed[r] = True
     return Rs, ts, placed
 
