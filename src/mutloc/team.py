@@ -14,9 +14,10 @@ from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
 from .core.team import MIN_TIES, TeamProblem, TeamSolution, relative_jacobian, solve_team
-from .errors import InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError, positive_number
+from .errors import (InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
+                     UnverifiedError, positive_number)
 
-__all__ = ["TeamEstimate", "localize_team", "team_problem"]
+__all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
 
 
 @dataclass(eq=False)
@@ -203,3 +204,34 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
             f"over {dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%): a wrong "
             "detection, a wrong rig or more noise than --pixel-sigma says", est)
     return est
+
+
+def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
+    """UnverifiedError when some robot rests on three observations and the
+    caller did not accept that (the command line without ``--allow-unverified``)."""
+    if team.unverified and not allow_unverified:
+        raise UnverifiedError(
+            f"robot{'s' if len(team.unverified) > 1 else ''} {', '.join(team.unverified)}: only three observations "
+            "tie it to the team, several poses fit them exactly and nothing can verify the one chosen; accept the "
+            "risk with --allow-unverified or observe a fourth marker", team)
+
+
+def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | None = None,
+                         **options: Any) -> Any:
+    """Detect, in one image per robot (arrays or file paths), every other
+    robot's markers and localize the team (``options`` as
+    :func:`localize_team`); a ``FrameResult`` whose ``estimate`` is the
+    :class:`TeamEstimate`."""
+    from pathlib import Path
+
+    from .track.frames import FrameResult, detect_markers, expanded_rig, observations_of, read_image
+
+    rig = expanded_rig(load_rig(rig))
+    detections = {}
+    for observer, img in images.items():
+        rig.robot(observer)
+        if isinstance(img, (str, Path)):
+            img = read_image(img)
+        detections[observer] = detect_markers(rig, observer, img)
+    team = localize_team(rig, observations_of(detections), reference, **options)
+    return FrameResult(team, detections)  # type: ignore[arg-type]
