@@ -13,7 +13,7 @@ from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
-from .core.team import MIN_TIES, TeamProblem, TeamSolution, relative_jacobian, solve_team
+from .core.team import MIN_TIES, TeamProblem, TeamSolution, relative_jacobian, residual_norms, solve_team
 from .errors import (InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
                      UnverifiedError, positive_number)
 
@@ -39,6 +39,7 @@ class TeamEstimate:
     observations_used: int
     consistency: Consistency
     unverified: list[str] = field(default_factory=list)
+    rejected: list[dict[str, Any]] = field(default_factory=list)
     markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -96,7 +97,8 @@ class TeamEstimate:
         return {"reference": self.reference, "robots": robots, "unlocalized": list(self.unlocalized),
                 "reprojection_rms_px": float(self.reprojection_rms_px), "pixel_sigma": float(self.pixel_sigma),
                 "observations_used": int(self.observations_used), "status": self.status,
-                "consistency": self.consistency.to_dict(), "unverified": list(self.unverified)}
+                "consistency": self.consistency.to_dict(), "unverified": list(self.unverified),
+                **({"rejected": [dict(r) for r in self.rejected]} if self.rejected else {})}
 
 
 def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, list[str], list[str]]:
@@ -123,7 +125,8 @@ def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, l
 
 def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], reference: str | None = None, *,
                   pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
-                  initial: Mapping[str, Pose] | None = None, max_iter: int = 50) -> TeamEstimate:
+                  initial: Mapping[str, Pose] | None = None, max_iter: int = 50,
+                  reject_outliers: bool = True) -> TeamEstimate:
     """Every robot's pose in robot ``reference``'s frame (default: the rig's
     first robot), estimated jointly: one maximum-likelihood problem over the
     pixel reprojection error of every observation (any camera seeing any
@@ -139,7 +142,10 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     (chi-square, ``2n - 6k`` degrees of freedom for ``n`` observations and
     ``k`` robots); failing it raises
     :class:`~mutloc.errors.InconsistentObservationsError` carrying the
-    estimate (``confidence=1`` disables the test).
+    estimate (``confidence=1`` disables the test).  Before that, with
+    ``reject_outliers``, the worst-fitting observation is dropped and the
+    team solved again, up to a fifth of the observations; those dropped are
+    named in ``rejected``.
     """
     rig = load_rig(rig)
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
@@ -165,13 +171,35 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
             i = names.index(n)
             Rs[i], ts[i], loc[i] = T.R, T.t, True
         start = (Rs, ts, loc)
-    sol = solve_team(problem, ref, initial=start, max_iter=max_iter)
-    if len(sol.order) == 0:
-        seen = sorted({names[i] for i in np.r_[problem.cam, problem.own].tolist()})
-        raise TooFewObservationsError(
-            f"no robot is tied to the reference {reference!r} by three or more observations "
-            f"({len(problem.cam)} observations among {seen or 'no robots'})")
-    return _estimate(sol, names, markers, problem, reference, pixel_sigma, confidence)
+    keep = np.arange(len(problem.cam))
+    rejected: list[dict[str, Any]] = []
+    while True:
+        sub = problem.take(keep)
+        sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma)
+        if len(sol.order) == 0:
+            seen = sorted({names[i] for i in np.r_[problem.cam, problem.own].tolist()})
+            raise TooFewObservationsError(
+                f"no robot is tied to the reference {reference!r} by three or more observations "
+                f"({len(problem.cam)} observations among {seen or 'no robots'})")
+        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, confidence)
+        if est.consistency.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
+            break
+        # drop the worst-fitting observation and solve again from scratch
+        # (a wrong detection may have misled the start as well)
+        err = residual_norms(sub.take(sol.used), sol.Rs, sol.ts)
+        k = int(keep[sol.used[int(np.argmax(err))]])
+        rejected.append({"observer": names[problem.cam[k]], "marker": markers[k], "residual_px": float(np.max(err))})
+        keep = keep[keep != k]
+        start = None
+    est.rejected = rejected
+    test = est.consistency
+    if test.passed is False:
+        raise InconsistentObservationsError(
+            f"the team's observations do not fit one set of poses with {pixel_sigma:g} px noise (chi2 {test.chi2:.1f} "
+            f"over {test.dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%"
+            + (f", even without the {len(rejected)} worst observations" if rejected else "")
+            + "): a wrong detection, a wrong rig or more noise than --pixel-sigma says", est)
+    return est
 
 
 def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: TeamProblem, reference: str,
@@ -198,11 +226,6 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
         joint_covariance=sol.covariance(sigma), pixel_sigma=sigma,
         reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
         consistency=test, unverified=unverified, markers_between=between, extra={"iterations": sol.iterations})
-    if test.passed is False and confidence < 1.0:
-        raise InconsistentObservationsError(
-            f"the team's observations do not fit one set of poses with {sigma:g} px noise (chi2 {test.chi2:.1f} "
-            f"over {dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%): a wrong "
-            "detection, a wrong rig or more noise than --pixel-sigma says", est)
     return est
 
 

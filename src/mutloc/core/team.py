@@ -36,11 +36,12 @@ from numba import njit
 
 from ..errors import DegenerateGeometryError, MutlocError, NoSolutionError
 from .camera import project_jac_kernel, project_kernel
+from .consistency import chi2_quantile
 from .estimate import PairProblem, estimate
 from .pose import Pose
 from .refine import solve_spd
 
-__all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost",
+__all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
            "relative_jacobian", "MIN_TIES"]
 
 #: Observations that tie a robot to the already placed ones, at least.
@@ -424,7 +425,7 @@ def _candidates(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, r: int, c:
     return Pose.concatenate([sol.pose, sol.candidates])
 
 
-def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -> tuple[np.ndarray, np.ndarray,
+def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20) -> tuple[np.ndarray, np.ndarray,
                                                                                         np.ndarray]:
     """Start poses ``T_ref_i`` (Rs, ts) and which robots could be placed.
 
@@ -440,7 +441,8 @@ def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -
     Observations only of ``r``'s markers by several placed cameras, none of
     which sees three (a non-central problem no minimal solver here covers),
     and robots with fewer than three ties are not placed: they are never
-    guessed.
+    guessed.  ``sigma`` (pixels) is the noise a start must fit r's ties
+    within before the cheap start is trusted.
     """
     N = problem.n_robots
     C = problem.counts()
@@ -473,38 +475,48 @@ def initial_poses(problem: TeamProblem, reference: int, *, max_iter: int = 20) -
         sub = problem.take(ties)
         var = np.full(N, -1, dtype=np.int64)
         var[r] = 0
-        best = (np.inf, None, None)
         # a few observations each way make the candidates (cheap); every
         # candidate is scored on all of r's ties (this also picks among the
-        # exact poses of three observations); all observations when the few
-        # give nothing that fits
+        # exact poses of three observations) and the best refined on them;
+        # all observations when the few give nothing that fits the ties
+        # within their noise (a small, distant triangle under noise)
+        gate = sigma**2 * chi2_quantile(0.999, 2 * len(ties) - 6) if len(ties) > 3 else np.inf
+        found = (np.inf, None, None)
         for per_side in (INIT_PER_SIDE, None):
-            cands = _candidates(problem, Rs, ts, r, c, sees, seen, per_side)
-            if cands is not None:
-                Rtry, ttry = Rs.copy(), ts.copy()
-                for Rq, tq in zip(cands.R, cands.t):
-                    Rtry[r] = Rs[c] @ Rq
-                    ttry[r] = Rs[c] @ tq + ts[c]
-                    cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
-                    if cost < best[0]:
-                        best = (cost, Rtry[r].copy(), ttry[r].copy())
-            if np.isfinite(best[0]) or (len(sees) <= INIT_PER_SIDE and len(seen) <= INIT_PER_SIDE):
+            if per_side is None and len(sees) <= INIT_PER_SIDE and len(seen) <= INIT_PER_SIDE:
                 break
-        if not np.isfinite(best[0]):
+            cands = _candidates(problem, Rs, ts, r, c, sees, seen, per_side)
+            if cands is None:
+                continue
+            Rtry, ttry = Rs.copy(), ts.copy()
+            best = (np.inf, None, None)
+            for Rq, tq in zip(cands.R, cands.t):
+                Rtry[r] = Rs[c] @ Rq
+                ttry[r] = Rs[c] @ tq + ts[c]
+                cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
+                if cost < best[0]:
+                    best = (cost, Rtry[r].copy(), ttry[r].copy())
+            if not np.isfinite(best[0]):
+                continue
+            Rtry[r], ttry[r] = best[1], best[2]
+            cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
+            if np.isfinite(cost) and cost < best[0]:
+                best = (cost, Rtry[r], ttry[r])
+            if best[0] < found[0]:
+                found = best
+            if found[0] <= gate:
+                break
+        if not np.isfinite(found[0]):
             # no pose explains them: try r again once more robots are placed
             failed_at[r] = placed.sum()
             continue
-        Rtry[r], ttry[r] = best[1], best[2]
-        cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
-        if np.isfinite(cost):
-            best = (cost, Rtry[r], ttry[r])
-        Rs[r], ts[r] = best[1], best[2]
+        Rs[r], ts[r] = found[1], found[2]
         placed[r] = True
     return Rs, ts, placed
 
 
 def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarray, np.ndarray, np.ndarray]
-               | None = None, max_iter: int = 50) -> TeamSolution:
+               | None = None, max_iter: int = 50, sigma: float = 1.0) -> TeamSolution:
     """The joint maximum-likelihood poses of every robot tied to ``reference``.
 
     ``initial`` = (Rs, ts, localized) skips :func:`initial_poses` (a warm
@@ -513,7 +525,7 @@ def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarra
     behind a camera, DegenerateGeometryError if some pose is not isolated.
     """
     if initial is None:
-        Rs, ts, localized = initial_poses(problem, reference)
+        Rs, ts, localized = initial_poses(problem, reference, sigma=sigma)
     else:
         Rs, ts, localized = (np.array(a, dtype=float if i < 2 else bool) for i, a in enumerate(initial))
         localized = localized.copy()
@@ -529,6 +541,20 @@ def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarra
         raise NoSolutionError("the team's start poses put a marker behind the camera observing it")
     return TeamSolution(Rs=Rs, ts=ts, localized=localized, order=order, cost=cost, n_obs=len(used),
                         information=H, iterations=it, used=used)
+
+
+def residual_norms(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
+    """Each observation's reprojection error (pixels) at poses (Rs, ts);
+    inf for a marker behind its observer."""
+    n = len(problem.cam)
+    out = np.full(n, np.inf)
+    r = np.empty(2)
+    J = np.empty((1, 2, 6))
+    for j in range(n):
+        sub = problem.take(np.array([j]))
+        if team_residuals(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rs, ts, r, J, J, False):
+            out[j] = float(np.hypot(r[0], r[1]))
+    return out
 
 
 def relative_jacobian(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

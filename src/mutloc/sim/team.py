@@ -21,9 +21,9 @@ from ..core.rig import Marker, Rig, Robot
 
 __all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "MARKER_RING"]
 
-# Markers around each robot's camera (its own frame, metres): a ring of four
-# at two heights, so a robot is seen from any side.
-MARKER_RING = np.array([[0.12, -0.08, 0.0], [0.0, 0.04, 0.12], [-0.12, -0.08, 0.0], [0.0, 0.04, -0.12]])
+# Markers on each robot (its own camera frame, metres): four balls above and
+# beside the camera, not coplanar, seen from any side, never in its own view.
+MARKER_RING = np.array([[0.12, -0.10, -0.02], [-0.12, -0.10, -0.02], [0.0, -0.22, 0.04], [0.0, -0.14, -0.14]])
 
 
 def robot_names(n: int) -> list[str]:
