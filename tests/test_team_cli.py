@@ -64,3 +64,22 @@ def test_localize_team_bad_input_is_one_line(tmp_path, capsys):
     rc, out, err = _run(["localize", "--rig", rig, "--observations", path, "--reference", "r0", "--source", "r1"],
                         capsys)
     assert rc == 2 and "exclude" in err
+
+
+def test_simulate_team_then_localize(tmp_path, capsys):
+    out = tmp_path / "team"
+    rc, stdout, err = _run(["simulate", "--robots", "4", "--out", str(out), "--no-images", "--seed", "3"], capsys)
+    assert rc == 0, err
+    assert {p.name for p in out.iterdir()} == {"rig.yaml", "observations.json", "truth.json"}
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["reference"] == "r0" and set(truth["robots"]) == {"r1", "r2", "r3"}
+    rc, stdout, err = _run(["localize", "--rig", str(out / "rig.yaml"), "--observations",
+                            str(out / "observations.json")], capsys)
+    assert rc == 0, err
+    d = json.loads(stdout)
+    # exact pixels: every robot the simulation ties to r0 is found exactly
+    assert d["robots"], d
+    for r, entry in d["robots"].items():
+        np.testing.assert_allclose(entry["t"], truth["robots"][r]["t"], atol=1e-6)
+        np.testing.assert_allclose(entry["R"], truth["robots"][r]["R"], atol=1e-6)
+    assert len(d["robots"]) + len(d["unlocalized"]) == 3

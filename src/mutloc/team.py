@@ -14,7 +14,7 @@ from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
 from .core.team import MIN_TIES, TeamProblem, TeamSolution, relative_jacobian, residual_norms, solve_team
-from .errors import (InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
+from .errors import (DegenerateGeometryError, InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
                      UnverifiedError, positive_number)
 
 __all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
@@ -181,8 +181,8 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
             raise TooFewObservationsError(
                 f"no robot is tied to the reference {reference!r} by three or more observations "
                 f"({len(problem.cam)} observations among {seen or 'no robots'})")
-        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, confidence)
-        if est.consistency.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
+        test = _test(sol, pixel_sigma, confidence)
+        if test.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
             break
         # drop the worst-fitting observation and solve again from scratch
         # (a wrong detection may have misled the start as well)
@@ -191,8 +191,14 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         rejected.append({"observer": names[problem.cam[k]], "marker": markers[k], "residual_px": float(np.max(err))})
         keep = keep[keep != k]
         start = None
-    est.rejected = rejected
-    test = est.consistency
+    try:
+        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, test)
+    except DegenerateGeometryError:
+        if test.passed is not False:
+            raise
+        est = None
+    if est is not None:
+        est.rejected = rejected
     if test.passed is False:
         raise InconsistentObservationsError(
             f"the team's observations do not fit one set of poses with {pixel_sigma:g} px noise (chi2 {test.chi2:.1f} "
@@ -202,15 +208,18 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     return est
 
 
+def _test(sol: TeamSolution, sigma: float, confidence: float) -> Consistency:
+    """A pair's chi-square test (core.consistency) with six unknowns per robot."""
+    dof = 2 * sol.n_obs - 6 * len(sol.order)
+    threshold = chi2_quantile(confidence, dof) if dof > 0 else np.inf
+    return Consistency(float(sol.cost) / sigma**2, dof, confidence, threshold)
+
+
 def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: TeamProblem, reference: str,
-              sigma: float, confidence: float) -> TeamEstimate:
+              sigma: float, test: Consistency) -> TeamEstimate:
     robots = [names[i] for i in sol.order]
     poses = {names[i]: Pose(sol.Rs[i].copy(), sol.ts[i].copy()) for i in np.flatnonzero(sol.localized)}
     poses[reference] = Pose.identity()
-    # as a pair's test (core.consistency) with six unknowns per robot
-    dof = 2 * sol.n_obs - 6 * len(robots)
-    threshold = chi2_quantile(confidence, dof) if dof > 0 else np.inf
-    test = Consistency(float(sol.cost) / sigma**2, dof, confidence, threshold)
     between: dict[frozenset, list[str]] = {}
     ties = np.zeros(len(names), dtype=np.int64)
     for j in sol.used.tolist():
