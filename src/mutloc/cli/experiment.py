@@ -8,7 +8,7 @@ from ._common import PROGRESS, SEED
 
 ORDER = 60
 
-EXPERIMENTS = ["noise", "localization", "reconstruction", "all"]
+EXPERIMENTS = ["noise", "localization", "reconstruction", "team", "all"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -22,7 +22,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
             "noise: Gaussian noise on the detected ball centres (Sec. V-B); "
             "localization: grid of positions, mutual localization against a one-sided tag, egomotion and "
             "the Dugas closed form (Sec. V-A, Table II); "
-            "reconstruction: points triangulated with each method's poses (Sec. V-C)."
+            "reconstruction: points triangulated with each method's poses (Sec. V-C); "
+            "team (not in the paper, not in 'all'): 3-10 robots, joint versus chained pairwise estimates and "
+            "the joint Cramer-Rao bound."
         ),
     )
     p.add_argument("name", choices=EXPERIMENTS, metavar="NAME", help=f"experiment ({', '.join(EXPERIMENTS)})")

@@ -229,14 +229,38 @@ def _so3_exp_left(w0, w1, w2, R):
 
 
 @njit(cache=True)
-def _cholesky_solve(A, b, x, L):
-    """x = A^-1 b for symmetric positive definite A (L: scratch); False if
-    A is not positive definite."""
+def _envelope(cam, own, var, m):
+    """first[i]: the first column of row i of H that can be non-zero (the
+    lowest block a robot shares an observation with); Cholesky fills in
+    nothing left of it."""
+    fb = np.arange(m // 6)
+    for j in range(cam.shape[0]):
+        va = var[cam[j]]
+        vb = var[own[j]]
+        if va >= 0 and vb >= 0:
+            if va > vb:
+                fb[va] = min(fb[va], vb)
+            else:
+                fb[vb] = min(fb[vb], va)
+    first = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        first[i] = 6 * fb[i // 6]
+    return first
+
+
+@njit(cache=True)
+def _cholesky_solve(A, first, b, x, L):
+    """x = A^-1 b for symmetric positive definite A whose row i is zero left
+    of column first[i] (an envelope Cholesky: with the robots ordered by
+    reverse Cuthill-McKee the envelope of a team's H is narrow); False if A
+    is not positive definite."""
     n = A.shape[0]
     for i in range(n):
-        for j in range(i + 1):
+        fi = first[i]
+        for j in range(fi, i + 1):
             s = A[i, j]
-            for k in range(j):
+            k0 = max(fi, first[j])
+            for k in range(k0, j):
                 s -= L[i, k] * L[j, k]
             if i == j:
                 if not s > 0.0:
@@ -246,13 +270,14 @@ def _cholesky_solve(A, b, x, L):
                 L[i, j] = s / L[j, j]
     for i in range(n):
         s = b[i]
-        for k in range(i):
+        for k in range(first[i], i):
             s -= L[i, k] * x[k]
         x[i] = s / L[i, i]
     for i in range(n - 1, -1, -1):
         s = x[i]
         for k in range(i + 1, n):
-            s -= L[k, i] * x[k]
+            if first[k] <= i:
+                s -= L[k, i] * x[k]
         x[i] = s / L[i, i]
     return True
 
@@ -271,9 +296,10 @@ def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
     Jb = np.empty((n, 2, 6))
     g = np.empty(m)
     A = np.empty((m, m))
-    L = np.zeros((m, m))
     delta = np.empty(m)
     rhs = np.empty(m)
+    L = np.empty((m, m))
+    first = _envelope(cam, own, var, m)
     Rn = np.empty_like(Rs)
     tn = np.empty_like(ts)
     if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
@@ -297,7 +323,7 @@ def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
                     A[p, q] = H[p, q]
                 A[p, p] += lam * (H[p, p] + 1e-12)
                 rhs[p] = -g[p]
-            if not _cholesky_solve(A, rhs, delta, L):
+            if not _cholesky_solve(A, first, rhs, delta, L):
                 lam *= 10.0
                 continue
             step = 0.0
@@ -515,6 +541,22 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     return Rs, ts, placed
 
 
+def _rcm(problem: TeamProblem, order: np.ndarray) -> np.ndarray:
+    """Reverse Cuthill-McKee permutation of ``order`` (robots) by shared observations."""
+    k = len(order)
+    if k <= 2:
+        return np.arange(k)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    pos = np.full(problem.n_robots, -1)
+    pos[order] = np.arange(k)
+    a, b = pos[problem.cam], pos[problem.own]
+    ok = (a >= 0) & (b >= 0)
+    G = coo_matrix((np.ones(2 * ok.sum()), (np.r_[a[ok], b[ok]], np.r_[b[ok], a[ok]])), shape=(k, k)).tocsr()
+    return np.asarray(reverse_cuthill_mckee(G, symmetric_mode=True), dtype=np.int64)
+
+
 def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarray, np.ndarray, np.ndarray]
                | None = None, max_iter: int = 50, sigma: float = 1.0) -> TeamSolution:
     """The joint maximum-likelihood poses of every robot tied to ``reference``.
@@ -535,8 +577,14 @@ def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarra
     sub = problem.take(used)
     var = np.full(problem.n_robots, -1, dtype=np.int64)
     order = np.array([i for i in range(problem.n_robots) if localized[i] and i != reference], dtype=np.int64)
-    var[order] = np.arange(len(order))
+    # unknowns in reverse Cuthill-McKee order of the observation graph: a
+    # narrow envelope for the Cholesky factor
+    rcm = _rcm(sub, order)
+    var[order[rcm]] = np.arange(len(order))
     cost, it, H = _lm(sub, var, Rs, ts, max_iter)
+    # back to index order (the order of ``order``)
+    idx = (6 * var[order][:, None] + np.arange(6)[None, :]).ravel()
+    H = H[np.ix_(idx, idx)]
     if not np.isfinite(cost):
         raise NoSolutionError("the team's start poses put a marker behind the camera observing it")
     return TeamSolution(Rs=Rs, ts=ts, localized=localized, order=order, cost=cost, n_obs=len(used),
