@@ -187,14 +187,14 @@ def test_disconnected_robot_is_unlocalized():
 
 def _three_robot_scene():
     """p (reference), q and r facing each other on a triangle."""
-    from mutloc.sim.team import TeamScene, _level_pose  # noqa: F401 (test-only helper use)
+    from mutloc.sim.team import TeamScene, level_pose
 
     rig = team_rig(["p", "q", "r"])
     world = {}
     for i, name in enumerate(["p", "q", "r"]):
         a = 2 * np.pi * i / 3
         pos = np.array([1.5 * np.cos(a), -0.5, 1.5 * np.sin(a)])
-        world[name] = _level_pose(pos, np.arctan2(-pos[0], -pos[2]), np.zeros(3))
+        world[name] = level_pose(pos, np.arctan2(-pos[0], -pos[2]), np.zeros(3))
     return TeamScene(rig, world)
 
 

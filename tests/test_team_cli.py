@@ -83,3 +83,15 @@ def test_simulate_team_then_localize(tmp_path, capsys):
         np.testing.assert_allclose(entry["t"], truth["robots"][r]["t"], atol=1e-6)
         np.testing.assert_allclose(entry["R"], truth["robots"][r]["R"], atol=1e-6)
     assert len(d["robots"]) + len(d["unlocalized"]) == 3
+
+
+def test_experiment_team_tiny(tmp_path):
+    from mutloc.experiments.team import run_team
+
+    res = run_team(tmp_path, seed=1, progress=False, sizes=(4,), teams=3)
+    d = json.loads((tmp_path / "team" / "results.json").read_text())
+    assert d["experiment"] == "team" and set(d["methods"]) == {"joint", "chained", "crlb"}
+    assert (tmp_path / "team" / "report.md").exists() and (tmp_path / "team" / "team.png").exists()
+    # the joint estimate is near its bound: no robot off by more than 10 sigma of the CRB on average
+    assert d["methods"]["joint"]["rmse_translation_m"] < 3 * d["methods"]["crlb"]["rmse_translation_m"]
+    assert res["by_team_size"]["4"]["robots"] > 0

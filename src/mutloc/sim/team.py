@@ -19,7 +19,7 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Marker, Rig, Robot
 
-__all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "MARKER_RING"]
+__all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "level_pose", "MARKER_RING"]
 
 # Markers on each robot (its own camera frame, metres): four balls above and
 # beside the camera, not coplanar, seen from any side, never in its own view.
@@ -108,7 +108,7 @@ class TeamScene:
         return ObservationSet.trusted([v[0] for v in vis], [v[1] for v in vis], uv)
 
 
-def _level_pose(position: np.ndarray, yaw: float, tilt: np.ndarray) -> Pose:
+def level_pose(position: np.ndarray, yaw: float, tilt: np.ndarray) -> Pose:
     """Camera at ``position`` looking along yaw (about the world's y axis),
     with a small extra rotation ``tilt`` (rotation vector)."""
     c, s = np.cos(yaw), np.sin(yaw)
@@ -137,7 +137,7 @@ def random_team(n: int, rng: np.random.Generator, *, radius: float = 2.5, one_wa
     for name, p in zip(names, pos):
         d = centre - p
         yaw = np.arctan2(d[0], d[2]) + np.radians(rng.uniform(-yaw_jitter_deg, yaw_jitter_deg))
-        world[name] = _level_pose(p, yaw, rng.normal(0.0, 0.05, 3))
+        world[name] = level_pose(p, yaw, rng.normal(0.0, 0.05, 3))
     scene = TeamScene(team_rig(names, focal=focal, size=size, k1=k1), world)
     seen = {(a, m.rsplit("_m", 1)[0]) for a, m, _ in scene.visible()}
     links = set(seen)
@@ -158,7 +158,7 @@ def chain_team(n: int, rng: np.random.Generator, *, spacing: float = 1.5, focal:
     world = {}
     for i, name in enumerate(names):
         p = np.array([0.35 * (-1) ** i + rng.normal(0, 0.05), -0.5 + rng.normal(0, 0.03), spacing * i])
-        world[name] = _level_pose(p, np.radians(rng.normal(0, 3.0)), rng.normal(0.0, 0.02, 3))
+        world[name] = level_pose(p, np.radians(rng.normal(0, 3.0)), rng.normal(0.0, 0.02, 3))
     links = {(names[i], names[i + 1]) for i in range(n - 1)}
     if skip:
         links |= {(names[i], names[i + 2]) for i in range(n - 2)}
