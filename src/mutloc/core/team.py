@@ -514,22 +514,27 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
             cands = _candidates(problem, Rs, ts, r, c, sees, seen, per_side)
             if cands is None:
                 continue
-            Rtry, ttry = Rs.copy(), ts.copy()
-            best = (np.inf, None, None)
-            for Rq, tq in zip(cands.R, cands.t):
-                Rtry[r] = Rs[c] @ Rq
-                ttry[r] = Rs[c] @ tq + ts[c]
-                cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
-                if cost < best[0]:
-                    best = (cost, Rtry[r].copy(), ttry[r].copy())
-            if not np.isfinite(best[0]):
-                continue
-            Rtry[r], ttry[r] = best[1], best[2]
-            cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
-            if np.isfinite(cost) and cost < best[0]:
-                best = (cost, Rtry[r], ttry[r])
-            if best[0] < found[0]:
-                found = best
+            # the solver's refined best first; the others only if it does
+            # not fit the ties within their noise
+            for pool in (cands[:1], cands[1:]):
+                Rtry, ttry = Rs.copy(), ts.copy()
+                best = (np.inf, None, None)
+                for Rq, tq in zip(pool.R, pool.t):
+                    Rtry[r] = Rs[c] @ Rq
+                    ttry[r] = Rs[c] @ tq + ts[c]
+                    cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
+                    if cost < best[0]:
+                        best = (cost, Rtry[r].copy(), ttry[r].copy())
+                if not np.isfinite(best[0]):
+                    continue
+                Rtry[r], ttry[r] = best[1], best[2]
+                cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
+                if np.isfinite(cost) and cost < best[0]:
+                    best = (cost, Rtry[r], ttry[r])
+                if best[0] < found[0]:
+                    found = best
+                if found[0] <= gate:
+                    break
             if found[0] <= gate:
                 break
         if not np.isfinite(found[0]):
