@@ -4,6 +4,7 @@ reference robot's frame, jointly, from all observations (SPEC "Teams")."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Mapping
 
 import numpy as np
@@ -13,7 +14,8 @@ from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
-from .core.team import MIN_TIES, TeamProblem, TeamSolution, relative_jacobian, residual_norms, solve_team
+from .core.team import (MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor, relative_jacobian,
+                        residual_norms, solve_team)
 from .errors import (DegenerateGeometryError, InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
                      UnverifiedError, positive_number)
 
@@ -25,7 +27,9 @@ class TeamEstimate:
     """Every localized robot's pose ``T_ref_r`` (``x_ref = R @ x_r + t``)
     in the frame of robot ``reference``, with the joint covariance.
 
-    ``unverified`` lists robots held by exactly three observations: several
+    ``information`` is ``J^T J`` (pixels^-2) over :attr:`robots`; the joint
+    covariance is computed from it on first use.  ``unverified`` lists
+    robots held by exactly three observations: several
     poses fit those exactly and nothing can confirm the one chosen (as a
     pair's ``"unverified"`` status)."""
 
@@ -33,7 +37,7 @@ class TeamEstimate:
     poses: dict[str, Pose]
     robots: list[str]
     unlocalized: list[str]
-    joint_covariance: np.ndarray
+    information: np.ndarray
     pixel_sigma: float
     reprojection_rms_px: float
     observations_used: int
@@ -42,6 +46,15 @@ class TeamEstimate:
     rejected: list[dict[str, Any]] = field(default_factory=list)
     markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+    factor: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    @cached_property
+    def joint_covariance(self) -> np.ndarray:
+        """``pixel_sigma^2 (J^T J)^-1``, 6k square over :attr:`robots` (computed on first use)."""
+        if self.information.size == 0:
+            return np.zeros((0, 0))
+        factor = self.factor if self.factor is not None else checked_factor(self.information)
+        return self.pixel_sigma**2 * inverse_from_factor(*factor)
 
     @property
     def status(self) -> str:
@@ -232,7 +245,8 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
     est = TeamEstimate(
         reference=reference, poses=poses, robots=robots,
         unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],
-        joint_covariance=sol.covariance(sigma), pixel_sigma=sigma,
+        information=sol.information, factor=checked_factor(sol.information) if sol.information.size else None,
+        pixel_sigma=sigma,
         reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
         consistency=test, unverified=unverified, markers_between=between, extra={"iterations": sol.iterations})
     return est

@@ -42,7 +42,7 @@ from .pose import Pose
 from .refine import solve_spd
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
-           "relative_jacobian", "MIN_TIES"]
+           "relative_jacobian", "checked_factor", "inverse_from_factor", "MIN_TIES"]
 
 #: Observations that tie a robot to the already placed ones, at least.
 MIN_TIES = 3
@@ -398,9 +398,12 @@ class TeamSolution:
         return sigma**2 * _checked_inverse(self.information)
 
 
-def _checked_inverse(H: np.ndarray) -> np.ndarray:
-    """Inverse of the information matrix; DegenerateGeometryError when,
-    Jacobi-scaled, it is singular to rounding (some pose not isolated)."""
+def checked_factor(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factor ``L`` of the Jacobi-scaled information matrix and the
+    scales ``d`` (``H = D^-1 L L^T D^-1``, ``D = diag(d)``);
+    DegenerateGeometryError when it is singular to rounding (some pose not
+    isolated).  The check is cheap; the inverse (:func:`inverse_from_factor`)
+    can wait until a covariance is asked for."""
     d = np.sqrt(np.diag(H))
     if not np.all(d > 0):
         raise DegenerateGeometryError("the observations do not determine every pose (a robot's pose is free)")
@@ -411,8 +414,20 @@ def _checked_inverse(H: np.ndarray) -> np.ndarray:
         raise DegenerateGeometryError("the observations do not determine an isolated pose for every robot") from None
     if np.min(np.diag(L)) ** 2 < H.shape[0] / _MAX_COND:
         raise DegenerateGeometryError("the observations do not determine an isolated pose for every robot")
-    Li = np.linalg.inv(L)
+    return L, d
+
+
+def inverse_from_factor(L: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``H^-1`` from :func:`checked_factor`'s result."""
+    from scipy.linalg import solve_triangular
+
+    Li = solve_triangular(L, np.eye(L.shape[0]), lower=True)
     return (Li.T @ Li) / d[:, None] / d[None, :]
+
+
+def _checked_inverse(H: np.ndarray) -> np.ndarray:
+    """Inverse of the information matrix, checked (:func:`checked_factor`)."""
+    return inverse_from_factor(*checked_factor(H))
 
 
 def _spread(rows: np.ndarray, k: int) -> np.ndarray:
