@@ -204,8 +204,10 @@ def test_localize_three_robot_rig(tmp_path, capsys):
     res = run_ok(["localize", "--rig", rig_path, "--observations", obs_path, "--source", "p", "--target", "q"],
                  capsys)
     check_result(res, R_TRUE, T_TRUE, "p", "q")
-    line = run_error(["localize", "--rig", rig_path, "--observations", obs_path], capsys)
-    assert "source" in line or "target" in line
+    # no pair named: the team (SPEC "Teams"), r seen by nobody is unlocalized
+    res = run_ok(["localize", "--rig", rig_path, "--observations", obs_path, "--reference", "q"], capsys)
+    assert res["reference"] == "q" and set(res["robots"]) == {"p"} and res["unlocalized"] == ["r"]
+    np.testing.assert_allclose(res["robots"]["p"]["t"], T_TRUE, atol=1e-6)
 
 
 # ---------------------------------------------------------------------------

@@ -11,7 +11,7 @@ import argparse
 import math
 
 __all__ = ["positive_float", "nonnegative_float", "output_path", "robot_value", "int_in_range", "unit_interval",
-           "RIG", "PAIR", "NOISE", "TRUST", "OUTPUT", "PROGRESS", "SEED", "robot_map"]
+           "RIG", "PAIR", "NOISE", "TRUST", "OUTPUT", "PROGRESS", "SEED", "TEAM", "robot_map", "team_mode"]
 
 
 def positive_float(text: str) -> float:
@@ -101,6 +101,24 @@ PAIR.add_argument("--source", metavar="ROBOT",
                   help="robot p, whose pose is estimated (optional for a two-robot rig: the first robot)")
 PAIR.add_argument("--target", metavar="ROBOT",
                   help="robot q, in whose camera frame the pose is given (optional for a two-robot rig)")
+
+TEAM = _parent()
+TEAM.add_argument("--reference", metavar="ROBOT",
+                  help="team mode: every robot's pose in this robot's frame (default: the rig's first robot); "
+                       "a rig of more than two robots without --source/--target is always a team")
+
+
+def team_mode(rig: object, args: argparse.Namespace) -> bool:
+    """Whether to localize the whole team: ``--reference`` given, or a rig
+    of more than two robots and no ``--source``/``--target``."""
+    if args.reference is not None:
+        if args.source is not None or args.target is not None:
+            from ..errors import InputError
+
+            raise InputError("--reference (a team) and --source/--target (a pair) exclude each other")
+        return True
+    return len(rig.robots) > 2 and args.source is None and args.target is None  # type: ignore[attr-defined]
+
 
 NOISE = _parent()
 NOISE.add_argument("--pixel-sigma", type=positive_float, default=1.0, metavar="PX",

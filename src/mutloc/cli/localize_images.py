@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import NOISE, OUTPUT, PAIR, RIG, TRUST, output_path, robot_map, robot_value
+from ._common import NOISE, OUTPUT, PAIR, RIG, TEAM, TRUST, output_path, robot_map, robot_value, team_mode
 
 ORDER = 20
 
@@ -12,10 +12,12 @@ ORDER = 20
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``localize-images``."""
     p = subparsers.add_parser(
-        "localize-images", parents=[RIG, PAIR, NOISE, TRUST, OUTPUT],
+        "localize-images", parents=[RIG, PAIR, TEAM, NOISE, TRUST, OUTPUT],
         help="detect markers in one image per robot, then localize; prints the result JSON",
         description="Detect each robot's view of the other robot's markers (coloured balls, printed "
-        "tags or banded cylinders, as the rig says) and print the relative pose as the result JSON.",
+        "tags or banded cylinders, as the rig says) and print the relative pose as the result JSON. "
+        "With more than two robots (and no --source/--target) or --reference: every image is searched for "
+        "every other robot's markers and the team result JSON is printed.",
     )
     p.add_argument("--image", required=True, action="append", type=robot_value, metavar="ROBOT=PATH",
                    help="the image of a robot's camera; give one per robot")
@@ -26,9 +28,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 def run(args: argparse.Namespace) -> int:
     """Detect, localize, print."""
     from ..io import load_rig, write_json
+
+    rig = load_rig(args.rig)
+    if team_mode(rig, args):
+        from ..team import localize_team_images, require_verified
+
+        res = localize_team_images(rig, robot_map(args.image, "--image"), args.reference,
+                                   pixel_sigma=args.pixel_sigma, confidence=args.confidence)
+        require_verified(res.estimate, args.allow_unverified)
+        if args.detections_out:
+            write_json(res.detections_dict(), args.detections_out)
+        write_json(res.estimate.to_dict(), output_path(args.output))
+        return 0
     from ..track import localize_images
 
-    res = localize_images(load_rig(args.rig), robot_map(args.image, "--image"), args.source, args.target,
+    res = localize_images(rig, robot_map(args.image, "--image"), args.source, args.target,
                           pixel_sigma=args.pixel_sigma, confidence=args.confidence,
                           allow_unverified=args.allow_unverified)
     if args.detections_out:

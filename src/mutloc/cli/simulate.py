@@ -64,13 +64,28 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--focal", type=positive_float, default=800.0, metavar="PX",
                    help="focal length in pixels (default 800)")
     p.add_argument("--no-room", action="store_true", help="robots on a black background, no room")
+    p.add_argument("--robots", type=int_in_range(2, 64, "--robots"), default=2, metavar="N",
+                   help="more than 2: a team of N robots r0..rN-1 in a room, four coloured balls each (every "
+                        "ball its own colour); writes rig.yaml, observations.json, truth.json (every robot's "
+                        "pose in r0's frame) and one image per robot (single frame, balls only)")
+    p.add_argument("--no-images", dest="images", action="store_false",
+                   help="with --robots: geometry only (rig, observations, truth), no rendering")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     """Render and write the files; prints a one-line summary."""
-    from ..sim.scenario import write_simulation
+    from ..sim.scenario import write_simulation, write_team_simulation
 
+    if args.robots > 2:
+        if args.frames != 1 or args.markers != "balls":
+            from ..errors import InputError
+
+            raise InputError("--robots: a single frame of coloured balls (no --frames/--markers) for now")
+        print(write_team_simulation(args.out, robots=args.robots, seed=args.seed, noise=args.noise, jpeg=args.jpeg,
+                                    size=args.size, focal=args.focal, k1=args.k1, room=not args.no_room,
+                                    images=args.images, progress=args.progress))
+        return 0
     summary = write_simulation(
         args.out, markers=args.markers, distance=args.distance, frames=args.frames, fps=args.fps,
         seed=args.seed, noise=args.noise, jpeg=args.jpeg, blur=args.blur, k1=args.k1, size=args.size,

@@ -13,18 +13,20 @@ __all__ = ["run_all", "runner", "quick_kwargs"]
 
 def runner(name: str) -> Callable[..., dict[str, Any]]:
     """The ``run_NAME`` function of experiment ``name``."""
-    from . import calibration, localization, noise, reconstruction
+    from . import calibration, localization, noise, reconstruction, team
 
     return {"noise": noise.run_noise, "localization": localization.run_localization,
-            "reconstruction": reconstruction.run_reconstruction, "calibration": calibration.run_calibration}[name]
+            "reconstruction": reconstruction.run_reconstruction, "calibration": calibration.run_calibration,
+            "team": team.run_team}[name]
 
 
 def quick_kwargs(name: str) -> dict[str, Any]:
     """Parameters of the small ``--quick`` variant of ``name``."""
-    from . import calibration, localization, noise, reconstruction
+    from . import calibration, localization, noise, reconstruction, team
 
     return dict({"noise": noise.QUICK, "localization": localization.QUICK,
-                 "reconstruction": reconstruction.QUICK, "calibration": calibration.QUICK}[name])
+                 "reconstruction": reconstruction.QUICK, "calibration": calibration.QUICK,
+                 "team": team.QUICK}[name])
 
 
 def run_all(out_dir: str | Path, *, seed: int = 0, quick: bool = False, progress: bool = True,

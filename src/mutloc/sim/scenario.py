@@ -22,7 +22,7 @@ from .render import moving_world, pixel_bearings, project_markers, relative_pose
 from .synthetic import facing_pose
 from .world import MARKER_KINDS, standard_rig
 
-__all__ = ["write_simulation", "single_frame_pose", "MARKER_KINDS"]
+__all__ = ["write_simulation", "write_team_simulation", "single_frame_pose", "MARKER_KINDS"]
 
 
 def single_frame_pose(distance: float, seed: int) -> Any:
@@ -119,3 +119,60 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
         files += ["p.png", "q.png", "observations.json"]
     n = "1 frame" if frames == 1 else f"{frames} frames"
     return f"wrote {n} ({markers}, {size[0]}x{size[1]}) to {out_dir}: {', '.join(files)}"
+
+
+# y-down world of mutloc.sim.team -> z-up world of the renderer
+_Y_DOWN_TO_Z_UP = Pose(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]), np.zeros(3))
+
+
+def write_team_simulation(out: str | Path, *, robots: int, seed: int = 0, noise: float = 1.0,
+                          jpeg: int | None = None, size: tuple[int, int] = (960, 540), focal: float = 800.0,
+                          k1: float = 0.0, room: bool = True, images: bool = True, progress: bool = False) -> str:
+    """A team of ``robots`` robots in a room (:func:`mutloc.sim.team.random_team`),
+    each with four coloured balls around its camera, every ball its own
+    colour; returns a one-line summary.
+
+    Files: ``rig.yaml``; ``observations.json`` (exact pixels of every ball
+    centre a camera sees unhidden, SPEC observations form); ``truth.json``
+    (``reference`` r0 and ``robots``: each robot's ``T_ref_r`` as
+    ``{R, t, quaternion_xyzw}``, plus ``observations`` and ``hidden``); with
+    ``images``, one rendered image per robot (``r0.png``, ...).
+    """
+    from .render import project_markers, render, room_around
+    from .team import random_team
+    from .world import World, WorldRobot
+
+    if robots < 2:
+        raise InputError(f"a team needs at least two robots, got {robots}")
+    out_dir = Path(out).expanduser()
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"output folder {str(out)!r} exists and is not a folder")
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 4242])
+    scene = random_team(robots, rng, focal=focal, size=size, k1=k1, one_way=0.0, radius=0.6 * robots ** 0.5 + 1.0)
+    names = scene.names
+    world_poses = {n: _Y_DOWN_TO_Z_UP @ T for n, T in scene.world.items()}
+    rm = room_around([T.t for T in world_poses.values()], seed) if room else None
+    world = World(robots={n: WorldRobot(scene.rig.robot(n), world_poses[n]) for n in names}, room=rm)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_rig(scene.rig, out_dir / "rig.yaml")
+    obs, hidden = {}, {}
+    for n in names:
+        allm = project_markers(world, n)
+        seen = project_markers(world, n, check_occlusion=True)
+        if seen:
+            obs[n] = {m: list(uv) for m, uv in seen.items()}
+        hidden[n] = sorted(set(allm) - set(seen))
+    files = ["rig.yaml", "observations.json", "truth.json"]
+    if images:
+        for n in tqdm(names, desc="rendering", unit="robot", disable=not progress):
+            img = render(world, n, 0.0, seed=seed, noise_sigma=noise, jpeg_quality=jpeg)
+            if not cv2.imwrite(str(out_dir / f"{n}.png"), img):
+                raise OSError(f"{out_dir / n}.png: cannot write image")
+        files.append(f"{names[0]}.png ... {names[-1]}.png")
+    truth = scene.truth(names[0])
+    write_json(obs, out_dir / "observations.json")
+    write_json({"reference": names[0], "robots": {n: truth[n].to_dict() for n in names[1:]}, "seed": seed,
+                "noise_sigma": noise, "jpeg_quality": jpeg, "observations": obs, "hidden": hidden},
+               out_dir / "truth.json")
+    n_obs = sum(len(v) for v in obs.values())
+    return f"wrote a team of {robots} robots ({n_obs} marker observations) to {out_dir}: {', '.join(files)}"

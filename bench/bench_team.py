@@ -1,0 +1,303 @@
+#!/usr/bin/env python
+"""Team benchmark: joint solve rate of a 50-robot team from a warm start,
+cold-start latency of 10-robot teams, and the same problems solved by
+scipy.optimize.least_squares (sparse Jacobian, method='trf') and, when it is
+installed, GTSAM (Levenberg-Marquardt on a factor graph) in the same run.
+
+    python bench/bench_team.py            # full run
+    python bench/bench_team.py --quick    # fewer repetitions
+
+Prints the figures and writes bench/team_results.json.  One core
+(NUMBA_NUM_THREADS=1, BLAS single-threaded); times are wall-clock, median
+over the repetitions, after one warm-up call (Numba compiled and cached).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+import mutloc  # noqa: E402
+from mutloc.core.geometry import so3_exp  # noqa: E402
+from mutloc.core.team import TeamProblem, solve_team, team_residuals  # noqa: E402
+from mutloc.sim.team import random_team  # noqa: E402
+from mutloc.team import team_problem  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import machine  # noqa: E402
+
+
+def big_team(n: int, seen: int, rng: np.random.Generator):
+    """``n`` robots in a disc sized for the team, each observing its ``seen``
+    nearest robots among those in its field of view."""
+    scene = random_team(n, rng, radius=1.1 * np.sqrt(n), one_way=0.0)
+    scene.links = None
+    vis = scene.visible()
+    pos = {r: T.t for r, T in scene.world.items()}
+    by_obs: dict[str, set[str]] = {}
+    for a, m, _ in vis:
+        by_obs.setdefault(a, set()).add(m.rsplit("_m", 1)[0])
+    links = set()
+    for a, bs in by_obs.items():
+        near = sorted(bs, key=lambda b: np.linalg.norm(pos[a] - pos[b]))[:seen]
+        links |= {(a, b) for b in near}
+    scene.links = links
+    return scene
+
+
+def perturbed(truth: dict, rng: np.random.Generator, rot_deg: float, trans_m: float) -> dict:
+    """The truth moved by about ``rot_deg`` and ``trans_m`` per robot (a previous frame's solution)."""
+    out = {}
+    for r, T in truth.items():
+        w = rng.normal(0.0, np.radians(rot_deg) / np.sqrt(3), 3)
+        out[r] = mutloc.Pose(so3_exp(w) @ T.R, T.t + rng.normal(0.0, trans_m / np.sqrt(3), 3))
+    return out
+
+
+def timed(fn, reps: int) -> tuple[float, object]:
+    fn()
+    times = []
+    out = None
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+# -- scipy ---------------------------------------------------------------------
+
+
+def scipy_solve(problem: TeamProblem, ref: int, Rs0: np.ndarray, ts0: np.ndarray):
+    """The same maximum-likelihood problem with scipy.optimize.least_squares
+    (method='trf', finite-difference Jacobian on its known sparsity): left
+    rotation vectors and translations relative to the start."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    N = problem.n_robots
+    var = [i for i in range(N) if i != ref]
+    col = {i: k for k, i in enumerate(var)}
+    n = len(problem.cam)
+    sparsity = lil_matrix((2 * n, 6 * len(var)), dtype=int)
+    for j, (a, b) in enumerate(zip(problem.cam, problem.own)):
+        for i in (a, b):
+            if i != ref:
+                sparsity[2 * j:2 * j + 2, 6 * col[i]:6 * col[i] + 6] = 1
+    r = np.empty(2 * n)
+    J = np.empty((1, 2, 6))
+
+    def poses(x):
+        Rs, ts = Rs0.copy(), ts0.copy()
+        for k, i in enumerate(var):
+            Rs[i] = so3_exp(x[6 * k:6 * k + 3]) @ Rs0[i]
+            ts[i] = ts0[i] + x[6 * k + 3:6 * k + 6]
+        return Rs, ts
+
+    def fun(x):
+        Rs, ts = poses(x)
+        team_residuals(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts, r, J, J,
+                       False)
+        return r.copy()
+
+    # scipy's default tolerances (1e-8): tighter ones cost it many more
+    # iterations without moving the optimum measurably
+    res = least_squares(fun, np.zeros(6 * len(var)), jac_sparsity=sparsity.tocsr(), method="trf")
+    Rs, ts = poses(res.x)
+    return Rs, ts, float(2 * res.cost), int(res.nfev)
+
+
+# -- GTSAM ---------------------------------------------------------------------
+
+
+def gtsam_solve(problem: TeamProblem, ref: int, Rs0: np.ndarray, ts0: np.ndarray):
+    """The same problem as a GTSAM factor graph, without Python callbacks:
+    a Pose3 per robot (the reference held by NonlinearEquality); per marker a
+    world Point3 tied to its robot by ReferenceFrameFactorPoint3Pose3
+    (world = pose.transformFrom(local), 1e-6 m) with the local point fixed by
+    NonlinearEquality; a GenericProjectionFactorCal3_S2 (1 px) per
+    observation.  Undistorted pinhole: the benchmark cameras have no
+    distortion.  Levenberg-Marquardt, tolerances 1e-12."""
+    import gtsam
+    from gtsam.symbol_shorthand import L, M, X
+
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for i in range(problem.n_robots):
+        values.insert(X(i), gtsam.Pose3(gtsam.Rot3(Rs0[i]), np.asarray(ts0[i], float)))
+    graph.add(gtsam.NonlinearEqualityPose3(X(ref), gtsam.Pose3()))
+    pix = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    tie = gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)
+    marker_key: dict[tuple, int] = {}
+    cals = {}
+    for j in range(len(problem.cam)):
+        a, b = int(problem.cam[j]), int(problem.own[j])
+        P = np.asarray(problem.points[j], float)
+        key = (b, tuple(np.round(P, 9)))
+        if key not in marker_key:
+            k = len(marker_key)
+            marker_key[key] = k
+            values.insert(L(k), Rs0[b] @ P + ts0[b])
+            values.insert(M(k), P)
+            graph.add(gtsam.NonlinearEqualityPoint3(M(k), P))
+            # the factor reads local = trans.transformFrom(global): with trans the
+            # robot's pose, "global" is the point in the robot's frame
+            graph.add(gtsam.ReferenceFrameFactorPoint3Pose3(M(k), X(b), L(k), tie))
+        if a not in cals:
+            K = problem.K[a]
+            cals[a] = gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+        graph.add(gtsam.GenericProjectionFactorCal3_S2(np.asarray(problem.uv[j], float), pix, X(a),
+                                                        L(marker_key[key]), cals[a]))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-12)
+    params.setAbsoluteErrorTol(1e-12)
+    params.setMaxIterations(100)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    Rs = np.array([result.atPose3(X(i)).rotation().matrix() for i in range(problem.n_robots)])
+    ts = np.array([result.atPose3(X(i)).translation() for i in range(problem.n_robots)])
+    return Rs, ts
+
+
+def cost_of(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> float:
+    from mutloc.core.team import team_cost
+
+    return float(team_cost(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts))
+
+
+def max_pose_diff(Rs1, ts1, Rs2, ts2) -> tuple[float, float]:
+    dt = float(np.max(np.linalg.norm(ts1 - ts2, axis=1)))
+    c = (np.einsum("nij,nij->n", Rs1, Rs2) - 1) / 2
+    return dt, float(np.degrees(np.max(np.arccos(np.clip(c, -1, 1)))))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions")
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "team_results.json"))
+    args = ap.parse_args()
+    reps = 5 if args.quick else 20
+    n_teams = 5 if args.quick else 20
+    rng = np.random.default_rng(0)
+    try:
+        import gtsam  # noqa: F401
+
+        have_gtsam = True
+    except ImportError:
+        have_gtsam = False
+    results: dict = {"machine": machine(), "command": "python bench/bench_team.py" + (" --quick" if args.quick else "")}
+
+    # -- 50 robots, warm start ------------------------------------------------
+    warm = {"core_solve_s": [], "localize_team_s": [], "scipy_s": [], "gtsam_s": [], "iterations": [],
+            "scipy_cost_ratio": [], "scipy_pose_diff": [], "gtsam_pose_diff": [], "observations": []}
+    for k in range(n_teams):
+        scene = big_team(50, 4, rng)
+        obs = scene.observations(1.0, rng)
+        truth = scene.truth()
+        problem, names, _ = team_problem(scene.rig, obs)
+        start = perturbed(truth, rng, 0.5, 0.02)
+        Rs0 = np.array([start[n].R for n in names])
+        ts0 = np.array([start[n].t for n in names])
+        Rs0[0], ts0[0] = np.eye(3), np.zeros(3)
+        loc = np.ones(len(names), bool)
+        t_core, sol = timed(lambda: solve_team(problem, 0, initial=(Rs0, ts0, loc)), reps)
+        if not np.all(sol.localized):
+            raise SystemExit("a robot of the benchmark team is not tied to the reference; change the seed")
+        t_api, team = timed(lambda: mutloc.localize_team(scene.rig, obs, initial=start, confidence=1.0), reps)
+        warm["core_solve_s"].append(t_core)
+        warm["localize_team_s"].append(t_api)
+        warm["iterations"].append(sol.iterations)
+        warm["observations"].append(len(problem.cam))
+        t_sp, (Rsp, tsp, csp, nfev) = timed(lambda: scipy_solve(problem, 0, Rs0, ts0), 1 if k else 2)
+        warm["scipy_s"].append(t_sp)
+        warm["scipy_cost_ratio"].append(csp / sol.cost)
+        warm["scipy_pose_diff"].append(max_pose_diff(sol.Rs, sol.ts, Rsp, tsp))
+        if have_gtsam:
+            t_g, (Rg, tg) = timed(lambda: gtsam_solve(problem, 0, Rs0, ts0), 1 if k else 2)
+            warm["gtsam_s"].append(t_g)
+            warm["gtsam_pose_diff"].append(max_pose_diff(sol.Rs, sol.ts, Rg, tg))
+            warm.setdefault("gtsam_cost_ratio", []).append(cost_of(problem, Rg, tg) / sol.cost)
+        print(f"50 robots #{k}: {len(problem.cam)} observations, core {1e3 * t_core:.2f} ms "
+              f"({sol.iterations} iterations), localize_team {1e3 * t_api:.2f} ms, scipy {1e3 * t_sp:.0f} ms "
+              f"(cost ratio {csp / sol.cost:.9f})" + (f", gtsam {1e3 * warm['gtsam_s'][-1]:.1f} ms "
+                                                      f"(max pose diff {warm['gtsam_pose_diff'][-1][0]:.2e} m, cost ratio {warm['gtsam_cost_ratio'][-1]:.6f})"
+                                                      if have_gtsam else ""))
+
+    # -- 10 robots, cold start --------------------------------------------------
+    cold = {"localize_team_s": [], "scipy_s": [], "gtsam_s": [], "observations": [], "scipy_pose_diff": [],
+            "gtsam_pose_diff": [], "scipy_cost_ratio": []}
+    for k in range(n_teams):
+        scene = random_team(10, rng, one_way=0.3)
+        obs = scene.observations(1.0, rng)
+        problem, names, _ = team_problem(scene.rig, obs)
+        t_api, team = timed(lambda: mutloc.localize_team(scene.rig, obs, confidence=1.0), reps)
+        cold["localize_team_s"].append(t_api)
+        cold["observations"].append(len(problem.cam))
+        Rs = np.array([team.poses[n].R if n in team.poses else np.eye(3) for n in names])
+        ts = np.array([team.poses[n].t if n in team.poses else np.zeros(3) for n in names])
+        # peers from the same (identity) start a cold solver would have: the
+        # initialisation is ours in both cases; they refine it
+        from mutloc.core.team import initial_poses
+
+        Rs0, ts0, placed = initial_poses(problem, 0)
+        if not np.all(placed):
+            continue
+        t_sp, (Rsp, tsp, csp, _) = timed(lambda: scipy_solve(problem, 0, Rs0, ts0), 1)
+        cold["scipy_s"].append(t_sp)
+        cold["scipy_pose_diff"].append(max_pose_diff(Rs, ts, Rsp, tsp))
+        cold["scipy_cost_ratio"].append(csp / cost_of(problem, Rs, ts))
+        if have_gtsam:
+            t_g, (Rg, tg) = timed(lambda: gtsam_solve(problem, 0, Rs0, ts0), 1)
+            cold["gtsam_s"].append(t_g)
+            cold["gtsam_pose_diff"].append(max_pose_diff(Rs, ts, Rg, tg))
+    print(f"10 robots cold: localize_team median {1e3 * np.median(cold['localize_team_s']):.2f} ms")
+
+    def med(x):
+        return float(np.median(x)) if len(x) else None
+
+    summary = {
+        "warm_50": {
+            "observations_median": med(warm["observations"]),
+            "core_solve_ms": 1e3 * med(warm["core_solve_s"]),
+            "core_solve_hz": 1.0 / med(warm["core_solve_s"]),
+            "localize_team_ms": 1e3 * med(warm["localize_team_s"]),
+            "localize_team_hz": 1.0 / med(warm["localize_team_s"]),
+            "iterations_median": med(warm["iterations"]),
+            "scipy_trf_ms": 1e3 * med(warm["scipy_s"]),
+            "scipy_cost_ratio_max": float(np.max(warm["scipy_cost_ratio"])),
+            "scipy_cost_ratio_min": float(np.min(warm["scipy_cost_ratio"])),
+            "scipy_max_pose_diff_m": float(np.max([d[0] for d in warm["scipy_pose_diff"]])),
+            "gtsam_ms": 1e3 * med(warm["gtsam_s"]) if warm["gtsam_s"] else None,
+            "gtsam_max_pose_diff_m": float(np.max([d[0] for d in warm["gtsam_pose_diff"]])) if have_gtsam else None,
+            "gtsam_cost_ratio_max": float(np.max(warm["gtsam_cost_ratio"])) if have_gtsam else None,
+        },
+        "cold_10": {
+            "observations_median": med(cold["observations"]),
+            "localize_team_ms": 1e3 * med(cold["localize_team_s"]),
+            "localize_team_p90_ms": 1e3 * float(np.percentile(cold["localize_team_s"], 90)),
+            "scipy_trf_refine_ms": 1e3 * med(cold["scipy_s"]) if cold["scipy_s"] else None,
+            "scipy_max_pose_diff_m": float(np.max([d[0] for d in cold["scipy_pose_diff"]]))
+            if cold["scipy_pose_diff"] else None,
+            "gtsam_refine_ms": 1e3 * med(cold["gtsam_s"]) if cold["gtsam_s"] else None,
+            "gtsam_max_pose_diff_m": float(np.max([d[0] for d in cold["gtsam_pose_diff"]]))
+            if cold["gtsam_pose_diff"] else None,
+        },
+    }
+    results.update(summary=summary, warm_50=warm, cold_10=cold)
+    print(json.dumps(summary, indent=2))
+    Path(args.out).write_text(json.dumps(results, indent=1, default=float))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,641 @@
+"""Teams: every robot's pose in one reference frame from all observations at once.
+
+The joint maximum-likelihood problem: unknowns are the poses ``T_ref_i =
+(R_i, t_i)`` (``x_ref = R_i @ x_i + t_i``) of every robot but the reference
+(the identity); each observation "camera ``a`` sees marker ``P`` of robot
+``b``" contributes the pixel residual ``project_a(R_a^T (R_b P + t_b - t_a))
+- uv`` through camera ``a``'s ``K`` and distortion.  Perturbations are those
+of a pair (SPEC): ``R <- exp(dtheta) R``, ``t <- t + dt``, rotation first, so
+``sigma^2 H^-1`` with ``H = J^T J`` is the joint covariance in the published
+convention.
+
+Each residual touches at most two 6-blocks, so ``J`` is block-sparse and
+``H`` is assembled block by block; the ``6k`` square damped system is then
+factorised by Cholesky (for teams of up to a few hundred robots a dense
+factorisation of the small reduced system beats sparse bookkeeping; see
+bench/bench_team.py).
+
+Initialisation (:func:`initial_poses`) places robots one at a time, the
+best-tied first (Prim's algorithm on the observation graph): a robot ``r``
+is placed from the pair solver of :mod:`mutloc.core.estimate` between ``r``
+and one placed camera ``c`` -- ``c``'s views of ``r``'s markers, plus every
+view ``r`` has of markers of any placed robot, those markers expressed in
+``c``'s frame (the pair solver takes any known points).  That needs three
+such observations; observations of ``r`` by other placed cameras choose
+among the minimal solutions and refine the start.  See :func:`initial_poses`
+for what is well posed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from ..errors import DegenerateGeometryError, MutlocError, NoSolutionError
+from .camera import project_jac_kernel, project_kernel
+from .consistency import chi2_quantile
+from .estimate import PairProblem, estimate
+from .pose import Pose
+from .refine import solve_spd
+
+__all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
+           "relative_jacobian", "checked_factor", "inverse_from_factor", "MIN_TIES"]
+
+#: Observations that tie a robot to the already placed ones, at least.
+MIN_TIES = 3
+#: Observations each way the pair solver gets when placing a robot.
+INIT_PER_SIDE = 3
+# Condition number of the Jacobi-scaled information matrix beyond which
+# some pose is not isolated (as for a pair).
+_MAX_COND = 1e14
+
+
+@dataclass
+class TeamProblem:
+    """Observations in solver form.  Robots are indices ``0..N-1``;
+    observation ``j``: camera ``cam[j]`` saw, at raw pixel ``uv[j]``, the
+    marker at ``points[j]`` in robot ``own[j]``'s frame.  ``K`` (N, 3, 3)
+    and ``dist`` (N, 8) per robot."""
+
+    cam: np.ndarray
+    own: np.ndarray
+    points: np.ndarray
+    uv: np.ndarray
+    K: np.ndarray
+    dist: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.cam = np.ascontiguousarray(self.cam, dtype=np.int64)
+        self.own = np.ascontiguousarray(self.own, dtype=np.int64)
+        self.points = np.ascontiguousarray(self.points, dtype=float).reshape(-1, 3)
+        self.uv = np.ascontiguousarray(self.uv, dtype=float).reshape(-1, 2)
+        self.K = np.ascontiguousarray(self.K, dtype=float).reshape(-1, 3, 3)
+        self.dist = np.ascontiguousarray(self.dist, dtype=float).reshape(-1, 8)
+
+    @property
+    def n_robots(self) -> int:
+        return self.K.shape[0]
+
+    def take(self, rows: np.ndarray) -> "TeamProblem":
+        """The observations ``rows`` only (same robots)."""
+        return TeamProblem(self.cam[rows], self.own[rows], self.points[rows], self.uv[rows], self.K, self.dist)
+
+    def counts(self) -> np.ndarray:
+        """``C[a, b]``: observations camera ``a`` made of robot ``b``'s markers."""
+        C = np.zeros((self.n_robots, self.n_robots), dtype=np.int64)
+        np.add.at(C, (self.cam, self.own), 1)
+        return C
+
+
+@njit(cache=True)
+def _skew_mul(M, v, out):
+    """out (2, 3) = M (2, 3) @ skew(v)."""
+    for k in range(2):
+        out[k, 0] = M[k, 1] * v[2] - M[k, 2] * v[1]
+        out[k, 1] = M[k, 2] * v[0] - M[k, 0] * v[2]
+        out[k, 2] = M[k, 0] * v[1] - M[k, 1] * v[0]
+
+
+@njit(cache=True)
+def team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, want_jac):
+    """Residuals (2n,) and, with ``want_jac``, each observation's Jacobians
+    (n, 2, 6) with respect to the observer's pose (``Ja``) and the marker
+    owner's pose (``Jb``).  False when a marker is behind its observer."""
+    Y = np.empty(3)
+    d = np.empty(3)
+    X = np.empty(3)
+    uv = np.empty(2)
+    Jp = np.empty((2, 3))
+    M = np.empty((2, 3))
+    S = np.empty((2, 3))
+    for j in range(cam.shape[0]):
+        a = cam[j]
+        b = own[j]
+        for i in range(3):
+            Y[i] = Rs[b, i, 0] * pts[j, 0] + Rs[b, i, 1] * pts[j, 1] + Rs[b, i, 2] * pts[j, 2]
+        for i in range(3):
+            d[i] = Y[i] + ts[b, i] - ts[a, i]
+        for i in range(3):
+            X[i] = Rs[a, 0, i] * d[0] + Rs[a, 1, i] * d[1] + Rs[a, 2, i] * d[2]
+        if want_jac:
+            if not project_jac_kernel(Ks[a], ds[a], X, uv, Jp):
+                return False
+        elif not project_kernel(Ks[a], ds[a], X, uv):
+            return False
+        r[2 * j] = uv[0] - meas[j, 0]
+        r[2 * j + 1] = uv[1] - meas[j, 1]
+        if want_jac:
+            # M = d uv / d x_ref = Jp R_a^T
+            for k in range(2):
+                for i in range(3):
+                    M[k, i] = Jp[k, 0] * Rs[a, i, 0] + Jp[k, 1] * Rs[a, i, 1] + Jp[k, 2] * Rs[a, i, 2]
+            # owner: d x_ref = -[R_b P]x dtheta_b + dt_b
+            _skew_mul(M, Y, S)
+            for k in range(2):
+                for i in range(3):
+                    Jb[j, k, i] = -S[k, i]
+                    Jb[j, k, 3 + i] = M[k, i]
+            # observer: x_a = R_a^T exp(-dtheta_a)(x_ref - t_a - dt_a)
+            _skew_mul(M, d, S)
+            for k in range(2):
+                for i in range(3):
+                    Ja[j, k, i] = S[k, i]
+                    Ja[j, k, 3 + i] = -M[k, i]
+    return True
+
+
+@njit(cache=True)
+def team_cost(cam, own, pts, meas, Ks, ds, Rs, ts):
+    """Sum of squared pixel residuals (inf if a marker is behind its observer)."""
+    n = cam.shape[0]
+    r = np.empty(2 * n)
+    J = np.empty((1, 2, 6))
+    if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, J, J, False):
+        return np.inf
+    c = 0.0
+    for k in range(2 * n):
+        c += r[k] * r[k]
+    return c
+
+
+@njit(cache=True)
+def _accumulate(cam, own, var, r, Ja, Jb, H, g):
+    """H = J^T J and g = J^T r from the per-observation blocks (fixed
+    robots, ``var < 0``, contribute no column)."""
+    H[:, :] = 0.0
+    g[:] = 0.0
+    for j in range(cam.shape[0]):
+        va = var[cam[j]]
+        vb = var[own[j]]
+        for side in range(2):
+            v = va if side == 0 else vb
+            if v < 0:
+                continue
+            A = Ja[j] if side == 0 else Jb[j]
+            o = 6 * v
+            for p in range(6):
+                g[o + p] += A[0, p] * r[2 * j] + A[1, p] * r[2 * j + 1]
+                for q in range(p + 1):
+                    H[o + p, o + q] += A[0, p] * A[0, q] + A[1, p] * A[1, q]
+        if va >= 0 and vb >= 0:
+            oa = 6 * va
+            ob = 6 * vb
+            A = Ja[j]
+            B = Jb[j]
+            for p in range(6):
+                for q in range(6):
+                    h = A[0, p] * B[0, q] + A[1, p] * B[1, q]
+                    # lower triangle only (mirrored below)
+                    if oa + p >= ob + q:
+                        H[oa + p, ob + q] += h
+                    else:
+                        H[ob + q, oa + p] += h
+    m = H.shape[0]
+    for p in range(m):
+        for q in range(p):
+            H[q, p] = H[p, q]
+
+
+@njit(cache=True)
+def _so3_exp_left(w0, w1, w2, R):
+    """R <- exp([w]x) @ R in place."""
+    th2 = w0 * w0 + w1 * w1 + w2 * w2
+    th = np.sqrt(th2)
+    if th < 1e-8:
+        a = 1.0
+        b = 0.5
+    else:
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / th2
+    e00 = 1.0 - b * (w1 * w1 + w2 * w2)
+    e11 = 1.0 - b * (w0 * w0 + w2 * w2)
+    e22 = 1.0 - b * (w0 * w0 + w1 * w1)
+    e01 = -a * w2 + b * w0 * w1
+    e10 = a * w2 + b * w0 * w1
+    e02 = a * w1 + b * w0 * w2
+    e20 = -a * w1 + b * w0 * w2
+    e12 = -a * w0 + b * w1 * w2
+    e21 = a * w0 + b * w1 * w2
+    for j in range(3):
+        r0 = R[0, j]
+        r1 = R[1, j]
+        r2 = R[2, j]
+        R[0, j] = e00 * r0 + e01 * r1 + e02 * r2
+        R[1, j] = e10 * r0 + e11 * r1 + e12 * r2
+        R[2, j] = e20 * r0 + e21 * r1 + e22 * r2
+
+
+@njit(cache=True)
+def _envelope(cam, own, var, m):
+    """first[i]: the first column of row i of H that can be non-zero (the
+    lowest block a robot shares an observation with); Cholesky fills in
+    nothing left of it."""
+    fb = np.arange(m // 6)
+    for j in range(cam.shape[0]):
+        va = var[cam[j]]
+        vb = var[own[j]]
+        if va >= 0 and vb >= 0:
+            if va > vb:
+                fb[va] = min(fb[va], vb)
+            else:
+                fb[vb] = min(fb[vb], va)
+    first = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        first[i] = 6 * fb[i // 6]
+    return first
+
+
+@njit(cache=True)
+def _cholesky_solve(A, first, b, x, L):
+    """x = A^-1 b for symmetric positive definite A whose row i is zero left
+    of column first[i] (an envelope Cholesky: with the robots ordered by
+    reverse Cuthill-McKee the envelope of a team's H is narrow); False if A
+    is not positive definite."""
+    n = A.shape[0]
+    for i in range(n):
+        fi = first[i]
+        for j in range(fi, i + 1):
+            s = A[i, j]
+            k0 = max(fi, first[j])
+            for k in range(k0, j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    for i in range(n):
+        s = b[i]
+        for k in range(first[i], i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            if first[k] <= i:
+                s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return True
+
+
+@njit(cache=True)
+def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
+    """Levenberg-Marquardt over the poses of robots with ``var[i] >= 0``
+    (column block ``var[i]``), others fixed; Rs/ts updated in place, ``H``
+    (6k, 6k) receives J^T J at the end.  Returns (cost, iterations); cost is
+    inf when the start puts a marker behind its observer."""
+    n = cam.shape[0]
+    N = Rs.shape[0]
+    m = H.shape[0]
+    r = np.empty(2 * n)
+    Ja = np.empty((n, 2, 6))
+    Jb = np.empty((n, 2, 6))
+    g = np.empty(m)
+    A = np.empty((m, m))
+    delta = np.empty(m)
+    rhs = np.empty(m)
+    L = np.empty((m, m))
+    first = _envelope(cam, own, var, m)
+    Rn = np.empty_like(Rs)
+    tn = np.empty_like(ts)
+    if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
+        return np.inf, 0
+    c = 0.0
+    for k in range(2 * n):
+        c += r[k] * r[k]
+    _accumulate(cam, own, var, r, Ja, Jb, H, g)
+    scale = 1.0
+    for i in range(N):
+        if var[i] >= 0:
+            scale = max(scale, 1.0 + np.sqrt(ts[i, 0] ** 2 + ts[i, 1] ** 2 + ts[i, 2] ** 2))
+    lam = 1e-4
+    it = 0
+    for it in range(1, max_iter + 1):
+        improved = False
+        small = False
+        for _ in range(12):
+            for p in range(m):
+                for q in range(m):
+                    A[p, q] = H[p, q]
+                A[p, p] += lam * (H[p, p] + 1e-12)
+                rhs[p] = -g[p]
+            if not _cholesky_solve(A, first, rhs, delta, L):
+                lam *= 10.0
+                continue
+            step = 0.0
+            for v in range(m // 6):
+                for k in range(3):
+                    step += delta[6 * v + k] ** 2 + (delta[6 * v + 3 + k] / scale) ** 2
+            step = np.sqrt(step)
+            if step < 1e-10:
+                small = True
+                break
+            Rn[:, :, :] = Rs
+            tn[:, :] = ts
+            for i in range(N):
+                v = var[i]
+                if v >= 0:
+                    _so3_exp_left(delta[6 * v], delta[6 * v + 1], delta[6 * v + 2], Rn[i])
+                    for k in range(3):
+                        tn[i, k] += delta[6 * v + 3 + k]
+            cn = team_cost(cam, own, pts, meas, Ks, ds, Rn, tn)
+            if cn <= c:
+                Rs[:, :, :] = Rn
+                ts[:, :] = tn
+                dc = c - cn
+                c = cn
+                lam = max(lam * 0.1, 1e-12)
+                improved = True
+                small = step < 1e-9 or dc <= 1e-14 * c
+                break
+            if step < 1e-8:
+                small = True
+                break
+            lam *= 10.0
+        if not improved or small:
+            break
+        team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True)
+        _accumulate(cam, own, var, r, Ja, Jb, H, g)
+    if it > 0:
+        team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True)
+        _accumulate(cam, own, var, r, Ja, Jb, H, g)
+    return c, it
+
+
+def _lm(problem: TeamProblem, var: np.ndarray, Rs: np.ndarray, ts: np.ndarray, max_iter: int) -> tuple[float, int,
+                                                                                                      np.ndarray]:
+    k = int(var.max()) + 1 if var.size else 0
+    H = np.zeros((6 * k, 6 * k))
+    c, it = team_lm(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, var, Rs, ts,
+                    max_iter, H)
+    return float(c), int(it), H
+
+
+@dataclass
+class TeamSolution:
+    """The joint optimum: ``poses[i]`` is ``T_ref_i`` for localized robots
+    (``localized[i]``), ``information`` is J^T J over the localized robots
+    other than the reference, in index order (``order``)."""
+
+    Rs: np.ndarray
+    ts: np.ndarray
+    localized: np.ndarray
+    order: np.ndarray
+    cost: float
+    n_obs: int
+    information: np.ndarray
+    iterations: int
+    used: np.ndarray
+
+    def covariance(self, sigma: float) -> np.ndarray:
+        """The joint covariance (6k square) for isotropic pixel noise ``sigma``."""
+        if self.information.size == 0:
+            return np.zeros((0, 0))
+        return sigma**2 * _checked_inverse(self.information)
+
+
+def checked_factor(H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cholesky factor ``L`` of the Jacobi-scaled information matrix and the
+    scales ``d`` (``H = D^-1 L L^T D^-1``, ``D = diag(d)``);
+    DegenerateGeometryError when it is singular to rounding (some pose not
+    isolated).  The check is cheap; the inverse (:func:`inverse_from_factor`)
+    can wait until a covariance is asked for."""
+    d = np.sqrt(np.diag(H))
+    if not np.all(d > 0):
+        raise DegenerateGeometryError("the observations do not determine every pose (a robot's pose is free)")
+    Hs = H / d[:, None] / d[None, :]
+    try:
+        L = np.linalg.cholesky(Hs)
+    except np.linalg.LinAlgError:
+        raise DegenerateGeometryError("the observations do not determine an isolated pose for every robot") from None
+    if np.min(np.diag(L)) ** 2 < H.shape[0] / _MAX_COND:
+        raise DegenerateGeometryError("the observations do not determine an isolated pose for every robot")
+    return L, d
+
+
+def inverse_from_factor(L: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``H^-1`` from :func:`checked_factor`'s result."""
+    from scipy.linalg import solve_triangular
+
+    Li = solve_triangular(L, np.eye(L.shape[0]), lower=True)
+    return (Li.T @ Li) / d[:, None] / d[None, :]
+
+
+def _checked_inverse(H: np.ndarray) -> np.ndarray:
+    """Inverse of the information matrix, checked (:func:`checked_factor`)."""
+    return inverse_from_factor(*checked_factor(H))
+
+
+def _spread(rows: np.ndarray, k: int) -> np.ndarray:
+    """At most ``k`` of ``rows``, spread evenly over them."""
+    if len(rows) <= k:
+        return rows
+    return rows[np.round(np.linspace(0, len(rows) - 1, k)).astype(np.int64)]
+
+
+def _to_frame(T: tuple[np.ndarray, np.ndarray], X: np.ndarray) -> np.ndarray:
+    """Points ``X`` (n, 3) in the reference frame, expressed in the frame
+    of the robot whose pose ``T = (R, t)`` is."""
+    R, t = T
+    return (X - t) @ R
+
+
+def _candidates(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, r: int, c: int, sees: np.ndarray,
+                seen: np.ndarray, per_side: int | None) -> Pose | None:
+    """Candidate poses ``T_cr`` of the pair problem made of r's views
+    ``sees`` (of placed markers, expressed in c's frame) and c's views
+    ``seen`` of r's markers -- at most ``per_side`` of each (spread), all
+    when None -- the refined best first; None when it has no solution."""
+    a = sees if per_side is None else _spread(sees, per_side)
+    b = seen if per_side is None else _spread(seen, per_side)
+    Xref = np.einsum("nij,nj->ni", Rs[problem.own[a]], problem.points[a]) + ts[problem.own[a]]
+    Xc = _to_frame((Rs[c], ts[c]), Xref)
+    pair = PairProblem.trusted(
+        np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)],
+        np.ascontiguousarray(np.vstack([Xc, problem.points[b]])), None,
+        np.ascontiguousarray(np.vstack([problem.uv[a], problem.uv[b]])),
+        (problem.K[r], problem.K[c]), (problem.dist[r], problem.dist[c]))
+    try:
+        sol = estimate(pair)
+    except MutlocError:
+        return None
+    return Pose.concatenate([sol.pose, sol.candidates])
+
+
+def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20) -> tuple[np.ndarray, np.ndarray,
+                                                                                        np.ndarray]:
+    """Start poses ``T_ref_i`` (Rs, ts) and which robots could be placed.
+
+    Robots are placed greedily, the best-tied first.  A robot ``r`` can be
+    placed once some placed camera ``c`` has, together with ``r``'s own
+    views of markers of placed robots, at least three observations
+    (:data:`MIN_TIES`): that is the pair problem ``(r, c)`` with known points
+    on both sides, which the minimal solvers solve (3 observations, any split:
+    several exact poses, the one fitting ``r``'s other observations best is
+    kept) or over-determine.  So "r sees two of q's markers" ties r to the
+    team when one more observation joins it: r sees a third marker of any
+    placed robot, or some placed robot's camera sees one of r's markers.
+    Observations only of ``r``'s markers by several placed cameras, none of
+    which sees three (a non-central problem no minimal solver here covers),
+    and robots with fewer than three ties are not placed: they are never
+    guessed.  ``sigma`` (pixels) is the noise a start must fit r's ties
+    within before the cheap start is trusted.
+    """
+    N = problem.n_robots
+    C = problem.counts()
+    placed = np.zeros(N, dtype=bool)
+    placed[reference] = True
+    Rs = np.zeros((N, 3, 3))
+    ts = np.zeros((N, 3))
+    Rs[:] = np.eye(3)
+    cam, own = problem.cam, problem.own
+    failed_at = np.full(N, -1)
+    while True:
+        # ties of each unplaced robot: its views of placed robots' markers
+        # plus the views of the best placed camera of it
+        out = C[:, placed].sum(axis=1)
+        into = np.where(placed[:, None], C, 0)
+        best_cam = np.argmax(into, axis=0)
+        score = out + into[best_cam, np.arange(N)]
+        score[placed | (failed_at == placed.sum())] = -1
+        r = int(np.argmax(score))
+        if score[r] < MIN_TIES:
+            break
+        c = int(best_cam[r])
+        if into[c, r] == 0:
+            # r sees placed markers only: express them in a camera whose
+            # markers r sees (any placed frame would do)
+            c = int(np.flatnonzero(placed)[np.argmax(C[r, placed])])
+        sees = np.flatnonzero((cam == r) & placed[own])
+        seen = np.flatnonzero((cam == c) & (own == r))
+        ties = np.flatnonzero(((cam == r) & placed[own]) | ((own == r) & placed[cam]))
+        sub = problem.take(ties)
+        var = np.full(N, -1, dtype=np.int64)
+        var[r] = 0
+        # a few observations each way make the candidates (cheap); every
+        # candidate is scored on all of r's ties (this also picks among the
+        # exact poses of three observations) and the best refined on them;
+        # all observations when the few give nothing that fits the ties
+        # within their noise (a small, distant triangle under noise)
+        gate = sigma**2 * chi2_quantile(0.999, 2 * len(ties) - 6) if len(ties) > 3 else np.inf
+        found = (np.inf, None, None)
+        for per_side in (INIT_PER_SIDE, None):
+            if per_side is None and len(sees) <= INIT_PER_SIDE and len(seen) <= INIT_PER_SIDE:
+                break
+            cands = _candidates(problem, Rs, ts, r, c, sees, seen, per_side)
+            if cands is None:
+                continue
+            # the solver's refined best first; the others only if it does
+            # not fit the ties within their noise
+            for pool in (cands[:1], cands[1:]):
+                Rtry, ttry = Rs.copy(), ts.copy()
+                best = (np.inf, None, None)
+                for Rq, tq in zip(pool.R, pool.t):
+                    Rtry[r] = Rs[c] @ Rq
+                    ttry[r] = Rs[c] @ tq + ts[c]
+                    cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
+                    if cost < best[0]:
+                        best = (cost, Rtry[r].copy(), ttry[r].copy())
+                if not np.isfinite(best[0]):
+                    continue
+                Rtry[r], ttry[r] = best[1], best[2]
+                cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
+                if np.isfinite(cost) and cost < best[0]:
+                    best = (cost, Rtry[r], ttry[r])
+                if best[0] < found[0]:
+                    found = best
+                if found[0] <= gate:
+                    break
+            if found[0] <= gate:
+                break
+        if not np.isfinite(found[0]):
+            # no pose explains them: try r again once more robots are placed
+            failed_at[r] = placed.sum()
+            continue
+        Rs[r], ts[r] = found[1], found[2]
+        placed[r] = True
+    return Rs, ts, placed
+
+
+def _rcm(problem: TeamProblem, order: np.ndarray) -> np.ndarray:
+    """Reverse Cuthill-McKee permutation of ``order`` (robots) by shared observations."""
+    k = len(order)
+    if k <= 2:
+        return np.arange(k)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    pos = np.full(problem.n_robots, -1)
+    pos[order] = np.arange(k)
+    a, b = pos[problem.cam], pos[problem.own]
+    ok = (a >= 0) & (b >= 0)
+    G = coo_matrix((np.ones(2 * ok.sum()), (np.r_[a[ok], b[ok]], np.r_[b[ok], a[ok]])), shape=(k, k)).tocsr()
+    return np.asarray(reverse_cuthill_mckee(G, symmetric_mode=True), dtype=np.int64)
+
+
+def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarray, np.ndarray, np.ndarray]
+               | None = None, max_iter: int = 50, sigma: float = 1.0) -> TeamSolution:
+    """The joint maximum-likelihood poses of every robot tied to ``reference``.
+
+    ``initial`` = (Rs, ts, localized) skips :func:`initial_poses` (a warm
+    start, e.g. the previous frame's solution).  Raises NoSolutionError if
+    no robot can be tied to the reference or the optimum puts a marker
+    behind a camera, DegenerateGeometryError if some pose is not isolated.
+    """
+    if initial is None:
+        Rs, ts, localized = initial_poses(problem, reference, sigma=sigma)
+    else:
+        Rs, ts, localized = (np.array(a, dtype=float if i < 2 else bool) for i, a in enumerate(initial))
+        localized = localized.copy()
+        localized[reference] = True
+        Rs[reference], ts[reference] = np.eye(3), np.zeros(3)
+    used = np.flatnonzero(localized[problem.cam] & localized[problem.own])
+    sub = problem.take(used)
+    var = np.full(problem.n_robots, -1, dtype=np.int64)
+    order = np.array([i for i in range(problem.n_robots) if localized[i] and i != reference], dtype=np.int64)
+    # unknowns in reverse Cuthill-McKee order of the observation graph: a
+    # narrow envelope for the Cholesky factor
+    rcm = _rcm(sub, order)
+    var[order[rcm]] = np.arange(len(order))
+    cost, it, H = _lm(sub, var, Rs, ts, max_iter)
+    # back to index order (the order of ``order``)
+    idx = (6 * var[order][:, None] + np.arange(6)[None, :]).ravel()
+    H = H[np.ix_(idx, idx)]
+    if not np.isfinite(cost):
+        raise NoSolutionError("the team's start poses put a marker behind the camera observing it")
+    return TeamSolution(Rs=Rs, ts=ts, localized=localized, order=order, cost=cost, n_obs=len(used),
+                        information=H, iterations=it, used=used)
+
+
+def residual_norms(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
+    """Each observation's reprojection error (pixels) at poses (Rs, ts);
+    inf for a marker behind its observer."""
+    n = len(problem.cam)
+    out = np.full(n, np.inf)
+    r = np.empty(2)
+    J = np.empty((1, 2, 6))
+    for j in range(n):
+        sub = problem.take(np.array([j]))
+        if team_residuals(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rs, ts, r, J, J, False):
+            out[j] = float(np.hypot(r[0], r[1]))
+    return out
+
+
+def relative_jacobian(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobians (6x6 each) of ``T_ba = T_b^-1 T_a`` with respect to the
+    perturbations of ``T_a`` and ``T_b`` (both ``T_ref_*``, SPEC convention)."""
+    RbT = Rb.T
+    d = ta - tb
+    S = np.array([[0.0, -d[2], d[1]], [d[2], 0.0, -d[0]], [-d[1], d[0], 0.0]])
+    Ja = np.zeros((6, 6))
+    Ja[:3, :3] = RbT
+    Ja[3:, 3:] = RbT
+    Jb = np.zeros((6, 6))
+    Jb[:3, :3] = -RbT
+    Jb[3:, :3] = RbT @ S
+    Jb[3:, 3:] = -RbT
+    return Ja, Jb

@@ -1,0 +1,165 @@
+"""Synthetic teams with ground truth (no rendering): robots in a room, each a
+camera with markers around it; observations are the exact (or noisy) pixels
+of every marker a camera sees.  Used by the tests, bench/bench_team.py,
+``mutloc experiment team`` and ``mutloc simulate --robots N``.
+
+World frame: y down (like a camera's), the floor plane is x-z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+
+from ..core.camera import Camera
+from ..core.geometry import so3_exp
+from ..core.observations import ObservationSet
+from ..core.pose import Pose
+from ..core.rig import Marker, Rig, Robot
+
+__all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "level_pose", "MARKER_RING"]
+
+# Markers on each robot (its own camera frame, metres): four balls above and
+# beside the camera, not coplanar, seen from any side, never in its own view.
+MARKER_RING = np.array([[0.12, -0.10, -0.02], [-0.12, -0.10, -0.02], [0.0, -0.22, 0.04], [0.0, -0.14, -0.14]])
+
+
+def robot_names(n: int) -> list[str]:
+    """``r0``, ``r1``, ... (marker names ``r0_m0`` ... are unique in the rig)."""
+    return [f"r{i}" for i in range(n)]
+
+
+def _colour(i: int, n: int) -> tuple[int, int, int]:
+    """Hues spread evenly over the markers of the team."""
+    import colorsys
+
+    r, g, b = colorsys.hsv_to_rgb((i / max(n, 1)) % 1.0, 1.0, 1.0)
+    return int(round(255 * r)), int(round(255 * g)), int(round(255 * b))
+
+
+def team_rig(names: list[str], *, focal: float = 500.0, size: tuple[int, int] = (960, 540),
+             markers: np.ndarray = MARKER_RING, k1: float = 0.0) -> Rig:
+    """A rig of identical robots (camera ``focal``/``size``, markers
+    ``markers`` named ``NAME_mK``, each with its own colour)."""
+    w, h = size
+    K = np.array([[focal, 0.0, (w - 1) / 2], [0.0, focal, (h - 1) / 2], [0.0, 0.0, 1.0]])
+    total = len(names) * len(markers)
+    robots = {}
+    for i, n in enumerate(names):
+        ms = {}
+        for k, p in enumerate(markers):
+            mname = f"{n}_m{k}"
+            ms[mname] = Marker(mname, n, np.asarray(p, float), color=_colour(i * len(markers) + k, total))
+        robots[n] = Robot(n, Camera(K, [k1, 0.0, 0.0, 0.0, 0.0], size), ms)
+    return Rig(robots)
+
+
+@dataclass
+class TeamScene:
+    """Ground truth of a team: ``world[r]`` is ``T_world_r``; ``links`` the
+    directed (observer, observed) pairs allowed to see each other (None:
+    every pair, by field of view alone)."""
+
+    rig: Rig
+    world: dict[str, Pose]
+    links: set[tuple[str, str]] | None = None
+    max_range: float = 8.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.rig.robots)
+
+    def truth(self, reference: str | None = None) -> dict[str, Pose]:
+        """``T_ref_r`` of every robot (reference: the first robot)."""
+        ref = self.world[reference or self.names[0]].inverse()
+        return {n: ref @ T for n, T in self.world.items()}
+
+    def visible(self) -> list[tuple[str, str, np.ndarray]]:
+        """(observer, marker, exact pixel) of every marker a camera sees:
+        in front of it, inside its image, within ``max_range``, along a link."""
+        out = []
+        for a in self.names:
+            cam = self.rig.robots[a].camera
+            Ta_inv = self.world[a].inverse()
+            for b in self.names:
+                if a == b or (self.links is not None and (a, b) not in self.links):
+                    continue
+                rb = self.rig.robots[b]
+                X = (Ta_inv @ self.world[b]).apply(rb.marker_positions())
+                for mname, x in zip(rb.markers, X):
+                    if not (0.2 < x[2] and np.linalg.norm(x) < self.max_range):
+                        continue
+                    uv = cam.project(x)
+                    if cam.size is not None and not bool(cam.in_image(uv)):
+                        continue
+                    out.append((a, mname, np.asarray(uv, float)))
+        return out
+
+    def observations(self, sigma: float = 0.0, rng: np.random.Generator | None = None,
+                     visible: Iterable[tuple[str, str, np.ndarray]] | None = None) -> ObservationSet:
+        """The visible markers' pixels, with Gaussian noise ``sigma`` px."""
+        vis = list(self.visible() if visible is None else visible)
+        uv = np.array([v[2] for v in vis]).reshape(-1, 2)
+        if sigma > 0:
+            uv = uv + (rng or np.random.default_rng()).normal(0.0, sigma, uv.shape)
+        return ObservationSet.trusted([v[0] for v in vis], [v[1] for v in vis], uv)
+
+
+def level_pose(position: np.ndarray, yaw: float, tilt: np.ndarray) -> Pose:
+    """Camera at ``position`` looking along yaw (about the world's y axis),
+    with a small extra rotation ``tilt`` (rotation vector)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    Ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return Pose(Ry @ so3_exp(tilt), position)
+
+
+def random_team(n: int, rng: np.random.Generator, *, radius: float = 2.5, one_way: float = 0.3, focal: float = 500.0,
+                size: tuple[int, int] = (960, 540), yaw_jitter_deg: float = 30.0, k1: float = 0.0) -> TeamScene:
+    """``n`` robots at random in a disc of ``radius`` metres, each looking
+    roughly at the team's centre (+- ``yaw_jitter_deg``), camera heights and
+    tilts a little different; of every pair that sees each other both ways,
+    one direction is dropped with probability ``one_way``."""
+    names = robot_names(n)
+    world = {}
+    pos = []
+    for name in names:
+        for _ in range(100):
+            r = radius * np.sqrt(rng.uniform(0.15, 1.0))
+            a = rng.uniform(0, 2 * np.pi)
+            p = np.array([r * np.cos(a), rng.uniform(-0.6, -0.4), r * np.sin(a)])
+            if all(np.linalg.norm(p - q) > 0.7 for q in pos):
+                break
+        pos.append(p)
+    centre = np.mean(pos, axis=0)
+    for name, p in zip(names, pos):
+        d = centre - p
+        yaw = np.arctan2(d[0], d[2]) + np.radians(rng.uniform(-yaw_jitter_deg, yaw_jitter_deg))
+        world[name] = level_pose(p, yaw, rng.normal(0.0, 0.05, 3))
+    scene = TeamScene(team_rig(names, focal=focal, size=size, k1=k1), world)
+    seen = {(a, m.rsplit("_m", 1)[0]) for a, m, _ in scene.visible()}
+    links = set(seen)
+    for a, b in sorted(seen):
+        if a < b and (b, a) in seen and rng.uniform() < one_way:
+            links.discard((a, b) if rng.uniform() < 0.5 else (b, a))
+    scene.links = links
+    return scene
+
+
+def chain_team(n: int, rng: np.random.Generator, *, spacing: float = 1.5, focal: float = 500.0,
+               size: tuple[int, int] = (960, 540), skip: bool = True) -> TeamScene:
+    """A chain: robots on a line ``spacing`` apart, alternately a little to
+    the left and right, all facing along it (z forward); robot ``i`` sees
+    robots ``i+1`` and (with ``skip``) ``i+2`` ahead of it, and is seen by
+    none behind it: every tie is one-way."""
+    names = robot_names(n)
+    world = {}
+    for i, name in enumerate(names):
+        p = np.array([0.35 * (-1) ** i + rng.normal(0, 0.05), -0.5 + rng.normal(0, 0.03), spacing * i])
+        world[name] = level_pose(p, np.radians(rng.normal(0, 3.0)), rng.normal(0.0, 0.02, 3))
+    links = {(names[i], names[i + 1]) for i in range(n - 1)}
+    if skip:
+        links |= {(names[i], names[i + 2]) for i in range(n - 2)}
+    return TeamScene(team_rig(names, focal=focal, size=size), world, links)

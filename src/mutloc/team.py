@@ -1,0 +1,283 @@
+"""Teams: :func:`localize_team` estimates every robot's pose in one
+reference robot's frame, jointly, from all observations (SPEC "Teams")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Mapping
+
+import numpy as np
+
+from .api import Estimate, load_rig
+from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
+from .core.observations import ObservationSet
+from .core.pose import Pose
+from .core.rig import Rig
+from .core.team import (MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor, relative_jacobian,
+                        residual_norms, solve_team)
+from .errors import (DegenerateGeometryError, InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
+                     UnverifiedError, positive_number)
+
+__all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
+
+
+@dataclass(eq=False)
+class TeamEstimate:
+    """Every localized robot's pose ``T_ref_r`` (``x_ref = R @ x_r + t``)
+    in the frame of robot ``reference``, with the joint covariance.
+
+    ``information`` is ``J^T J`` (pixels^-2) over :attr:`robots`; the joint
+    covariance is computed from it on first use.  ``unverified`` lists
+    robots held by exactly three observations: several
+    poses fit those exactly and nothing can confirm the one chosen (as a
+    pair's ``"unverified"`` status)."""
+
+    reference: str
+    poses: dict[str, Pose]
+    robots: list[str]
+    unlocalized: list[str]
+    information: np.ndarray
+    pixel_sigma: float
+    reprojection_rms_px: float
+    observations_used: int
+    consistency: Consistency
+    unverified: list[str] = field(default_factory=list)
+    rejected: list[dict[str, Any]] = field(default_factory=list)
+    markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+    factor: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    @cached_property
+    def joint_covariance(self) -> np.ndarray:
+        """``pixel_sigma^2 (J^T J)^-1``, 6k square over :attr:`robots` (computed on first use)."""
+        if self.information.size == 0:
+            return np.zeros((0, 0))
+        factor = self.factor if self.factor is not None else checked_factor(self.information)
+        return self.pixel_sigma**2 * inverse_from_factor(*factor)
+
+    @property
+    def status(self) -> str:
+        """``"solved"`` (the joint residual passed its chi-square test) or
+        ``"unverified"`` (no redundancy: as many equations as unknowns)."""
+        passed = self.consistency.passed
+        return "unverified" if passed is None else ("solved" if passed else "rejected")
+
+    def _block(self, name: str) -> int:
+        if name == self.reference:
+            return -1
+        if name in self.unlocalized:
+            raise ObservationError(f"robot {name!r} is not localized (nothing ties it to {self.reference!r})")
+        if name not in self.poses:
+            raise ObservationError(f"unknown robot {name!r} (team has {sorted([*self.poses, *self.unlocalized])})")
+        return self.robots.index(name)
+
+    def covariance(self, name: str) -> np.ndarray:
+        """6x6 covariance of ``T_ref_name`` (zero for the reference)."""
+        i = self._block(name)
+        if i < 0:
+            return np.zeros((6, 6))
+        return self.joint_covariance[6 * i:6 * i + 6, 6 * i:6 * i + 6].copy()
+
+    def relative(self, a: str, b: str) -> Estimate:
+        """``T_ba`` (``x_b = R @ x_a + t``) as an :class:`Estimate` whose
+        covariance is propagated from the joint one (correlations included)."""
+        ia, ib = self._block(a), self._block(b)
+        if a == b:
+            raise ObservationError(f"relative pose of robot {a!r} to itself")
+        Ta, Tb = self.poses[a], self.poses[b]
+        Ja, Jb = relative_jacobian(Ta.R, Ta.t, Tb.R, Tb.t)
+        blocks = [(Ja, ia), (Jb, ib)]
+        cov = np.zeros((6, 6))
+        for J1, i1 in blocks:
+            for J2, i2 in blocks:
+                if i1 >= 0 and i2 >= 0:
+                    cov += J1 @ self.joint_covariance[6 * i1:6 * i1 + 6, 6 * i2:6 * i2 + 6] @ J2.T
+        pose = Tb.inverse() @ Ta
+        return Estimate(source=a, target=b, pose=pose, covariance=0.5 * (cov + cov.T), pixel_sigma=self.pixel_sigma,
+                        reprojection_rms_px=self.reprojection_rms_px,
+                        markers_used=list(self.markers_between.get(frozenset((a, b)), [])),
+                        candidates=Pose.concatenate([pose]), consistency=self.consistency,
+                        extra={"team_reference": self.reference})
+
+    def to_dict(self) -> dict[str, Any]:
+        """The team result JSON of SPEC (plus ``status`` and ``consistency``)."""
+        robots = {}
+        for name in self.robots:
+            d = self.poses[name].to_dict()
+            d["covariance"] = self.covariance(name).tolist()
+            robots[name] = d
+        return {"reference": self.reference, "robots": robots, "unlocalized": list(self.unlocalized),
+                "reprojection_rms_px": float(self.reprojection_rms_px), "pixel_sigma": float(self.pixel_sigma),
+                "observations_used": int(self.observations_used), "status": self.status,
+                "consistency": self.consistency.to_dict(), "unverified": list(self.unverified),
+                **({"rejected": [dict(r) for r in self.rejected]} if self.rejected else {})}
+
+
+def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, list[str], list[str]]:
+    """The solver's form of named observations (checked against the rig):
+    the problem, the robot names (rig order) and each row's marker name."""
+    obs = observations.check(rig)
+    if obs.has_alternatives:
+        obs = obs.best()
+    if any(m is None for m in obs.marker):
+        raise ObservationError("teams need named markers (a list of unnamed pixels is ambiguous across robots)")
+    times = obs.time[~np.isnan(obs.time)]
+    if times.size and np.unique(times).size > 1:
+        raise ObservationError("observations of several times: localize one frame at a time (at_time)")
+    names = list(rig.robots)
+    index = {n: i for i, n in enumerate(names)}
+    cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
+    owners = [rig.owner(m) for m in obs.marker]
+    own = np.array([index[o] for o in owners], dtype=np.int64)
+    points = np.array([rig.robots[o].markers[m].position for o, m in zip(owners, obs.marker)]).reshape(-1, 3)
+    K = np.array([rig.robots[n].camera.K for n in names])
+    dist = np.array([rig.robots[n].camera.dist for n in names])
+    return TeamProblem(cam, own, points, obs.uv, K, dist), names, list(obs.marker)
+
+
+def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], reference: str | None = None, *,
+                  pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
+                  initial: Mapping[str, Pose] | None = None, max_iter: int = 50,
+                  reject_outliers: bool = True) -> TeamEstimate:
+    """Every robot's pose in robot ``reference``'s frame (default: the rig's
+    first robot), estimated jointly: one maximum-likelihood problem over the
+    pixel reprojection error of every observation (any camera seeing any
+    other robot's marker, mutual or one-sided), with the joint covariance for
+    isotropic detection noise ``pixel_sigma``.
+
+    Robots nothing ties to the reference are listed in ``unlocalized``
+    (never guessed); a robot is tied once three observations link it to
+    robots already tied (see :func:`mutloc.core.team.initial_poses`).
+    ``initial`` (``{robot: T_ref_robot}``, e.g. the previous frame's poses)
+    replaces the initialisation from the pair solvers; robots missing from
+    it are unlocalized.  The joint residual is tested against its noise
+    (chi-square, ``2n - 6k`` degrees of freedom for ``n`` observations and
+    ``k`` robots); failing it raises
+    :class:`~mutloc.errors.InconsistentObservationsError` carrying the
+    estimate (``confidence=1`` disables the test).  Before that, with
+    ``reject_outliers``, the worst-fitting observation is dropped and the
+    team solved again, up to a fifth of the observations; those dropped are
+    named in ``rejected``.
+    """
+    rig = load_rig(rig)
+    pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+    if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
+        raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
+    names = list(rig.robots)
+    if len(names) < 2:
+        raise ObservationError(f"a team needs at least two robots; the rig has {len(names)}")
+    if reference is None:
+        reference = names[0]
+    if not isinstance(reference, str) or reference not in rig.robots:
+        raise ObservationError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
+    problem, names, markers = team_problem(rig, ObservationSet.from_dict(observations))
+    ref = names.index(reference)
+    start = None
+    if initial is not None:
+        Rs = np.tile(np.eye(3), (len(names), 1, 1))
+        ts = np.zeros((len(names), 3))
+        loc = np.zeros(len(names), dtype=bool)
+        for n, T in initial.items():
+            if n not in rig.robots:
+                raise ObservationError(f"initial: unknown robot {n!r}")
+            i = names.index(n)
+            Rs[i], ts[i], loc[i] = T.R, T.t, True
+        start = (Rs, ts, loc)
+    keep = np.arange(len(problem.cam))
+    rejected: list[dict[str, Any]] = []
+    while True:
+        sub = problem.take(keep)
+        sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma)
+        if len(sol.order) == 0:
+            seen = sorted({names[i] for i in np.r_[problem.cam, problem.own].tolist()})
+            raise TooFewObservationsError(
+                f"no robot is tied to the reference {reference!r} by three or more observations "
+                f"({len(problem.cam)} observations among {seen or 'no robots'})")
+        test = _test(sol, pixel_sigma, confidence)
+        if test.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
+            break
+        # drop the worst-fitting observation and solve again from scratch
+        # (a wrong detection may have misled the start as well)
+        err = residual_norms(sub.take(sol.used), sol.Rs, sol.ts)
+        k = int(keep[sol.used[int(np.argmax(err))]])
+        rejected.append({"observer": names[problem.cam[k]], "marker": markers[k], "residual_px": float(np.max(err))})
+        keep = keep[keep != k]
+        start = None
+    try:
+        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, test)
+    except DegenerateGeometryError:
+        if test.passed is not False:
+            raise
+        est = None
+    if est is not None:
+        est.rejected = rejected
+    if test.passed is False:
+        raise InconsistentObservationsError(
+            f"the team's observations do not fit one set of poses with {pixel_sigma:g} px noise (chi2 {test.chi2:.1f} "
+            f"over {test.dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%"
+            + (f", even without the {len(rejected)} worst observations" if rejected else "")
+            + "): a wrong detection, a wrong rig or more noise than --pixel-sigma says", est)
+    return est
+
+
+def _test(sol: TeamSolution, sigma: float, confidence: float) -> Consistency:
+    """A pair's chi-square test (core.consistency) with six unknowns per robot."""
+    dof = 2 * sol.n_obs - 6 * len(sol.order)
+    threshold = chi2_quantile(confidence, dof) if dof > 0 else np.inf
+    return Consistency(float(sol.cost) / sigma**2, dof, confidence, threshold)
+
+
+def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: TeamProblem, reference: str,
+              sigma: float, test: Consistency) -> TeamEstimate:
+    robots = [names[i] for i in sol.order]
+    poses = {names[i]: Pose(sol.Rs[i].copy(), sol.ts[i].copy()) for i in np.flatnonzero(sol.localized)}
+    poses[reference] = Pose.identity()
+    between: dict[frozenset, list[str]] = {}
+    ties = np.zeros(len(names), dtype=np.int64)
+    for j in sol.used.tolist():
+        a, b = int(problem.cam[j]), int(problem.own[j])
+        between.setdefault(frozenset((names[a], names[b])), []).append(markers[j])
+        ties[a] += 1
+        ties[b] += 1
+    # a robot held by three observations fits several poses exactly
+    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES]
+    est = TeamEstimate(
+        reference=reference, poses=poses, robots=robots,
+        unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],
+        information=sol.information, factor=checked_factor(sol.information) if sol.information.size else None,
+        pixel_sigma=sigma,
+        reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
+        consistency=test, unverified=unverified, markers_between=between, extra={"iterations": sol.iterations})
+    return est
+
+
+def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
+    """UnverifiedError when some robot rests on three observations and the
+    caller did not accept that (the command line without ``--allow-unverified``)."""
+    if team.unverified and not allow_unverified:
+        raise UnverifiedError(
+            f"robot{'s' if len(team.unverified) > 1 else ''} {', '.join(team.unverified)}: only three observations "
+            "tie it to the team, several poses fit them exactly and nothing can verify the one chosen; accept the "
+            "risk with --allow-unverified or observe a fourth marker", team)
+
+
+def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | None = None,
+                         **options: Any) -> Any:
+    """Detect, in one image per robot (arrays or file paths), every other
+    robot's markers and localize the team (``options`` as
+    :func:`localize_team`); a ``FrameResult`` whose ``estimate`` is the
+    :class:`TeamEstimate`."""
+    from pathlib import Path
+
+    from .track.frames import FrameResult, detect_markers, expanded_rig, observations_of, read_image
+
+    rig = expanded_rig(load_rig(rig))
+    detections = {}
+    for observer, img in images.items():
+        rig.robot(observer)
+        if isinstance(img, (str, Path)):
+            img = read_image(img)
+        detections[observer] = detect_markers(rig, observer, img)
+    team = localize_team(rig, observations_of(detections), reference, **options)
+    return FrameResult(team, detections)  # type: ignore[arg-type]
