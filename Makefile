@@ -24,6 +24,10 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_solvers.py
 	$(BIN)/python bench/bench_detectors.py
 	$(BIN)/python bench/bench_cli.py
+	$(BIN)/python bench/bench_tags.py
+	$(BIN)/python bench/bench_filter.py
+	$(BIN)/python bench/bench_team.py
+	$(BIN)/python bench/bench_calibrate.py
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info
