@@ -195,9 +195,6 @@ def so3_exp_left(w, R, out):
         out[2, j] = e20 * r0 + e21 * r1 + e22 * r2
 
 
-#: Public name of the left SO(3) update for other kernels (marker calibration).
-so3_exp_left = _so3_exp_left
-
 
 @njit(cache=True)
 def solve_spd(A, b, x):
