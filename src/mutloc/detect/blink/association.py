@@ -106,11 +106,13 @@ class AssociationStage:
             win = cur[max(0, round(float(uv[1])) - rs):round(float(uv[1])) + rs + 1,
                       max(0, round(float(uv[0])) - rs):round(float(uv[0])) + rs + 1]
             tr.clip_radius = math.sqrt(np.count_nonzero(win >= CLIP_LEVEL) / math.pi)
+            tr.measured_area = math.pi * tr.clip_radius ** 2
             better = self._halo_centre(tr, uv)
             if better is not None:
                 uv = better
         else:
             tr.clip_radius = math.nan
+            tr.measured_area = self._spot_area(cur, uv, peak, self._spot(tr.spread))
         return uv
 
     @staticmethod
@@ -126,6 +128,9 @@ class AssociationStage:
         tr.jump = jump
         tr.pos = pos
         tr.spread += 0.3 * (tr.measured_spread - tr.spread)
+        if math.isfinite(tr.measured_area):
+            tr.area = tr.measured_area if not math.isfinite(tr.area) else \
+                tr.area + 0.3 * (tr.measured_area - tr.area)
         tr.last_on_pos = pos
         tr.last_on_t = t
         tr.last_on_frame = frame

@@ -3,9 +3,12 @@ blink (frequency and phase) alone, and the detections reported."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from ...core.sphere import sphere_centre_pixel
 from ..base import Detection, DetectionResult
 from .halo import FORBIDDEN
 
@@ -118,10 +121,16 @@ class IdentityStage:
             if not self._inside(uv, shape):
                 res.missing.append(name)
                 continue
+            spot = uv
+            if self.camera is not None and self._sphere[name] and math.isfinite(tr.area):
+                # The spot's centre is the centre of the sphere's image; the
+                # pose needs the projection of the sphere's centre.
+                uv = sphere_centre_pixel(self.camera, uv, tr.area)
             res.detections[name] = Detection(
                 marker=name, uv=uv, score=tr.score, predicted=not tr.is_on,
                 info={"track": tr.id, "on": bool(tr.is_on), "confidence": float(tr.conf),
                       "blink_hz": float(self.freqs[j]),
-                      "frames_since_on": int(self._frame - tr.last_on_frame)},
+                      "frames_since_on": int(self._frame - tr.last_on_frame),
+                      "spot_uv": spot.tolist()},
             )
         return res

@@ -55,6 +55,8 @@ class Track:
     measured_spread: float = 1.5  # RMS radius of the spot found this frame (px)
     dark: bool = False  # this frame: clearly off (a background plate may be taken)
     clip_radius: float = math.nan  # radius (px) of the clipped core when last on
+    measured_area: float = math.nan  # apparent area (px^2) of the spot found this frame
+    area: float = math.nan  # apparent area of the lit light (px^2), smoothed over "on" frames
     plates: list[Plate] = field(default_factory=list)  # oldest first
 
     def predict(self, t: float, horizon: float) -> np.ndarray:
