@@ -22,7 +22,7 @@ class AssociationStage:
         # plausible speed; after that only the model's error grows -- with
         # time, not frames, and faster for a faster light.
         if len(tr.samples) >= 2:
-            growth = self.gate_growth + 0.1 * float(np.hypot(*tr.vel))
+            growth = self.gate_growth + self.gate_speed * float(np.hypot(*tr.vel))
         else:
             growth = self.max_speed
         since = t - (tr.last_on_t if tr.last_on_pos is not None else tr.born_t)
@@ -89,6 +89,10 @@ class AssociationStage:
             tr.is_on = (self._contrast(cur, np.array([x0 + px, y0 + py], float), tr.spread, 80.0,
                                        margin=self._glow_px)
                         >= 0.5 * self.diff_threshold)
+        if tr.is_on and tr.expect_on(self._times[-1]) < -self.expect_off:
+            # An identified light blinks on schedule: now is well inside its
+            # "off" half, so what is bright here is something else.
+            tr.is_on = False
         if not tr.is_on:
             return None  # keep the prediction (or where a new track was born)
         found = self._centroid(cur, x0 + px, y0 + py, peak, self._spot(tr.spread))

@@ -97,15 +97,27 @@ class IdentityStage:
         allowed = (valid & (scores >= bar) & enough_events
                    & (dark[:, None] <= self._marker_dark_frames[None, :]))
         for tr in tracks:
-            tr.marker, tr.score = None, 0.0
+            tr.marker, tr.score, tr.blink = None, 0.0, None
         if not allowed.any():
             return
         cost = np.where(allowed, -(scores + bonus), FORBIDDEN)
         rows, cols = linear_sum_assignment(cost)
         for r, c in zip(rows, cols):
             if allowed[r, c]:
-                tracks[r].marker = self.marker_names[c]
-                tracks[r].score = float(scores[r, c])
+                tr = tracks[r]
+                tr.marker = self.marker_names[c]
+                tr.score = float(scores[r, c])
+                tr.blink = self._blink_phase(tr, times_all, float(self.freqs[c]))
+
+    @staticmethod
+    def _blink_phase(tr, times_all: np.ndarray, f: float) -> tuple[float, float, float, float]:
+        """The track's brightness history fitted by DC + cosine + sine at ``f``
+        (times relative to the last sample): when its light is on."""
+        h = np.asarray(tr.hist, float)
+        rel = times_all[-len(h):] - times_all[-1]
+        x = np.column_stack([np.ones(len(h)), np.cos(2 * np.pi * f * rel), np.sin(2 * np.pi * f * rel)])
+        coef, *_ = np.linalg.lstsq(x, h, rcond=None)
+        return float(times_all[-1]), f, float(coef[1]), float(coef[2])
 
     # ---------------------------------------------------------------- output
 

@@ -263,6 +263,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         self.centroid_level = float(centroid_level)
         self.gate_px = float(gate_px)
         self.gate_growth = float(gate_growth)
+        self.gate_speed = float(number("gate_speed", p.gate_speed, 0.0, math.inf, lo_open=False))
+        self.expect_off = float(number("expect_off", p.expect_off, 0.0, 1.0, lo_open=False))
         # Limits in pixels that depend on the image size (None: derived from
         # it at the first frame, see _set_scale).
         self._max_speed_arg = None if max_speed is None else float(max_speed)
