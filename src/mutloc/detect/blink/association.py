@@ -26,7 +26,13 @@ class AssociationStage:
         else:
             growth = self.max_speed
         since = t - (tr.last_on_t if tr.last_on_pos is not None else tr.born_t)
-        return min(self.max_gate_px, self.gate_px + growth * since)
+        gate = self.gate_px + growth * since
+        if tr.expect_on(t) > self.expect_off and since > 1.5 / self.fps:
+            # An identified light due on (its fitted blink well inside the
+            # "on" half) after an off period: its switching on is expected
+            # here, and a fast one may have strayed from the prediction.
+            gate *= 2.0
+        return min(self.max_gate_px, gate)
 
     @staticmethod
     def _inside(uv: np.ndarray, shape: tuple[int, ...]) -> bool:

@@ -73,10 +73,20 @@ class IdentityStage:
             # Sinusoid amplitude at the frequency (energy = n a^2 / 2): a light
             # switching by diff_threshold has a fundamental of (2/pi) of that.
             amp = np.sqrt(2.0 * e[:, 0] / n)
-            ok = (at >= below) & (at >= above) & (amp >= 0.3 * self.diff_threshold)
+            loud = amp >= 0.3 * self.diff_threshold
+            ok = (at >= below) & (at >= above) & loud
+            # Hysteresis here too: a light moving over changing background
+            # (brightness that is not quite periodic) can make a neighbour's
+            # score edge past its own for a frame, and a light over background
+            # nearly as bright (in its own colour) blinks faintly: an identity
+            # is kept unless the peak clearly lies elsewhere or fades further.
+            ok_kept = (at >= 0.8 * below) & (at >= 0.8 * above) & (amp >= 0.2 * self.diff_threshold)
             for row, i in enumerate(members):
                 scores[i] = at[row]
                 valid[i] = ok[row]
+                if tracks[i].marker is not None:
+                    j = self.marker_names.index(tracks[i].marker)
+                    valid[i, j] = ok_kept[row, j]
                 tracks[i].scores = {name: float(s) for name, s in zip(self.marker_names, at[row])}
         # Hysteresis: an identity is kept with a bonus and a lower bar.
         bonus = np.zeros_like(scores)

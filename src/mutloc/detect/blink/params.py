@@ -65,8 +65,9 @@ class BlinkParams:
     gate_speed: float = 0.3
     #: An identified light's blink is fitted (phase and all) to its history;
     #: while the fit's fundamental is below ``-expect_off`` (well inside the
-    #: "off" half) a bright spot at the light is taken for something else.
-    #: 1 disables it.
+    #: "off" half) a bright spot at the light is taken for something else,
+    #: and while above ``expect_off`` after an off period (due on) its gate
+    #: is doubled.  1 disables both.
     expect_off: float = 0.5
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
