@@ -19,7 +19,7 @@ import pytest
 from mutloc.core.camera import Camera
 from mutloc.core.rig import Rig, Robot
 from mutloc.core.sphere import sphere_centre_pixel, sphere_image
-from mutloc.detect.blink import BlinkTracker
+from mutloc.detect.blink import BlinkParams, BlinkTracker
 from mutloc.errors import InputError
 
 FPS = 30.0
@@ -138,3 +138,82 @@ def test_camera_argument_checked() -> None:
     tr = BlinkTracker(rig.robot("p").markers, FPS, camera=rig.robot("q").camera)
     with pytest.raises(InputError, match="image size"):
         tr.update(np.zeros((100, 200), np.uint8))
+
+
+# ---------------------------------------------------------------------------
+# identity over fast motion
+# ---------------------------------------------------------------------------
+
+# moving_world twice as fast as its default (4 s path: p sways by 0.3 x its
+# distance, up to ~0.7 m/s at 1.5 m) while q pans +-15 degrees (default 6):
+# the lights cross the image at up to ~13 px per frame at 960x540 over posters
+# and clutter.  Rendered at 480x270, f = 400 px, to keep the test short.
+FAST = {"period": 4.0, "pan_deg": 15.0}
+SEQUENCES = [(1.5, 1), (2.0, 0)]  # (distance m, room seed)
+
+
+def fast_sequence(distance: float, seed: int, n: int = 75):
+    from mutloc.sim.render import moving_world, project_markers, render
+    from mutloc.sim.world import light_is_on, standard_rig
+
+    rig = standard_rig("lights", size=(480, 270), f=400.0)
+    world = moving_world(rig, distance=distance, seed=seed, **FAST)
+    markers = rig.robot("p").markers
+    frames, truth, lit = [], [], []
+    for k in range(n):
+        t = k / FPS
+        frames.append(render(world, "q", t, seed=seed * 1000 + k, noise_sigma=1.0))
+        truth.append(project_markers(world, "q", t, check_occlusion=True))
+        lit.append({name: light_is_on(m, t) for name, m in markers.items()})
+    return rig, markers, frames, truth, lit
+
+
+def identity_counts(results, truth, lit, tol: float = 3.0) -> tuple[int, int, int]:
+    """(good, total, wrong): among frames after the first second in which a
+    light is lit and visible, those reporting it by its own name within
+    ``tol`` px of its true projection and nearer it than the other light;
+    wrong: reports (any frame) nearer the other light than their own, or
+    measured lit more than 10 px from their own."""
+    good = total = wrong = 0
+    for k, (res, tr, on) in enumerate(zip(results, truth, lit)):
+        for name, det in res.detections.items():
+            d = {o: float(np.linalg.norm(det.uv - np.asarray(u))) for o, u in tr.items()}
+            if name in d and (min(d, key=d.get) != name or (not det.predicted and d[name] > 10.0)):
+                wrong += 1
+        if k < FPS:
+            continue
+        for name, uv in tr.items():
+            if not on[name]:
+                continue
+            total += 1
+            det = res.detections.get(name)
+            if det is not None:
+                d = {o: float(np.linalg.norm(det.uv - np.asarray(u))) for o, u in tr.items()}
+                good += d[name] <= tol and min(d, key=d.get) == name
+    return good, total, wrong
+
+
+@pytest.mark.slow
+def test_identity_over_fast_motion() -> None:
+    """Measured (bench/blink_identity.py, same sequences at 960x540 over 3
+    seeds x 1.5/2/3 m): identity 0.71 of lit frames before this work, 0.85
+    now; the goal of 0.99 is NOT reached (red or green lights over posters of
+    their own colour barely change the brightness channel when they switch,
+    and clutter beside a light pulls its centroid).  Here: the tracker must
+    beat the previous settings (gate growing with a tenth of the speed, no
+    blink-phase veto) and stay above 0.85 with no wrong label."""
+    old = BlinkParams(gate_speed=0.1, expect_off=1.0)
+    tot_new, tot_old = np.zeros(3, int), np.zeros(3, int)
+    for distance, seed in SEQUENCES:
+        rig, markers, frames, truth, lit = fast_sequence(distance, seed)
+        cam = rig.robot("q").camera
+        for params, tot in ((None, tot_new), (old, tot_old)):
+            tracker = BlinkTracker(markers, FPS, camera=cam, params=params)
+            results = [tracker.update(img, k / FPS) for k, img in enumerate(frames)]
+            tot += identity_counts(results, truth, lit)
+    new_rate, old_rate = tot_new[0] / tot_new[1], tot_old[0] / tot_old[1]
+    print(f"fast motion identity: {tot_new[0]}/{tot_new[1]} = {new_rate:.3f} (previous settings {old_rate:.3f}); "
+          f"wrong labels {tot_new[2]} (previous {tot_old[2]})")
+    assert new_rate >= 0.85
+    assert new_rate > old_rate
+    assert tot_new[2] == 0
