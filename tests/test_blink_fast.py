@@ -152,7 +152,7 @@ FAST = {"period": 4.0, "pan_deg": 15.0}
 SEQUENCES = [(1.5, 1), (2.0, 0)]  # (distance m, room seed)
 
 
-def fast_sequence(distance: float, seed: int, n: int = 75):
+def fast_sequence(distance: float, seed: int, n: int = 66):
     from mutloc.sim.render import moving_world, project_markers, render
     from mutloc.sim.world import light_is_on, standard_rig
 
