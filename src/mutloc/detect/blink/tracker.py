@@ -53,7 +53,14 @@ confidence tracking".  :class:`BlinkTracker` does that and adds identity:
    track must have seen about as many switches as the frequency implies, and
    must not have been dark for longer than the light ever is.  Tracks are
    assigned to markers by the Hungarian method on the scores (one track per
-   marker), with a small bonus that keeps an established identity.
+   marker), with a small bonus that keeps an established identity.  An
+   identified light's blink is then known in phase too (its history fitted
+   at its frequency): inside its "off" half a bright spot at it is something
+   else, and when it is due on after an off period its gate is doubled (a
+   fast light strays further from a prediction made across the off period).
+4. **Camera model.**  Given the camera, a light with a ``radius`` is
+   reported at the projection of its sphere's centre rather than at the
+   centre of its (elliptical) image, see :mod:`mutloc.core.sphere`.
 
 Positions follow the SPEC: ``(u, v)`` with ``(0, 0)`` the centre of the
 top-left pixel, raw (distorted) pixels.  A marker's reported position is the
