@@ -59,7 +59,7 @@ def sphere_image(camera: Camera, direction: np.ndarray, alpha: float, n: int = _
     return c, 0.5 * abs(a2)
 
 
-def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterations: int = 3) -> np.ndarray:
+def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterations: int = 2) -> np.ndarray:
     """Projection of a sphere's centre from the centre and area of its image.
 
     ``centre`` is the area centroid of the sphere's image (pixels), ``area``
@@ -77,14 +77,14 @@ def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterati
     f = float(math.sqrt(camera.K[0, 0] * camera.K[1, 1]))
     alpha = math.sqrt(area / math.pi) / f  # first guess: a disc on the axis
     p = m.copy()
-    for _ in range(iterations):
+    for it in range(iterations):
         try:
             d = camera.pixels_to_bearings(p)
         except InputError:  # outside the lens model's domain: leave it uncorrected
             return m.copy()
         if alpha >= 0.5 * math.pi - math.acos(min(1.0, d[2])):
             return m.copy()  # the rim would reach behind the camera
-        for _ in range(2):
+        for _ in range(2 if it == 0 else 1):  # the area barely changes as p moves
             _, a = sphere_image(camera, d, alpha)
             if not math.isfinite(a) or a <= 0.0:
                 return m.copy()
