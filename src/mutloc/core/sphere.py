@@ -59,16 +59,17 @@ def sphere_image(camera: Camera, direction: np.ndarray, alpha: float, n: int = _
     return c, 0.5 * abs(a2)
 
 
-def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterations: int = 2) -> np.ndarray:
+def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterations: int = 3) -> np.ndarray:
     """Projection of a sphere's centre from the centre and area of its image.
 
     ``centre`` is the area centroid of the sphere's image (pixels), ``area``
     the image's area (px^2): the apparent size gives the angular radius (and
     with the sphere's true radius ``R`` the range, ``R / sin(alpha)``, which
-    is not needed).  Fixed-point iteration: the centre's projection ``p`` is
-    moved by the mismatch between the measured centroid and the centroid of
-    the sphere imaged along ``p``'s bearing, ``alpha`` rescaled so that
-    image has the measured area.  Returns ``centre`` itself when the spot
+    is not needed).  Fixed-point iteration: the sphere is imaged along the
+    bearing of the current estimate ``p`` of its centre's projection;
+    ``alpha`` is rescaled so that image has the measured area, and ``p`` is
+    put where the (rescaled) offset of that image's centroid lands it on the
+    measured centroid.  Returns ``centre`` itself when the spot
     is too small to matter or the geometry does not project.
     """
     m = np.asarray(centre, float)
@@ -77,20 +78,19 @@ def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterati
     f = float(math.sqrt(camera.K[0, 0] * camera.K[1, 1]))
     alpha = math.sqrt(area / math.pi) / f  # first guess: a disc on the axis
     p = m.copy()
-    for it in range(iterations):
+    for _ in range(iterations):
         try:
             d = camera.pixels_to_bearings(p)
         except InputError:  # outside the lens model's domain: leave it uncorrected
             return m.copy()
         if alpha >= 0.5 * math.pi - math.acos(min(1.0, d[2])):
             return m.copy()  # the rim would reach behind the camera
-        for _ in range(2 if it == 0 else 1):  # the area barely changes as p moves
-            _, a = sphere_image(camera, d, alpha)
-            if not math.isfinite(a) or a <= 0.0:
-                return m.copy()
-            alpha *= math.sqrt(area / a)
-        c, _ = sphere_image(camera, d, alpha)
-        if not np.all(np.isfinite(c)):
+        c, a = sphere_image(camera, d, alpha)
+        if not (math.isfinite(a) and a > 0.0) or not np.all(np.isfinite(c)):
             return m.copy()
-        p = p + (m - c)
+        # Image area and the centre's offset both grow as alpha^2: rescale
+        # to the measured area (one projection per iteration).
+        scale = area / a
+        alpha *= math.sqrt(scale)
+        p = m - (c - p) * scale
     return p
