@@ -175,7 +175,8 @@ def bench_blink(size, n_frames, fps, repeat, seed) -> dict:
     frames = imgs[TARGET]
     markers = rig.robot(SOURCE).markers
     truth = [project_markers(world, TARGET, t) for t in ts]
-    tracker = BlinkTracker(markers, fps)
+    cam = rig.robot(TARGET).camera  # lights are reported at their centres' projection
+    tracker = BlinkTracker(markers, fps, camera=cam)
     err_on, err_all, first = [], [], None
     for k, (img, t) in enumerate(zip(frames, ts)):
         res = tracker.update(img, t)
@@ -190,7 +191,7 @@ def bench_blink(size, n_frames, fps, repeat, seed) -> dict:
                 first = k
 
     def run():
-        tr = BlinkTracker(markers, fps)
+        tr = BlinkTracker(markers, fps, camera=cam)
         for img, t in zip(frames, ts):
             tr.update(img, t)
 

@@ -192,7 +192,8 @@ class _Detector:
         if lights:
             from ..detect.blink import BlinkTracker
 
-            self.blink = BlinkTracker(lights, fps)
+            # The observer's camera: a light's sphere images off its centre's projection.
+            self.blink = BlinkTracker(lights, fps, camera=rig.robot(observer).camera)
         self.last_blink: DetectionResult | None = None
 
     def feed(self, frame: Frame) -> None:

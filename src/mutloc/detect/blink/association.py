@@ -22,11 +22,17 @@ class AssociationStage:
         # plausible speed; after that only the model's error grows -- with
         # time, not frames, and faster for a faster light.
         if len(tr.samples) >= 2:
-            growth = self.gate_growth + 0.1 * float(np.hypot(*tr.vel))
+            growth = self.gate_growth + self.gate_speed * float(np.hypot(*tr.vel))
         else:
             growth = self.max_speed
         since = t - (tr.last_on_t if tr.last_on_pos is not None else tr.born_t)
-        return min(self.max_gate_px, self.gate_px + growth * since)
+        gate = self.gate_px + growth * since
+        if tr.expect_on(t) > self.expect_off and since > 1.5 / self.fps:
+            # An identified light due on (its fitted blink well inside the
+            # "on" half) after an off period: its switching on is expected
+            # here, and a fast one may have strayed from the prediction.
+            gate *= 2.0
+        return min(self.max_gate_px, gate)
 
     @staticmethod
     def _inside(uv: np.ndarray, shape: tuple[int, ...]) -> bool:
@@ -89,6 +95,10 @@ class AssociationStage:
             tr.is_on = (self._contrast(cur, np.array([x0 + px, y0 + py], float), tr.spread, 80.0,
                                        margin=self._glow_px)
                         >= 0.5 * self.diff_threshold)
+        if tr.is_on and tr.expect_on(self._times[-1]) < -self.expect_off:
+            # An identified light blinks on schedule: now is well inside its
+            # "off" half, so what is bright here is something else.
+            tr.is_on = False
         if not tr.is_on:
             return None  # keep the prediction (or where a new track was born)
         found = self._centroid(cur, x0 + px, y0 + py, peak, self._spot(tr.spread))
@@ -106,11 +116,13 @@ class AssociationStage:
             win = cur[max(0, round(float(uv[1])) - rs):round(float(uv[1])) + rs + 1,
                       max(0, round(float(uv[0])) - rs):round(float(uv[0])) + rs + 1]
             tr.clip_radius = math.sqrt(np.count_nonzero(win >= CLIP_LEVEL) / math.pi)
+            tr.measured_area = math.pi * tr.clip_radius ** 2
             better = self._halo_centre(tr, uv)
             if better is not None:
                 uv = better
         else:
             tr.clip_radius = math.nan
+            tr.measured_area = self._spot_area(cur, uv, peak, self._spot(tr.spread))
         return uv
 
     @staticmethod
@@ -126,6 +138,9 @@ class AssociationStage:
         tr.jump = jump
         tr.pos = pos
         tr.spread += 0.3 * (tr.measured_spread - tr.spread)
+        if math.isfinite(tr.measured_area):
+            tr.area = tr.measured_area if not math.isfinite(tr.area) else \
+                tr.area + 0.3 * (tr.measured_area - tr.area)
         tr.last_on_pos = pos
         tr.last_on_t = t
         tr.last_on_frame = frame

@@ -3,9 +3,12 @@ blink (frequency and phase) alone, and the detections reported."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from ...core.sphere import sphere_centre_pixel
 from ..base import Detection, DetectionResult
 from .halo import FORBIDDEN
 
@@ -70,10 +73,20 @@ class IdentityStage:
             # Sinusoid amplitude at the frequency (energy = n a^2 / 2): a light
             # switching by diff_threshold has a fundamental of (2/pi) of that.
             amp = np.sqrt(2.0 * e[:, 0] / n)
-            ok = (at >= below) & (at >= above) & (amp >= 0.3 * self.diff_threshold)
+            loud = amp >= 0.3 * self.diff_threshold
+            ok = (at >= below) & (at >= above) & loud
+            # Hysteresis here too: a light moving over changing background
+            # (brightness that is not quite periodic) can make a neighbour's
+            # score edge past its own for a frame, and a light over background
+            # nearly as bright (in its own colour) blinks faintly: an identity
+            # is kept unless the peak clearly lies elsewhere or fades further.
+            ok_kept = (at >= 0.8 * below) & (at >= 0.8 * above) & (amp >= 0.2 * self.diff_threshold)
             for row, i in enumerate(members):
                 scores[i] = at[row]
                 valid[i] = ok[row]
+                if tracks[i].marker is not None:
+                    j = self.marker_names.index(tracks[i].marker)
+                    valid[i, j] = ok_kept[row, j]
                 tracks[i].scores = {name: float(s) for name, s in zip(self.marker_names, at[row])}
         # Hysteresis: an identity is kept with a bonus and a lower bar.
         bonus = np.zeros_like(scores)
@@ -94,15 +107,27 @@ class IdentityStage:
         allowed = (valid & (scores >= bar) & enough_events
                    & (dark[:, None] <= self._marker_dark_frames[None, :]))
         for tr in tracks:
-            tr.marker, tr.score = None, 0.0
+            tr.marker, tr.score, tr.blink = None, 0.0, None
         if not allowed.any():
             return
         cost = np.where(allowed, -(scores + bonus), FORBIDDEN)
         rows, cols = linear_sum_assignment(cost)
         for r, c in zip(rows, cols):
             if allowed[r, c]:
-                tracks[r].marker = self.marker_names[c]
-                tracks[r].score = float(scores[r, c])
+                tr = tracks[r]
+                tr.marker = self.marker_names[c]
+                tr.score = float(scores[r, c])
+                tr.blink = self._blink_phase(tr, times_all, float(self.freqs[c]))
+
+    @staticmethod
+    def _blink_phase(tr, times_all: np.ndarray, f: float) -> tuple[float, float, float, float]:
+        """The track's brightness history fitted by DC + cosine + sine at ``f``
+        (times relative to the last sample): when its light is on."""
+        h = np.asarray(tr.hist, float)
+        rel = times_all[-len(h):] - times_all[-1]
+        x = np.column_stack([np.ones(len(h)), np.cos(2 * np.pi * f * rel), np.sin(2 * np.pi * f * rel)])
+        coef, *_ = np.linalg.lstsq(x, h, rcond=None)
+        return float(times_all[-1]), f, float(coef[1]), float(coef[2])
 
     # ---------------------------------------------------------------- output
 
@@ -118,10 +143,16 @@ class IdentityStage:
             if not self._inside(uv, shape):
                 res.missing.append(name)
                 continue
+            spot = uv
+            if self.camera is not None and self._sphere[name] and math.isfinite(tr.area):
+                # The spot's centre is the centre of the sphere's image; the
+                # pose needs the projection of the sphere's centre.
+                uv = sphere_centre_pixel(self.camera, uv, tr.area)
             res.detections[name] = Detection(
                 marker=name, uv=uv, score=tr.score, predicted=not tr.is_on,
                 info={"track": tr.id, "on": bool(tr.is_on), "confidence": float(tr.conf),
                       "blink_hz": float(self.freqs[j]),
-                      "frames_since_on": int(self._frame - tr.last_on_frame)},
+                      "frames_since_on": int(self._frame - tr.last_on_frame),
+                      "spot_uv": spot.tolist()},
             )
         return res

@@ -230,6 +230,20 @@ class MeasureStage:
             return None
         return found
 
+    @staticmethod
+    def _spot_area(img: np.ndarray, uv: np.ndarray, peak: float, r: int) -> float:
+        """Apparent area (px^2) of an unclipped lit spot: the pixels above half
+        way from the window's background to the peak (a uniformly bright disc
+        blurred by a symmetric spread crosses that level at its edge)."""
+        h, w = img.shape
+        cx, cy = round(float(uv[0])), round(float(uv[1]))
+        patch = img[max(0, cy - r):min(h, cy + r + 1), max(0, cx - r):min(w, cx + r + 1)]
+        if patch.shape[0] < 3 or patch.shape[1] < 3:
+            return math.nan
+        border = np.concatenate([patch[0], patch[-1], patch[1:-1, 0], patch[1:-1, -1]])
+        bg = float(np.median(border))
+        return float(np.count_nonzero(patch >= bg + 0.5 * (peak - bg)))
+
     def _centroid(self, img: np.ndarray, px: int, py: int, peak: float,
                   r: int) -> tuple[np.ndarray, float] | None:
         """Intensity-weighted centroid of the bright spot around pixel (px, py),

@@ -51,13 +51,24 @@ class BlinkParams:
     #: A candidate may join a track, and a bright spot near it counts as its
     #: light, only within ``gate_px + growth * seconds_since_last_on`` pixels of
     #: its prediction (capped at ``max_gate_px``); the growth (px/s) is
-    #: ``gate_growth`` plus a tenth of the light's image speed, or ``max_speed``
+    #: ``gate_growth`` plus ``gate_speed`` times the light's image speed, or ``max_speed``
     #: (the fastest image motion assumed, px/s; None: from the image size) while
     #: a track has no motion model yet.
     gate_px: float = 6.0
     gate_growth: float = 30.0
     max_speed: float | None = None
     max_gate_px: float = 40.0
+    #: Fraction of a light's image speed added to its gate's growth: a fast
+    #: light's prediction across an off period errs more (its motion in the
+    #: motion-compensated image is not quite smooth when the camera pans; a
+    #: tenth let a light at 1.5 m on a 4 s path escape its gate).
+    gate_speed: float = 0.3
+    #: An identified light's blink is fitted (phase and all) to its history;
+    #: while the fit's fundamental is below ``-expect_off`` (well inside the
+    #: "off" half) a bright spot at the light is taken for something else,
+    #: and while above ``expect_off`` after an off period (due on) its gate
+    #: is doubled.  1 disables both.
+    expect_off: float = 0.5
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),

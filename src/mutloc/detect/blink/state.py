@@ -55,7 +55,25 @@ class Track:
     measured_spread: float = 1.5  # RMS radius of the spot found this frame (px)
     dark: bool = False  # this frame: clearly off (a background plate may be taken)
     clip_radius: float = math.nan  # radius (px) of the clipped core when last on
+    measured_area: float = math.nan  # apparent area (px^2) of the spot found this frame
+    area: float = math.nan  # apparent area of the lit light (px^2), smoothed over "on" frames
     plates: list[Plate] = field(default_factory=list)  # oldest first
+    # The identified light's blink, fitted to its history: (time of the last
+    # sample, frequency, cosine and sine amplitudes); None if unidentified.
+    blink: tuple[float, float, float, float] | None = None
+
+    def expect_on(self, t: float) -> float:
+        """How surely the identified light is on at ``t``: the fitted
+        fundamental, normalised to [-1, 1] (> 0: on; NaN: unknown).  A 50 %
+        square wave's fundamental peaks mid-way through its "on" half."""
+        if self.blink is None:
+            return math.nan
+        t0, f, a, b = self.blink
+        amp = math.hypot(a, b)
+        if amp <= 0.0:
+            return math.nan
+        w = 2.0 * math.pi * f * (t - t0)
+        return (a * math.cos(w) + b * math.sin(w)) / amp
 
     def predict(self, t: float, horizon: float) -> np.ndarray:
         """Position at time ``t`` from the motion model (stabilised coordinates)."""

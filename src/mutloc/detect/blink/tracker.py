@@ -53,7 +53,14 @@ confidence tracking".  :class:`BlinkTracker` does that and adds identity:
    track must have seen about as many switches as the frequency implies, and
    must not have been dark for longer than the light ever is.  Tracks are
    assigned to markers by the Hungarian method on the scores (one track per
-   marker), with a small bonus that keeps an established identity.
+   marker), with a small bonus that keeps an established identity.  An
+   identified light's blink is then known in phase too (its history fitted
+   at its frequency): inside its "off" half a bright spot at it is something
+   else, and when it is due on after an off period its gate is doubled (a
+   fast light strays further from a prediction made across the off period).
+4. **Camera model.**  Given the camera, a light with a ``radius`` is
+   reported at the projection of its sphere's centre rather than at the
+   centre of its (elliptical) image, see :mod:`mutloc.core.sphere`.
 
 Positions follow the SPEC: ``(u, v)`` with ``(0, 0)`` the centre of the
 top-left pixel, raw (distorted) pixels.  A marker's reported position is the
@@ -72,6 +79,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import DetectionResult, as_bgr
@@ -106,6 +114,13 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
     params:
         The tuning, :class:`~mutloc.detect.blink.params.BlinkParams` (each value
         documented there); default ``BlinkParams()``.
+    camera:
+        The camera's model (:class:`~mutloc.core.camera.Camera`), optional.
+        With it, a light whose marker has a ``radius`` (rig key, metres: a
+        diffusing sphere) is reported at the projection of its centre, not at
+        the centre of its image: a sphere images as an ellipse whose centre
+        lies outward of that projection (see :mod:`mutloc.core.sphere`; the
+        angular radius comes from the lit spot's apparent area).
     """
 
     def __init__(
@@ -114,8 +129,12 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         fps: float,
         *,
         params: BlinkParams | None = None,
+        camera: Camera | None = None,
     ) -> None:
         p = params if params is not None else BlinkParams()
+        if camera is not None and not isinstance(camera, Camera):
+            raise InputError(f"BlinkTracker: camera must be a Camera, got {type(camera).__name__}")
+        self.camera = camera
         if not isinstance(p, BlinkParams):
             raise InputError(f"BlinkTracker: params must be BlinkParams, got {type(p).__name__}")
         diff_threshold = p.diff_threshold
@@ -150,6 +169,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         self.fps = fps
         names: list[str] = []
         freqs: list[float] = []
+        # Per marker: a sphere (has a radius), whose image centre needs the camera's correction.
+        self._sphere: dict[str, bool] = {}
         for name, m in markers.items():
             hz = getattr(m, "blink_hz", None)
             if hz is None:
@@ -164,8 +185,17 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
                 raise InputError(
                     f"marker {name!r}: blink_hz {hz:g} is not below half the frame rate ({fps / 2:g} Hz)"
                 )
+            radius = m.extra.get("radius") if isinstance(getattr(m, "extra", None), Mapping) else None
+            if radius is not None:
+                try:
+                    radius = float(radius)
+                except (TypeError, ValueError):
+                    raise InputError(f"marker {name!r}: radius must be a number, got {radius!r}") from None
+                if not (math.isfinite(radius) and radius > 0):
+                    raise InputError(f"marker {name!r}: radius must be positive, got {radius}")
             names.append(str(name))
             freqs.append(hz)
+            self._sphere[str(name)] = radius is not None
         if not names:
             raise InputError("BlinkTracker: no marker has a blink_hz")
         self.marker_names = names
@@ -240,6 +270,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         self.centroid_level = float(centroid_level)
         self.gate_px = float(gate_px)
         self.gate_growth = float(gate_growth)
+        self.gate_speed = float(number("gate_speed", p.gate_speed, 0.0, math.inf, lo_open=False))
+        self.expect_off = float(number("expect_off", p.expect_off, 0.0, 1.0, lo_open=False))
         # Limits in pixels that depend on the image size (None: derived from
         # it at the first frame, see _set_scale).
         self._max_speed_arg = None if max_speed is None else float(max_speed)
@@ -362,6 +394,10 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
             if not t > self._prev_t:
                 raise InputError(f"BlinkTracker.update: time {t} does not increase (previous {self._prev_t})")
         if prev is None:
+            if self.camera is not None and self.camera.size is not None \
+                    and tuple(self.camera.size) != (cur.shape[1], cur.shape[0]):
+                raise InputError(f"BlinkTracker.update: image size {cur.shape[::-1]} is not the camera's "
+                                 f"{tuple(self.camera.size)}")
             self._set_scale(min(cur.shape))
         shift = self._motion.update(cur) if self.stabilize else np.zeros(2)
         self._times.append(t)

@@ -1,0 +1,144 @@
+#!/usr/bin/env python
+"""Light identity over fast motion, measured on mutloc's own rendered
+sequences (a room with posters and clutter; robot q's camera pans while p
+drives in front of it, faster than ``moving_world``'s defaults).
+
+Identity fraction: among the frames after the first second in which one of
+p's lights is lit and visible (centre in the image and not hidden), those in
+which the tracker reports that light by its own name within ``--tol`` px of
+its true projection, and closer to it than to the other light.  Wrong labels
+(in any frame, a name reported nearer the other light than its own, or
+measured lit more than 10 px from its own) are counted separately.
+
+    python bench/blink_identity.py [--seeds 0,1,2] [--distances 1.5,2,3] [--period 4] [--pan 15]
+                                   [--size 960x540 --f 800] [--frames 90] [--cache DIR]
+
+Writes bench/blink_identity_results.json (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mutloc.detect.blink import BlinkTracker
+from mutloc.sim.render import moving_world, project_markers, render
+from mutloc.sim.world import light_is_on, standard_rig
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def sequence(size: tuple[int, int], f: float, distance: float, seed: int, n: int, fps: float, period: float,
+             pan_deg: float, cache: Path | None = None):
+    """Robot q's frames of p's two lights, the true projections (visible
+    markers only) and which lights are lit, per frame."""
+    rig = standard_rig("lights", size=size, f=f)
+    world = moving_world(rig, distance=distance, seed=seed, period=period, pan_deg=pan_deg)
+    markers = rig.robot("p").markers
+    key = f"{size[0]}x{size[1]}_f{f:g}_d{distance:g}_s{seed}_n{n}_fps{fps:g}_T{period:g}_pan{pan_deg:g}.npz"
+    if cache is not None and (cache / key).exists():
+        data = np.load(cache / key, allow_pickle=True)
+        frames, truth = list(data["frames"]), list(data["truth"])
+    else:
+        frames, truth = [], []
+        for k in range(n):
+            t = k / fps
+            frames.append(render(world, "q", t, seed=seed * 1000 + k, noise_sigma=1.0))
+            truth.append(project_markers(world, "q", t, check_occlusion=True))
+        if cache is not None:
+            cache.mkdir(parents=True, exist_ok=True)
+            np.savez(cache / key, frames=np.array(frames), truth=np.array(truth, dtype=object))
+    lit = [{name: light_is_on(m, k / fps) for name, m in markers.items()} for k in range(n)]
+    return rig, markers, frames, truth, lit
+
+
+def identity(results, truth, lit, fps: float, tol: float) -> dict:
+    """Identity fraction after the first second, and the failures."""
+    good = total = wrong = 0
+    failures = []
+    for k, (res, tr, on) in enumerate(zip(results, truth, lit)):
+        for name, det in res.detections.items():
+            # A wrong label: reported nearer another light than its own, or
+            # measured lit (not predicted) far from its own.
+            d = {o: float(np.hypot(*(det.uv - np.asarray(u)))) for o, u in tr.items()}
+            if name in d and (min(d, key=d.get) != name or (not det.predicted and d[name] > 10.0)):
+                wrong += 1
+        if k < fps:
+            continue
+        for name, uv in tr.items():
+            if not on[name]:
+                continue
+            total += 1
+            det = res.detections.get(name)
+            if det is None:
+                failures.append((k, name, "missing"))
+                continue
+            d = {o: float(np.hypot(*(det.uv - np.asarray(u)))) for o, u in tr.items()}
+            if d[name] <= tol and min(d, key=d.get) == name:
+                good += 1
+            else:
+                failures.append((k, name, f"off by {d[name]:.1f} px"))
+    return {"good": good, "total": total, "fraction": good / max(total, 1), "wrong_labels": wrong,
+            "failures": failures}
+
+
+def run_tracker(rig, markers, frames, fps: float, use_camera: bool = True):
+    cam = rig.robot("q").camera if use_camera else None
+    tracker = BlinkTracker(markers, fps, camera=cam)
+    return [tracker.update(img, k / fps) for k, img in enumerate(frames)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--distances", default="1.5,2,3")
+    ap.add_argument("--size", default="960x540")
+    ap.add_argument("--f", type=float, default=800.0)
+    ap.add_argument("--frames", type=int, default=90)
+    ap.add_argument("--fps", type=float, default=30.0)
+    ap.add_argument("--period", type=float, default=4.0, help="path period (s); moving_world's default is 8")
+    ap.add_argument("--pan", type=float, default=15.0, help="camera pan amplitude (deg); default 6")
+    ap.add_argument("--tol", type=float, default=3.0)
+    ap.add_argument("--cache", default=None, help="folder caching the rendered frames")
+    ap.add_argument("--no-camera", action="store_true", help="track without the camera model")
+    ap.add_argument("--out", default=str(Path(__file__).with_name("blink_identity_results.json")))
+    args = ap.parse_args(argv)
+    from _machine import machine
+
+    size = tuple(int(s) for s in args.size.split("x"))
+    cache = Path(args.cache) if args.cache else None
+    res = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "runs": []}
+    per_distance: dict[str, list[int]] = {}
+    for d in (float(s) for s in args.distances.split(",")):
+        for seed in (int(s) for s in args.seeds.split(",")):
+            t0 = time.perf_counter()
+            rig, markers, frames, truth, lit = sequence(size, args.f, d, seed, args.frames, args.fps,
+                                                        args.period, args.pan, cache)
+            t1 = time.perf_counter()
+            out = identity(run_tracker(rig, markers, frames, args.fps, not args.no_camera), truth, lit,
+                           args.fps, args.tol)
+            t2 = time.perf_counter()
+            g = per_distance.setdefault(f"{d:g}", [0, 0, 0])
+            g[0] += out["good"]
+            g[1] += out["total"]
+            g[2] += out["wrong_labels"]
+            print(f"d={d:g} m seed={seed}: identity {out['good']}/{out['total']} = {out['fraction']:.3f}, "
+                  f"wrong labels {out['wrong_labels']} (render {t1 - t0:.1f} s, track {t2 - t1:.1f} s) "
+                  f"{out['failures'][:8]}", flush=True)
+            res["runs"].append({"distance": d, "seed": seed, **out})
+    res["per_distance"] = {k: {"good": g, "total": n, "fraction": g / max(n, 1), "wrong_labels": w}
+                           for k, (g, n, w) in per_distance.items()}
+    for k, v in res["per_distance"].items():
+        print(f"distance {k} m: identity {v['good']}/{v['total']} = {v['fraction']:.3f}, "
+              f"wrong labels {v['wrong_labels']}")
+    Path(args.out).write_text(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
