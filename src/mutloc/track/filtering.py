@@ -256,10 +256,11 @@ class PairTracker:
         per-frame result either way."""
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
-        # Solved on its own, or consistent with four or more markers of which
-        # some are lights that are off (the frame stays unverified; the
-        # lights measured next confirm the track or reject it).
-        started = trial.estimate is not None and trial.estimate.status == "solved"
+        # Only a frame solved on measured markers alone starts a track: four
+        # positions that include predicted lights can pass their test and
+        # still be centimetres off, and later three-marker frames would then
+        # be called solved against a wrong track.
+        started = trial.status == FrameStatus.SOLVED and trial.estimate is not None
         if started:
             est = trial.estimate
             self.filter.reset(row.t, est.pose, est.covariance)
