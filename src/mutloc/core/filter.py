@@ -39,7 +39,7 @@ from ..errors import InputError, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .estimate import PairProblem
 from .pose import Pose
-from .refine import MODE_PIXEL, WS_SIZE, residuals, so3_exp_left
+from .refine import MODE_PIXEL, WS_SIZE, cholesky, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
            "iekf_update", "rts_smooth", "STATE_DIM"]
@@ -189,26 +189,6 @@ def cv_predict(R, t, vel, P, dt, q_ang, q_lin, R_out, t_out, P_out):
 
 
 @njit(cache=True)
-def _cholesky(A, L):
-    """Lower Cholesky factor of SPD A into L; False if A is not positive definite."""
-    n = A.shape[0]
-    for i in range(n):
-        for j in range(i + 1):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if not s > 0.0:
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-        for j in range(i + 1, n):
-            L[i, j] = 0.0
-    return True
-
-
-@njit(cache=True)
 def _cho_solve(L, b, x):
     """Solve (L L^T) x = b."""
     n = L.shape[0]
@@ -276,7 +256,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
             for c in range(6):
                 s += J[k, c] * e[c]
             innov[k] = s
-        if not _cholesky(S, L):
+        if not cholesky(S, L):
             return np.inf, it
         _cho_solve(L, innov, y)
         chi2 = 0.0

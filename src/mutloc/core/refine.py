@@ -197,10 +197,10 @@ def so3_exp_left(w, R, out):
 
 
 @njit(cache=True)
-def solve_spd(A, b, x):
-    """Cholesky solve of a small symmetric positive definite system."""
+def cholesky(A, L):
+    """Lower Cholesky factor of a small SPD ``A`` into ``L``; False if ``A``
+    is not positive definite."""
     n = A.shape[0]
-    L = np.zeros((n, n))
     for i in range(n):
         for j in range(i + 1):
             s = A[i, j]
@@ -212,6 +212,18 @@ def solve_spd(A, b, x):
                 L[i, i] = np.sqrt(s)
             else:
                 L[i, j] = s / L[j, j]
+        for j in range(i + 1, n):
+            L[i, j] = 0.0
+    return True
+
+
+@njit(cache=True)
+def solve_spd(A, b, x):
+    """Cholesky solve of a small symmetric positive definite system."""
+    n = A.shape[0]
+    L = np.empty((n, n))
+    if not cholesky(A, L):
+        return False
     y = np.empty(n)
     for i in range(n):
         s = b[i]

@@ -39,7 +39,7 @@ from .camera import project_jac_kernel, project_kernel
 from .consistency import chi2_quantile
 from .estimate import PairProblem, estimate
 from .pose import Pose
-from .refine import solve_spd
+from .refine import so3_exp_left, solve_spd
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
            "relative_jacobian", "checked_factor", "inverse_from_factor", "MIN_TIES"]
@@ -200,35 +200,6 @@ def _accumulate(cam, own, var, r, Ja, Jb, H, g):
 
 
 @njit(cache=True)
-def _so3_exp_left(w0, w1, w2, R):
-    """R <- exp([w]x) @ R in place."""
-    th2 = w0 * w0 + w1 * w1 + w2 * w2
-    th = np.sqrt(th2)
-    if th < 1e-8:
-        a = 1.0
-        b = 0.5
-    else:
-        a = np.sin(th) / th
-        b = (1.0 - np.cos(th)) / th2
-    e00 = 1.0 - b * (w1 * w1 + w2 * w2)
-    e11 = 1.0 - b * (w0 * w0 + w2 * w2)
-    e22 = 1.0 - b * (w0 * w0 + w1 * w1)
-    e01 = -a * w2 + b * w0 * w1
-    e10 = a * w2 + b * w0 * w1
-    e02 = a * w1 + b * w0 * w2
-    e20 = -a * w1 + b * w0 * w2
-    e12 = -a * w0 + b * w1 * w2
-    e21 = a * w0 + b * w1 * w2
-    for j in range(3):
-        r0 = R[0, j]
-        r1 = R[1, j]
-        r2 = R[2, j]
-        R[0, j] = e00 * r0 + e01 * r1 + e02 * r2
-        R[1, j] = e10 * r0 + e11 * r1 + e12 * r2
-        R[2, j] = e20 * r0 + e21 * r1 + e22 * r2
-
-
-@njit(cache=True)
 def _envelope(cam, own, var, m):
     """first[i]: the first column of row i of H that can be non-zero (the
     lowest block a robot shares an observation with); Cholesky fills in
@@ -339,7 +310,7 @@ def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
             for i in range(N):
                 v = var[i]
                 if v >= 0:
-                    _so3_exp_left(delta[6 * v], delta[6 * v + 1], delta[6 * v + 2], Rn[i])
+                    so3_exp_left(delta[6 * v:6 * v + 3], Rs[i], Rn[i])
                     for k in range(3):
                         tn[i, k] += delta[6 * v + 3 + k]
             cn = team_cost(cam, own, pts, meas, Ks, ds, Rn, tn)
