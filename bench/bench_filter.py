@@ -68,17 +68,9 @@ def smoothed_errors(rig, seq) -> np.ndarray:
         tracker.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
     err = np.full(len(seq.frames), np.nan)
     hist = tracker.history
-    k = 0
-    while k < len(hist):
-        if hist[k] is None:
-            k += 1
-            continue
-        j = k
-        while j < len(hist) and hist[j] is not None:
-            j += 1
+    for k, j in tracker.segments():
         for i, s in zip(range(k, j), rts_smooth([h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]])):
             err[i] = s.pose.translation_error(seq.truth[i])
-        k = j
     return err
 
 

@@ -39,7 +39,7 @@ from ..errors import InputError, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .estimate import PairProblem
 from .pose import Pose
-from .refine import MODE_PIXEL, WS_SIZE, cholesky, residuals, so3_exp_left
+from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
            "iekf_update", "rts_smooth", "STATE_DIM"]
@@ -189,22 +189,6 @@ def cv_predict(R, t, vel, P, dt, q_ang, q_lin, R_out, t_out, P_out):
 
 
 @njit(cache=True)
-def _cho_solve(L, b, x):
-    """Solve (L L^T) x = b."""
-    n = L.shape[0]
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * x[k]
-        x[i] = s / L[i, i]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, n):
-            s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
-
-
-@njit(cache=True)
 def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_iter, R, t, vel, P, res_px):
     """Iterated EKF update of the prior ``(R0, t0, vel0, P0)`` with pixel
     observations (``side``/``pts``/``meas``/cameras as in
@@ -258,7 +242,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
             innov[k] = s
         if not cholesky(S, L):
             return np.inf, it
-        _cho_solve(L, innov, y)
+        cho_solve(L, innov, y)
         chi2 = 0.0
         for k in range(m):
             chi2 += innov[k] * y[k]
@@ -284,7 +268,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
     for i in range(STATE_DIM):
         for k in range(m):
             row[k] = PH[i, k]
-        _cho_solve(L, row, col)
+        cho_solve(L, row, col)
         for k in range(m):
             Kg[i, k] = col[k]
     A = np.eye(STATE_DIM)

@@ -224,18 +224,24 @@ def solve_spd(A, b, x):
     L = np.empty((n, n))
     if not cholesky(A, L):
         return False
-    y = np.empty(n)
+    cho_solve(L, b, x)
+    return True
+
+
+@njit(cache=True)
+def cho_solve(L, b, x):
+    """Solve ``(L L^T) x = b`` given the lower Cholesky factor ``L`` (``x`` may not alias ``b``)."""
+    n = L.shape[0]
     for i in range(n):
         s = b[i]
         for k in range(i):
-            s -= L[i, k] * y[k]
-        y[i] = s / L[i, i]
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
     for i in range(n - 1, -1, -1):
-        s = y[i]
+        s = x[i]
         for k in range(i + 1, n):
             s -= L[k, i] * x[k]
         x[i] = s / L[i, i]
-    return True
 
 
 @njit(cache=True)

@@ -180,6 +180,21 @@ class PairTracker:
         if self.history is not None:
             self.history.append(entry)
 
+    def segments(self) -> list[tuple[int, int]]:
+        """``(first, end)`` frame ranges of ``history`` in which the track ran
+        without a restart or loss (what a smoother may span)."""
+        out, k, hist = [], 0, self.history or []
+        while k < len(hist):
+            if hist[k] is None:
+                k += 1
+                continue
+            j = k
+            while j < len(hist) and hist[j] is not None:
+                j += 1
+            out.append((k, j))
+            k = j
+        return out
+
     def finish(self) -> None:
         """With ``smooth_lag``: replace each filtered row's pose and covariance
         by the fixed-lag smoothed ones (the frame and the ``smooth_lag``
@@ -189,14 +204,7 @@ class PairTracker:
         if not lag or not self.history:
             return
         hist = self.history
-        k = 0
-        while k < len(hist):
-            if hist[k] is None:
-                k += 1
-                continue
-            j = k
-            while j < len(hist) and hist[j] is not None:
-                j += 1
+        for k, j in self.segments():
             priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
             for i in range(j - k):
                 state = rts_smooth(priors[i:i + lag + 1], posts[i:i + lag + 1])[0]
@@ -206,7 +214,6 @@ class PairTracker:
                                            candidates=Pose.concatenate([state.pose]),
                                            extra=dict(row.estimate.extra, smooth_lag=lag,
                                                       velocity=state.velocity.tolist()))
-            k = j
 
     def _filtered_step(self, row: "TrackRow", state: FilterState) -> None:
         try:
