@@ -370,6 +370,46 @@ class ConstantVelocityFilter:
         return FilterUpdate(False, prior, test, np.empty(0, np.int64), all_rows, self.residuals(problem, prior.pose),
                             reason, iters)
 
+    def update_pose(self, pose: Pose, covariance: np.ndarray) -> FilterUpdate:
+        """Fold in a measured pose (e.g. a team's joint estimate of this
+        robot) with its 6x6 covariance (SPEC order), at the state's time.
+
+        Linear Kalman update with ``H = [I 0]`` on the error state; the
+        innovation is ``(log(R_z R^T), t_z - t)``.  Gated like
+        :meth:`update`: its Mahalanobis distance against the chi-square
+        quantile with 6 degrees of freedom; a failing pose leaves the
+        prediction (``accepted`` False).  ``used`` is ``[0]`` when accepted."""
+        from .geometry import so3_exp, so3_log
+
+        s = self._require()
+        C = np.asarray(covariance, dtype=float)
+        e = np.r_[so3_log(pose.R @ s.pose.R.T), pose.t - s.pose.t]
+        S = s.covariance[:6, :6] + C
+        L = np.empty((6, 6))
+        test_dof = 6
+        thr = chi2_quantile(self.confidence, test_dof) if self.confidence < 1.0 else math.inf
+        if not cholesky(0.5 * (S + S.T), L):
+            test = Consistency(math.inf, test_dof, self.confidence, thr)
+            return FilterUpdate(False, s, test, np.empty(0, np.int64), np.array([0]), np.empty(0),
+                                "the pose's covariance is not positive definite")
+        y = np.empty(6)
+        cho_solve(L, e, y)
+        test = Consistency(float(e @ y), test_dof, self.confidence, thr)
+        if test.passed is False:
+            return FilterUpdate(False, s, test, np.empty(0, np.int64), np.array([0]), np.empty(0),
+                                f"pose inconsistent with the track: chi2 {test.chi2:.1f} over 6 degrees of freedom, "
+                                f"above {thr:.1f} at {100 * self.confidence:g}%")
+        PH = s.covariance[:, :6]
+        Kg = np.linalg.solve(S, PH.T).T  # P H^T S^-1 (S symmetric)
+        dx = Kg @ e
+        A = np.eye(STATE_DIM)
+        A[:, :6] -= Kg
+        P = A @ s.covariance @ A.T + Kg @ C @ Kg.T  # Joseph form
+        new = FilterState(s.time, Pose(so3_exp(dx[:3]) @ s.pose.R, s.pose.t + dx[3:6]), s.velocity + dx[6:],
+                          0.5 * (P + P.T))
+        self.state = new
+        return FilterUpdate(True, new, test, np.array([0]), np.empty(0, np.int64), np.empty(0))
+
     def residuals(self, problem: PairProblem, pose: Pose) -> np.ndarray:
         """Each row's reprojection error (px) at ``pose`` (inf behind a camera)."""
         n = len(problem.side)

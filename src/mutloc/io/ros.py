@@ -95,38 +95,64 @@ def _fresh(path: PathLike, what: str) -> Path:
     return p
 
 
-def write_ros2_bag(path: PathLike, times: Sequence[float], poses: Pose, covariances: Sequence[np.ndarray],
-                   source: str, target: str) -> None:
-    """A rosbag2 folder (SQLite storage) with the pose and ``/tf`` topics."""
+#: One track's messages: (times, poses, covariances, source, target).
+Track = tuple[Sequence[float], Pose, Sequence[np.ndarray], str, str]
+
+
+def _all_tracks(times: Sequence[float] | None, poses: Pose | None, covariances: Sequence[np.ndarray] | None,
+                source: str | None, target: str | None, tracks: Sequence[Track] | None) -> list[Track]:
+    out = list(tracks or [])
+    if poses is not None:
+        out.insert(0, (times, poses, covariances, source, target))  # type: ignore[arg-type]
+    return out
+
+
+def _time_ordered(store: Any, tracks: Sequence[Track]) -> list[tuple[int, int, Any, Any]]:
+    """(time ns, track index, pose message, tf message) of every track, in time order."""
+    msgs = [(ns, k, pm, tf) for k, tr in enumerate(tracks) for ns, pm, tf in _messages(store, *tr)]
+    msgs.sort(key=lambda m: (m[0], m[1]))
+    return msgs
+
+
+def write_ros2_bag(path: PathLike, times: Sequence[float] | None = None, poses: Pose | None = None,
+                   covariances: Sequence[np.ndarray] | None = None, source: str | None = None,
+                   target: str | None = None, *, tracks: Sequence[Track] | None = None) -> None:
+    """A rosbag2 folder (SQLite storage) with the pose and ``/tf`` topics
+    (``tracks``: several robots' tracks, one pose topic each, one ``/tf``)."""
     from rosbags.rosbag2 import Writer
 
+    tracks = _all_tracks(times, poses, covariances, source, target, tracks)
     p = _fresh(path, "ROS 2 bag folder")
     store = _store()
     with Writer(p, version=8) as w:
-        cp = w.add_connection(pose_topic(source, target), POSE_TYPE, typestore=store)
+        cps = [w.add_connection(pose_topic(tr[3], tr[4]), POSE_TYPE, typestore=store) for tr in tracks]
         ct = w.add_connection(TF_TOPIC, TF_TYPE, typestore=store)
-        for ns, pmsg, tf in _messages(store, times, poses, covariances, source, target):
-            w.write(cp, ns, store.serialize_cdr(pmsg, POSE_TYPE))
+        for ns, k, pmsg, tf in _time_ordered(store, tracks):
+            w.write(cps[k], ns, store.serialize_cdr(pmsg, POSE_TYPE))
             w.write(ct, ns, store.serialize_cdr(tf, TF_TYPE))
 
 
-def write_mcap(path: PathLike, times: Sequence[float], poses: Pose, covariances: Sequence[np.ndarray],
-               source: str, target: str) -> None:
-    """An MCAP file (ROS 2 CDR messages with their ``ros2msg`` schemas)."""
+def write_mcap(path: PathLike, times: Sequence[float] | None = None, poses: Pose | None = None,
+               covariances: Sequence[np.ndarray] | None = None, source: str | None = None,
+               target: str | None = None, *, tracks: Sequence[Track] | None = None) -> None:
+    """An MCAP file (ROS 2 CDR messages with their ``ros2msg`` schemas); ``tracks`` as :func:`write_ros2_bag`."""
     from mcap.writer import Writer
 
+    tracks = _all_tracks(times, poses, covariances, source, target, tracks)
     p = _fresh(path, "MCAP file")
     store = _store()
     with open(p, "wb") as f:
         w = Writer(f)
         w.start(profile="ros2", library="mutloc")
-        chans = {}
-        for topic, typ in ((pose_topic(source, target), POSE_TYPE), (TF_TOPIC, TF_TYPE)):
+        schemas = {}
+        for typ in (POSE_TYPE, TF_TYPE):
             text, _ = store.generate_msgdef(typ, ros_version=2)
-            schema = w.register_schema(name=typ, encoding="ros2msg", data=text.encode())
-            chans[typ] = w.register_channel(topic=topic, message_encoding="cdr", schema_id=schema)
-        for seq, (ns, pmsg, tf) in enumerate(_messages(store, times, poses, covariances, source, target)):
-            for typ, msg in ((POSE_TYPE, pmsg), (TF_TYPE, tf)):
-                w.add_message(chans[typ], log_time=ns, publish_time=ns, sequence=seq,
+            schemas[typ] = w.register_schema(name=typ, encoding="ros2msg", data=text.encode())
+        pose_chans = [w.register_channel(topic=pose_topic(tr[3], tr[4]), message_encoding="cdr",
+                                         schema_id=schemas[POSE_TYPE]) for tr in tracks]
+        tf_chan = w.register_channel(topic=TF_TOPIC, message_encoding="cdr", schema_id=schemas[TF_TYPE])
+        for seq, (ns, k, pmsg, tf) in enumerate(_time_ordered(store, tracks)):
+            for chan, typ, msg in ((pose_chans[k], POSE_TYPE, pmsg), (tf_chan, TF_TYPE, tf)):
+                w.add_message(chan, log_time=ns, publish_time=ns, sequence=seq,
                               data=bytes(store.serialize_cdr(msg, typ)))
         w.finish()

@@ -163,3 +163,44 @@ def chain_team(n: int, rng: np.random.Generator, *, spacing: float = 1.5, focal:
     if skip:
         links |= {(names[i], names[i + 2]) for i in range(n - 2)}
     return TeamScene(team_rig(names, focal=focal, size=size), world, links)
+
+
+def team_motion(scene: TeamScene, *, amplitude: float = 0.25, yaw_deg: float = 8.0, period: float = 6.0,
+                seed: int = 0):
+    """``T_world_r(t)`` for every robot of ``scene``: each sways about its
+    place in the scene on a smooth loop (``amplitude`` metres, its own phase)
+    and turns its heading by up to ``yaw_deg``; periodic in ``period`` s.
+    Returns a function ``t -> {robot: Pose}`` (at t = 0 the scene's poses
+    moved by the loop's start)."""
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 515])
+    phases = {n: rng.uniform(0, 2 * np.pi, 3) for n in scene.names}
+    w = 2 * np.pi / period
+
+    def at(t: float) -> dict[str, Pose]:
+        out = {}
+        for n, T in scene.world.items():
+            a, b, c = phases[n]
+            d = amplitude * np.array([np.sin(w * t + a), 0.0, 0.6 * np.sin(2 * w * t + b)])
+            yaw = np.radians(yaw_deg) * np.sin(w * t + c)
+            turn = so3_exp([0.0, yaw, 0.0])
+            out[n] = Pose(turn @ T.R, T.t + d)
+        return out
+
+    return at
+
+
+def team_sequence(scene: TeamScene, frames: int, fps: float, *, sigma: float = 0.0, seed: int = 0,
+                  **motion) -> list[tuple[float, TeamScene, ObservationSet]]:
+    """``frames`` snapshots of ``scene`` moving by :func:`team_motion`
+    (``motion``: its keywords): per frame the time, the scene at that time
+    (same rig and links) and its observations with ``sigma`` px noise,
+    stamped with the time."""
+    at = team_motion(scene, seed=seed, **motion)
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 516])
+    out = []
+    for i in range(frames):
+        t = i / fps
+        snap = TeamScene(scene.rig, at(t), scene.links, scene.max_range, dict(scene.extra))
+        obs = snap.observations(sigma, rng)
+        out.append((t, snap, ObservationSet.trusted(obs.observer, obs.marker, obs.uv, time=t)))
+    return out

@@ -37,7 +37,7 @@ from .status import FrameStatus
 if TYPE_CHECKING:
     from .tracker import TrackRow
 
-__all__ = ["FILTERS", "FilterOptions", "PairTracker", "solve_row"]
+__all__ = ["FILTERS", "FilterOptions", "PairTracker", "solve_row", "lost_reason", "pair_problem"]
 
 #: ``--filter`` choices: the constant-velocity filter, or every frame on its own.
 FILTERS = ("cv", "none")
@@ -293,23 +293,11 @@ class PairTracker:
         return obs.take(np.array(sorted(i for _, i in best.values()), dtype=np.int64))
 
     def _lost(self, state: FilterState) -> str:
-        d = np.diag(state.covariance)
-        st = math.sqrt(max(d[3:6].max(), 0.0))
-        sr = math.degrees(math.sqrt(max(d[0:3].max(), 0.0)))
-        o = self.options
-        if st > o.lost_sigma_t or sr > o.lost_sigma_r_deg:
-            return (f"predicted sigma {st:.2f} m / {sr:.1f} deg beyond {o.lost_sigma_t:g} m / "
-                    f"{o.lost_sigma_r_deg:g} deg")
-        return ""
+        return lost_reason(state, self.options)
 
     def problem(self, pair: PairObservations) -> PairProblem:
         """The named observations of a frame in the filter's form (labels "p saw M1")."""
-        table = pair.table
-        obs = pair.parent
-        rows = pair.rows
-        labels = [f"{obs.observer[r]} saw {obs.marker[r]}" for r in rows.tolist()]
-        return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), None,
-                                   np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels)
+        return pair_problem(pair)
 
     def _estimate(self, state: FilterState, markers: list[str], rms: float, test: Any) -> Estimate:
         return Estimate(source=self.source, target=self.target, pose=state.pose,
@@ -317,6 +305,29 @@ class PairTracker:
                         reprojection_rms_px=float(rms), markers_used=markers,
                         candidates=Pose.concatenate([state.pose]), consistency=test,
                         extra={"velocity": state.velocity.tolist(), "filter": self.options.kind})
+
+
+def pair_problem(pair: PairObservations) -> PairProblem:
+    """The named observations of a pair in the filter's form (labels "p saw M1")."""
+    table = pair.table
+    obs = pair.parent
+    rows = pair.rows
+    labels = [f"{obs.observer[r]} saw {obs.marker[r]}" for r in rows.tolist()]
+    return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), None,
+                               np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels)
+
+
+def lost_reason(state: FilterState, options: FilterOptions) -> str:
+    """Why a predicted state has lost its track (its 1-sigma beyond the
+    options' limits), or "" while it holds."""
+    d = np.diag(state.covariance)
+    st = math.sqrt(max(d[3:6].max(), 0.0))
+    sr = math.degrees(math.sqrt(max(d[0:3].max(), 0.0)))
+    o = options
+    if st > o.lost_sigma_t or sr > o.lost_sigma_r_deg:
+        return (f"predicted sigma {st:.2f} m / {sr:.1f} deg beyond {o.lost_sigma_t:g} m / "
+                f"{o.lost_sigma_r_deg:g} deg")
+    return ""
 
 
 def _marker_of(label: str) -> str:

@@ -31,7 +31,7 @@ from .sources import Frame
 from .status import FrameStatus
 
 __all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "check_streams", "frame_rate", "DEFAULT_FPS",
-           "CSV_EXTRA"]
+           "CSV_EXTRA", "ObserverDetector"]
 
 #: Frame rate assumed when neither the caller nor the streams say.
 DEFAULT_FPS = 30.0
@@ -182,11 +182,13 @@ def pair_streams(a: Iterator[Frame], b: Iterator[Frame], tolerance: float) -> It
 
 
 class _Detector:
-    """Per-observer detection, keeping blinking-light trackers across frames."""
+    """Per-observer detection, keeping blinking-light trackers across frames.
+    ``other``: the robot (or, for a team, the robots) whose markers are looked for."""
 
-    def __init__(self, rig: Rig, observer: str, other: str, fps: float):
-        self.rig, self.observer, self.other = rig, observer, other
-        markers = rig.robot(other).markers
+    def __init__(self, rig: Rig, observer: str, other: str | list[str], fps: float):
+        self.rig, self.observer = rig, observer
+        self.others = [other] if isinstance(other, str) else list(other)
+        markers = {n: m for o in self.others for n, m in rig.robot(o).markers.items()}
         self.blink = None
         lights = {n: m for n, m in markers.items() if m.kind == MarkerKind.LIGHT}
         if lights:
@@ -202,11 +204,15 @@ class _Detector:
             self.last_blink = self.blink.update(frame.image, frame.t)
 
     def detect(self, frame: Frame) -> DetectionResult:
-        res = detect_markers(self.rig, self.observer, frame.image, targets=[self.other])
+        res = detect_markers(self.rig, self.observer, frame.image, targets=self.others)
         if self.last_blink is not None:
             res.detections.update(self.last_blink.detections)
             res.missing = [m for m in res.missing if m not in self.last_blink.detections]
         return res
+
+
+#: Public name of the per-observer detector (teams use it with several robots to look for).
+ObserverDetector = _Detector
 
 
 def frame_rate(streams: Mapping[str, Any], fps: float | None) -> float | None:
