@@ -65,9 +65,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="focal length in pixels (default 800)")
     p.add_argument("--no-room", action="store_true", help="robots on a black background, no room")
     p.add_argument("--robots", type=int_in_range(2, 64, "--robots"), default=2, metavar="N",
-                   help="more than 2: a team of N robots r0..rN-1 in a room, four coloured balls each (every "
-                        "ball its own colour); writes rig.yaml, observations.json, truth.json (every robot's "
-                        "pose in r0's frame) and one image per robot (single frame, balls only)")
+                   help="more than 2: a team of N robots r0..rN-1 in a room, with --markers balls (four coloured "
+                        "balls each, every ball its own colour) or tags (two AprilTags each, distinct ids); writes "
+                        "rig.yaml, truth.json (every robot's pose in r0's frame) and one image per robot "
+                        "(r0.png ... and observations.json; with --frames a sequence: r0/ ... folders, frames.csv "
+                        "and truth_NAME.tum per robot)")
     p.add_argument("--no-images", dest="images", action="store_false",
                    help="with --robots: geometry only (rig, observations, truth), no rendering")
     return p
@@ -78,11 +80,12 @@ def run(args: argparse.Namespace) -> int:
     from ..sim.scenario import write_simulation, write_team_simulation
 
     if args.robots > 2:
-        if args.frames != 1 or args.markers != "balls":
+        if args.markers not in ("balls", "tags"):
             from ..errors import InputError
 
-            raise InputError("--robots: a single frame of coloured balls (no --frames/--markers) for now")
-        print(write_team_simulation(args.out, robots=args.robots, seed=args.seed, noise=args.noise, jpeg=args.jpeg,
+            raise InputError("--robots: a team carries balls or tags (--markers balls|tags)")
+        print(write_team_simulation(args.out, robots=args.robots, markers=args.markers, frames=args.frames,
+                                    fps=args.fps, seed=args.seed, noise=args.noise, jpeg=args.jpeg,
                                     size=args.size, focal=args.focal, k1=args.k1, room=not args.no_room,
                                     images=args.images, progress=args.progress))
         return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import NOISE, PAIR, PROGRESS, RIG, int_in_range, positive_float, robot_map, robot_value
+from ._common import NOISE, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map, robot_value, team_mode
 
 ORDER = 30
 
@@ -12,11 +12,13 @@ ORDER = 30
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``track``."""
     p = subparsers.add_parser(
-        "track", parents=[RIG, PAIR, NOISE, PROGRESS],
+        "track", parents=[RIG, PAIR, TEAM, NOISE, PROGRESS],
         help="relative pose over time from two videos, image folders, a ROS bag or an observation log",
         description="Pair two image streams by timestamp, detect the markers in each pair and localize "
         "(or localize every frame of an observation log); writes the trajectory as TUM and CSV (every "
-        "frame with its status and reason).",
+        "frame with its status and reason). With more than two robots (and no --source/--target) or "
+        "--reference: one stream per robot, each frame localized jointly, and one trajectory_NAME.csv/.tum "
+        "per robot in the reference's frame.",
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--stream", action="append", type=robot_value, metavar="ROBOT=PATH",
@@ -72,12 +74,14 @@ def run(args: argparse.Namespace) -> int:
             raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
     rig = load_rig(args.rig)
     out = Path(args.out)
-    if args.frames == "base":
+    if args.frames == "base" and not team_mode(rig, args):
         for robot in rig.default_pair(args.source, args.target):
             if rig.robot(robot).base_from_camera is None:
                 raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
     options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
                             smooth_lag=args.smooth_lag)
+    if team_mode(rig, args):
+        return _run_team(args, rig, options, out)
     if args.observations:
         traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
                          pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
@@ -109,3 +113,37 @@ def _write(traj, out, args, rig) -> None:
         traj.write_ros(bag=args.bag, mcap=args.mcap)
         wrote += [p for p in (args.bag, args.mcap) if p]
     print(f"{traj.summary()}; wrote {', '.join(wrote)}")
+
+
+def _run_team(args, rig, options, out) -> int:
+    """A team: one stream per robot (or a log), one trajectory per robot."""
+    from ..errors import InputError
+    from ..io.logs import iter_observation_log
+    from ..track.sources import open_streams, rig_with_bag_cameras
+    from ..track.team import track_team, track_team_log
+
+    for flag, value in (("--frames base", args.frames == "base"), ("--annotate", args.annotate),
+                        ("--rerun", args.rerun)):
+        if value:
+            raise InputError(f"{flag} is not available for a team track yet (pairs only)")
+    if args.observations:
+        traj = track_team_log(rig, iter_observation_log(args.observations), args.reference,
+                              pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
+                              filter=options)
+    else:
+        paths = robot_map(args.stream, "--stream")
+        for robot in paths:
+            rig.robot(robot)
+        infos = robot_map(args.camera_info, "--camera-info")
+        if infos:
+            rig = rig_with_bag_cameras(rig, paths, infos)
+        traj = track_team(rig, open_streams(paths, fps=args.fps, topics=robot_map(args.topic, "--topic")),
+                          args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
+                          confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
+                          progress=args.progress, filter=options)
+    wrote = [str(p) for p in traj.write(out)]
+    if args.bag or args.mcap:
+        traj.write_ros(bag=args.bag, mcap=args.mcap)
+        wrote += [p for p in (args.bag, args.mcap) if p]
+    print(f"reference {traj.reference}; {traj.summary()}; wrote {', '.join(wrote)}")
+    return 0

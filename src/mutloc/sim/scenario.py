@@ -125,54 +125,108 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
 _Y_DOWN_TO_Z_UP = Pose(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]), np.zeros(3))
 
 
-def write_team_simulation(out: str | Path, *, robots: int, seed: int = 0, noise: float = 1.0,
-                          jpeg: int | None = None, size: tuple[int, int] = (960, 540), focal: float = 800.0,
-                          k1: float = 0.0, room: bool = True, images: bool = True, progress: bool = False) -> str:
-    """A team of ``robots`` robots in a room (:func:`mutloc.sim.team.random_team`),
-    each with four coloured balls around its camera, every ball its own
-    colour; returns a one-line summary.
+def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls", frames: int = 1,
+                          fps: float = 30.0, seed: int = 0, noise: float = 1.0, jpeg: int | None = None,
+                          size: tuple[int, int] = (960, 540), focal: float = 800.0, k1: float = 0.0,
+                          room: bool = True, images: bool = True, progress: bool = False) -> str:
+    """A team of ``robots`` robots in a room (:func:`mutloc.sim.team.random_team`)
+    carrying ``markers``: "balls" (four coloured balls each, every ball its
+    own colour) or "tags" (two printed AprilTags each, distinct ids; the
+    rig gives their corners); returns a one-line summary.
 
-    Files: ``rig.yaml``; ``observations.json`` (exact pixels of every ball
-    centre a camera sees unhidden, SPEC observations form); ``truth.json``
-    (``reference`` r0 and ``robots``: each robot's ``T_ref_r`` as
-    ``{R, t, quaternion_xyzw}``, plus ``observations`` and ``hidden``); with
-    ``images``, one rendered image per robot (``r0.png``, ...).
+    One frame (``frames == 1``): ``rig.yaml``; ``observations.json`` (exact
+    pixels of every marker centre a camera sees unhidden, SPEC observations
+    form); ``truth.json`` (``reference`` r0 and ``robots``: each robot's
+    ``T_ref_r`` as ``{R, t, quaternion_xyzw}``, plus ``observations`` and
+    ``hidden``); with ``images``, one rendered image per robot (``r0.png``, ...).
+
+    A sequence (``frames > 1``, every robot swaying on its own loop,
+    :func:`mutloc.sim.team.team_motion`): ``NAME/NNNNNN.png`` per robot,
+    ``frames.csv``, ``truth.json`` with per frame ``robots`` (as above) and
+    ``observations``, and ``truth_NAME.tum`` per robot but the reference
+    (its pose in r0's frame): what ``mutloc track`` writes as
+    ``trajectory_NAME.tum``.
     """
     from .render import project_markers, render, room_around
-    from .team import random_team
+    from .team import TEAM_KINDS, random_team, team_motion
     from .world import World, WorldRobot
 
     if robots < 2:
         raise InputError(f"a team needs at least two robots, got {robots}")
+    if markers not in TEAM_KINDS:
+        raise InputError(f"a simulated team carries {' or '.join(TEAM_KINDS)}, not {markers!r}")
+    if frames < 1 or not (fps > 0 and np.isfinite(fps)):
+        raise InputError(f"frames must be >= 1 and fps a finite number > 0, got {frames}, {fps}")
     out_dir = Path(out).expanduser()
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"output folder {str(out)!r} exists and is not a folder")
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 4242])
-    scene = random_team(robots, rng, focal=focal, size=size, k1=k1, one_way=0.0, radius=0.6 * robots ** 0.5 + 1.0)
+    # tags face forward only and must be read: the robots closer, looking nearly at the team's centre
+    tags = markers == "tags"
+    scene = random_team(robots, rng, focal=focal, size=size, k1=k1, one_way=0.0,
+                        radius=(0.4 * robots ** 0.5 + 0.6) if tags else (0.6 * robots ** 0.5 + 1.0),
+                        kind=markers, yaw_jitter_deg=10.0 if tags else 30.0)
     names = scene.names
-    world_poses = {n: _Y_DOWN_TO_Z_UP @ T for n, T in scene.world.items()}
-    rm = room_around([T.t for T in world_poses.values()], seed) if room else None
-    world = World(robots={n: WorldRobot(scene.rig.robot(n), world_poses[n]) for n in names}, room=rm)
+    sequence = frames > 1
+    motion = team_motion(scene, seed=seed) if sequence else (lambda t: scene.world)
+
+    def pose_fn(n: str):
+        return lambda t: _Y_DOWN_TO_Z_UP @ motion(t)[n]
+
+    starts = [_Y_DOWN_TO_Z_UP.apply(T.t) for T in scene.world.values()]
+    rm = room_around(starts, seed) if room else None
+    world = World(robots={n: WorldRobot(scene.rig.robot(n), pose_fn(n)) for n in names}, room=rm)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_rig(scene.rig, out_dir / "rig.yaml")
-    obs, hidden = {}, {}
-    for n in names:
-        allm = project_markers(world, n)
-        seen = project_markers(world, n, check_occlusion=True)
-        if seen:
-            obs[n] = {m: list(uv) for m, uv in seen.items()}
-        hidden[n] = sorted(set(allm) - set(seen))
-    files = ["rig.yaml", "observations.json", "truth.json"]
-    if images:
-        for n in tqdm(names, desc="rendering", unit="robot", disable=not progress):
-            img = render(world, n, 0.0, seed=seed, noise_sigma=noise, jpeg_quality=jpeg)
-            if not cv2.imwrite(str(out_dir / f"{n}.png"), img):
-                raise OSError(f"{out_dir / n}.png: cannot write image")
-        files.append(f"{names[0]}.png ... {names[-1]}.png")
-    truth = scene.truth(names[0])
-    write_json(obs, out_dir / "observations.json")
-    write_json({"reference": names[0], "robots": {n: truth[n].to_dict() for n in names[1:]}, "seed": seed,
-                "noise_sigma": noise, "jpeg_quality": jpeg, "observations": obs, "hidden": hidden},
+    if sequence and images:
+        for n in names:
+            (out_dir / n).mkdir(exist_ok=True)
+    truth_frames = []
+    poses: list[dict[str, Pose]] = []
+    bar = tqdm(range(frames), desc="rendering", unit="frame", disable=not progress)
+    for i in bar:
+        t = i / fps if sequence else 0.0
+        obs, hidden = {}, {}
+        for n in names:
+            allm = project_markers(world, n, t)
+            seen = project_markers(world, n, t, check_occlusion=True)
+            if seen:
+                obs[n] = {m: list(uv) for m, uv in seen.items()}
+            hidden[n] = sorted(set(allm) - set(seen))
+        if images:
+            for n in names:
+                img = render(world, n, t, seed=seed + i, noise_sigma=noise, jpeg_quality=jpeg)
+                rel = f"{n}/{i:06d}.png" if sequence else f"{n}.png"
+                if not cv2.imwrite(str(out_dir / rel), img):
+                    raise OSError(f"{out_dir / rel}: cannot write image")
+        ref = world.pose(names[0], t).inverse()
+        poses.append({n: ref @ world.pose(n, t) for n in names[1:]})
+        truth_frames.append({"frame": i, "timestamp": t, "robots": {n: T.to_dict() for n, T in poses[-1].items()},
+                             "observations": obs, "hidden": hidden})
+    files = ["rig.yaml", "truth.json"]
+    common = {"reference": names[0], "markers": markers, "seed": seed, "noise_sigma": noise, "jpeg_quality": jpeg}
+    if sequence:
+        write_json({**common, "frames_count": frames, "fps": fps, "frames": truth_frames}, out_dir / "truth.json")
+        with open(out_dir / "frames.csv", "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(["frame", "timestamp"])
+            for fr in truth_frames:
+                w.writerow([fr["frame"], f"{fr['timestamp']:.9f}"])
+        stamps = [fr["timestamp"] for fr in truth_frames]
+        for n in names[1:]:
+            write_tum(out_dir / f"truth_{n}.tum", stamps,
+                      Pose.concatenate([p[n] for p in poses]),
+                      comment=f"timestamp tx ty tz qx qy qz qw  (pose of {n} in {names[0]}'s camera frame)")
+        files += ["frames.csv", f"truth_{names[1]}.tum ..."] + ([f"{names[0]}/ ... {names[-1]}/"] if images else [])
+        n_obs = sum(len(v) for fr in truth_frames for v in fr["observations"].values())
+        return (f"wrote {frames} frames of a team of {robots} robots ({markers}, {n_obs} marker observations) "
+                f"to {out_dir}: {', '.join(files)}")
+    fr = truth_frames[0]
+    write_json(fr["observations"], out_dir / "observations.json")
+    write_json({**common, "robots": fr["robots"], "observations": fr["observations"], "hidden": fr["hidden"]},
                out_dir / "truth.json")
-    n_obs = sum(len(v) for v in obs.values())
-    return f"wrote a team of {robots} robots ({n_obs} marker observations) to {out_dir}: {', '.join(files)}"
+    files.append("observations.json")
+    if images:
+        files.append(f"{names[0]}.png ... {names[-1]}.png")
+    n_obs = sum(len(v) for v in fr["observations"].values())
+    return f"wrote a team of {robots} robots ({markers}, {n_obs} marker observations) to {out_dir}: {', '.join(files)}"

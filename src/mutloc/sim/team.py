@@ -19,7 +19,8 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Marker, Rig, Robot
 
-__all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "level_pose", "MARKER_RING"]
+__all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "level_pose", "MARKER_RING",
+           "TAG_LAYOUT", "TEAM_KINDS", "team_motion", "team_sequence"]
 
 # Markers on each robot (its own camera frame, metres): four balls above and
 # beside the camera, not coplanar, seen from any side, never in its own view.
@@ -39,10 +40,27 @@ def _colour(i: int, n: int) -> tuple[int, int, int]:
     return int(round(255 * r)), int(round(255 * g)), int(round(255 * b))
 
 
+# Printed tags of a team robot (kind "tags"): two cards left and right of
+# the camera, facing forward (tag36h11, ids 2i and 2i+1 on robot i).
+TAG_LAYOUT = np.array([[-0.16, -0.08, -0.03], [0.16, -0.08, -0.03]])
+TAG_SIZE = 0.15
+#: Marker kinds a simulated team can carry.
+TEAM_KINDS = ("balls", "tags")
+
+
 def team_rig(names: list[str], *, focal: float = 500.0, size: tuple[int, int] = (960, 540),
-             markers: np.ndarray = MARKER_RING, k1: float = 0.0) -> Rig:
+             markers: np.ndarray | None = None, k1: float = 0.0, kind: str = "balls") -> Rig:
     """A rig of identical robots (camera ``focal``/``size``, markers
-    ``markers`` named ``NAME_mK``, each with its own colour)."""
+    ``markers`` named ``NAME_mK``): ``kind`` "balls", each ball its own
+    colour (positions :data:`MARKER_RING`), or "tags", printed AprilTags
+    with distinct ids and their corners as the rig's points (positions
+    :data:`TAG_LAYOUT`, side :data:`TAG_SIZE`)."""
+    if kind not in TEAM_KINDS:
+        from ..errors import InputError
+
+        raise InputError(f"a simulated team carries one of {', '.join(TEAM_KINDS)}, not {kind!r}")
+    if markers is None:
+        markers = MARKER_RING if kind == "balls" else TAG_LAYOUT
     w, h = size
     K = np.array([[focal, 0.0, (w - 1) / 2], [0.0, focal, (h - 1) / 2], [0.0, 0.0, 1.0]])
     total = len(names) * len(markers)
@@ -51,7 +69,12 @@ def team_rig(names: list[str], *, focal: float = 500.0, size: tuple[int, int] = 
         ms = {}
         for k, p in enumerate(markers):
             mname = f"{n}_m{k}"
-            ms[mname] = Marker(mname, n, np.asarray(p, float), color=_colour(i * len(markers) + k, total))
+            if kind == "balls":
+                ms[mname] = Marker(mname, n, np.asarray(p, float), color=_colour(i * len(markers) + k, total))
+            else:
+                tag = {"family": "tag36h11", "id": i * len(markers) + k, "size": TAG_SIZE,
+                       "rotation": [0.0, float(np.pi), 0.0]}  # facing forward, as sim.world's default
+                ms[mname] = Marker(mname, n, np.asarray(p, float), tag=tag)
         robots[n] = Robot(n, Camera(K, [k1, 0.0, 0.0, 0.0, 0.0], size), ms)
     return Rig(robots)
 
@@ -117,7 +140,8 @@ def level_pose(position: np.ndarray, yaw: float, tilt: np.ndarray) -> Pose:
 
 
 def random_team(n: int, rng: np.random.Generator, *, radius: float = 2.5, one_way: float = 0.3, focal: float = 500.0,
-                size: tuple[int, int] = (960, 540), yaw_jitter_deg: float = 30.0, k1: float = 0.0) -> TeamScene:
+                size: tuple[int, int] = (960, 540), yaw_jitter_deg: float = 30.0, k1: float = 0.0,
+                kind: str = "balls") -> TeamScene:
     """``n`` robots at random in a disc of ``radius`` metres, each looking
     roughly at the team's centre (+- ``yaw_jitter_deg``), camera heights and
     tilts a little different; of every pair that sees each other both ways,
@@ -138,7 +162,7 @@ def random_team(n: int, rng: np.random.Generator, *, radius: float = 2.5, one_wa
         d = centre - p
         yaw = np.arctan2(d[0], d[2]) + np.radians(rng.uniform(-yaw_jitter_deg, yaw_jitter_deg))
         world[name] = level_pose(p, yaw, rng.normal(0.0, 0.05, 3))
-    scene = TeamScene(team_rig(names, focal=focal, size=size, k1=k1), world)
+    scene = TeamScene(team_rig(names, focal=focal, size=size, k1=k1, kind=kind), world)
     seen = {(a, m.rsplit("_m", 1)[0]) for a, m, _ in scene.visible()}
     links = set(seen)
     for a, b in sorted(seen):
