@@ -120,7 +120,7 @@ def _run_team(args, rig, options, out) -> int:
     from ..errors import InputError
     from ..io.logs import iter_observation_log
     from ..track.sources import open_streams, rig_with_bag_cameras
-    from ..track.team import track_team, track_team_log
+    from ..track.team import require_streams, track_team, track_team_log
 
     for flag, value in (("--frames base", args.frames == "base"), ("--annotate", args.annotate),
                         ("--rerun", args.rerun)):
@@ -132,8 +132,7 @@ def _run_team(args, rig, options, out) -> int:
                               filter=options)
     else:
         paths = robot_map(args.stream, "--stream")
-        for robot in paths:
-            rig.robot(robot)
+        require_streams(rig, paths)
         infos = robot_map(args.camera_info, "--camera-info")
         if infos:
             rig = rig_with_bag_cameras(rig, paths, infos)

@@ -54,7 +54,8 @@ from .sources import Frame
 from .status import FrameStatus
 from .tracker import DEFAULT_FPS, ObserverDetector, TrackRow, Trajectory, frame_rate
 
-__all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names"]
+__all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names",
+           "require_streams"]
 
 
 def team_file_names(robot: str) -> tuple[str, str]:
@@ -304,7 +305,7 @@ class TeamTracker:
                 continue
             problem = pair_problem(pair)
             A = team.poses[s].inverse()  # T_s_ref
-            f.state = _moved(f.state, A)
+            f.state = _moved(f.state, A, None if s == self.reference else team.relative(self.reference, s).covariance)
             upd = f.update(problem)
             f.state = _moved(f.state, A.inverse())
             if upd.accepted:
@@ -352,12 +353,21 @@ class TeamTracker:
                                      f"{self.reference!r} (three are needed)")
 
 
-def _moved(state: FilterState, A: Pose) -> FilterState:
-    """The state of ``T`` as the state of ``A @ T`` (A exact): pose, velocity
-    and the error state's covariance rotated into A's frame."""
+def _moved(state: FilterState, A: Pose, cov_A: np.ndarray | None = None) -> FilterState:
+    """The state of ``T`` as the state of ``A @ T``: pose, velocity and the
+    error state's covariance rotated into A's frame, plus (first order) A's
+    own covariance ``cov_A`` (SPEC order) on the pose block.  That addition
+    stays in the state when it is moved back (``cov_A`` None): conservative,
+    since A's error is not tracked."""
     G = np.kron(np.eye(4), A.R)
-    return FilterState(state.time, A @ state.pose, np.r_[A.R @ state.velocity[:3], A.R @ state.velocity[3:]],
-                       G @ state.covariance @ G.T)
+    P = G @ state.covariance @ G.T
+    pose = A @ state.pose
+    if cov_A is not None:
+        J = np.eye(6)
+        tx = pose.t - A.t  # = R_A t: translation of the moved pose by A's rotation
+        J[3:, :3] = -np.array([[0.0, -tx[2], tx[1]], [tx[2], 0.0, -tx[0]], [-tx[1], tx[0], 0.0]])
+        P[:6, :6] += J @ cov_A @ J.T
+    return FilterState(state.time, pose, np.r_[A.R @ state.velocity[:3], A.R @ state.velocity[3:]], P)
 
 
 def _dropped(team: TeamEstimate) -> str:
@@ -397,6 +407,17 @@ def _team_setup(rig: Any, reference: str | None, names: Iterable[str], what: str
     return rig, reference if reference is not None else next(iter(rig.robots))
 
 
+def require_streams(rig: Rig, names: Iterable[str]) -> None:
+    """ObservationError unless every name is a robot of the rig and every robot has a stream."""
+    names = list(names)
+    for robot in names:
+        rig.robot(robot)
+    missing = [r for r in rig.robots if r not in names]
+    if missing:
+        raise ObservationError(f"no stream for robot{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
+                               "(a team track needs one stream per robot of the rig)")
+
+
 def track_team_log(rig: Any, frames: Iterable[tuple[float, ObservationSet]], reference: str | None = None, *,
                    pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, progress: bool = True,
                    total: int | None = None, filter: str | FilterOptions = "cv") -> TeamTrajectory:
@@ -420,10 +441,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
     (:func:`sync_streams`); each robot's image is searched for every other
     robot's markers and the group localized jointly (see the module docstring)."""
     rig, reference = _team_setup(rig, reference, streams, "stream")
-    missing = [r for r in rig.robots if r not in streams]
-    if missing:
-        raise ObservationError(f"no stream for robot{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
-                               "(a team track needs one stream per robot of the rig)")
+    require_streams(rig, streams)
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
     rate = frame_rate(streams, fps)
     dets = {r: ObserverDetector(rig, r, [o for o in rig.robots if o != r], rate or DEFAULT_FPS) for r in rig.robots}

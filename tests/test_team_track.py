@@ -1,0 +1,253 @@
+"""Team tracking (``mutloc track`` with more than two robots): one filtered
+trajectory per robot in the reference's frame, against the simulated truth
+(synthetic observation logs and a rendered sequence of robots carrying tags)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from mutloc.cli.main import main
+from mutloc.core.filter import ConstantVelocityFilter, MotionNoise
+from mutloc.core.geometry import so3_exp, so3_log
+from mutloc.core.observations import ObservationSet
+from mutloc.core.pose import Pose
+from mutloc.errors import InputError, ObservationError
+from mutloc.io import save_rig
+from mutloc.io.logs import write_observation_log
+from mutloc.io.trajectory import read_trajectory_csv, read_tum
+from mutloc.sim.team import random_team, team_sequence
+from mutloc.track.filtering import FilterOptions
+from mutloc.track.sources import Frame
+from mutloc.track.team import TeamTracker, sync_streams, track_team, track_team_log
+
+
+def _err(row_pose: Pose, truth: Pose, cov: np.ndarray) -> tuple[float, float]:
+    """(translation error m, NEES) of an estimate against the truth (SPEC perturbation)."""
+    e = np.r_[so3_log(truth.R @ row_pose.R.T), truth.t - row_pose.t]
+    return float(np.linalg.norm(e[3:])), float(e @ np.linalg.solve(cov, e))
+
+
+@pytest.fixture(scope="module")
+def team_log():
+    """Four robots (some pairs seen one way), 3 s at 30 fps, sigma = 1 px."""
+    scene = random_team(4, np.random.default_rng(3), one_way=0.3)
+    return scene, team_sequence(scene, 90, 30.0, sigma=1.0, seed=1)
+
+
+def _track(scene, seq, **kw):
+    return track_team_log(scene.rig, [(t, o) for t, _, o in seq], progress=False, **kw)
+
+
+def test_log_filtered_beats_per_frame_and_sigmas_are_calibrated(team_log):
+    scene, seq = team_log
+    filtered = _track(scene, seq)
+    raw = _track(scene, seq, filter="none")
+    assert filtered.reference == "r0" and filtered.robots == ["r1", "r2", "r3"]
+    e_f, e_r, nees, statuses = [], [], [], []
+    for r in filtered.robots:
+        assert len(filtered.tracks[r].rows) == len(raw.tracks[r].rows) == len(seq)
+        for (t, snap, _), rf, rr in zip(seq, filtered.tracks[r].rows, raw.tracks[r].rows):
+            truth = snap.truth()[r]
+            assert rf.t == t and rr.status.value == "solved"
+            statuses.append(rf.status.value)
+            ef, n = _err(rf.estimate.pose, truth, rf.estimate.covariance)
+            e_f.append(ef)
+            nees.append(n)
+            e_r.append(_err(rr.estimate.pose, truth, rr.estimate.covariance)[0])
+    # per frame: the joint estimate; filtered: the same measurements through the motion prior
+    # the gate's false alarms (1% at the default confidence) carry the prediction
+    assert set(statuses) <= {"solved", "rejected"} and statuses.count("rejected") <= 0.02 * len(statuses)
+    assert np.median(e_f) < 0.8 * np.median(e_r)
+    assert 0.5 < np.mean(nees) / 6 < 2.0
+
+
+def test_partial_predicted_and_rejected_frames(team_log):
+    scene, seq = team_log
+    r = "r3"
+    frames = []
+    for k, (t, snap, obs) in enumerate(seq):
+        owner = [scene.rig.owner(m) for m in obs.marker]
+        touches = np.array([o == r or w == r for o, w in zip(obs.observer, owner)])
+        keep = ~touches
+        if 30 <= k < 40:  # only two observations tie r3 to the team: partial
+            keep[np.flatnonzero(touches)[:2]] = True
+        elif k >= 40 and k < 45:  # nothing of r3: predicted
+            pass
+        else:
+            keep |= touches
+        uv = obs.uv.copy()
+        if k == 60:  # r3's markers where r3 would be 40 cm to the side: a consistent jump
+            moved = snap.world.copy()
+            moved[r] = snap.world[r] @ Pose(np.eye(3), np.array([0.4, 0.0, 0.0]))
+            for j in np.flatnonzero(touches):
+                o, m = obs.observer[j], obs.marker[j]
+                cam = scene.rig.robot(o).camera
+                if o == r:
+                    X = (moved[r].inverse() @ snap.world[scene.rig.owner(m)]).apply(
+                        scene.rig.robot(scene.rig.owner(m)).markers[m].position)
+                else:
+                    X = (snap.world[o].inverse() @ moved[r]).apply(scene.rig.robot(r).markers[m].position)
+                uv[j] = cam.project(X)
+        frames.append((t, ObservationSet.trusted(np.array(obs.observer)[keep], np.array(obs.marker)[keep],
+                                                 uv[keep], time=t)))
+    traj = track_team_log(scene.rig, frames, progress=False)
+    rows = traj.tracks[r].rows
+    status = [row.status.value for row in rows]
+    assert status[30:40] == ["partial"] * 10, status[28:42]
+    assert status[40:45] == ["predicted"] * 5
+    assert status[60] == "rejected" and "inconsistent with the track" in rows[60].reason
+    for k in range(30, 45):
+        # two observations leave directions to the motion model: the error grows, within the reported sigmas' scale
+        e, _ = _err(rows[k].estimate.pose, seq[k][1].truth()[r], rows[k].estimate.covariance)
+        assert e < 3.0 * np.sqrt(np.trace(rows[k].estimate.covariance[3:, 3:])), (k, e)
+    for k in (29, 45, 60):  # solved before and after the gap; the rejected frame carries the prediction
+        e, _ = _err(rows[k].estimate.pose, seq[k][1].truth()[r], rows[k].estimate.covariance)
+        assert e < 0.05, (k, e)
+    assert status[45] == "solved"
+    # the other robots are unaffected
+    assert all(row.status.value == "solved" for rr in ("r1", "r2") for row in traj.tracks[rr].rows)
+
+
+def test_pose_update_is_the_information_filter():
+    """update_pose against the information form: posterior pose covariance (P^-1 + C^-1)^-1."""
+    rng = np.random.default_rng(0)
+    f = ConstantVelocityFilter(MotionNoise(), confidence=1.0)
+    A = rng.normal(size=(6, 6))
+    P6 = A @ A.T * 1e-3 + np.eye(6) * 1e-4
+    f.reset(0.0, Pose(so3_exp([0.1, 0.2, 0.3]), np.array([1.0, 0.0, 2.0])), P6)
+    B = rng.normal(size=(6, 6))
+    C = B @ B.T * 1e-3 + np.eye(6) * 1e-4
+    z = Pose(so3_exp([0.1001, 0.2, 0.3]), np.array([1.001, 0.0, 2.0]))
+    upd = f.update_pose(z, C)
+    assert upd.accepted
+    P0 = np.linalg.inv(np.linalg.inv(P6) + np.linalg.inv(C))
+    # velocity is uncorrelated at the start, so the pose block is the two-Gaussian fusion
+    np.testing.assert_allclose(f.state.covariance[:6, :6], P0, rtol=1e-8, atol=1e-12)
+    # and the mean is the information-weighted one (small innovation: linear regime)
+    e = np.r_[so3_log(z.R @ so3_exp([0.1, 0.2, 0.3]).T), z.t - [1.0, 0.0, 2.0]]
+    dx = P0 @ np.linalg.solve(C, e)
+    np.testing.assert_allclose(so3_log(f.state.pose.R @ so3_exp([0.1, 0.2, 0.3]).T), dx[:3], atol=1e-9)
+    np.testing.assert_allclose(f.state.pose.t - [1.0, 0.0, 2.0], dx[3:], atol=1e-12)
+    # a far pose fails the gate and leaves the state
+    g = ConstantVelocityFilter(MotionNoise())
+    g.reset(0.0, Pose(np.eye(3), np.zeros(3)), np.eye(6) * 1e-4)
+    bad = g.update_pose(Pose(np.eye(3), np.array([0.5, 0.0, 0.0])), np.eye(6) * 1e-4)
+    assert not bad.accepted and g.state.pose.t[0] == 0.0
+
+
+def test_sync_streams_groups_by_time():
+    def s(ts):
+        return [Frame(i, t, np.zeros((2, 2, 3), np.uint8)) for i, t in enumerate(ts)]
+
+    groups = list(sync_streams({"a": s([0.0, 0.1, 0.2]), "b": s([0.001, 0.2]), "c": s([0.0, 0.1, 0.201])}, 0.005))
+    assert [sorted(g) for g in groups] == [["a", "b", "c"], ["a", "c"], ["a", "b", "c"]]
+
+
+def test_bad_inputs_are_typed(team_log, tmp_path, capsys):
+    scene, seq = team_log
+    with pytest.raises(ObservationError, match="unknown reference"):
+        track_team_log(scene.rig, [], reference="zz", progress=False)
+    with pytest.raises(ObservationError, match="no stream for robot"):
+        track_team(scene.rig, {"r0": [], "r1": [], "r2": []}, progress=False)
+    with pytest.raises(ObservationError, match="unknown robot"):
+        track_team(scene.rig, {"r0": [], "r1": [], "r2": [], "r3": [], "r9": []}, progress=False)
+    with pytest.raises(InputError, match="smooth"):
+        TeamTracker(scene.rig, options=FilterOptions(smooth_lag=3))
+    t = TeamTracker(scene.rig)
+    t.step(1.0, seq[0][2])
+    with pytest.raises(InputError, match="comes before"):
+        t.step(0.5, seq[1][2])
+    save_rig(scene.rig, tmp_path / "rig.yaml")
+    write_observation_log(tmp_path / "log.jsonl", [o for _, _, o in seq[:3]])
+    base = ["track", "--rig", str(tmp_path / "rig.yaml"), "--out", str(tmp_path / "out"), "--no-progress"]
+    for extra, words in (([ "--observations", str(tmp_path / "log.jsonl"), "--reference", "zz"], "unknown reference"),
+                         (["--stream", f"r0={tmp_path}", "--stream", f"r9={tmp_path}"], "unknown robot"),
+                         (["--stream", f"r0={tmp_path}", "--stream", f"r1={tmp_path / 'x'}"], "no stream for robot"),
+                         (["--observations", str(tmp_path / "log.jsonl"), "--rerun", str(tmp_path / "a.rrd")],
+                          "not available for a team")):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("mutloc: error:") and words in err and err.count("\n") == 1, err
+
+
+def test_cli_log_writes_one_file_per_robot_and_ros(team_log, tmp_path, capsys):
+    scene, seq = team_log
+    save_rig(scene.rig, tmp_path / "rig.yaml")
+    write_observation_log(tmp_path / "log.jsonl", [o for _, _, o in seq[:20]])
+    out = tmp_path / "out"
+    assert main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+                 "--reference", "r2", "--out", str(out), "--mcap", str(out / "team.mcap"), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in out.iterdir()) == ["team.mcap", "trajectory_r0.csv", "trajectory_r0.tum",
+                                                     "trajectory_r1.csv", "trajectory_r1.tum", "trajectory_r3.csv",
+                                                     "trajectory_r3.tum"]
+    ref = {k: seq[k][1].truth("r2") for k in range(20)}
+    for r in ("r0", "r1", "r3"):
+        rows = read_trajectory_csv(out / f"trajectory_{r}.csv")
+        times, poses = read_tum(out / f"trajectory_{r}.tum")
+        assert len(rows) == 20 and len(times) == 20
+        for k, row in enumerate(rows):
+            # (a rejected row -- the gate's rare false alarm -- carries the prediction)
+            assert row["status"] in ("solved", "rejected") and row["sigma"] is not None and np.all(row["sigma"] > 0)
+            # in r2's frame (some robots are far from it: a scale from the reported sigmas)
+            assert np.linalg.norm(row["pose"].t - ref[k][r].t) < 4 * np.linalg.norm(row["sigma"][3:])
+            np.testing.assert_allclose(poses[k].t, row["pose"].t, atol=1e-8)
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(out / "team.mcap", "rb") as f:
+        decoded = list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    topics = {}
+    for _, c, _, msg in decoded:
+        topics.setdefault(c.topic, []).append(msg)
+    assert set(topics) == {"/tf", "/mutloc/r0_in_r2", "/mutloc/r1_in_r2", "/mutloc/r3_in_r2"}
+    assert len(topics["/tf"]) == 60 and all(len(topics[f"/mutloc/{r}_in_r2"]) == 20 for r in ("r0", "r1", "r3"))
+    rows = read_trajectory_csv(out / "trajectory_r1.csv")
+    for m, row in zip(topics["/mutloc/r1_in_r2"], rows):
+        assert m.header.frame_id == "r2"
+        p = m.pose.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], row["pose"].t, atol=1e-9)
+    assert {ts.child_frame_id for m in topics["/tf"] for ts in m.transforms} == {"r0", "r1", "r3"}
+
+
+@pytest.mark.slow
+def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
+    """Three robots carrying AprilTags, rendered (480x270, 8 frames): localize-images
+    on the first frame and track from the three image folders, against the truth."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--robots", "3", "--markers", "tags", "--frames", "8", "--fps", "10", "--size",
+                 "480x270", "--focal", "400", "--seed", "2", "--out", str(sim), "--no-progress"]) == 0
+    capsys.readouterr()
+    truth = json.loads((sim / "truth.json").read_text())
+    assert truth["reference"] == "r0" and len(truth["frames"]) == 8
+    images = [f"r{i}={sim / f'r{i}' / '000000.png'}" for i in range(3)]
+    assert main(["localize-images", "--rig", str(sim / "rig.yaml"), "--pixel-sigma", "0.3",
+                 *[a for im in images for a in ("--image", im)]]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert set(d["robots"]) == {"r1", "r2"}
+    for r, entry in d["robots"].items():
+        assert np.linalg.norm(np.array(entry["t"]) - truth["frames"][0]["robots"][r]["t"]) < 0.03
+    out = tmp_path / "track"
+    assert main(["track", "--rig", str(sim / "rig.yaml"), *[a for i in range(3) for a in
+                 ("--stream", f"r{i}={sim / f'r{i}'}")], "--pixel-sigma", "0.3", "--out", str(out),
+                 "--observations-out", str(out / "log.jsonl"), "--no-progress"]) == 0
+    capsys.readouterr()
+    for r in ("r1", "r2"):
+        _, true_poses = read_tum(sim / f"truth_{r}.tum")
+        rows = read_trajectory_csv(out / f"trajectory_{r}.csv")
+        assert [row["t"] for row in rows] == pytest.approx([k / 10 for k in range(8)])
+        assert all(row["status"] == "solved" for row in rows), [row["status"] for row in rows]
+        err = [np.linalg.norm(row["pose"].t - true_poses[k].t) for k, row in enumerate(rows)]
+        rot = [row["pose"].rotation_error_deg(true_poses[k]) for k, row in enumerate(rows)]
+        assert np.median(err) < 0.01 and max(err) < 0.03, err
+        assert np.median(rot) < 0.5, rot
+    # the log it wrote tracks to the same trajectories
+    out2 = tmp_path / "track2"
+    assert main(["track", "--rig", str(sim / "rig.yaml"), "--observations", str(out / "log.jsonl"),
+                 "--pixel-sigma", "0.3", "--out", str(out2), "--no-progress"]) == 0
+    for r in ("r1", "r2"):
+        a = read_trajectory_csv(out / f"trajectory_{r}.csv")
+        b = read_trajectory_csv(out2 / f"trajectory_{r}.csv")
+        for x, y in zip(a, b):
+            np.testing.assert_allclose(x["pose"].t, y["pose"].t, atol=1e-6)
