@@ -305,9 +305,11 @@ class TeamTracker:
                 continue
             problem = pair_problem(pair)
             A = team.poses[s].inverse()  # T_s_ref
-            f.state = _moved(f.state, A, None if s == self.reference else team.relative(self.reference, s).covariance)
+            prior = f.state
+            moved = _moved(prior, A, None if s == self.reference else team.relative(self.reference, s).covariance)
+            f.state = moved
             upd = f.update(problem)
-            f.state = _moved(f.state, A.inverse())
+            f.state = _pulled_back(prior, moved, f.state, A) if upd.accepted else prior
             if upd.accepted:
                 used += [problem.labels[k] for k in upd.used.tolist()]
             else:
@@ -356,9 +358,7 @@ class TeamTracker:
 def _moved(state: FilterState, A: Pose, cov_A: np.ndarray | None = None) -> FilterState:
     """The state of ``T`` as the state of ``A @ T``: pose, velocity and the
     error state's covariance rotated into A's frame, plus (first order) A's
-    own covariance ``cov_A`` (SPEC order) on the pose block.  That addition
-    stays in the state when it is moved back (``cov_A`` None): conservative,
-    since A's error is not tracked."""
+    own covariance ``cov_A`` (SPEC order) on the pose block."""
     G = np.kron(np.eye(4), A.R)
     P = G @ state.covariance @ G.T
     pose = A @ state.pose
@@ -368,6 +368,25 @@ def _moved(state: FilterState, A: Pose, cov_A: np.ndarray | None = None) -> Filt
         J[3:, :3] = -np.array([[0.0, -tx[2], tx[1]], [tx[2], 0.0, -tx[0]], [-tx[1], tx[0], 0.0]])
         P[:6, :6] += J @ cov_A @ J.T
     return FilterState(state.time, pose, np.r_[A.R @ state.velocity[:3], A.R @ state.velocity[3:]], P)
+
+
+def _pulled_back(prior: FilterState, moved: FilterState, posterior: FilterState, A: Pose) -> FilterState:
+    """The update of ``prior`` (state of ``T``) implied by the update of its
+    moved state ``moved`` (of ``A @ T``, with A's uncertainty) to
+    ``posterior``: linear-Gaussian conditioning through the cross-covariance
+    ``P G^T`` (G the rotation of the move), so A's error stays measurement
+    noise and never becomes information about T.  With A exact this is the
+    inverse move."""
+    from ..core.geometry import so3_exp, so3_log
+
+    G = np.kron(np.eye(4), A.R)
+    m = np.r_[so3_log(posterior.pose.R @ moved.pose.R.T), posterior.pose.t - moved.pose.t,
+              posterior.velocity - moved.velocity]
+    gain = np.linalg.solve(moved.covariance, G @ prior.covariance).T  # P G^T P'^-1
+    dx = gain @ m
+    P = prior.covariance - gain @ (moved.covariance - posterior.covariance) @ gain.T
+    pose = Pose(so3_exp(dx[:3]) @ prior.pose.R, prior.pose.t + dx[3:6])
+    return FilterState(prior.time, pose, prior.velocity + dx[6:], 0.5 * (P + P.T))
 
 
 def _dropped(team: TeamEstimate) -> str:
