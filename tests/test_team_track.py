@@ -168,7 +168,7 @@ def test_bad_inputs_are_typed(team_log, tmp_path, capsys):
     for extra, words in (([ "--observations", str(tmp_path / "log.jsonl"), "--reference", "zz"], "unknown reference"),
                          (["--stream", f"r0={tmp_path}", "--stream", f"r9={tmp_path}"], "unknown robot"),
                          (["--stream", f"r0={tmp_path}", "--stream", f"r1={tmp_path / 'x'}"], "no stream for robot"),
-                         (["--observations", str(tmp_path / "log.jsonl"), "--rerun", str(tmp_path / "a.rrd")],
+                         (["--observations", str(tmp_path / "log.jsonl"), "--annotate", str(tmp_path / "a.mp4")],
                           "not available for a team")):
         assert main(base + extra) == 2
         err = capsys.readouterr().err
@@ -181,7 +181,8 @@ def test_cli_log_writes_one_file_per_robot_and_ros(team_log, tmp_path, capsys):
     write_observation_log(tmp_path / "log.jsonl", [o for _, _, o in seq[:20]])
     out = tmp_path / "out"
     assert main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
-                 "--reference", "r2", "--out", str(out), "--mcap", str(out / "team.mcap"), "--no-progress"]) == 0
+                 "--reference", "r2", "--out", str(out), "--mcap", str(out / "team.mcap"),
+                 "--rerun", str(tmp_path / "team.rrd"), "--no-progress"]) == 0
     capsys.readouterr()
     assert sorted(p.name for p in out.iterdir()) == ["team.mcap", "trajectory_r0.csv", "trajectory_r0.tum",
                                                      "trajectory_r1.csv", "trajectory_r1.tum", "trajectory_r3.csv",
@@ -214,6 +215,18 @@ def test_cli_log_writes_one_file_per_robot_and_ros(team_log, tmp_path, capsys):
         np.testing.assert_allclose([p.x, p.y, p.z], row["pose"].t, atol=1e-9)
     assert {ts.child_frame_id for m in topics["/tf"] for ts in m.transforms} == {"r0", "r1", "r3"}
 
+    from test_rerun import _read
+
+    data = _read(tmp_path / "team.rrd")
+    for r in ("r0", "r1", "r3"):
+        rows = read_trajectory_csv(out / f"trajectory_{r}.csv")
+        assert len(data[f"/status/{r}"]) == len(rows)
+        tf = data[f"/world/{r}"]
+        assert len(tf) == len(rows)
+        for m, row in zip(tf, rows):
+            np.testing.assert_allclose(m["Transform3D:translation"][0], row["pose"].t, atol=1e-6)
+        strip = np.array(data[f"/world/trajectory_{r}"][0]["LineStrips3D:strips"][0])
+        np.testing.assert_allclose(strip, [row["pose"].t for row in rows], atol=1e-6)
 
 @pytest.mark.slow
 def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
@@ -255,3 +268,4 @@ def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
         b = read_trajectory_csv(out2 / f"trajectory_{r}.csv")
         for x, y in zip(a, b):
             np.testing.assert_allclose(x["pose"].t, y["pose"].t, atol=1e-6)
+

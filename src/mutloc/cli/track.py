@@ -122,8 +122,7 @@ def _run_team(args, rig, options, out) -> int:
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.team import require_streams, track_team, track_team_log
 
-    for flag, value in (("--frames base", args.frames == "base"), ("--annotate", args.annotate),
-                        ("--rerun", args.rerun)):
+    for flag, value in (("--frames base", args.frames == "base"), ("--annotate", args.annotate)):
         if value:
             raise InputError(f"{flag} is not available for a team track yet (pairs only)")
     if args.observations:
@@ -144,5 +143,8 @@ def _run_team(args, rig, options, out) -> int:
     if args.bag or args.mcap:
         traj.write_ros(bag=args.bag, mcap=args.mcap)
         wrote += [p for p in (args.bag, args.mcap) if p]
+    if args.rerun:
+        traj.write_rerun(args.rerun)
+        wrote.append(args.rerun)
     print(f"reference {traj.reference}; {traj.summary()}; wrote {', '.join(wrote)}")
     return 0

@@ -11,6 +11,8 @@ Entities (time line ``time``, seconds):
 - ``world/trajectory`` -- every position of the track, one line strip
   (static, written at the end);
 - ``status`` -- each frame's status and reason (``TextLog``);
+- a team (``source`` None): per robot ``world/ROBOT``,
+  ``world/ROBOT_uncertainty``, ``world/trajectory_ROBOT`` and ``status/ROBOT``;
 - ``images/ROBOT`` and ``images/ROBOT/detections`` -- when tracking from
   images: each camera's image and the detected markers, labelled with their
   names (``Points2D``).
@@ -39,7 +41,7 @@ SIGMA_SCALE = 3.0
 class RerunWriter:
     """Streams one track into an ``.rrd`` file; use as a context manager."""
 
-    def __init__(self, path: PathLike, source: str, target: str, application_id: str = "mutloc") -> None:
+    def __init__(self, path: PathLike, source: str | None, target: str, application_id: str = "mutloc") -> None:
         import rerun as rr
 
         self.rr = rr
@@ -50,29 +52,34 @@ class RerunWriter:
         self.source, self.target = source, target
         self.rec = rr.RecordingStream(application_id)
         self.rec.save(str(self.path))
-        self.positions: list[np.ndarray] = []
+        self.positions: dict[str, list[np.ndarray]] = {}
         self.rec.log("world", rr.ViewCoordinates.RDF, static=True)
         self.rec.log(f"world/{target}", rr.TransformAxes3D(0.2), static=True)
 
     def frame(self, t: float, status: str, reason: str = "", pose: Pose | None = None,
               covariance: np.ndarray | None = None,
-              images: Mapping[str, tuple[np.ndarray, Mapping[str, Any]]] | None = None) -> None:
+              images: Mapping[str, tuple[np.ndarray, Mapping[str, Any]]] | None = None,
+              robot: str | None = None) -> None:
         """One frame at time ``t``: its status, the pose and covariance (SPEC
         order) if it has one, and ``images`` ``{robot: (BGR image,
-        {marker: (u, v)})}`` if tracking from images."""
+        {marker: (u, v)})}`` if tracking from images.  ``robot``: whose pose
+        it is, for a team (entities ``world/ROBOT``, ``status/ROBOT``,
+        ``world/trajectory_ROBOT``); default the source robot."""
         rr, rec = self.rr, self.rec
+        name = robot if robot is not None else self.source
         rec.set_time("time", duration=float(t))
-        rec.log("status", rr.TextLog(f"{status}: {reason}" if reason else str(status)))
-        if pose is not None and pose.isfinite():
-            rec.log(f"world/{self.source}", rr.Transform3D(translation=pose.t, mat3x3=pose.R),
+        rec.log("status" if robot is None else f"status/{robot}",
+                rr.TextLog(f"{status}: {reason}" if reason else str(status)))
+        if pose is not None and pose.isfinite() and name is not None:
+            rec.log(f"world/{name}", rr.Transform3D(translation=pose.t, mat3x3=pose.R),
                     rr.TransformAxes3D(0.2))
-            self.positions.append(np.asarray(pose.t, float).copy())
+            self.positions.setdefault(name, []).append(np.asarray(pose.t, float).copy())
             if covariance is not None and np.all(np.isfinite(covariance)):
                 w, V = np.linalg.eigh(np.asarray(covariance, float)[3:, 3:])
                 if np.linalg.det(V) < 0:
                     V[:, 2] = -V[:, 2]
                 q = Pose(V, np.zeros(3)).quaternion_xyzw
-                rec.log(f"world/{self.source}_uncertainty",
+                rec.log(f"world/{name}_uncertainty",
                         rr.Ellipsoids3D(centers=[pose.t], half_sizes=[SIGMA_SCALE * np.sqrt(np.maximum(w, 0.0))],
                                         quaternions=[q], labels=[f"{status}"]))
         for robot, (image, detections) in (images or {}).items():
@@ -83,8 +90,9 @@ class RerunWriter:
 
     def close(self) -> None:
         """Write the whole trajectory and close the file."""
-        if self.positions:
-            self.rec.log("world/trajectory", self.rr.LineStrips3D([np.array(self.positions)]), static=True)
+        for name, pos in self.positions.items():
+            path = "world/trajectory" if name == self.source else f"world/trajectory_{name}"
+            self.rec.log(path, self.rr.LineStrips3D([np.array(pos)]), static=True)
         self.rec.flush()
         self.rec.disconnect()
 

@@ -91,6 +91,21 @@ class TeamTrajectory:
             written += [out / csv_name, out / tum_name]
         return written
 
+    def write_rerun(self, path: str | Path) -> None:
+        """A Rerun recording (``.rrd``) of every robot's track in the
+        reference's frame (see :mod:`mutloc.io.rrd`; poses, covariance
+        ellipsoids, trajectories and statuses; no images)."""
+        try:
+            from ..io.rrd import RerunWriter
+        except ImportError:
+            raise InputError("--rerun needs the Rerun SDK: pip install rerun-sdk") from None
+        with RerunWriter(path, None, self.reference) as viz:
+            for r, tr in self.tracks.items():
+                for row in tr.rows:
+                    e = row.estimate
+                    viz.frame(row.t, str(row.status), row.reason, None if e is None else e.pose,
+                              None if e is None else e.covariance, robot=r)
+
     def write_ros(self, bag: str | Path | None = None, mcap: str | Path | None = None) -> None:
         """Every robot's poses as ROS 2 messages, one pose topic per robot
         (``/mutloc/NAME_in_REFERENCE``) and ``/tf`` with one child frame per robot."""
