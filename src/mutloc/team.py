@@ -240,8 +240,11 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
         between.setdefault(frozenset((names[a], names[b])), []).append(markers[j])
         ties[a] += 1
         ties[b] += 1
-    # a robot held by three observations fits several poses exactly
-    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES]
+    # a robot held by three observations fits several poses exactly -- and so
+    # does a group of robots held to the reference's side by three: every
+    # robot whose every tie to the reference crosses such a cut
+    unverified = _weakly_tied(sol, problem, names.index(reference))
+    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES or i in unverified]
     est = TeamEstimate(
         reference=reference, poses=poses, robots=robots,
         unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],
@@ -250,6 +253,24 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
         reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
         consistency=test, unverified=unverified, markers_between=between, extra={"iterations": sol.iterations})
     return est
+
+
+def _weakly_tied(sol: TeamSolution, problem: TeamProblem, reference: int) -> set[int]:
+    """Robots separated from the reference by a cut of at most MIN_TIES used
+    observations (max-flow = min-cut over the observation graph): the
+    whole group beyond the cut then fits several poses exactly."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import maximum_flow
+
+    n = len(sol.localized)
+    cap = np.zeros((n, n), dtype=np.int32)
+    for j in sol.used.tolist():
+        a, b = int(problem.cam[j]), int(problem.own[j])
+        cap[a, b] += 1
+        cap[b, a] += 1
+    graph = csr_matrix(cap)
+    return {int(i) for i in sol.order
+            if maximum_flow(graph, reference, int(i)).flow_value <= MIN_TIES}
 
 
 def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
