@@ -268,9 +268,21 @@ def _weakly_tied(sol: TeamSolution, problem: TeamProblem, reference: int) -> set
         a, b = int(problem.cam[j]), int(problem.own[j])
         cap[a, b] += 1
         cap[b, a] += 1
+    # edge connectivity is transitive (lambda(a, c) >= min(lambda(a, b), lambda(b, c))):
+    # more than MIN_TIES direct observations with a robot known to be held well
+    # is enough, and max-flow is left for the rest (usually none)
+    held = np.zeros(n, dtype=bool)
+    held[reference] = True
+    while True:
+        more = ~held & sol.localized & ((cap[:, held] > MIN_TIES).any(axis=1))
+        if not more.any():
+            break
+        held |= more
+    rest = [int(i) for i in sol.order if not held[i]]
+    if not rest:
+        return set()
     graph = csr_matrix(cap)
-    return {int(i) for i in sol.order
-            if maximum_flow(graph, reference, int(i)).flow_value <= MIN_TIES}
+    return {i for i in rest if maximum_flow(graph, reference, i).flow_value <= MIN_TIES}
 
 
 def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
