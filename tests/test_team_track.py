@@ -268,4 +268,26 @@ def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
         b = read_trajectory_csv(out2 / f"trajectory_{r}.csv")
         for x, y in zip(a, b):
             np.testing.assert_allclose(x["pose"].t, y["pose"].t, atol=1e-6)
+    # the API on the same images: r1's frame 3 missing, r2's frame 5 unreadable -- every frame keeps a row
+    import cv2
+
+    def stream(r):
+        for k in range(8):
+            if r == "r1" and k == 3:
+                continue
+            img = None if (r == "r2" and k == 5) else cv2.imread(str(sim / r / f"{k:06d}.png"))
+            yield Frame(k, k / 10, img, "ok" if img is not None else "unreadable image")
+
+    traj = track_team(sim / "rig.yaml", {r: stream(r) for r in ("r0", "r1", "r2")}, pixel_sigma=0.3,
+                      progress=False)
+    for r in ("r1", "r2"):
+        _, true_poses = read_tum(sim / f"truth_{r}.tum")
+        rows = traj.tracks[r].rows
+        assert [row.t for row in rows] == pytest.approx([k / 10 for k in range(8)])
+        for k, row in enumerate(rows):
+            if row.estimate is not None:
+                assert row.estimate.pose.translation_error(true_poses[k]) < 0.03
+    r1, r2 = traj.tracks["r1"].rows[3], traj.tracks["r2"].rows[5]
+    assert r1.t_source is None and "no r1 frame" in r1.reason
+    assert r2.status.value == "corrupt" or "unreadable image" in r2.reason
 
