@@ -228,6 +228,37 @@ def test_cli_log_writes_one_file_per_robot_and_ros(team_log, tmp_path, capsys):
         strip = np.array(data[f"/world/trajectory_{r}"][0]["LineStrips3D:strips"][0])
         np.testing.assert_allclose(strip, [row["pose"].t for row in rows], atol=1e-6)
 
+
+def test_cli_team_in_base_frames(team_log, tmp_path, capsys):
+    """--frames base: every robot's track is B_ref @ T_ref_r @ inv(B_r)."""
+    scene, seq = team_log
+    d = scene.rig.to_dict()
+    B = {}
+    for i, name in enumerate(d["robots"]):
+        B[name] = Pose(so3_exp([0.1 * i, -0.2, 0.3]), np.array([0.1, -0.05 * i, 0.4]))
+        d["robots"][name]["base_from_camera"] = {"R": B[name].R.tolist(), "t": B[name].t.tolist()}
+    import yaml
+
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(d))
+    write_observation_log(tmp_path / "log.jsonl", [o for _, _, o in seq[:10]])
+    args = ["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"), "--no-progress"]
+    assert main(args + ["--out", str(tmp_path / "cam")]) == 0
+    assert main(args + ["--out", str(tmp_path / "base"), "--frames", "base"]) == 0
+    capsys.readouterr()
+    for r in ("r1", "r2", "r3"):
+        cam = read_trajectory_csv(tmp_path / "cam" / f"trajectory_{r}.csv")
+        base = read_trajectory_csv(tmp_path / "base" / f"trajectory_{r}.csv")
+        for a, b in zip(cam, base):
+            expect = B["r0"] @ a["pose"] @ B[r].inverse()
+            assert b["pose"].translation_error(expect) < 1e-6 and b["pose"].rotation_error_deg(expect) < 1e-5
+        assert base[0]["sigma"] is not None
+    del d["robots"]["r2"]["base_from_camera"]
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(d))
+    assert main(args + ["--out", str(tmp_path / "bad"), "--frames", "base"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mutloc: error:") and "'r2'" in err and "base_from_camera" in err
+
+
 @pytest.mark.slow
 def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
     """Three robots carrying AprilTags, rendered (480x270, 8 frames): localize-images

@@ -122,9 +122,8 @@ def _run_team(args, rig, options, out) -> int:
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.team import require_streams, track_team, track_team_log
 
-    for flag, value in (("--frames base", args.frames == "base"), ("--annotate", args.annotate)):
-        if value:
-            raise InputError(f"{flag} is not available for a team track yet (pairs only)")
+    if args.annotate:
+        raise InputError("--annotate is not available for a team track yet (pairs only)")
     if args.observations:
         traj = track_team_log(rig, iter_observation_log(args.observations), args.reference,
                               pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
@@ -139,6 +138,8 @@ def _run_team(args, rig, options, out) -> int:
                           args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
                           confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
                           progress=args.progress, filter=options)
+    if args.frames == "base":
+        traj = traj.in_base_frames(rig)
     wrote = [str(p) for p in traj.write(out)]
     if args.bag or args.mcap:
         traj.write_ros(bag=args.bag, mcap=args.mcap)

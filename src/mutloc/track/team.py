@@ -91,6 +91,13 @@ class TeamTrajectory:
             written += [out / csv_name, out / tum_name]
         return written
 
+    def in_base_frames(self, rig: Any) -> "TeamTrajectory":
+        """Every track between the robots' base frames (``base_from_camera``
+        of each robot and of the reference; see
+        :meth:`~mutloc.track.tracker.Trajectory.in_base_frames`); still keyed
+        by robot name (files ``trajectory_NAME.*``)."""
+        return TeamTrajectory(self.reference, {r: tr.in_base_frames(rig) for r, tr in self.tracks.items()}, self.fps)
+
     def write_rerun(self, path: str | Path) -> None:
         """A Rerun recording (``.rrd``) of every robot's track in the
         reference's frame (see :mod:`mutloc.io.rrd`; poses, covariance
