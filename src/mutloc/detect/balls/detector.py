@@ -14,6 +14,8 @@ from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
 from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate
 from .fit import CameraModel, ellipse_info, fit_rim
+from .light import light_gains, lut_gains
+from .occlusion import recentre, smooth_rim
 from .params import BallParams, value_lut
 from .rim import sample_rim
 from .search import BallSearch, Blob, find_blobs, pick_downscale, value_floor
@@ -54,8 +56,11 @@ def detect_balls(
         (``radius_px``, ``rim_fraction`` (share of the rim that fits; lower
         when occluded), ``rms_px``, ``hue_deg``, ``chroma``, ``shading``,
         ``ellipse`` (the fitted outline) and, with a camera, ``distance_m``
-        to the ball's centre); every marker with a colour that was not found
-        is listed in ``missing``.  Never raises for "not found".
+        to the ball's centre), ``visible_fraction`` (share of the rim seen
+        unhidden) and ``residual_px`` (the rim fit's RMS); every marker with
+        a colour that was not found is listed in ``missing``, with why in
+        ``missing_reasons`` (e.g. too hidden to measure without bias).  Never raises
+        for "not found".
     """
     img = as_bgr(image)
     if not isinstance(markers, Mapping):
@@ -90,19 +95,40 @@ def detect_balls(
     # resolution.
     v_floor = value_floor(img)
     cam = CameraModel(camera) if camera is not None else None
+    # The light's colour, divided out before hues are compared (None: white).
+    gains = light_gains(img, params)
+    # Why each marker's candidates were turned down, the most telling first.
+    why: dict[str, tuple[int, str]] = {}
+
+    def reject(name: str, rank: int, reason: str) -> None:
+        if rank > why.get(name, (-1, ""))[0]:
+            why[name] = (rank, reason)
 
     def refine(s: BallSearch, blob: Blob) -> Candidate | None:
-        c = refine_blob(img, lut, s, blob, cam, rmax, params)
-        return c if c is not None and c.score >= params.min_score else None
+        c = refine_blob(img, lut, s, blob, cam, rmax, params, v_floor=v_floor, gains=gains)
+        if c is None:
+            reject(s.name, 0, "rejected: no blob of its colour has the outline of a ball")
+            return None
+        vis = float(c.info["rim_fraction"])
+        if vis < params.min_visible_fraction:
+            reject(s.name, 3, f"occluded: only {100 * vis:.0f}% of its rim is visible "
+                              f"(min_visible_fraction {100 * params.min_visible_fraction:.0f}%)")
+            return None
+        if c.score < params.min_score:
+            reject(s.name, 1, f"rejected: its best blob scores {c.score:.2f}, below min_score {params.min_score}")
+            return None
+        return c
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
 
     def search(level: list[BallSearch], k: int, blob_rmax: float) -> None:
-        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params)):
+        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params, gains=gains)):
             good_r = math.inf
             found: list[Candidate] = []
-            skipped[s.name] = []
+            # Blobs ranked below max_candidates are kept for the rig check's
+            # second look (a ball ranked low among look-alikes).
+            skipped[s.name] = list(blobs[int(params.max_candidates): 5 * int(params.max_candidates)])
             for blob in blobs[: int(params.max_candidates)]:
                 # Once a blob fits well, a lower-ranked blob can only win by
                 # being bigger (more rim evidence): smaller ones are not
@@ -119,6 +145,12 @@ def detect_balls(
             per_marker[s.name] = found
 
     search(searches, k, rmax)
+    for s in searches:
+        if not per_marker[s.name] and skipped[s.name]:
+            # Nothing of the best-ranked blobs was a ball: a partly hidden
+            # ball ranks low among look-alikes (its coarse blob is a piece).
+            per_marker[s.name] = [c for b in skipped[s.name] if (c := refine(s, b)) is not None]
+            skipped[s.name] = []
     if fallback:
         lost = [s for s in searches if not per_marker[s.name]]
         if lost:
@@ -144,21 +176,35 @@ def detect_balls(
         chosen.extend(picked)
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
 
+    for s in searches:
+        if per_marker.get(s.name) and not any(c.search.name == s.name for c in chosen) and s.robot in mates:
+            reject(s.name, 2, "rejected: its blobs do not fit the rig's distances to the robot's other balls")
     taken = assign(chosen, rest)
     for c in taken:
         c.info["ellipse"] = ellipse_info(c.outline)
-        result.detections[c.search.name] = Detection(marker=c.search.name, uv=c.uv, score=c.score, info=c.info)
+        result.detections[c.search.name] = Detection(
+            marker=c.search.name, uv=c.uv, score=c.score, info=c.info,
+            visible_fraction=float(c.info["rim_fraction"]), residual_px=float(c.info["rms_px"]))
     # Where another blob of a marker scored nearly as well, the detector is
-    # unsure: hand it over too, and let the mutual geometry decide.
+    # unsure: hand it over too, and let the mutual geometry decide.  Scores
+    # are compared per share of visible rim: a partly hidden ball scores
+    # low for being hidden, not for looking less like a ball.
+    def per_rim(c: Candidate) -> float:
+        return c.score / max(float(c.info["rim_fraction"]), params.min_visible_fraction, 1e-9)
+
     for c in taken:
         alts = [a for a in per_marker.get(c.search.name, [])
-                if a is not c and a.score >= params.alternative_ratio * c.score
+                if a is not c and per_rim(a) >= params.alternative_ratio * per_rim(c)
                 and not any(same_blob(a, t) for t in taken)]
         if alts:
             result.alternatives[c.search.name] = [
                 Detection(marker=a.search.name, uv=a.uv, score=a.score, info=a.info)
                 for a in sorted(alts, key=lambda a: -a.score)[: params.max_alternatives]]
     result.missing = [s.name for s in searches if s.name not in result.detections]
+    for name in result.missing:
+        if per_marker.get(name) and name not in why:
+            reject(name, 2, "ambiguous: its blob went to another marker of a similar colour")
+        result.missing_reasons[name] = why.get(name, (0, "not_found: no blob of its colour"))[1]
     return result
 
 
@@ -170,23 +216,44 @@ def refine_blob(
     cam: CameraModel | None,
     max_r: float,
     params: BallParams,
+    *,
+    v_floor: int = 12,
+    gains: np.ndarray | None = None,
 ) -> Candidate | None:
     """Sub-pixel fit and score of one coarse blob; None if it is not a plausible ball.
 
     Two rounds of rim sampling and fitting: the second casts its rays from
     the fitted centre, with its windows centred on the fitted outline (an
-    ellipse off-axis).
+    ellipse off-axis).  When much of the first round's rim is off the
+    coarse circle (an occluder cut or split the blob), the circle is found
+    again from the visible outline (:func:`~.occlusion.recentre`); rim
+    points on an occluder's edge are left out (:func:`~.occlusion.smooth_rim`).
+    ``v_floor`` and ``gains`` (the light's colour) are as in the coarse search.
     """
     cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
-    n_rays = min(max(round(2 * math.pi * r), 24), 96)
-    ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
-    rexp = np.full(n_rays, r)
-    for it in range(2):
-        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px)
+    # Rims are measured in colours as under white light.
+    lg = lut_gains(gains, params) if gains is not None else None
+    recentred = moved = False
+    it = 0
+    while it < 2:
+        if it == 0:
+            n_rays = min(max(round(2 * math.pi * r), 24), 96)
+            ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
+            rexp = np.full(n_rays, r)
+        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, lg)
         # Rays far off the expected rim are occluders, clutter or a bad
         # coarse circle: the ones close to it are the initial inlier set.
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
-        init = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol0)
+        near = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol0)
+        if it == 0 and not recentred and near.sum() < params.recentre_below * n_rays:
+            recentred = True
+            c = recentre(img, s, blob, v_floor, gains, params)
+            if c is not None and math.hypot(c[0] - cx, c[1] - cy) + abs(c[2] - r) > 0.25 + 0.05 * r:
+                cx, cy, r = c
+                moved = True
+                continue
+        rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
+        init = near & rim.valid
         if init.sum() < 6:
             return None
         fit = fit_rim(rim, init, cam, params.max_axis_ratio)
@@ -197,4 +264,8 @@ def refine_blob(
         r = fit.radius_px
         if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not np.all(np.isfinite(rexp)):
             return None
-    return score_candidate(img, lut, s, blob.fill, rim, fit, cam, params)
+        it += 1
+    # The coarse blob of a split ball is one piece of it, filling little of
+    # its circle: the visible rim (in the score) is the better judge then.
+    fill = max(blob.fill, 0.6) if moved else blob.fill
+    return score_candidate(img, lut, s, fill, rim, fit, cam, params)
