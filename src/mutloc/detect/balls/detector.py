@@ -18,9 +18,10 @@ from .light import light_gains, lut_gains
 from .occlusion import recentre, smooth_rim
 from .params import BallParams, value_lut
 from .rim import sample_rim
-from .search import BallSearch, Blob, find_blobs, pick_downscale, value_floor
+from .search import WHOLE, BallSearch, Blob, find_blobs, pick_downscale, value_floor
 
 __all__ = ["detect_balls", "refine_blob"]
+
 
 
 def detect_balls(
@@ -104,8 +105,13 @@ def detect_balls(
         if rank > why.get(name, (-1, ""))[0]:
             why[name] = (rank, reason)
 
-    def refine(s: BallSearch, blob: Blob) -> Candidate | None:
-        c = refine_blob(img, lut, s, blob, cam, rmax, params, v_floor=v_floor, gains=gains)
+    # Blobs whose rim, on the first look, was much off their coarse circle
+    # (an occluder cut into them): the ones worth a second look.
+    cut: list[Blob] = []
+
+    def refine(s: BallSearch, blob: Blob, rescue: bool = False) -> Candidate | None:
+        c = refine_blob(img, lut, s, blob, cam, rmax, params, v_floor=v_floor, gains=gains,
+                        recentre_it=rescue, cut=None if rescue else cut)
         if c is None:
             reject(s.name, 0, "rejected: no blob of its colour has the outline of a ball")
             return None
@@ -121,15 +127,20 @@ def detect_balls(
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
+    later: dict[str, list[Blob]] = {}
 
     def search(level: list[BallSearch], k: int, blob_rmax: float) -> None:
         for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params, gains=gains)):
             good_r = math.inf
             found: list[Candidate] = []
-            # Blobs ranked below max_candidates are kept for the rig check's
-            # second look (a ball ranked low among look-alikes).
-            skipped[s.name] = list(blobs[int(params.max_candidates): 5 * int(params.max_candidates)])
-            for blob in blobs[: int(params.max_candidates)]:
+            # Blobs ranked below max_candidates are looked at only when none
+            # of the best-ranked ones is a ball (a partly hidden ball ranks
+            # low among look-alikes).  Not for the rig check's second look:
+            # at a distance the rig cannot tell a printed disc from a ball,
+            # and more blobs looked at would find more of those.
+            later[s.name] = list(blobs[: 2 * int(params.max_candidates)])
+            skipped[s.name] = []
+            for blob in [b for b in blobs if b.quality >= WHOLE][: int(params.max_candidates)]:
                 # Once a blob fits well, a lower-ranked blob can only win by
                 # being bigger (more rim evidence): smaller ones are not
                 # refined (unless the rig check below asks for them), which
@@ -144,13 +155,35 @@ def detect_balls(
                     skipped[s.name].append(blob)
             per_marker[s.name] = found
 
+    def rescue(s: BallSearch, mates: list[Candidate], whole: bool = True) -> list[Candidate]:
+        """Candidates of ``s`` that the first look missed: a partly hidden
+        ball ranks low among look-alikes (its coarse blob is a piece, off
+        the ball's circle), so more blobs are looked at, and those whose rim
+        looked cut have their circle found again from the visible outline.
+        Only when needed: that search is slower, and where the first fit
+        holds it is the more accurate.  ``whole``: also whole-looking blobs
+        ranked below the first look's."""
+        # Where the robot's other balls were found, a blob far from their
+        # size is not this ball (the rig is small against the distance: a
+        # factor 1.6 either way leaves room for 1.2 m).
+        sizes = [c.radius_px for c in mates]
+        lo, hi = (min(sizes) / 1.6, max(sizes) * 1.6) if sizes else (0.0, math.inf)
+        blobs = [b for b in later[s.name] if lo <= b.radius <= hi]
+        done = [b for b in later[s.name] if b.quality >= WHOLE][: int(params.max_candidates)]
+        found = [c for b in blobs if (whole or b.quality < WHOLE) and not any(b is x for x in done)
+                 and (c := refine(s, b)) is not None]
+        found += [c for b in blobs if any(b is x for x in cut) and (c := refine(s, b, True)) is not None]
+        later[s.name] = []
+        return found
+
+    def best_of_mates(s: BallSearch) -> list[Candidate]:
+        return [max(per_marker[g.name], key=lambda c: c.score) for g in searches
+                if g is not s and g.robot is not None and g.robot == s.robot and per_marker[g.name]]
+
     search(searches, k, rmax)
     for s in searches:
-        if not per_marker[s.name] and skipped[s.name]:
-            # Nothing of the best-ranked blobs was a ball: a partly hidden
-            # ball ranks low among look-alikes (its coarse blob is a piece).
-            per_marker[s.name] = [c for b in skipped[s.name] if (c := refine(s, b)) is not None]
-            skipped[s.name] = []
+        if not per_marker[s.name] and later[s.name]:
+            per_marker[s.name] = rescue(s, best_of_mates(s))
     if fallback:
         lost = [s for s in searches if not per_marker[s.name]]
         if lost:
@@ -167,11 +200,14 @@ def detect_balls(
         # Per robot, the combination of blobs (or none) that best agrees
         # with the rig: balls of one robot keep their mutual distances.
         picked, consistent = choose_consistent(group, per_marker, params)
-        if not consistent and any(skipped[g.name] for g in group):
+        if not consistent:
             # Something does not fit: the blobs passed over may hold the
-            # right ball.
+            # right ball, and a ball left out may be partly hidden.
+            kept = {c.search.name: c for c in picked}
             for g in group:
                 per_marker[g.name] += [c for b in skipped[g.name] if (c := refine(g, b)) is not None]
+                if g.name not in kept and later[g.name]:
+                    per_marker[g.name] += rescue(g, list(kept.values()), whole=False)
             picked, _ = choose_consistent(group, per_marker, params)
         chosen.extend(picked)
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
@@ -219,15 +255,19 @@ def refine_blob(
     *,
     v_floor: int = 12,
     gains: np.ndarray | None = None,
+    recentre_it: bool = False,
+    cut: list[Blob] | None = None,
 ) -> Candidate | None:
     """Sub-pixel fit and score of one coarse blob; None if it is not a plausible ball.
 
     Two rounds of rim sampling and fitting: the second casts its rays from
     the fitted centre, with its windows centred on the fitted outline (an
-    ellipse off-axis).  When much of the first round's rim is off the
-    coarse circle (an occluder cut or split the blob), the circle is found
-    again from the visible outline (:func:`~.occlusion.recentre`); rim
-    points on an occluder's edge are left out (:func:`~.occlusion.smooth_rim`).
+    ellipse off-axis).  With ``recentre_it``, when much of the first
+    round's rim is off the coarse circle (an occluder cut or split the
+    blob), the circle is found again from the visible outline
+    (:func:`~.occlusion.recentre`); without, such a blob is appended to
+    ``cut``.  Rim points on an occluder's edge are left out
+    (:func:`~.occlusion.smooth_rim`).
     ``v_floor`` and ``gains`` (the light's colour) are as in the coarse search.
     """
     cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
@@ -247,11 +287,15 @@ def refine_blob(
         near = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol0)
         if it == 0 and not recentred and near.sum() < params.recentre_below * n_rays:
             recentred = True
-            c = recentre(img, s, blob, v_floor, gains, params)
-            if c is not None and math.hypot(c[0] - cx, c[1] - cy) + abs(c[2] - r) > 0.25 + 0.05 * r:
-                cx, cy, r = c
-                moved = True
-                continue
+            if not recentre_it:
+                if cut is not None:
+                    cut.append(blob)
+            else:
+                c = recentre(img, s, blob, v_floor, gains, params)
+                if c is not None and math.hypot(c[0] - cx, c[1] - cy) + abs(c[2] - r) > 0.25 + 0.05 * r:
+                    cx, cy, r = c
+                    moved = True
+                    continue
         rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
         init = near & rim.valid
         if init.sum() < 6:

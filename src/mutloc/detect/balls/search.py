@@ -250,6 +250,11 @@ def _blob_chroma(coarse: np.ndarray, blob: Blob, sx: float, sy: float) -> float:
     return best
 
 
+#: Blobs of at least this quality look like whole discs; the others (down
+#: to 0.15) are looked at only when no whole one of a marker is its ball.
+WHOLE = 0.25
+
+
 def find_blobs(
     img: np.ndarray, searches: list[BallSearch], k: int, max_r: float, v_floor: int, params: BallParams,
     gains: np.ndarray | None = None,
@@ -272,7 +277,7 @@ def find_blobs(
         blobs = []
         for b in coarse_blobs(mask, sx, sy, params.min_radius_px, max_r):
             # A ball split by a pole leaves half-discs: support ~0.5 of
-            # their circle, filling ~0.4 of it.
+            # their circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
             if b.quality >= 0.15:
                 blobs.append(Blob(b.u, b.v, b.radius, b.quality, b.fill, _blob_chroma(coarse, b, sx, sy)))
         blobs.sort(key=lambda b: -b.quality * evidence(2.0 * math.pi * b.radius) * vivid(b.chroma))
