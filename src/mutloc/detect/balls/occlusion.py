@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from .light import correct
-from .numeric import kasa_circle
+from .numeric import circle3, kasa_circle
 from .params import BallParams
 from .search import BallSearch, Blob
 
@@ -140,15 +140,9 @@ def _ransac_normals(pts, nrm, tol, cos_max, rmin, rmax, draws):
         # Points too close together give ill-conditioned circles.
         if min(math.hypot(ax - bx, ay - by), math.hypot(bx - cx, by - cy), math.hypot(ax - cx, ay - cy)) < rmin:
             continue
-        d = 2.0 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
-        if abs(d) < 1e-9:
+        ok, ux, uy, r = circle3(ax, ay, bx, by, cx, cy)
+        if not ok:
             continue
-        a2 = ax * ax + ay * ay
-        b2 = bx * bx + by * by
-        c2 = cx * cx + cy * cy
-        ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
-        uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
-        r = math.hypot(ax - ux, ay - uy)
         if r < rmin or r > rmax:
             continue
         cnt = _count(pts, nrm, ux, uy, r, tol, cos_max)

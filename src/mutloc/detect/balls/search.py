@@ -19,7 +19,7 @@ from ...core.rig import Marker
 from ...errors import InputError
 from .cues import evidence, vivid
 from .light import correct
-from .numeric import kasa_circle
+from .numeric import circle3, kasa_circle
 from .params import DEFAULT_BALL_RADIUS_M, BallParams
 
 __all__ = [
@@ -337,15 +337,9 @@ def _ransac_circle_kernel(pts, tol, triplets, rmin, rmax):
         ax, ay = pts[i0, 0], pts[i0, 1]
         bx, by = pts[i1, 0], pts[i1, 1]
         cx, cy = pts[i2, 0], pts[i2, 1]
-        d = 2.0 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
-        if abs(d) < 1e-9:
+        ok, ux, uy, r = circle3(ax, ay, bx, by, cx, cy)
+        if not ok:
             continue
-        a2 = ax * ax + ay * ay
-        b2 = bx * bx + by * by
-        c2 = cx * cx + cy * cy
-        ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
-        uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
-        r = math.hypot(ax - ux, ay - uy)
         # Nearly collinear points give huge circles that hug straight edges.
         if r < rmin or r > rmax:
             continue
