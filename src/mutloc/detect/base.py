@@ -31,6 +31,11 @@ class Detection:
     #: The position is carried over from earlier images (a blinking light that
     #: is off now), not measured in this one: it cannot verify a pose.
     predicted: bool = False
+    #: Quality, where the detector measures it: the share (0..1) of the
+    #: marker's outline seen unhidden ...
+    visible_fraction: float | None = None
+    #: ... and the RMS residual (pixels) of the outline's fit.
+    residual_px: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"uv": [float(self.uv[0]), float(self.uv[1])], "score": float(self.score)}
@@ -38,6 +43,9 @@ class Detection:
             d["predicted"] = True
         if self.corners is not None:
             d["corners"] = np.asarray(self.corners, float).tolist()
+        for what in ("visible_fraction", "residual_px"):
+            if getattr(self, what) is not None:
+                d[what] = float(getattr(self, what))
         if self.info:
             d["info"] = self.info
         return d

@@ -36,10 +36,11 @@ from ..core.camera import Camera, undistort_kernel
 from ..core.geometry import so3_exp
 from ..core.pose import Pose
 from ..core.rig import Rig
-from ..errors import InputError
+from ..errors import InputError, ObservationError
 from .synthetic import looking_pose
 from .world import (
     LIGHT_EMISSION,
+    Prop,
     Room,
     World,
     WorldRobot,
@@ -56,6 +57,7 @@ from .world import (
 __all__ = [
     "CAMERA_HEIGHT",
     "SUPERSAMPLE",
+    "ball_visibility",
     "default_path",
     "pixel_bearings",
     "render_linear",
@@ -333,8 +335,13 @@ def _bilinear(tex, tinfo, lut, e, x, y):
 
 
 @numba.njit(cache=True)
-def _shade(pf, pi, codes, tex, tinfo, lut, lp, k, t, ox, oy, oz, dx, dy, dz, pix_angle):
-    """Linear BGR radiance, linear BGR emission and texture sub-key of a hit."""
+def _shade(pf, pi, gf, gi, rb, codes, tex, tinfo, lut, lp, k, t, ox, oy, oz, dx, dy, dz, pix_angle):
+    """Linear BGR radiance, linear BGR emission and texture sub-key of a hit.
+
+    ``lp`` = (light x, y, z, intensity, ambient, colour b, g, r, shadows);
+    with shadows on, a ray towards the light decides whether it reaches the
+    hit (hard shadows of a point source).
+    """
     typ = pi[k, 0]
     hx = ox + t * dx
     hy = oy + t * dy
@@ -342,6 +349,8 @@ def _shade(pf, pi, codes, tex, tinfo, lut, lp, k, t, ox, oy, oz, dx, dy, dz, pix
     a0 = 0.0
     a1 = 0.0
     a2 = 0.0
+    spec = 0.0
+    shin = 1.0
     sub = 0
     if typ == 0:
         nx = (hx - pf[k, 0]) / pf[k, 3]
@@ -352,6 +361,8 @@ def _shade(pf, pi, codes, tex, tinfo, lut, lp, k, t, ox, oy, oz, dx, dy, dz, pix
         a0 = pf[k, 4]
         a1 = pf[k, 5]
         a2 = pf[k, 6]
+        spec = pf[k, 10]
+        shin = pf[k, 11]
     elif typ == 1:
         nx = pf[k, 9]
         ny = pf[k, 10]
@@ -468,8 +479,35 @@ def _shade(pf, pi, codes, tex, tinfo, lut, lp, k, t, ox, oy, oz, dx, dy, dz, pix
     ndl = 0.0
     if ln > 0.0:
         ndl = max(0.0, (nx * lx + ny * ly + nz * lz) / ln)
+    if ndl > 0.0 and lp[8] > 0.0:
+        # Shadow ray, started a hair off the surface towards the light.
+        lx /= ln
+        ly /= ln
+        lz /= ln
+        e = 1e-6
+        ts, ks = _trace(pf, pi, gf, gi, rb, hx + e * nx, hy + e * ny, hz + e * nz, lx, ly, lz)
+        if ks >= 0 and ts < ln - 2e-6:
+            ndl = 0.0
+        lx *= ln
+        ly *= ln
+        lz *= ln
     s = lp[4] + lp[3] * ndl
-    return a0 * s, a1 * s, a2 * s, 0.0, 0.0, 0.0, sub
+    r0 = a0 * s * lp[5]
+    r1 = a1 * s * lp[6]
+    r2 = a2 * s * lp[7]
+    if spec > 0.0 and ndl > 0.0:
+        # Blinn-Phong: half vector of the directions to the light and to the eye.
+        hx_ = lx / ln - dx
+        hy_ = ly / ln - dy
+        hz_ = lz / ln - dz
+        hn = math.sqrt(hx_ * hx_ + hy_ * hy_ + hz_ * hz_)
+        if hn > 0.0:
+            ndh = max(0.0, (nx * hx_ + ny * hy_ + nz * hz_) / hn)
+            hl = spec * lp[3] * ndh**shin
+            r0 += hl * lp[5]
+            r1 += hl * lp[6]
+            r2 += hl * lp[7]
+    return r0, r1, r2, 0.0, 0.0, 0.0, sub
 
 
 @numba.njit(cache=True)
@@ -501,7 +539,7 @@ def _cast(bear, R, o, pf, pi, gf, gi, rb, codes, tex, tinfo, lut, lp, bg, pix_an
                 emit[i, c] = 0.0
             key[i] = -1
             continue
-        r0, r1, r2, e0, e1, e2, sub = _shade(pf, pi, codes, tex, tinfo, lut, lp, k, t,
+        r0, r1, r2, e0, e1, e2, sub = _shade(pf, pi, gf, gi, rb, codes, tex, tinfo, lut, lp, k, t,
                                              o[0], o[1], o[2], dx, dy, dz, pix_angle)
         rgb[i, 0] = r0
         rgb[i, 1] = r1
@@ -854,7 +892,9 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
         color = m.color if m.color is not None else (220, 220, 220)
         if kind in ("ball", "point"):  # a marker without a detector is drawn as a grey ball
             r = ball_radius(m)
-            row = np.concatenate([c, [r], _lin_bgr(color), [0.0, 0.0, 0.0]])
+            fin = world.ball_finish if kind == "ball" else None
+            gloss = [fin.specular, fin.shininess] if fin is not None else [0.0, 1.0]
+            row = np.concatenate([c, [r], _lin_bgr(color), [0.0, 0.0, 0.0], gloss])
             scene.add(row, (_SPHERE, -1, 0), (name, m.name), c, r)
         elif kind == "light":
             r = ball_radius(m)
@@ -867,7 +907,7 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
                 # An unlit LED behind a diffuser: dim, slightly tinted.
                 emission = np.zeros(3)
                 albedo = 0.05 + 0.2 * lin
-            scene.add(np.concatenate([c, [r], albedo, emission]), (_SPHERE, -1, 0), (name, m.name), c, r)
+            scene.add(np.concatenate([c, [r], albedo, emission, [0.0, 1.0]]), (_SPHERE, -1, 0), (name, m.name), c, r)
         elif kind == "tag":
             fam, tid, size, Rt = tag_spec(m)
             half = 0.5 * size * tag_scale(fam, tid)
@@ -883,6 +923,24 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
             row = np.concatenate([c, axis, [r, 0.5 * h], _lin_bgr((30, 30, 30)), _lin_bgr((225, 225, 225)),
                                   _lin_bgr((128, 128, 128))])
             scene.add(row, (_CYL, off, len(code)), (name, m.name), c, math.hypot(r, 0.5 * h))
+
+
+def _add_prop(scene: _Scene, prop: Prop) -> None:
+    """Append a static prop (pole or box, world frame)."""
+    c = np.asarray(prop.centre, float)
+    col = _lin_bgr(prop.color)
+    if prop.kind == "pole":
+        r, length = (float(x) for x in prop.size)
+        axis = np.asarray(prop.axis, float)
+        axis = axis / np.linalg.norm(axis)
+        off = len(scene.codes)
+        scene.codes.append(1)  # one band, dark = the prop's colour
+        row = np.concatenate([c, axis, [r, 0.5 * length], col, col, col])
+        scene.add(row, (_CYL, off, 1), ("", "#prop"), c, math.hypot(r, 0.5 * length))
+    else:
+        half = np.asarray(prop.size, float)
+        R = so3_exp(np.asarray(prop.axis, float))
+        scene.add(_box_row(c, R, half, col), (_BOX, -1, 0), ("", "#prop"), c, float(np.linalg.norm(half)))
 
 
 def _compile(world: World, t: float, observer: str | None = None
@@ -901,6 +959,12 @@ def _compile(world: World, t: float, observer: str | None = None
     for wr in world.robots.values():
         start = len(scene.rows)
         _add_robot(scene, world, wr, wr.pose_at(t), ids, t)
+        if len(scene.rows) > start:
+            scene.groups.append((start, len(scene.rows)))
+    for prop in world.props:
+        # One group per prop: its own bounding sphere keeps rays cheap.
+        start = len(scene.rows)
+        _add_prop(scene, prop)
         if len(scene.rows) > start:
             scene.groups.append((start, len(scene.rows)))
     scene.finish()
@@ -973,6 +1037,13 @@ def _force_small_spheres(scene: _Scene, T_cw: Pose, camera: Camera, force: np.nd
             force[v0:v1 + 1, u0:u1 + 1] = True
 
 
+def _light_params(world: World) -> np.ndarray:
+    """The kernels' ``lp``: light position, intensity, ambient, linear BGR colour, shadows flag."""
+    lpos = world.light_position()
+    li = world.light
+    return np.concatenate([lpos, [li.intensity, li.ambient], _lin_bgr(li.color), [1.0 if li.shadows else 0.0]])
+
+
 def render_linear(world: World, observer: str, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Anti-aliased linear-light BGR radiance (H, W, 3) and the lights' emission, before the sensor."""
     t = _check_time(t)
@@ -983,8 +1054,7 @@ def render_linear(world: World, observer: str, t: float = 0.0) -> tuple[np.ndarr
     T_wc = world.pose(observer, t)
     R = np.ascontiguousarray(T_wc.R)
     o = np.ascontiguousarray(T_wc.t)
-    lpos = world.light_position()
-    lp = np.array([lpos[0], lpos[1], lpos[2], world.light.intensity, world.light.ambient])
+    lp = _light_params(world)
     bg = _lin_bgr(world.background)
     pix_angle = 1.0 / float(camera.K[0, 0])
     args = (scene.pf, scene.pi, scene.gf, scene.gi, scene.room_box(o), scene.codes_arr, tex, tinfo, _LUT, lp, bg)
@@ -1121,7 +1191,7 @@ def _occluded(scene: _Scene, world: World, observer: str, rname: str, marker: An
     key = np.empty(1, np.int64)
     tex, tinfo, _ = _atlas(world)
     _cast(d.reshape(1, 3), np.eye(3), T_wc.t, scene.pf, scene.pi, scene.gf, scene.gi, scene.room_box(T_wc.t), scene.codes_arr,
-          tex, tinfo, _LUT, np.zeros(5), np.zeros(3), 1.0, rgb, np.empty((1, 3)), key)
+          tex, tinfo, _LUT, np.zeros(9), np.zeros(3), 1.0, rgb, np.empty((1, 3)), key)
     k = int(key[0]) // _KEY_STRIDE if key[0] >= 0 else -1
     if k < 0 or scene.owner[k] != (rname, marker.name):
         return True
@@ -1256,3 +1326,45 @@ def moving_world(rig: Rig, T_qp: Callable[[float], Pose] | None = None, *, dista
         pts = [T_wq(0.0).t] + [T_wp(s).t for s in np.linspace(0.0, period, 33)]
         rm = room_around(pts, seed)
     return World(robots=robots, room=rm)
+
+
+def ball_visibility(world: World, observer: str, marker: str, t: float = 0.0, *, samples: int = 24) -> float:
+    """Share (0..1) of a ball's image that ``observer`` sees unhidden at time ``t``: the ground truth
+    of a detector's visible fraction.
+
+    Rays on a ``samples`` x ``samples`` grid over the ball's disc (uniform in
+    the image plane around its centre) are traced through the scene; the
+    share whose first hit is the ball itself is returned.  0 when the ball
+    is behind the camera.
+    """
+    t = _check_time(t)
+    owner = next((rn for rn, wr in world.robots.items() if marker in wr.robot.markers), None)
+    if owner is None:
+        raise ObservationError(f"unknown marker {marker!r}")
+    T_wc = world.pose(observer, t)
+    c = world.pose(owner, t).apply(world.robot(owner).robot.markers[marker].position)
+    d = c - T_wc.t
+    dist = float(np.linalg.norm(d))
+    r = ball_radius(world.robot(owner).robot.markers[marker])
+    if dist <= r:
+        return 0.0
+    u = d / dist
+    a = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    tan_a = r / math.sqrt(dist * dist - r * r)
+    g = (np.arange(samples) + 0.5) / samples * 2.0 - 1.0
+    gx, gy = np.meshgrid(g, g)
+    inside = gx**2 + gy**2 < 0.999
+    dirs = u + tan_a * (gx[inside, None] * e1 + gy[inside, None] * e2)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    scene, (tex, tinfo, _ids) = _compile(world, t)
+    n = len(dirs)
+    key = np.empty(n, np.int64)
+    _cast(np.ascontiguousarray(dirs), np.eye(3), T_wc.t, scene.pf, scene.pi, scene.gf, scene.gi,
+          scene.room_box(T_wc.t), scene.codes_arr, tex, tinfo, _LUT, np.zeros(9), np.zeros(3), 1.0,
+          np.empty((n, 3)), np.empty((n, 3)), key)
+    k = np.where(key >= 0, key // _KEY_STRIDE, -1)
+    hit = np.array([kk >= 0 and scene.owner[kk] == (owner, marker) for kk in k])
+    return float(hit.mean())

@@ -57,7 +57,10 @@ __all__ = [
     "MARKER_KINDS",
     "TAG_MARGIN_CELLS",
     "Light",
+    "PROP_KINDS",
+    "Plastic",
     "PoseLike",
+    "Prop",
     "Room",
     "Sensor",
     "World",
@@ -190,16 +193,86 @@ def cylinder_spec(marker: Marker) -> tuple[float, float, np.ndarray]:
 
 @dataclass(frozen=True)
 class Light:
-    """A white point light (no shadows) plus uniform ambient light.
+    """A point light plus uniform ambient light.
 
-    Radiance of a matte surface = albedo * (ambient + intensity * max(0, n.l)).
-    ``position`` is in the world frame; None puts it near the ceiling above
-    the robots.
+    Radiance of a matte surface = albedo * colour * (ambient + visible *
+    intensity * max(0, n.l)), where ``visible`` is 0 in the shadow of
+    another object when ``shadows`` is on (a hard light: a point source, so
+    shadows have sharp edges).  ``position`` is in the world frame; None
+    puts it near the ceiling above the robots.  ``color`` is the light's
+    sRGB colour (warm tungsten is about (255, 180, 110)); white by default.
     """
 
     position: tuple[float, float, float] | None = None
     intensity: float = 0.75
     ambient: float = 0.35
+    color: tuple[int, int, int] = (255, 255, 255)
+    shadows: bool = False
+
+    def __post_init__(self) -> None:
+        for what in ("intensity", "ambient"):
+            v = getattr(self, what)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"light {what} must be a finite number >= 0, got {v!r}")
+        if len(self.color) != 3 or not all(0 <= float(c) <= 255 for c in self.color):
+            raise InputError(f"light color must be (r, g, b) in 0..255, got {self.color!r}")
+
+
+@dataclass(frozen=True)
+class Plastic:
+    """Glossy finish of the balls: a Blinn-Phong highlight of the light's colour.
+
+    Radiance added on a ball = ``specular * intensity * colour * (n.h) ** shininess``
+    where the light reaches it; the highlight is not tinted by the ball's
+    albedo, as on real plastic (a dielectric reflects white).
+    """
+
+    specular: float = 0.5
+    shininess: float = 60.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.specular) and self.specular >= 0):
+            raise InputError(f"specular must be a finite number >= 0, got {self.specular!r}")
+        if not (math.isfinite(self.shininess) and self.shininess >= 1):
+            raise InputError(f"shininess must be a finite number >= 1, got {self.shininess!r}")
+
+
+PROP_KINDS = ("pole", "box")
+
+
+@dataclass(frozen=True)
+class Prop:
+    """A static object of the room, in the world frame: an occluder or clutter.
+
+    ``kind`` ``"pole"``: a capped cylinder (poles, cables) centred on
+    ``centre`` along the direction ``axis``, ``size = (radius, length)``.
+    ``kind`` ``"box"``: a box (box edges, same-hue clutter) of half extents
+    ``size = (hx, hy, hz)`` turned by the rotation vector ``axis`` (radians).
+    ``color`` is sRGB (r, g, b), matte.
+    """
+
+    kind: str
+    centre: tuple[float, float, float]
+    size: tuple[float, ...]
+    axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    color: tuple[int, int, int] = (90, 90, 90)
+
+    def __post_init__(self) -> None:
+        if self.kind not in PROP_KINDS:
+            raise InputError(f"prop kind must be one of {', '.join(PROP_KINDS)}, got {self.kind!r}")
+        n = 2 if self.kind == "pole" else 3
+        try:
+            vals = [float(x) for x in self.size] + [float(x) for x in self.centre] + [float(x) for x in self.axis]
+        except (TypeError, ValueError):
+            raise InputError(f"prop {self.kind}: centre, size and axis must be numbers") from None
+        if len(self.size) != n or len(self.centre) != 3 or len(self.axis) != 3 or not all(map(math.isfinite, vals)):
+            raise InputError(f"prop {self.kind}: needs centre (3), size ({n}) and axis (3), finite")
+        if any(float(x) <= 0 for x in self.size):
+            raise InputError(f"prop {self.kind}: size must be positive, got {self.size!r}")
+        if self.kind == "pole" and math.hypot(*map(float, self.axis)) < 1e-12:
+            raise InputError("prop pole: axis must be a non-zero direction")
+        if len(self.color) != 3 or not all(0 <= float(c) <= 255 for c in self.color):
+            raise InputError(f"prop color must be (r, g, b) in 0..255, got {self.color!r}")
 
 
 @dataclass(frozen=True)
@@ -429,6 +502,10 @@ class World:
     light: Light = field(default_factory=Light)
     sensor: Sensor = field(default_factory=Sensor)
     background: tuple[int, int, int] = (0, 0, 0)  # sRGB of rays that hit nothing
+    #: Static objects of the room (occluders, clutter); none by default.
+    props: tuple[Prop, ...] = ()
+    #: Glossy balls (:class:`Plastic`); None: matte.
+    ball_finish: Plastic | None = None
 
     def robot(self, name: str) -> WorldRobot:
         try:

@@ -26,6 +26,13 @@ A pipeline of stages, each a function over small dataclasses:
    balls of one robot are chosen consistently with the rig, and markers
    take their best blobs greedily so two never share one.
 
+Partly hidden balls (:mod:`.occlusion`): when much of a blob's rim is off
+its coarse circle, the circle is found again from the visible outline at
+full resolution (RANSAC whose inliers have radial normals), rim points on an
+occluder's edge are dropped, and a ball with too little rim visible is
+reported missing with the reason.  Real light (:mod:`.light`): a strong
+colour cast is divided out before hues are compared and rims unmixed.
+
 Every tuning value is a field of the frozen :class:`BallParams`.
 
 Accuracy on exact supersampled renders of shaded balls (3 cm, 1-3 m,

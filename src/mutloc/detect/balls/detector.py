@@ -14,11 +14,14 @@ from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
 from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate
 from .fit import CameraModel, ellipse_info, fit_rim
+from .light import light_gains, lut_gains
+from .occlusion import recentre, smooth_rim
 from .params import BallParams, value_lut
 from .rim import sample_rim
-from .search import BallSearch, Blob, find_blobs, pick_downscale, value_floor
+from .search import WHOLE, BallSearch, Blob, find_blobs, pick_downscale, value_floor
 
 __all__ = ["detect_balls", "refine_blob"]
+
 
 
 def detect_balls(
@@ -54,8 +57,11 @@ def detect_balls(
         (``radius_px``, ``rim_fraction`` (share of the rim that fits; lower
         when occluded), ``rms_px``, ``hue_deg``, ``chroma``, ``shading``,
         ``ellipse`` (the fitted outline) and, with a camera, ``distance_m``
-        to the ball's centre); every marker with a colour that was not found
-        is listed in ``missing``.  Never raises for "not found".
+        to the ball's centre), ``visible_fraction`` (share of the rim seen
+        unhidden) and ``residual_px`` (the rim fit's RMS); every marker with
+        a colour that was not found is listed in ``missing``, with why in
+        ``missing_reasons`` (e.g. too hidden to measure without bias).  Never raises
+        for "not found".
     """
     img = as_bgr(image)
     if not isinstance(markers, Mapping):
@@ -90,20 +96,51 @@ def detect_balls(
     # resolution.
     v_floor = value_floor(img)
     cam = CameraModel(camera) if camera is not None else None
+    # The light's colour, divided out before hues are compared (None: white).
+    gains = light_gains(img, params)
+    # Why each marker's candidates were turned down, the most telling first.
+    why: dict[str, tuple[int, str]] = {}
 
-    def refine(s: BallSearch, blob: Blob) -> Candidate | None:
-        c = refine_blob(img, lut, s, blob, cam, rmax, params)
-        return c if c is not None and c.score >= params.min_score else None
+    def reject(name: str, rank: int, reason: str) -> None:
+        if rank > why.get(name, (-1, ""))[0]:
+            why[name] = (rank, reason)
+
+    # Blobs whose rim, on the first look, was much off their coarse circle
+    # (an occluder cut into them): the ones worth a second look.
+    cut: list[Blob] = []
+
+    def refine(s: BallSearch, blob: Blob, rescue: bool = False) -> Candidate | None:
+        c = refine_blob(img, lut, s, blob, cam, rmax, params, v_floor=v_floor, gains=gains,
+                        recentre_it=rescue, cut=None if rescue else cut)
+        if c is None:
+            reject(s.name, 0, "rejected: no blob of its colour has the outline of a ball")
+            return None
+        vis = float(c.info["rim_fraction"])
+        if vis < params.min_visible_fraction:
+            reject(s.name, 3, f"occluded: only {100 * vis:.0f}% of its rim is visible "
+                              f"(min_visible_fraction {100 * params.min_visible_fraction:.0f}%)")
+            return None
+        if c.score < params.min_score:
+            reject(s.name, 1, f"rejected: its best blob scores {c.score:.2f}, below min_score {params.min_score}")
+            return None
+        return c
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
+    later: dict[str, list[Blob]] = {}
 
     def search(level: list[BallSearch], k: int, blob_rmax: float) -> None:
-        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params)):
+        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params, gains=gains)):
             good_r = math.inf
             found: list[Candidate] = []
+            # Blobs ranked below max_candidates are looked at only when none
+            # of the best-ranked ones is a ball (a partly hidden ball ranks
+            # low among look-alikes).  Not for the rig check's second look:
+            # at a distance the rig cannot tell a printed disc from a ball,
+            # and more blobs looked at would find more of those.
+            later[s.name] = list(blobs[: 2 * int(params.max_candidates)])
             skipped[s.name] = []
-            for blob in blobs[: int(params.max_candidates)]:
+            for blob in [b for b in blobs if b.quality >= WHOLE][: int(params.max_candidates)]:
                 # Once a blob fits well, a lower-ranked blob can only win by
                 # being bigger (more rim evidence): smaller ones are not
                 # refined (unless the rig check below asks for them), which
@@ -118,7 +155,35 @@ def detect_balls(
                     skipped[s.name].append(blob)
             per_marker[s.name] = found
 
+    def rescue(s: BallSearch, mates: list[Candidate], whole: bool = True) -> list[Candidate]:
+        """Candidates of ``s`` that the first look missed: a partly hidden
+        ball ranks low among look-alikes (its coarse blob is a piece, off
+        the ball's circle), so more blobs are looked at, and those whose rim
+        looked cut have their circle found again from the visible outline.
+        Only when needed: that search is slower, and where the first fit
+        holds it is the more accurate.  ``whole``: also whole-looking blobs
+        ranked below the first look's."""
+        # Where the robot's other balls were found, a blob far from their
+        # size is not this ball (the rig is small against the distance: a
+        # factor 1.6 either way leaves room for 1.2 m).
+        sizes = [c.radius_px for c in mates]
+        lo, hi = (min(sizes) / 1.6, max(sizes) * 1.6) if sizes else (0.0, math.inf)
+        blobs = [b for b in later[s.name] if lo <= b.radius <= hi]
+        done = [b for b in later[s.name] if b.quality >= WHOLE][: int(params.max_candidates)]
+        found = [c for b in blobs if (whole or b.quality < WHOLE) and not any(b is x for x in done)
+                 and (c := refine(s, b)) is not None]
+        found += [c for b in blobs if any(b is x for x in cut) and (c := refine(s, b, True)) is not None]
+        later[s.name] = []
+        return found
+
+    def best_of_mates(s: BallSearch) -> list[Candidate]:
+        return [max(per_marker[g.name], key=lambda c: c.score) for g in searches
+                if g is not s and g.robot is not None and g.robot == s.robot and per_marker[g.name]]
+
     search(searches, k, rmax)
+    for s in searches:
+        if not per_marker[s.name] and later[s.name]:
+            per_marker[s.name] = rescue(s, best_of_mates(s))
     if fallback:
         lost = [s for s in searches if not per_marker[s.name]]
         if lost:
@@ -135,30 +200,47 @@ def detect_balls(
         # Per robot, the combination of blobs (or none) that best agrees
         # with the rig: balls of one robot keep their mutual distances.
         picked, consistent = choose_consistent(group, per_marker, params)
-        if not consistent and any(skipped[g.name] for g in group):
+        if not consistent:
             # Something does not fit: the blobs passed over may hold the
-            # right ball.
+            # right ball, and a ball left out may be partly hidden.
+            kept = {c.search.name: c for c in picked}
             for g in group:
                 per_marker[g.name] += [c for b in skipped[g.name] if (c := refine(g, b)) is not None]
+                if g.name not in kept and later[g.name]:
+                    per_marker[g.name] += rescue(g, list(kept.values()), whole=False)
             picked, _ = choose_consistent(group, per_marker, params)
         chosen.extend(picked)
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
 
+    for s in searches:
+        if per_marker.get(s.name) and not any(c.search.name == s.name for c in chosen) and s.robot in mates:
+            reject(s.name, 2, "rejected: its blobs do not fit the rig's distances to the robot's other balls")
     taken = assign(chosen, rest)
     for c in taken:
         c.info["ellipse"] = ellipse_info(c.outline)
-        result.detections[c.search.name] = Detection(marker=c.search.name, uv=c.uv, score=c.score, info=c.info)
+        result.detections[c.search.name] = Detection(
+            marker=c.search.name, uv=c.uv, score=c.score, info=c.info,
+            visible_fraction=float(c.info["rim_fraction"]), residual_px=float(c.info["rms_px"]))
     # Where another blob of a marker scored nearly as well, the detector is
-    # unsure: hand it over too, and let the mutual geometry decide.
+    # unsure: hand it over too, and let the mutual geometry decide.  Scores
+    # are compared per share of visible rim: a partly hidden ball scores
+    # low for being hidden, not for looking less like a ball.
+    def per_rim(c: Candidate) -> float:
+        return c.score / max(float(c.info["rim_fraction"]), params.min_visible_fraction, 1e-9)
+
     for c in taken:
         alts = [a for a in per_marker.get(c.search.name, [])
-                if a is not c and a.score >= params.alternative_ratio * c.score
+                if a is not c and per_rim(a) >= params.alternative_ratio * per_rim(c)
                 and not any(same_blob(a, t) for t in taken)]
         if alts:
             result.alternatives[c.search.name] = [
                 Detection(marker=a.search.name, uv=a.uv, score=a.score, info=a.info)
                 for a in sorted(alts, key=lambda a: -a.score)[: params.max_alternatives]]
     result.missing = [s.name for s in searches if s.name not in result.detections]
+    for name in result.missing:
+        if per_marker.get(name) and name not in why:
+            reject(name, 2, "ambiguous: its blob went to another marker of a similar colour")
+        result.missing_reasons[name] = why.get(name, (0, "not_found: no blob of its colour"))[1]
     return result
 
 
@@ -170,23 +252,52 @@ def refine_blob(
     cam: CameraModel | None,
     max_r: float,
     params: BallParams,
+    *,
+    v_floor: int = 12,
+    gains: np.ndarray | None = None,
+    recentre_it: bool = False,
+    cut: list[Blob] | None = None,
 ) -> Candidate | None:
     """Sub-pixel fit and score of one coarse blob; None if it is not a plausible ball.
 
     Two rounds of rim sampling and fitting: the second casts its rays from
     the fitted centre, with its windows centred on the fitted outline (an
-    ellipse off-axis).
+    ellipse off-axis).  With ``recentre_it``, when much of the first
+    round's rim is off the coarse circle (an occluder cut or split the
+    blob), the circle is found again from the visible outline
+    (:func:`~.occlusion.recentre`); without, such a blob is appended to
+    ``cut``.  Rim points on an occluder's edge are left out
+    (:func:`~.occlusion.smooth_rim`).
+    ``v_floor`` and ``gains`` (the light's colour) are as in the coarse search.
     """
     cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
-    n_rays = min(max(round(2 * math.pi * r), 24), 96)
-    ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
-    rexp = np.full(n_rays, r)
-    for it in range(2):
-        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px)
+    # Rims are measured in colours as under white light.
+    lg = lut_gains(gains, params) if gains is not None else None
+    recentred = moved = False
+    it = 0
+    while it < 2:
+        if it == 0:
+            n_rays = min(max(round(2 * math.pi * r), 24), 96)
+            ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
+            rexp = np.full(n_rays, r)
+        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, lg)
         # Rays far off the expected rim are occluders, clutter or a bad
         # coarse circle: the ones close to it are the initial inlier set.
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
-        init = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol0)
+        near = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol0)
+        if it == 0 and not recentred and near.sum() < params.recentre_below * n_rays:
+            recentred = True
+            if not recentre_it:
+                if cut is not None:
+                    cut.append(blob)
+            else:
+                c = recentre(img, s, blob, v_floor, gains, params)
+                if c is not None and math.hypot(c[0] - cx, c[1] - cy) + abs(c[2] - r) > 0.25 + 0.05 * r:
+                    cx, cy, r = c
+                    moved = True
+                    continue
+        rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
+        init = near & rim.valid
         if init.sum() < 6:
             return None
         fit = fit_rim(rim, init, cam, params.max_axis_ratio)
@@ -197,4 +308,8 @@ def refine_blob(
         r = fit.radius_px
         if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not np.all(np.isfinite(rexp)):
             return None
-    return score_candidate(img, lut, s, blob.fill, rim, fit, cam, params)
+        it += 1
+    # The coarse blob of a split ball is one piece of it, filling little of
+    # its circle: the visible rim (in the score) is the better judge then.
+    fill = max(blob.fill, 0.6) if moved else blob.fill
+    return score_candidate(img, lut, s, fill, rim, fit, cam, params)

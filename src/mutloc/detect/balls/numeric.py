@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["kasa_circle", "median_inplace", "solve3"]
+__all__ = ["circle3", "kasa_circle", "median_inplace", "solve3"]
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -96,3 +96,17 @@ def median_inplace(a, k) -> float:
     if k % 2 == 1:
         return a[k // 2]
     return 0.5 * (a[k // 2 - 1] + a[k // 2])
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def circle3(ax, ay, bx, by, cx, cy):
+    """Circle through three points: ``(ok, u, v, r)``; not ok when they are collinear."""
+    d = 2.0 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
+    if abs(d) < 1e-9:
+        return False, 0.0, 0.0, 0.0
+    a2 = ax * ax + ay * ay
+    b2 = bx * bx + by * by
+    c2 = cx * cx + cy * cy
+    ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
+    uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
+    return True, ux, uy, math.hypot(ax - ux, ay - uy)

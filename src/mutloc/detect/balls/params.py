@@ -107,6 +107,30 @@ class BallParams:
     #: Alternatives handed over per marker at most.
     max_alternatives: int = 2
 
+    #: A ball with less of its rim visible (inlier rays of the fit over all
+    #: rays) is reported missing, with the reason, rather than measured
+    #: from too short an arc (its centre would be biased by the occluder).
+    min_visible_fraction: float = 0.25
+    #: When fewer of the first round's rim points than this share lie near
+    #: the coarse circle (an occluder split the blob or cut into it), the
+    #: circle is searched again at full resolution from the visible
+    #: outline (:mod:`.occlusion`).
+    recentre_below: float = 0.85
+    #: Rim points where the measured outline turns more than this against
+    #: the ray (degrees: the edge's normal is not radial) lie on an
+    #: occluder's edge, not on the ball's rim, and are left out of the fit.
+    max_rim_slope_deg: float = 35.0
+    #: Colour of the light: ``"auto"`` estimates it (grey world) and
+    #: corrects colours before the hue test when the image's cast is strong
+    #: (see ``auto_white_balance_below``); ``"off"`` never corrects; an
+    #: sRGB ``(r, g, b)`` gives the light's colour (e.g. ``(255, 176, 96)``
+    #: for tungsten).
+    white_balance: str | tuple[int, int, int] = "auto"
+    #: ``"auto"`` corrects only when the image's mean linear colour has its
+    #: weakest channel below this share of its strongest: white-lit indoor
+    #: scenes measure 0.74-0.85 (coloured posters), tungsten light ~0.1.
+    auto_white_balance_below: float = 0.6
+
     def __post_init__(self) -> None:
         _positive("min_radius_px", self.min_radius_px)
         _positive("hue_tol_deg", self.hue_tol_deg)
@@ -136,7 +160,22 @@ class BallParams:
         _positive_int("max_joint_options", self.max_joint_options)
         _positive_int("max_joint_combos", self.max_joint_combos)
         _positive_int("max_alternatives", self.max_alternatives)
-        for what in ("min_score", "good_enough", "alternative_ratio", "min_nominal_saturation", "min_nominal_value"):
+        if not 0 < self.max_rim_slope_deg < 90:
+            raise InputError(f"max_rim_slope_deg must be in (0, 90), got {self.max_rim_slope_deg!r}")
+        wb = self.white_balance
+        if isinstance(wb, str):
+            if wb not in ("auto", "off"):
+                raise InputError(f"white_balance must be 'auto', 'off' or an (r, g, b) colour, got {wb!r}")
+        else:
+            try:
+                rgb = tuple(float(c) for c in wb)
+            except (TypeError, ValueError):
+                raise InputError(f"white_balance must be 'auto', 'off' or an (r, g, b) colour, got {wb!r}") from None
+            if len(rgb) != 3 or not all(0 < c <= 255 for c in rgb):
+                raise InputError(f"white_balance colour must be 3 values in (0, 255], got {wb!r}")
+            object.__setattr__(self, "white_balance", rgb)
+        for what in ("min_score", "good_enough", "alternative_ratio", "min_nominal_saturation", "min_nominal_value",
+                     "min_visible_fraction", "recentre_below", "auto_white_balance_below"):
             val = getattr(self, what)
             if isinstance(val, bool) or not (isinstance(val, Real) and 0 <= val <= 1):
                 raise InputError(f"{what} must be a number in [0, 1], got {val!r}")

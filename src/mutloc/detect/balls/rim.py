@@ -56,25 +56,29 @@ def window(rexp: np.ndarray) -> float:
 
 def sample_rim(
     img: np.ndarray, lut: np.ndarray, cx: float, cy: float, ang: np.ndarray, rexp: np.ndarray,
-    local_half_window: float, step: float,
+    local_half_window: float, step: float, gains: np.ndarray | None = None,
 ) -> Rim:
     """Measure the rim along rays at angles ``ang`` from ``(cx, cy)``, expected at radii ``rexp``.
 
     ``lut`` maps uint8 values to the values colours are unmixed in; the
     window is :func:`window` wide, refined to ``+- local_half_window``
-    around the first edge, sampled every ``step`` pixels.
+    around the first edge, sampled every ``step`` pixels.  ``gains``
+    (per channel B, G, R, in ``lut``'s values) divide out the light's
+    colour first: the unmixing itself does not care, but whether ball and
+    background differ enough in colour to unmix does.
     """
+    g = np.ones(3) if gains is None else np.ascontiguousarray(gains, dtype=np.float64)
     n = len(ang)
     e = np.empty(n)
     valid = np.empty(n, np.bool_)
     inner = np.empty((n, 3))
     contrast = np.empty(n)
-    edges_kernel(img, lut, cx, cy, ang, rexp, window(rexp), local_half_window, step, e, valid, inner, contrast)
+    edges_kernel(img, lut, g, cx, cy, ang, rexp, window(rexp), local_half_window, step, e, valid, inner, contrast)
     return Rim(cx, cy, ang, e, valid, inner, contrast)
 
 
 @numba.njit(cache=True, fastmath=False)
-def _sample(img, lut, x, y, out) -> None:
+def _sample(img, lut, gain, x, y, out) -> None:
     """Bilinear sample of the image in ``lut``'s values at ``(x, y)`` in [0, W-1] x [0, H-1]."""
     H = img.shape[0]
     W = img.shape[1]
@@ -90,7 +94,7 @@ def _sample(img, lut, x, y, out) -> None:
     w10 = (1.0 - fx) * fy
     w11 = fx * fy
     for c in range(3):
-        out[c] = (
+        out[c] = gain[c] * (
             w00 * lut[img[y0, x0, c]]
             + w01 * lut[img[y0, x0 + 1, c]]
             + w10 * lut[img[y0 + 1, x0, c]]
@@ -99,7 +103,7 @@ def _sample(img, lut, x, y, out) -> None:
 
 
 @numba.njit(cache=True, fastmath=False)
-def edges_kernel(img, lut, cx, cy, ang, rexp, h, w2, step, e, valid, inner, contrast) -> None:
+def edges_kernel(img, lut, gain, cx, cy, ang, rexp, h, w2, step, e, valid, inner, contrast) -> None:
     """Sub-pixel rim radius along each ray ``(cx, cy) + t (cos a, sin a)``.
 
     The window ``t in rexp[i] +- h`` is sampled every ``step`` pixels, and
@@ -151,7 +155,7 @@ def edges_kernel(img, lut, cx, cy, ang, rexp, h, w2, step, e, valid, inner, cont
             continue
         for j in range(K):
             t = t0 + j * step
-            _sample(img, lut, cx + cs * t, cy + sn * t, P[j])
+            _sample(img, lut, gain, cx + cs * t, cy + sn * t, P[j])
         # First over the whole window, then over a window of +-w2 around
         # that first edge: the colours next to the rim are the ones that
         # mix in its pixels (a background that changes a few pixels out, a
@@ -206,6 +210,19 @@ def unmix_edge(P, j0, j1, step, alpha, B):
     det = bb * gg - bg * bg
     sin2 = det / max(bb * gg, 1e-30)
     wch = min(max((sin2 - 0.02) / 0.08, 0.0), 1.0)
+    # Brightness trends of the ball and of the background towards the edge
+    # (a sphere darkens or brightens steeply at its limb under a hard
+    # light): the ball's share in each sample is unmixed against the
+    # shading extrapolated to it, not against the window's ends.
+    sb = 0.0
+    sg = 0.0
+    if wch > 0.0 and j1 - j0 >= 8:
+        b0, _ = _unmix2(P, j0, B, G, bb, gg, bg, det)
+        b2, _ = _unmix2(P, j0 + 2, B, G, bb, gg, bg, det)
+        _, g0 = _unmix2(P, j1, B, G, bb, gg, bg, det)
+        _, g2 = _unmix2(P, j1 - 2, B, G, bb, gg, bg, det)
+        sb = 0.5 * (b2 - b0)
+        sg = 0.5 * (g0 - g2)
     for j in range(j0, j1 + 1):
         pb = 0.0
         pg = 0.0
@@ -218,6 +235,12 @@ def unmix_edge(P, j0, j1, step, alpha, B):
         if wch > 0.0:
             gam = (bb * pg - bg * pb) / det
             bet = (gg * pb - bg * pg) / det
+            # Shading at this sample, extrapolated from each side, kept
+            # within a factor of two of the ends'.
+            s_b = min(max(1.0 + sb * (j - j0 - 0.5), 0.5), 2.0)
+            s_g = min(max(1.0 + sg * (j1 - 0.5 - j), 0.5), 2.0)
+            bet /= s_b
+            gam /= s_g
             # Floor on the denominator: a pixel much darker than both sides
             # (noise) must not blow up.
             a = wch * bet / max(bet + gam, 0.25) + (1.0 - wch) * a
@@ -237,6 +260,17 @@ def unmix_edge(P, j0, j1, step, alpha, B):
     # hold a second edge (occluder, clutter) inside the window.
     ok = math.isfinite(edge) and amax < 1.35 and amin > -0.35 and tv < 1.8
     return ok, edge, contrast
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _unmix2(P, j, B, G, bb, gg, bg, det):
+    """(beta, gamma) of sample ``j``: ``P[j] ~ beta B + gamma G``."""
+    pb = 0.0
+    pg = 0.0
+    for c in range(3):
+        pb += P[j, c] * B[c]
+        pg += P[j, c] * G[c]
+    return (gg * pb - bg * pg) / det, (bb * pg - bg * pb) / det
 
 
 @numba.njit(cache=True, fastmath=False)

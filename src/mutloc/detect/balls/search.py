@@ -18,7 +18,8 @@ import numpy as np
 from ...core.rig import Marker
 from ...errors import InputError
 from .cues import evidence, vivid
-from .numeric import kasa_circle
+from .light import correct
+from .numeric import circle3, kasa_circle
 from .params import DEFAULT_BALL_RADIUS_M, BallParams
 
 __all__ = [
@@ -249,16 +250,25 @@ def _blob_chroma(coarse: np.ndarray, blob: Blob, sx: float, sy: float) -> float:
     return best
 
 
+#: Blobs of at least this quality look like whole discs; the others (down
+#: to 0.15) are looked at only when no whole one of a marker is its ball.
+WHOLE = 0.25
+
+
 def find_blobs(
-    img: np.ndarray, searches: list[BallSearch], k: int, max_r: float, v_floor: int, params: BallParams
+    img: np.ndarray, searches: list[BallSearch], k: int, max_r: float, v_floor: int, params: BallParams,
+    gains: np.ndarray | None = None,
 ) -> list[list[Blob]]:
     """Per search, its blobs in the image shrunk ``k`` times, best first.
 
     Best: round, solid, vivid and (other things equal) big, as in the final
-    score; blobs that are clearly not discs are dropped.
+    score; blobs that are clearly not discs are dropped.  ``gains`` (linear,
+    per channel) divide out the light's colour first (:mod:`.light`).
     """
     H, W = img.shape[:2]
     coarse = img if k == 1 else cv2.resize(img, (W // k, H // k), interpolation=cv2.INTER_AREA)
+    if gains is not None:
+        coarse = correct(coarse, gains)
     hsv = cv2.cvtColor(coarse, cv2.COLOR_BGR2HSV_FULL)
     sx = W / coarse.shape[1]
     sy = H / coarse.shape[0]
@@ -266,7 +276,9 @@ def find_blobs(
     for mask in hue_masks(hsv, searches, params.hue_tol_deg, v_floor):
         blobs = []
         for b in coarse_blobs(mask, sx, sy, params.min_radius_px, max_r):
-            if b.quality >= 0.25:
+            # A ball split by a pole leaves half-discs: support ~0.5 of
+            # their circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
+            if b.quality >= 0.15:
                 blobs.append(Blob(b.u, b.v, b.radius, b.quality, b.fill, _blob_chroma(coarse, b, sx, sy)))
         blobs.sort(key=lambda b: -b.quality * evidence(2.0 * math.pi * b.radius) * vivid(b.chroma))
         out.append(blobs)
@@ -325,15 +337,9 @@ def _ransac_circle_kernel(pts, tol, triplets, rmin, rmax):
         ax, ay = pts[i0, 0], pts[i0, 1]
         bx, by = pts[i1, 0], pts[i1, 1]
         cx, cy = pts[i2, 0], pts[i2, 1]
-        d = 2.0 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
-        if abs(d) < 1e-9:
+        ok, ux, uy, r = circle3(ax, ay, bx, by, cx, cy)
+        if not ok:
             continue
-        a2 = ax * ax + ay * ay
-        b2 = bx * bx + by * by
-        c2 = cx * cx + cy * cy
-        ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
-        uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
-        r = math.hypot(ax - ux, ay - uy)
         # Nearly collinear points give huge circles that hug straight edges.
         if r < rmin or r > rmax:
             continue
