@@ -43,7 +43,7 @@ from .pose import Pose
 from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
-           "iekf_update", "rts_smooth", "STATE_DIM"]
+           "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM"]
 
 #: Error-state dimension: rotation, translation, angular and linear velocity.
 STATE_DIM = 12
@@ -399,17 +399,18 @@ class ConstantVelocityFilter:
         self.state: FilterState | None = None
         # (squared residual, degrees of freedom) of the last accepted frames
         # with four or more markers fitted on their own: the detections' noise.
-        self._noise_window: deque[tuple[float, int]] = deque(maxlen=NOISE_WINDOW)
+        self._noise_window: deque[tuple[float, int]] = deque()
+        self._noise_sum = [0.0, 0]
 
     @property
     def detection_sigma(self) -> float | None:
         """The detections' pixel noise measured over the last accepted frames
         (their residuals fitted on their own, pooled), or None before
         ``NOISE_MIN_DOF`` degrees of freedom."""
-        dof = sum(d for _, d in self._noise_window)
+        chi2, dof = self._noise_sum
         if dof < NOISE_MIN_DOF:
             return None
-        return math.sqrt(sum(c for c, _ in self._noise_window) / dof)
+        return math.sqrt(max(chi2, 0.0) / dof)
 
     @property
     def gain_sigma(self) -> float:
@@ -422,7 +423,7 @@ class ConstantVelocityFilter:
         measured = self.detection_sigma if self.measure_noise else None
         if measured is None:
             return self.pixel_sigma
-        dof = sum(d for _, d in self._noise_window)
+        dof = self._noise_sum[1]
         upper = measured * math.sqrt(1.0 + 2.0 * math.sqrt(2.0 / dof))
         if upper > NOISE_CLEARLY_BELOW * self.pixel_sigma:
             return self.pixel_sigma
@@ -517,6 +518,12 @@ class ConstantVelocityFilter:
         self.state = state
         if math.isfinite(ls_chi2):
             self._noise_window.append((ls_chi2, 2 * n - 6))
+            self._noise_sum[0] += ls_chi2
+            self._noise_sum[1] += 2 * n - 6
+            if len(self._noise_window) > NOISE_WINDOW:
+                c, d = self._noise_window.popleft()
+                self._noise_sum[0] -= c
+                self._noise_sum[1] -= d
 
     def _require(self) -> FilterState:
         if self.state is None:
@@ -572,27 +579,40 @@ class ConstantVelocityFilter:
         return FilterUpdate(False, prior, test, np.empty(0, np.int64), np.arange(n), np.full(n, np.inf), reason)
 
 
-def rts_smooth(priors: list[FilterState], posteriors: list[FilterState]) -> list[FilterState]:
-    """Rauch-Tung-Striebel smoothing of one uninterrupted track (offline, for
-    comparison: what a smoother gains over the causal filter).
+def rts_gains(priors: list[FilterState], posteriors: list[FilterState]) -> list[np.ndarray]:
+    """The RTS smoother's gains ``G_k = P_k F_k' (P_k+1^-)^-1`` (12x12) of a
+    track, ``k = 0 .. n-2``, from the filter's own covariances: they depend on
+    the filter alone, so a fixed-lag smoother computes each once."""
+    F = np.empty((STATE_DIM, STATE_DIM))
+    out = []
+    for post, prior_next in zip(posteriors[:-1], priors[1:]):
+        cv_transition(post.velocity, prior_next.time - post.time, F)
+        out.append(np.linalg.solve(prior_next.own_covariance, F @ post.own_covariance).T)
+    return out
+
+
+def rts_smooth(priors: list[FilterState], posteriors: list[FilterState],
+               gains: list[np.ndarray] | None = None) -> list[FilterState]:
+    """Rauch-Tung-Striebel smoothing of one uninterrupted track.
 
     ``priors[k]`` is the prediction to frame k (``priors[0]`` unused) and
     ``posteriors[k]`` the filter's state after frame k (its prediction when
-    the frame was rejected or empty).  Returns the smoothed states.
+    the frame was rejected or empty); ``gains``: :func:`rts_gains` of them,
+    if already known.  Returns the smoothed states.
     """
     from .geometry import so3_exp, so3_log
 
     n = len(posteriors)
+    if gains is None:
+        gains = rts_gains(priors, posteriors)
     out: list[FilterState] = [posteriors[-1]] * n
-    F = np.empty((STATE_DIM, STATE_DIM))
     for k in range(n - 2, -1, -1):
         post, prior_next, smooth_next = posteriors[k], priors[k + 1], out[k + 1]
-        cv_transition(post.velocity, prior_next.time - post.time, F)
         # The gain from the filter's own covariances.  Where those assumed
         # measured noise below the stated, the reported covariance is the
         # smaller (by trace) of two bounds: the filter's, and the smoothed own
         # one scaled by noise_scale (this gain is not the stated noise's RTS gain).
-        G = post.own_covariance @ F.T @ np.linalg.inv(prior_next.own_covariance)
+        G = gains[k]
         d = np.r_[so3_log(smooth_next.pose.R @ prior_next.pose.R.T), smooth_next.pose.t - prior_next.pose.t,
                   smooth_next.velocity - prior_next.velocity]
         e = G @ d

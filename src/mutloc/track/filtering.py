@@ -27,7 +27,7 @@ import numpy as np
 from ..api import Estimate, localize
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.estimate import PairProblem
-from ..core.filter import ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise, rts_smooth
+from ..core.filter import ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise, rts_gains, rts_smooth
 from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.pose import Pose
 from ..core.rig import Rig
@@ -218,8 +218,9 @@ class PairTracker:
         hist = self.history
         for k, j in self.segments():
             priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
+            gains = rts_gains(priors, posts)
             for i in range(j - k):
-                state = rts_smooth(priors[i:i + lag + 1], posts[i:i + lag + 1])[0]
+                state = rts_smooth(priors[i:i + lag + 1], posts[i:i + lag + 1], gains[i:i + lag])[0]
                 row = hist[k + i][2]
                 if row.estimate is not None:
                     row.estimate = replace(row.estimate, pose=state.pose, covariance=state.pose_covariance.copy(),
