@@ -40,7 +40,7 @@ from ..errors import InputError, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .estimate import PairProblem
 from .pose import Pose
-from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, residuals, so3_exp_left
+from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, normal_equations, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
            "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM"]
@@ -220,6 +220,19 @@ def _symmetrize(P):
 
 
 @njit(cache=True)
+def _mahalanobis2(S, v, L, y):
+    """``v' S^-1 v`` (inf if ``S`` is not positive definite); ``L`` gets S's
+    Cholesky factor and ``y`` = ``S^-1 v``."""
+    if not cholesky(S, L):
+        return np.inf
+    cho_solve(L, v, y)
+    out = 0.0
+    for k in range(v.shape[0]):
+        out += v[k] * y[k]
+    return out
+
+
+@njit(cache=True)
 def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_iter, R, t, vel, P, res_px,
                 sigma_report, Pr0, Pr):
     """Iterated EKF update of the prior ``(R0, t0, vel0, P0)`` with pixel
@@ -282,12 +295,9 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
             for c in range(6):
                 s += J[k, c] * e[c]
             innov[k] = s
-        if not cholesky(S, L):
+        chi2 = _mahalanobis2(S, innov, L, y)
+        if not math.isfinite(chi2):
             return np.inf, it, np.nan
-        cho_solve(L, innov, y)
-        chi2 = 0.0
-        for k in range(m):
-            chi2 += innov[k] * y[k]
         step = 0.0
         for i in range(STATE_DIM):
             s = 0.0
@@ -309,17 +319,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
     if m > 6:
         JtJ = np.empty((6, 6))
         Jtr = np.empty(6)
-        for a in range(6):
-            s = 0.0
-            for k in range(m):
-                s += J[k, a] * r[k]
-            Jtr[a] = s
-            for b in range(a + 1):
-                s = 0.0
-                for k in range(m):
-                    s += J[k, a] * J[k, b]
-                JtJ[a, b] = s
-                JtJ[b, a] = s
+        normal_equations(J, r, JtJ, Jtr)
         L6 = np.empty((6, 6))
         x6 = np.empty(6)
         if cholesky(JtJ, L6):
@@ -354,6 +354,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
         Pr[:, :] = P
     else:
         # The same gain, the stated noise: innovation covariance, gate and posterior.
+        Ls = np.empty((m, m))
         for a in range(m):
             for b in range(a + 1):
                 s = 0.0
@@ -363,12 +364,9 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
                 S[a, b] = s
                 S[b, a] = s
             S[a, a] += sigma_report * sigma_report
-        if not cholesky(S, L):
+        chi2 = _mahalanobis2(S, innov, Ls, y)
+        if not math.isfinite(chi2):
             return np.inf, it, np.nan
-        cho_solve(L, innov, y)
-        chi2 = 0.0
-        for k in range(m):
-            chi2 += innov[k] * y[k]
         Pr[:, :] = A @ Pr0 @ A.T + sigma_report * sigma_report * KK
         _symmetrize(Pr)
     if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, r, J, False, ws):
