@@ -512,7 +512,7 @@ def test_detections_better_than_stated_do_not_make_the_track_lag():
                            for a, b in zip(rows, per_frame) if b.estimate is not None])
         assert 0.2 < ratio < 1.5, ratio
     med = {k: np.median(np.concatenate(v)) for k, v in med.items()}
-    assert med["default"] <= med["none"], med
+    assert med["default"] <= med["none"], med  # measured 0.052 vs 0.059 cm
     assert med["causal"] <= 1.2 * med["none"], med
     assert med["stated"] >= 3 * med["none"], med
 
