@@ -20,7 +20,16 @@ posterior cost ``e' P^-1 e + |r|^2 / sigma^2``) against the chi-square
 quantile with ``2n`` degrees of freedom at ``confidence``.  A frame that fails
 is retried without each single observation; when exactly one such subset
 passes, that observation is dropped, else the frame is rejected and the
-state stays the prediction.
+state stays the prediction.  Frames with fewer than three observations are
+linearised once, at the prediction (iterating would relinearise along the
+directions they cannot fix and make the track overconfident).
+
+Detection noise: ``pixel_sigma`` is the stated noise behind every reported
+covariance and the gate.  The filter also measures the noise (each accepted
+frame's residual that no pose explains); when it is clearly smaller, the gain
+weighs the detections by it, so that detections far better than stated do
+not make the track lag, and the reported covariance is carried as that of
+the same gains under ``pixel_sigma`` (:attr:`FilterState.gain_covariance`).
 
 Nothing here reads files: the tracker (:mod:`mutloc.track.filtering`) turns
 frames into :class:`~mutloc.core.estimate.PairProblem` and rows.  A team
