@@ -47,9 +47,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     f.add_argument("--filter", choices=("cv", "none"), default="cv",
                    help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
                         "markers (even one or two); none: every frame on its own")
-    f.add_argument("--smooth-lag", type=int_in_range(0, 300, "--smooth-lag"), default=0, metavar="N",
+    f.add_argument("--smooth-lag", type=int_in_range(0, 300, "--smooth-lag"), default=None, metavar="N",
                    help="report each pose smoothed with the N frames after it (fixed-lag smoothing; what a "
-                        "smoother would give N frames late); default 0: the filter's pose at once")
+                        "smoother would give N frames late; default 10); 0: the causal filter's pose at once")
     f.add_argument("--linear-noise", type=positive_float, default=1.0, metavar="A",
                    help="white-noise acceleration of the relative translation, m/s^2/sqrt(Hz) (default 1.0)")
     f.add_argument("--angular-noise", type=positive_float, default=0.5, metavar="A",

@@ -245,7 +245,7 @@ def cho_solve(L, b, x):
 
 
 @njit(cache=True)
-def _normal_equations(J, r, H, g):
+def normal_equations(J, r, H, g):
     """H = J^T J and g = J^T r without a BLAS call (tiny matrices)."""
     m = J.shape[0]
     for a in range(6):
@@ -286,7 +286,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
     lam = 1e-4
     it = 0
     for it in range(1, max_iter + 1):
-        _normal_equations(J, r, H, g)
+        normal_equations(J, r, H, g)
         improved = False
         small = False
         scale = 1.0 + np.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
@@ -339,5 +339,5 @@ def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, H):
     if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, np.empty(WS_SIZE)):
         return False
     g = np.empty(6)
-    _normal_equations(J, r, H, g)
+    normal_equations(J, r, H, g)
     return True
