@@ -37,7 +37,7 @@ from numba import njit
 from ..errors import DegenerateGeometryError, NoSolutionError
 from .camera import project_jac_kernel, project_kernel
 from .consistency import chi2_quantile
-from .estimate import _PER_SUBSET, minimal_subsets, solve_kernel
+from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
 from .refine import MODE_PIXEL, so3_exp_left, solve_spd
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
@@ -481,7 +481,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
             P[na + i, k] = pts[j, k]
         meas[na + i, 0] = uv[j, 0]
         meas[na + i, 1] = uv[j, 1]
-    size = max(subsets.shape[0] * _PER_SUBSET, 1)
+    size = max(subsets.shape[0] * PER_SUBSET, 1)
     Rc = np.empty((size, 3, 3))
     tc = np.empty((size, 3))
     order = np.empty(size, dtype=np.int64)
@@ -634,20 +634,69 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     return Rs, ts, placed
 
 
+@njit(cache=True)
+def _rcm_kernel(a, b, k):
+    """Reverse Cuthill-McKee order of ``k`` nodes joined by the edges
+    ``a[j]``--``b[j]``: each component breadth-first from a node of least
+    degree, neighbours by increasing degree, then reversed."""
+    src = np.empty(2 * a.shape[0], dtype=np.int64)
+    dst = np.empty(2 * a.shape[0], dtype=np.int64)
+    m = 0
+    for j in range(a.shape[0]):
+        if a[j] != b[j]:
+            src[m] = a[j]
+            dst[m] = b[j]
+            src[m + 1] = b[j]
+            dst[m + 1] = a[j]
+            m += 2
+    key = np.unique(src[:m] * k + dst[:m])
+    ptr = np.zeros(k + 1, dtype=np.int64)
+    for e in key:
+        ptr[e // k + 1] += 1
+    for i in range(k):
+        ptr[i + 1] += ptr[i]
+    nbr = key % k
+    deg = ptr[1:] - ptr[:-1]
+    seen = np.zeros(k, dtype=np.bool_)
+    order = np.empty(k, dtype=np.int64)
+    n = 0
+    while n < k:
+        start = -1
+        for i in range(k):
+            if not seen[i] and (start < 0 or deg[i] < deg[start]):
+                start = i
+        seen[start] = True
+        order[n] = start
+        head = n
+        n += 1
+        while head < n:
+            v = order[head]
+            head += 1
+            lo = n
+            for e in range(ptr[v], ptr[v + 1]):
+                w = nbr[e]
+                if not seen[w]:
+                    seen[w] = True
+                    # insertion by degree keeps the new neighbours sorted
+                    p = n
+                    while p > lo and deg[order[p - 1]] > deg[w]:
+                        order[p] = order[p - 1]
+                        p -= 1
+                    order[p] = w
+                    n += 1
+    return order[::-1].copy()
+
+
 def _rcm(problem: TeamProblem, order: np.ndarray) -> np.ndarray:
     """Reverse Cuthill-McKee permutation of ``order`` (robots) by shared observations."""
     k = len(order)
     if k <= 2:
         return np.arange(k)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
     pos = np.full(problem.n_robots, -1)
     pos[order] = np.arange(k)
     a, b = pos[problem.cam], pos[problem.own]
     ok = (a >= 0) & (b >= 0)
-    G = coo_matrix((np.ones(2 * ok.sum()), (np.r_[a[ok], b[ok]], np.r_[b[ok], a[ok]])), shape=(k, k)).tocsr()
-    return np.asarray(reverse_cuthill_mckee(G, symmetric_mode=True), dtype=np.int64)
+    return _rcm_kernel(a[ok], b[ok], k)
 
 
 def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarray, np.ndarray, np.ndarray]
