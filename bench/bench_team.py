@@ -146,8 +146,10 @@ def gtsam_solve(problem: TeamProblem, ref: int, Rs0: np.ndarray, ts0: np.ndarray
     at these ranges (about 6 mm at 3 m), so the optimum is the rigid one to
     well under a micrometre, yet loose enough for a well-conditioned system
     (at 1e-6 m Levenberg-Marquardt cannot take a step from the start).
-    GTSAM's default Levenberg-Marquardt parameters.  Undistorted pinhole: the
-    benchmark cameras have no distortion.  Returns the poses, the graph
+    GTSAM's Levenberg-Marquardt with diagonal (Marquardt) damping, as ours
+    (with the default identity damping it stops at the start of most cold
+    10-robot teams, lambda at its upper bound); other parameters default.
+    Undistorted pinhole: the benchmark cameras have no distortion.  Returns the poses, the graph
     building and optimising times (wall, CPU) and the iterations."""
     import gtsam
     from gtsam.symbol_shorthand import L, M, X
@@ -181,7 +183,9 @@ def gtsam_solve(problem: TeamProblem, ref: int, Rs0: np.ndarray, ts0: np.ndarray
         graph.add(gtsam.GenericProjectionFactorCal3_S2(np.asarray(problem.uv[j], float), pix, X(a),
                                                         L(marker_key[key]), cals[a]))
     c1, t1 = time.thread_time(), time.perf_counter()
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams())
+    params = gtsam.LevenbergMarquardtParams()
+    params.setDiagonalDamping(True)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = optimizer.optimize()
     c2, t2 = time.thread_time(), time.perf_counter()
     Rs = np.array([result.atPose3(X(i)).rotation().matrix() for i in range(problem.n_robots)])

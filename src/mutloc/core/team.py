@@ -11,9 +11,8 @@ convention.
 
 Each residual touches at most two 6-blocks, so ``J`` is block-sparse and
 ``H`` is assembled block by block; the ``6k`` square damped system is then
-factorised by Cholesky (for teams of up to a few hundred robots a dense
-factorisation of the small reduced system beats sparse bookkeeping; see
-bench/bench_team.py).
+factorised by an envelope Cholesky with the robots in reverse Cuthill-McKee
+order of the observation graph (see bench/bench_team.py).
 
 Initialisation (:func:`initial_poses`) places robots one at a time, the
 best-tied first (Prim's algorithm on the observation graph): a robot ``r``
@@ -429,24 +428,6 @@ def _spread(rows, k):
 
 
 @njit(cache=True)
-def _all_subsets(n):
-    """Every 3-subset of ``range(n)`` in lexicographic order (what
-    :func:`mutloc.core.estimate.minimal_subsets` gives when there are at most
-    ``MAX_SUBSETS`` of them)."""
-    m = n * (n - 1) * (n - 2) // 6
-    out = np.empty((m, 3), dtype=np.int64)
-    k = 0
-    for a in range(n):
-        for b in range(a + 1, n):
-            for c in range(b + 1, n):
-                out[k, 0] = a
-                out[k, 1] = b
-                out[k, 2] = c
-                k += 1
-    return out
-
-
-@njit(cache=True)
 def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subsets, gate, max_iter, out_R, out_t):
     """One attempt at placing robot ``r`` (the body of :func:`initial_poses`):
     the pair problem of r's views ``sees`` (placed markers, expressed in
@@ -564,7 +545,9 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     which sees three (a non-central problem no minimal solver here covers),
     and robots with fewer than three ties are not placed: they are never
     guessed.  ``sigma`` (pixels) is the noise a start must fit r's ties
-    within before the cheap start is trusted.
+    within before the cheap start is trusted.  Each attempt at a robot is
+    one compiled call (:func:`_place_pass`); only the choice of the next
+    robot is NumPy.
     """
     N = problem.n_robots
     C = problem.counts()
@@ -576,7 +559,6 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     cam, own = problem.cam, problem.own
     failed_at = np.full(N, -1)
     out_R, out_t = np.empty((3, 3)), np.empty(3)
-    few = [_all_subsets(n) for n in range(2 * INIT_PER_SIDE + 1)]
     while True:
         # ties of each unplaced robot: its views of placed robots' markers
         # plus the views of the best placed camera of it
@@ -614,10 +596,7 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
                 a, b = _spread(sees, per_side), _spread(seen, per_side)
             if len(a) + len(b) < 3:
                 continue
-            if per_side is not None:
-                subsets = few[len(a) + len(b)]  # as minimal_subsets: at most 20, all of them
-            else:
-                subsets = minimal_subsets(np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)])
+            subsets = minimal_subsets(np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)])
             R1, t1 = np.empty((3, 3)), np.empty(3)
             cost = _place_pass(cam, own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts, r, c, a, b, ties,
                                subsets, gate, max_iter, R1, t1)
