@@ -274,17 +274,13 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
     robots = [names[i] for i in sol.order]
     poses = {names[i]: Pose(sol.Rs[i].copy(), sol.ts[i].copy()) for i in np.flatnonzero(sol.localized)}
     poses[reference] = Pose.identity()
-    cam, own = problem.cam[sol.used], problem.own[sol.used]
-    # the markers seen between each pair, in observation order
-    N = len(names)
-    key = np.minimum(cam, own) * N + np.maximum(cam, own)
-    order = np.argsort(key, kind="stable")
-    pairs, starts = np.unique(key[order], return_index=True)
-    rows = sol.used[order].tolist()
-    bounds = [*starts.tolist(), len(rows)]
-    between = {frozenset((names[k // N], names[k % N])): [markers[j] for j in rows[bounds[i]:bounds[i + 1]]]
-               for i, k in enumerate(pairs.tolist())}
-    ties = np.bincount(cam, minlength=N) + np.bincount(own, minlength=N)
+    between: dict[frozenset, list[str]] = {}
+    ties = np.zeros(len(names), dtype=np.int64)
+    for j in sol.used.tolist():
+        a, b = int(problem.cam[j]), int(problem.own[j])
+        between.setdefault(frozenset((names[a], names[b])), []).append(markers[j])
+        ties[a] += 1
+        ties[b] += 1
     # a robot held by three observations fits several poses exactly
     unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES]
     est = TeamEstimate(

@@ -37,7 +37,7 @@ from ..errors import DegenerateGeometryError, NoSolutionError
 from .camera import project_jac_kernel, project_kernel
 from .consistency import chi2_quantile
 from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
-from .refine import MODE_PIXEL, so3_exp_left, solve_spd
+from .refine import MODE_PIXEL, so3_exp_left
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
            "relative_jacobian", "checked_factor", "inverse_from_factor", "MIN_TIES"]
