@@ -116,7 +116,49 @@ class TeamEstimate:
 
 def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, list[str], list[str]]:
     """The solver's form of named observations (checked against the rig):
-    the problem, the robot names (rig order) and each row's marker name."""
+    the problem, the robot names (rig order) and each row's marker name.
+
+    Checked with NumPy over all rows at once; anything unusual (an error to
+    name, several candidates for one marker, unnamed markers) takes the
+    row-by-row path, which raises the error naming observer and marker."""
+    names = list(rig.robots)
+    index = {n: i for i, n in enumerate(names)}
+    mrow: dict[str, int] = {}
+    mown: list[int] = []
+    pts: list[Any] = []
+    sizes = np.full((len(names), 2), np.inf)
+    for i, n in enumerate(names):
+        robot = rig.robots[n]
+        if robot.camera.size is not None:
+            sizes[i] = robot.camera.size
+        for m, marker in robot.markers.items():
+            mrow[m] = len(pts)
+            mown.append(i)
+            pts.append(marker.position)
+    obs = observations
+    try:
+        cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
+        row = np.array([mrow[m] for m in obs.marker], dtype=np.int64)
+    except (KeyError, TypeError):  # unknown robot or marker, unnamed marker
+        return _team_problem_rows(rig, obs, names)
+    own = np.array(mown, dtype=np.int64)[row]
+    u, v = obs.uv[:, 0], obs.uv[:, 1]
+    W, H = sizes[cam, 0], sizes[cam, 1]
+    bad = (cam == own) | ~((-0.5 * W <= u) & (u <= 1.5 * W) & (-0.5 * H <= v) & (v <= 1.5 * H))
+    timed = ~np.isnan(obs.time)
+    if (bad.any() or (timed.any() and not timed.all()) or np.unique(obs.time[timed]).size > 1
+            or np.unique(cam * len(pts) + row).size < len(row)):
+        return _team_problem_rows(rig, obs, names)
+    K = np.array([rig.robots[n].camera.K for n in names])
+    dist = np.array([rig.robots[n].camera.dist for n in names])
+    points = np.array(pts, dtype=float).reshape(-1, 3)[row]
+    return TeamProblem(cam, own, points, obs.uv, K, dist), names, list(obs.marker)
+
+
+def _team_problem_rows(rig: Rig, observations: ObservationSet, names: list[str]) -> tuple[TeamProblem, list[str],
+                                                                                          list[str]]:
+    """:func:`team_problem` row by row (errors named as for a pair; the best
+    of several candidates per marker)."""
     obs = observations.check(rig)
     if obs.has_alternatives:
         obs = obs.best()
@@ -125,7 +167,6 @@ def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, l
     times = obs.time[~np.isnan(obs.time)]
     if times.size and np.unique(times).size > 1:
         raise ObservationError("observations of several times: localize one frame at a time (at_time)")
-    names = list(rig.robots)
     index = {n: i for i, n in enumerate(names)}
     cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
     owners = [rig.owner(m) for m in obs.marker]

@@ -24,7 +24,8 @@ from .refine import MODE_BEARING, MODE_PIXEL, WS_SIZE, cost_into, information, l
 
 __all__ = ["PairProblem", "Solution", "estimate", "minimal_subsets"]
 
-_PER_SUBSET = 16
+#: Candidate slots per minimal subset (the solver reports at most this many).
+PER_SUBSET = 16
 # Subsets beyond this many are sampled (deterministically): with many
 # markers, a few dozen minimal problems already contain a good start.
 MAX_SUBSETS = 60
@@ -168,9 +169,9 @@ def minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc, 
     sd = np.empty(3, dtype=np.int64)
     b = np.empty((3, 3))
     X = np.empty((3, 3))
-    Rs = np.empty((_PER_SUBSET, 3, 3))
-    ts = np.empty((_PER_SUBSET, 3))
-    rg = np.empty((_PER_SUBSET, 3))
+    Rs = np.empty((PER_SUBSET, 3, 3))
+    ts = np.empty((PER_SUBSET, 3))
+    rg = np.empty((PER_SUBSET, 3))
     nc = 0
     for si in range(subsets.shape[0]):
         for j in range(3):
@@ -391,7 +392,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
     n = len(obs.side)
     subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
     n_extra = 0
-    size = len(subsets) * _PER_SUBSET
+    size = len(subsets) * PER_SUBSET
     if extra_candidates is not None:
         Re = np.asarray(extra_candidates[0], dtype=float).reshape(-1, 3, 3)
         te = np.asarray(extra_candidates[1], dtype=float).reshape(-1, 3)

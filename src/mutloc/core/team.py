@@ -11,9 +11,8 @@ convention.
 
 Each residual touches at most two 6-blocks, so ``J`` is block-sparse and
 ``H`` is assembled block by block; the ``6k`` square damped system is then
-factorised by Cholesky (for teams of up to a few hundred robots a dense
-factorisation of the small reduced system beats sparse bookkeeping; see
-bench/bench_team.py).
+factorised by an envelope Cholesky with the robots in reverse Cuthill-McKee
+order of the observation graph (see bench/bench_team.py).
 
 Initialisation (:func:`initial_poses`) places robots one at a time, the
 best-tied first (Prim's algorithm on the observation graph): a robot ``r``
@@ -34,12 +33,11 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from ..errors import DegenerateGeometryError, MutlocError, NoSolutionError
+from ..errors import DegenerateGeometryError, NoSolutionError
 from .camera import project_jac_kernel, project_kernel
 from .consistency import chi2_quantile
-from .estimate import PairProblem, estimate
-from .pose import Pose
-from .refine import so3_exp_left, solve_spd
+from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
+from .refine import MODE_PIXEL, so3_exp_left
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
            "relative_jacobian", "checked_factor", "inverse_from_factor", "MIN_TIES"]
@@ -48,6 +46,14 @@ __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_l
 MIN_TIES = 3
 #: Observations each way the pair solver gets when placing a robot.
 INIT_PER_SIDE = 3
+#: The placement of a robot tries the pair solver on all of its observations
+#: only when the start from a few fits its ties this much worse than their
+#: noise allows.  The ties' cost includes the errors of the robots placed
+#: before (nothing is jointly refined yet), so a start in the right basin
+#: often exceeds the pure-noise gate (on 800 random teams of 3-10 robots and
+#: chains, half of all placements, up to ~900x); those in a wrong basin that
+#: the other candidates of the few could not rescue were 150x and more.
+FALLBACK_FACTOR = 25.0
 # Condition number of the Jacobi-scaled information matrix beyond which
 # some pose is not isolated (as for a pair).
 _MAX_COND = 1e14
@@ -401,40 +407,125 @@ def _checked_inverse(H: np.ndarray) -> np.ndarray:
     return inverse_from_factor(*checked_factor(H))
 
 
-def _spread(rows: np.ndarray, k: int) -> np.ndarray:
-    """At most ``k`` of ``rows``, spread evenly over them."""
-    if len(rows) <= k:
+@njit(cache=True)
+def _spread(rows, k):
+    """At most ``k`` of ``rows``, spread evenly over them (the indices of
+    ``np.round(np.linspace(0, len(rows) - 1, k))``, halves to even)."""
+    n = rows.shape[0]
+    if n <= k or k < 2:
         return rows
-    return rows[np.round(np.linspace(0, len(rows) - 1, k)).astype(np.int64)]
+    out = np.empty(k, dtype=rows.dtype)
+    step = (n - 1) / (k - 1)
+    for i in range(k):
+        v = i * step if i < k - 1 else float(n - 1)
+        f = np.floor(v)
+        d = v - f
+        j = int(f)
+        if d > 0.5 or (d == 0.5 and j % 2 == 1):
+            j += 1
+        out[i] = rows[j]
+    return out
 
 
-def _to_frame(T: tuple[np.ndarray, np.ndarray], X: np.ndarray) -> np.ndarray:
-    """Points ``X`` (n, 3) in the reference frame, expressed in the frame
-    of the robot whose pose ``T = (R, t)`` is."""
-    R, t = T
-    return (X - t) @ R
-
-
-def _candidates(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, r: int, c: int, sees: np.ndarray,
-                seen: np.ndarray, per_side: int | None) -> Pose | None:
-    """Candidate poses ``T_cr`` of the pair problem made of r's views
-    ``sees`` (of placed markers, expressed in c's frame) and c's views
-    ``seen`` of r's markers -- at most ``per_side`` of each (spread), all
-    when None -- the refined best first; None when it has no solution."""
-    a = sees if per_side is None else _spread(sees, per_side)
-    b = seen if per_side is None else _spread(seen, per_side)
-    Xref = np.einsum("nij,nj->ni", Rs[problem.own[a]], problem.points[a]) + ts[problem.own[a]]
-    Xc = _to_frame((Rs[c], ts[c]), Xref)
-    pair = PairProblem.trusted(
-        np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)],
-        np.ascontiguousarray(np.vstack([Xc, problem.points[b]])), None,
-        np.ascontiguousarray(np.vstack([problem.uv[a], problem.uv[b]])),
-        (problem.K[r], problem.K[c]), (problem.dist[r], problem.dist[c]))
-    try:
-        sol = estimate(pair)
-    except MutlocError:
-        return None
-    return Pose.concatenate([sol.pose, sol.candidates])
+@njit(cache=True)
+def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subsets, gate, max_iter, out_R, out_t):
+    """One attempt at placing robot ``r`` (the body of :func:`initial_poses`):
+    the pair problem of r's views ``sees`` (placed markers, expressed in
+    camera ``c``'s frame) and c's views ``seen`` of r's markers, solved by
+    the pair solver (:func:`mutloc.core.estimate.solve_kernel`, minimal
+    ``subsets``); its refined best pose, then -- if that does not fit r's
+    ``ties`` within ``gate`` -- its other candidates, scored on the ties
+    and the best of each refined on them (LM over r's pose only).  Returns
+    the best tie cost (inf: nothing fits), the pose in out_R/out_t."""
+    na = sees.shape[0]
+    nb = seen.shape[0]
+    n = na + nb
+    side = np.empty(n, dtype=np.int64)
+    P = np.empty((n, 3))
+    meas = np.empty((n, 2))
+    Rc_, tc_ = Rs[c], ts[c]
+    for i in range(na):
+        j = sees[i]
+        b = own[j]
+        side[i] = 0
+        x = np.empty(3)
+        for k in range(3):
+            x[k] = Rs[b, k, 0] * pts[j, 0] + Rs[b, k, 1] * pts[j, 1] + Rs[b, k, 2] * pts[j, 2] + ts[b, k] - tc_[k]
+        for k in range(3):
+            P[i, k] = Rc_[0, k] * x[0] + Rc_[1, k] * x[1] + Rc_[2, k] * x[2]
+        meas[i, 0] = uv[j, 0]
+        meas[i, 1] = uv[j, 1]
+    for i in range(nb):
+        j = seen[i]
+        side[na + i] = 1
+        for k in range(3):
+            P[na + i, k] = pts[j, k]
+        meas[na + i, 0] = uv[j, 0]
+        meas[na + i, 1] = uv[j, 1]
+    size = max(subsets.shape[0] * PER_SUBSET, 1)
+    Rc = np.empty((size, 3, 3))
+    tc = np.empty((size, 3))
+    order = np.empty(size, dtype=np.int64)
+    costs = np.empty(size)
+    Rbest = np.empty((3, 3))
+    tbest = np.empty(3)
+    H6 = np.empty((6, 6))
+    Hinv = np.empty((6, 6))
+    bearings = np.empty((n, 3))
+    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, Ks[r], ds[r], Ks[c], ds[c], MODE_PIXEL, subsets,
+                                       False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest, H6, Hinv)
+    if status != 0:
+        return np.inf
+    # r's ties as a problem of their own
+    m = ties.shape[0]
+    scam = cam[ties]
+    sown = own[ties]
+    spts = pts[ties]
+    suv = uv[ties]
+    var = np.full(Rs.shape[0], -1, dtype=np.int64)
+    var[r] = 0
+    H = np.empty((6, 6))
+    Rtry = Rs.copy()
+    ttry = ts.copy()
+    found = np.inf
+    # the solver's refined best first; the others only if it does not fit
+    # the ties within their noise
+    bR = np.empty((3, 3))
+    bt = np.empty(3)
+    for pool in range(2):
+        best = np.inf
+        for q in range(1 if pool == 0 else nd):
+            if pool == 0:
+                Rq = Rbest
+                tq = tbest
+            else:
+                Rq = Rc[order[q]]
+                tq = tc[order[q]]
+            for a in range(3):
+                for b in range(3):
+                    Rtry[r, a, b] = Rc_[a, 0] * Rq[0, b] + Rc_[a, 1] * Rq[1, b] + Rc_[a, 2] * Rq[2, b]
+                ttry[r, a] = Rc_[a, 0] * tq[0] + Rc_[a, 1] * tq[1] + Rc_[a, 2] * tq[2] + tc_[a]
+            cost = team_cost(scam, sown, spts, suv, Ks, ds, Rtry, ttry)
+            if cost < best:
+                best = cost
+                bR[:, :] = Rtry[r]
+                bt[:] = ttry[r]
+        if not np.isfinite(best):
+            continue
+        Rtry[r] = bR
+        ttry[r] = bt
+        cost, _ = team_lm(scam, sown, spts, suv, Ks, ds, var, Rtry, ttry, max_iter, H)
+        if np.isfinite(cost) and cost < best:
+            best = cost
+            bR[:, :] = Rtry[r]
+            bt[:] = ttry[r]
+        if best < found:
+            found = best
+            out_R[:, :] = bR
+            out_t[:] = bt
+        if found <= gate:
+            break
+    return found
 
 
 def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20) -> tuple[np.ndarray, np.ndarray,
@@ -454,7 +545,9 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     which sees three (a non-central problem no minimal solver here covers),
     and robots with fewer than three ties are not placed: they are never
     guessed.  ``sigma`` (pixels) is the noise a start must fit r's ties
-    within before the cheap start is trusted.
+    within before the cheap start is trusted.  Each attempt at a robot is
+    one compiled call (:func:`_place_pass`); only the choice of the next
+    robot is NumPy.
     """
     N = problem.n_robots
     C = problem.counts()
@@ -465,6 +558,7 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     Rs[:] = np.eye(3)
     cam, own = problem.cam, problem.own
     failed_at = np.full(N, -1)
+    out_R, out_t = np.empty((3, 3)), np.empty(3)
     while True:
         # ties of each unplaced robot: its views of placed robots' markers
         # plus the views of the best placed camera of it
@@ -481,55 +575,95 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
             # r sees placed markers only: express them in a camera whose
             # markers r sees (any placed frame would do)
             c = int(np.flatnonzero(placed)[np.argmax(C[r, placed])])
-        sees = np.flatnonzero((cam == r) & placed[own])
+        r_sees = (cam == r) & placed[own]
+        sees = np.flatnonzero(r_sees)
         seen = np.flatnonzero((cam == c) & (own == r))
-        ties = np.flatnonzero(((cam == r) & placed[own]) | ((own == r) & placed[cam]))
-        sub = problem.take(ties)
-        var = np.full(N, -1, dtype=np.int64)
-        var[r] = 0
+        ties = np.flatnonzero(r_sees | ((own == r) & placed[cam]))
         # a few observations each way make the candidates (cheap); every
         # candidate is scored on all of r's ties (this also picks among the
         # exact poses of three observations) and the best refined on them;
         # all observations when the few give nothing that fits the ties
-        # within their noise (a small, distant triangle under noise)
+        # within FALLBACK_FACTOR times their noise (a small, distant
+        # triangle under noise)
         gate = sigma**2 * chi2_quantile(0.999, 2 * len(ties) - 6) if len(ties) > 3 else np.inf
-        found = (np.inf, None, None)
+        found = np.inf
         for per_side in (INIT_PER_SIDE, None):
-            if per_side is None and len(sees) <= INIT_PER_SIDE and len(seen) <= INIT_PER_SIDE:
-                break
-            cands = _candidates(problem, Rs, ts, r, c, sees, seen, per_side)
-            if cands is None:
-                continue
-            # the solver's refined best first; the others only if it does
-            # not fit the ties within their noise
-            for pool in (cands[:1], cands[1:]):
-                Rtry, ttry = Rs.copy(), ts.copy()
-                best = (np.inf, None, None)
-                for Rq, tq in zip(pool.R, pool.t):
-                    Rtry[r] = Rs[c] @ Rq
-                    ttry[r] = Rs[c] @ tq + ts[c]
-                    cost = team_cost(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rtry, ttry)
-                    if cost < best[0]:
-                        best = (cost, Rtry[r].copy(), ttry[r].copy())
-                if not np.isfinite(best[0]):
-                    continue
-                Rtry[r], ttry[r] = best[1], best[2]
-                cost, _, _ = _lm(sub, var, Rtry, ttry, max_iter)
-                if np.isfinite(cost) and cost < best[0]:
-                    best = (cost, Rtry[r], ttry[r])
-                if best[0] < found[0]:
-                    found = best
-                if found[0] <= gate:
+            if per_side is None:
+                if (len(sees) <= INIT_PER_SIDE and len(seen) <= INIT_PER_SIDE) or found <= FALLBACK_FACTOR * gate:
                     break
-            if found[0] <= gate:
+                a, b = sees, seen
+            else:
+                a, b = _spread(sees, per_side), _spread(seen, per_side)
+            if len(a) + len(b) < 3:
+                continue
+            subsets = minimal_subsets(np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)])
+            R1, t1 = np.empty((3, 3)), np.empty(3)
+            cost = _place_pass(cam, own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts, r, c, a, b, ties,
+                               subsets, gate, max_iter, R1, t1)
+            if cost < found:
+                found, out_R, out_t = cost, R1, t1
+            if found <= gate:
                 break
-        if not np.isfinite(found[0]):
+        if not np.isfinite(found):
             # no pose explains them: try r again once more robots are placed
             failed_at[r] = placed.sum()
             continue
-        Rs[r], ts[r] = found[1], found[2]
+        Rs[r], ts[r] = out_R, out_t
         placed[r] = True
     return Rs, ts, placed
+
+
+@njit(cache=True)
+def _rcm_kernel(a, b, k):
+    """Reverse Cuthill-McKee order of ``k`` nodes joined by the edges
+    ``a[j]``--``b[j]``: each component breadth-first from a node of least
+    degree, neighbours by increasing degree, then reversed."""
+    src = np.empty(2 * a.shape[0], dtype=np.int64)
+    dst = np.empty(2 * a.shape[0], dtype=np.int64)
+    m = 0
+    for j in range(a.shape[0]):
+        if a[j] != b[j]:
+            src[m] = a[j]
+            dst[m] = b[j]
+            src[m + 1] = b[j]
+            dst[m + 1] = a[j]
+            m += 2
+    key = np.unique(src[:m] * k + dst[:m])
+    ptr = np.zeros(k + 1, dtype=np.int64)
+    for e in key:
+        ptr[e // k + 1] += 1
+    for i in range(k):
+        ptr[i + 1] += ptr[i]
+    nbr = key % k
+    deg = ptr[1:] - ptr[:-1]
+    seen = np.zeros(k, dtype=np.bool_)
+    order = np.empty(k, dtype=np.int64)
+    n = 0
+    while n < k:
+        start = -1
+        for i in range(k):
+            if not seen[i] and (start < 0 or deg[i] < deg[start]):
+                start = i
+        seen[start] = True
+        order[n] = start
+        head = n
+        n += 1
+        while head < n:
+            v = order[head]
+            head += 1
+            lo = n
+            for e in range(ptr[v], ptr[v + 1]):
+                w = nbr[e]
+                if not seen[w]:
+                    seen[w] = True
+                    # insertion by degree keeps the new neighbours sorted
+                    p = n
+                    while p > lo and deg[order[p - 1]] > deg[w]:
+                        order[p] = order[p - 1]
+                        p -= 1
+                    order[p] = w
+                    n += 1
+    return order[::-1].copy()
 
 
 def _rcm(problem: TeamProblem, order: np.ndarray) -> np.ndarray:
@@ -537,15 +671,11 @@ def _rcm(problem: TeamProblem, order: np.ndarray) -> np.ndarray:
     k = len(order)
     if k <= 2:
         return np.arange(k)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
     pos = np.full(problem.n_robots, -1)
     pos[order] = np.arange(k)
     a, b = pos[problem.cam], pos[problem.own]
     ok = (a >= 0) & (b >= 0)
-    G = coo_matrix((np.ones(2 * ok.sum()), (np.r_[a[ok], b[ok]], np.r_[b[ok], a[ok]])), shape=(k, k)).tocsr()
-    return np.asarray(reverse_cuthill_mckee(G, symmetric_mode=True), dtype=np.int64)
+    return _rcm_kernel(a[ok], b[ok], k)
 
 
 def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarray, np.ndarray, np.ndarray]
