@@ -14,6 +14,16 @@ robot was carried); when the predicted uncertainty grows past
 ``lost_sigma_t``/``lost_sigma_r_deg`` the track is lost and restarts the
 same way.  A team tracker is one :class:`PairTracker` per robot against the
 reference.
+
+Blinking lights are rarely all on together, so a frame ``localize`` solves
+on its own (four measured markers) may be seconds away.  A frame with exactly
+three measured markers (``unverified``) therefore starts a *tentative*
+track: its frames keep their per-frame statuses (nothing is reported from
+it) until an update with three or more markers, at least one of them not
+among the starting three, is consistent with it -- two different marker
+sets, each fixing the pose on its own, agree through the motion prior.  From
+that frame on the track is confirmed and reports as above; a tentative track
+that any frame contradicts is dropped.
 """
 
 from __future__ import annotations
@@ -140,6 +150,8 @@ class PairTracker:
         self.filter = ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence)
         self.rejections = 0
         self._restarted = False
+        #: While the track is tentative: the markers of the three-marker frame that started it.
+        self._tentative: frozenset[str] | None = None
         #: When a list: per frame, (prediction, state after the frame, row) while the
         #: track runs, None where it (re)starts or is lost -- for smoothing.
         self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
@@ -171,10 +183,13 @@ class PairTracker:
             return
         self._restarted = False
         try:
-            self._filtered_step(row, state)
+            if self._tentative is not None:
+                self._tentative_step(row, state)
+            else:
+                self._filtered_step(row, state)
         finally:
-            self._record(None if self._restarted or self.filter.state is None else
-                         (state, self.filter.state, row))
+            self._record(None if self._restarted or self.filter.state is None or self._tentative is not None
+                         else (state, self.filter.state, row))
 
     def _record(self, entry: tuple[FilterState, FilterState, Any] | None) -> None:
         if self.history is not None:
@@ -249,6 +264,25 @@ class PairTracker:
 
     # -- internals ------------------------------------------------------------
 
+    def _tentative_step(self, row: "TrackRow", state: FilterState) -> None:
+        """Update a tentative track with the row; the row reports its
+        per-frame result unless this frame confirms the track."""
+        trial = _copy_row(row)
+        self._filtered_step(trial, state)
+        used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
+        if trial.status == FrameStatus.SOLVED and used - self._tentative:
+            started = ", ".join(sorted(self._tentative))
+            self._tentative = None
+            row.status, row.estimate = trial.status, trial.estimate
+            note = f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started}"
+            row.reason = f"{note}; {trial.reason}" if trial.reason else note
+            return
+        if trial.status in (FrameStatus.REJECTED, FrameStatus.FAILED) or self.filter.state is None:
+            self.filter.state, self._tentative = None, None
+            self._restart(row, "")
+            return
+        solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
         names = [problem.labels[k] for k in upd.used.tolist()]
         row.status = FrameStatus.SOLVED if len(upd.used) >= MIN_OBSERVATIONS else FrameStatus.PARTIAL
@@ -258,8 +292,8 @@ class PairTracker:
         row.estimate = self._estimate(upd.state, [_marker_of(n) for n in names], upd.rms_px, upd.test)
 
     def _restart(self, row: "TrackRow", why: str, keep_failure: bool = True) -> bool:
-        """Localize the row on its own; a solved frame (re)starts the track.
-        Returns whether it did; with ``keep_failure`` the row keeps the
+        """Localize the row on its own; a solved frame (re)starts the track, a
+        frame of three measured markers starts a tentative one.  Returns whether it did; with ``keep_failure`` the row keeps the
         per-frame result either way."""
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
@@ -268,17 +302,28 @@ class PairTracker:
         # still be centimetres off, and later three-marker frames would then
         # be called solved against a wrong track.
         started = trial.status == FrameStatus.SOLVED and trial.estimate is not None
-        if started:
+        # Three measured markers (never predicted ones) start a tentative track.
+        tentative = (not started and trial.status == FrameStatus.UNVERIFIED and trial.estimate is not None
+                     and self._measured(trial) >= MIN_OBSERVATIONS)
+        self._tentative = frozenset(trial.estimate.markers_used) if tentative else None
+        if started or tentative:
             est = trial.estimate
             self.filter.reset(row.t, est.pose, est.covariance)
             self.rejections = 0
             self._restarted = True
             if trial is not row:
                 row.status, row.estimate, row.reason = trial.status, trial.estimate, trial.reason
-        if why and (started or keep_failure):
-            note = f"track {'restarted' if started else 'lost'}: {why}"
+        if why and (started or tentative or keep_failure):
+            note = f"track {'restarted' if started else 'restarted tentatively' if tentative else 'lost'}: {why}"
             row.reason = f"{note}; {row.reason}" if row.reason else note
-        return started
+        return started or tentative
+
+    def _measured(self, row: "TrackRow") -> int:
+        """Named markers measured (not predicted) in the row."""
+        try:
+            return len(row.observations.pair(self.rig, self.source, self.target).rows)
+        except MutlocError:
+            return 0
 
     def _nearest_candidates(self, obs: Any, pose: Pose) -> Any:
         """Where a detector handed over several candidates for a marker, the
