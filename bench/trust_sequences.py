@@ -29,30 +29,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from mutloc.core.observations import ObservationSet
-from mutloc.sim.render import moving_world, project_markers, relative_pose, render
-from mutloc.sim.world import light_is_on, standard_rig
+from mutloc.sim.render import moving_world, relative_pose, render
+from mutloc.sim.tracking import correct_detections
+from mutloc.sim.world import standard_rig
 from mutloc.track.sources import Frame, Stream
 from mutloc.track.tracker import track, track_log
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine  # noqa: E402
-
-
-def correct_detections(world, rig, t: float, rng: np.random.Generator, sigma: float = 0.05) -> ObservationSet:
-    """What a perfect detector reports at ``t``: each robot's view of the
-    other's marker centres (in the image, not hidden; lights only when on),
-    at their exact pixels plus ``sigma`` px of noise."""
-    markers = {m.name: m for r in rig.robots.values() for m in r.markers.values()}
-    observer, name, uv = [], [], []
-    for r in rig.robots:
-        for m, p in project_markers(world, r, t, check_occlusion=True).items():
-            if markers[m].blink_hz is not None and not light_is_on(markers[m], t):
-                continue
-            observer.append(r)
-            name.append(m)
-            uv.append(np.asarray(p) + rng.normal(0.0, sigma, 2))
-    return ObservationSet.trusted(observer, name, np.reshape(uv, (-1, 2)), time=t)
 
 
 def run(kind: str, seed: int, n: int, fps: float, warmup: float) -> dict:
@@ -66,7 +50,7 @@ def run(kind: str, seed: int, n: int, fps: float, warmup: float) -> dict:
         for r in ("p", "q"):
             frames[r].append(Frame(i, t, render(world, r, t, seed=seed + i, noise_sigma=1.0)))
         truth.append(relative_pose(world, "p", "q", t))
-        oracle.append((t, correct_detections(world, rig, t, rng)))
+        oracle.append((t, correct_detections(world, t, rng)))
     ideal = track_log(rig, oracle, progress=False)
     solvable = [str(r.status) == "solved" and r.t >= warmup - 1e-9 for r in ideal.rows]
     traj = track(rig, {r: Stream(iter(f), fps, r) for r, f in frames.items()}, progress=False)

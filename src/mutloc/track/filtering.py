@@ -49,6 +49,11 @@ if TYPE_CHECKING:
 
 __all__ = ["FILTERS", "FilterOptions", "PairTracker", "solve_row"]
 
+#: A tentative track is confirmed only by markers it predicted within this
+#: many pixel sigmas (1-sigma, largest axis): a sharper prediction than any
+#: plausible wrong start could meet.
+CONFIRM_SPREAD = 5.0
+
 #: ``--filter`` choices: the constant-velocity filter, or every frame on its own.
 FILTERS = ("cv", "none")
 
@@ -270,11 +275,17 @@ class PairTracker:
         trial = _copy_row(row)
         self._filtered_step(trial, state)
         used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
-        if trial.status == FrameStatus.SOLVED and used - self._tentative:
+        new = used - self._tentative
+        # The new markers must have been predicted sharply: a wrong start
+        # (three markers fit any one bad detection exactly) is exposed only
+        # where the track's prediction could have missed them.
+        spread = max((self._spread_px(state, m) for m in new), default=math.inf)
+        if trial.status == FrameStatus.SOLVED and spread <= CONFIRM_SPREAD * self.pixel_sigma:
             started = ", ".join(sorted(self._tentative))
             self._tentative = None
             row.status, row.estimate = trial.status, trial.estimate
-            note = f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started}"
+            note = (f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started} "
+                    f"(new markers predicted within {spread:.1f} px)")
             row.reason = f"{note}; {trial.reason}" if trial.reason else note
             return
         if trial.status in (FrameStatus.REJECTED, FrameStatus.FAILED) or self.filter.state is None:
@@ -282,6 +293,10 @@ class PairTracker:
             self._restart(row, "")
             return
         solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+        if row.status == FrameStatus.SOLVED and row.estimate is not None:
+            # Solved on its own: the usual start, whatever the tentative track said.
+            self.filter.reset(row.t, row.estimate.pose, row.estimate.covariance)
+            self._tentative, self._restarted = None, True
 
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
         names = [problem.labels[k] for k in upd.used.tolist()]
@@ -317,6 +332,31 @@ class PairTracker:
             note = f"track {'restarted' if started else 'restarted tentatively' if tentative else 'lost'}: {why}"
             row.reason = f"{note}; {row.reason}" if row.reason else note
         return started or tentative
+
+    def _spread_px(self, state: FilterState, marker: str) -> float:
+        """1-sigma (px, largest axis) of where ``state`` predicts ``marker``
+        in its observer's image (unscented, from the pose covariance)."""
+        for observer, other, inverse in ((self.target, self.source, False), (self.source, self.target, True)):
+            if marker in self.rig.robot(other).markers:
+                break
+        else:
+            return math.inf
+        X = self.rig.robot(other).markers[marker].position
+        cam = self.rig.robot(observer).camera
+        P = state.pose_covariance
+        try:
+            L = np.linalg.cholesky(0.5 * (P + P.T) + 1e-18 * np.eye(6)) * math.sqrt(6.0)
+        except np.linalg.LinAlgError:
+            return math.inf
+        pix = []
+        for col in np.concatenate([L.T, -L.T]):
+            T = Pose(Pose.from_rotvec(col[:3], np.zeros(3)).R @ state.pose.R, state.pose.t + col[3:])
+            pix.append(cam.project((T.inverse() if inverse else T).apply(X)))
+        d = np.asarray(pix, float)
+        if not np.all(np.isfinite(d)):
+            return math.inf
+        d -= d.mean(axis=0)
+        return float(math.sqrt(max(np.linalg.eigvalsh(d.T @ d / len(d)).max(), 0.0)))
 
     def _measured(self, row: "TrackRow") -> int:
         """Named markers measured (not predicted) in the row."""
