@@ -19,11 +19,14 @@ Blinking lights are rarely all on together, so a frame ``localize`` solves
 on its own (four measured markers) may be seconds away.  A frame with exactly
 three measured markers (``unverified``) therefore starts a *tentative*
 track: its frames keep their per-frame statuses (nothing is reported from
-it) until an update with three or more markers, at least one of them not
-among the starting three, is consistent with it -- two different marker
-sets, each fixing the pose on its own, agree through the motion prior.  From
-that frame on the track is confirmed and reports as above; a tentative track
-that any frame contradicts is dropped.
+it) until a frame of three markers, at least one of them not among the
+starting three and predicted sharply (``CONFIRM_SPREAD``), is consistent
+with it -- two different marker sets, each fixing the pose on its own,
+agree through the motion prior.  From that frame on the track is confirmed
+and reports as above.  A tentative track that any frame contradicts is
+dropped, and a frame of four or more markers decides for itself: solved,
+it starts the track; not, the tentative track goes (it may share the frame's
+bad detection and so agree with it).
 """
 
 from __future__ import annotations
@@ -272,6 +275,13 @@ class PairTracker:
     def _tentative_step(self, row: "TrackRow", state: FilterState) -> None:
         """Update a tentative track with the row; the row reports its
         per-frame result unless this frame confirms the track."""
+        if self._measured(row) > MIN_OBSERVATIONS:
+            # Four or more markers judge themselves: solved, the frame starts
+            # the track; inconsistent, the tentative track (which may share
+            # the bad detection, and so agree with it) goes too.
+            self.filter.state, self._tentative = None, None
+            self._restart(row, "")
+            return
         trial = _copy_row(row)
         self._filtered_step(trial, state)
         used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
@@ -293,10 +303,6 @@ class PairTracker:
             self._restart(row, "")
             return
         solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
-        if row.status == FrameStatus.SOLVED and row.estimate is not None:
-            # Solved on its own: the usual start, whatever the tentative track said.
-            self.filter.reset(row.t, row.estimate.pose, row.estimate.covariance)
-            self._tentative, self._restarted = None, True
 
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
         names = [problem.labels[k] for k in upd.used.tolist()]
