@@ -314,8 +314,9 @@ class PairTracker:
 
     def _restart(self, row: "TrackRow", why: str, keep_failure: bool = True) -> bool:
         """Localize the row on its own; a solved frame (re)starts the track, a
-        frame of three measured markers starts a tentative one.  Returns whether it did; with ``keep_failure`` the row keeps the
-        per-frame result either way."""
+        frame of three measured markers starts a tentative one.  Returns
+        whether it did; with ``keep_failure`` the row keeps the per-frame
+        result either way."""
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
         # Only a frame solved on measured markers alone starts a track: four
