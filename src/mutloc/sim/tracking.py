@@ -8,7 +8,7 @@ tests, the filter benchmark and the README's figures use it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
@@ -16,7 +16,10 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
 
-__all__ = ["ObservationSequence", "observation_sequence"]
+if TYPE_CHECKING:
+    from .world import World
+
+__all__ = ["ObservationSequence", "observation_sequence", "correct_detections"]
 
 
 @dataclass
@@ -89,3 +92,28 @@ def observation_sequence(rig: Rig, path: Callable[[float], Pose] | None = None, 
         frames.append(ObservationSet([observer[k] for k in keep], [marker[k] for k in keep],
                                      np.array([uv[k] for k in keep]).reshape(-1, 2), float(t)))
     return ObservationSequence(times, frames, Pose.concatenate(poses), is_out, blind_of, out_marker)
+
+
+def correct_detections(world: "World", t: float, rng: np.random.Generator | None = None,
+                       sigma: float = 0.05) -> ObservationSet:
+    """What a perfect detector reports in a rendered world at ``t``: each
+    robot's view of the other robots' marker centres that are in its image
+    and not hidden -- blinking lights only while they are on (a light that is
+    off shows nothing) -- at their exact pixels plus ``sigma`` px of noise,
+    stamped ``t``.  What "a correct detection would solve" is measured with."""
+    from .render import project_markers
+    from .world import light_is_on
+
+    rng = rng if rng is not None else np.random.default_rng(0)
+    markers = {m.name: m for wr in world.robots.values() for m in wr.robot.markers.values()}
+    observer: list[str] = []
+    name: list[str] = []
+    uv: list[np.ndarray] = []
+    for r in world.robots:
+        for m, p in project_markers(world, r, t, check_occlusion=True).items():
+            if markers[m].blink_hz is not None and not light_is_on(markers[m], t):
+                continue
+            observer.append(r)
+            name.append(m)
+            uv.append(np.asarray(p, float) + rng.normal(0.0, sigma, 2))
+    return ObservationSet(observer, name, np.reshape(uv, (-1, 2)), float(t))

@@ -14,6 +14,19 @@ robot was carried); when the predicted uncertainty grows past
 ``lost_sigma_t``/``lost_sigma_r_deg`` the track is lost and restarts the
 same way.  A team tracker is one :class:`PairTracker` per robot against the
 reference.
+
+Blinking lights are rarely all on together, so a frame ``localize`` solves
+on its own (four measured markers) may be seconds away.  A frame with exactly
+three measured markers (``unverified``) therefore starts a *tentative*
+track: its frames keep their per-frame statuses (nothing is reported from
+it) until a frame of three markers, at least one of them not among the
+starting three and predicted sharply (``CONFIRM_SPREAD``), is consistent
+with it -- two different marker sets, each fixing the pose on its own,
+agree through the motion prior.  From that frame on the track is confirmed
+and reports as above.  A tentative track that any frame contradicts is
+dropped, and a frame of four or more markers decides for itself: solved,
+it starts the track; not, the tentative track goes (it may share the frame's
+bad detection and so agree with it).
 """
 
 from __future__ import annotations
@@ -39,6 +52,11 @@ if TYPE_CHECKING:
 
 __all__ = ["DEFAULT_SMOOTH_LAG", "FILTERS", "FilterOptions", "PairTracker", "solve_row", "lost_reason",
            "pair_problem"]
+
+#: A tentative track is confirmed only by markers it predicted within this
+#: many pixel sigmas (1-sigma, largest axis): a sharper prediction than any
+#: plausible wrong start could meet.
+CONFIRM_SPREAD = 5.0
 
 #: ``--filter`` choices: the constant-velocity filter, or every frame on its own.
 FILTERS = ("cv", "none")
@@ -153,6 +171,8 @@ class PairTracker:
                                              measure_noise=self.options.measure_noise)
         self.rejections = 0
         self._restarted = False
+        #: While the track is tentative: the markers of the three-marker frame that started it.
+        self._tentative: frozenset[str] | None = None
         #: When a list: per frame, (prediction, state after the frame, row) while the
         #: track runs, None where it (re)starts or is lost -- for smoothing.
         self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
@@ -184,10 +204,13 @@ class PairTracker:
             return
         self._restarted = False
         try:
-            self._filtered_step(row, state)
+            if self._tentative is not None:
+                self._tentative_step(row, state)
+            else:
+                self._filtered_step(row, state)
         finally:
-            self._record(None if self._restarted or self.filter.state is None else
-                         (state, self.filter.state, row))
+            self._record(None if self._restarted or self.filter.state is None or self._tentative is not None
+                         else (state, self.filter.state, row))
 
     def _record(self, entry: tuple[FilterState, FilterState, Any] | None) -> None:
         if self.history is not None:
@@ -263,6 +286,38 @@ class PairTracker:
 
     # -- internals ------------------------------------------------------------
 
+    def _tentative_step(self, row: "TrackRow", state: FilterState) -> None:
+        """Update a tentative track with the row; the row reports its
+        per-frame result unless this frame confirms the track."""
+        if self._measured(row) > MIN_OBSERVATIONS:
+            # Four or more markers judge themselves: solved, the frame starts
+            # the track; inconsistent, the tentative track (which may share
+            # the bad detection, and so agree with it) goes too.
+            self.filter.state, self._tentative = None, None
+            self._restart(row, "")
+            return
+        trial = _copy_row(row)
+        self._filtered_step(trial, state)
+        used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
+        new = used - self._tentative
+        # The new markers must have been predicted sharply: a wrong start
+        # (three markers fit any one bad detection exactly) is exposed only
+        # where the track's prediction could have missed them.
+        spread = max((self._spread_px(state, m) for m in new), default=math.inf)
+        if trial.status == FrameStatus.SOLVED and spread <= CONFIRM_SPREAD * self.pixel_sigma:
+            started = ", ".join(sorted(self._tentative))
+            self._tentative = None
+            row.status, row.estimate = trial.status, trial.estimate
+            note = (f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started} "
+                    f"(new markers predicted within {spread:.1f} px)")
+            row.reason = f"{note}; {trial.reason}" if trial.reason else note
+            return
+        if trial.status in (FrameStatus.REJECTED, FrameStatus.FAILED) or self.filter.state is None:
+            self.filter.state, self._tentative = None, None
+            self._restart(row, "")
+            return
+        solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
         names = [problem.labels[k] for k in upd.used.tolist()]
         row.status = FrameStatus.SOLVED if len(upd.used) >= MIN_OBSERVATIONS else FrameStatus.PARTIAL
@@ -272,9 +327,10 @@ class PairTracker:
         row.estimate = self._estimate(upd.state, [_marker_of(n) for n in names], upd.rms_px, upd.test)
 
     def _restart(self, row: "TrackRow", why: str, keep_failure: bool = True) -> bool:
-        """Localize the row on its own; a solved frame (re)starts the track.
-        Returns whether it did; with ``keep_failure`` the row keeps the
-        per-frame result either way."""
+        """Localize the row on its own; a solved frame (re)starts the track, a
+        frame of three measured markers starts a tentative one.  Returns
+        whether it did; with ``keep_failure`` the row keeps the per-frame
+        result either way."""
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
         # Only a frame solved on measured markers alone starts a track: four
@@ -282,17 +338,53 @@ class PairTracker:
         # still be centimetres off, and later three-marker frames would then
         # be called solved against a wrong track.
         started = trial.status == FrameStatus.SOLVED and trial.estimate is not None
-        if started:
+        # Three measured markers (never predicted ones) start a tentative track.
+        tentative = (not started and trial.status == FrameStatus.UNVERIFIED and trial.estimate is not None
+                     and self._measured(trial) >= MIN_OBSERVATIONS)
+        self._tentative = frozenset(trial.estimate.markers_used) if tentative else None
+        if started or tentative:
             est = trial.estimate
             self.filter.reset(row.t, est.pose, est.covariance)
             self.rejections = 0
             self._restarted = True
             if trial is not row:
                 row.status, row.estimate, row.reason = trial.status, trial.estimate, trial.reason
-        if why and (started or keep_failure):
-            note = f"track {'restarted' if started else 'lost'}: {why}"
+        if why and (started or tentative or keep_failure):
+            note = f"track {'restarted' if started else 'restarted tentatively' if tentative else 'lost'}: {why}"
             row.reason = f"{note}; {row.reason}" if row.reason else note
-        return started
+        return started or tentative
+
+    def _spread_px(self, state: FilterState, marker: str) -> float:
+        """1-sigma (px, largest axis) of where ``state`` predicts ``marker``
+        in its observer's image (unscented, from the pose covariance)."""
+        for observer, other, inverse in ((self.target, self.source, False), (self.source, self.target, True)):
+            if marker in self.rig.robot(other).markers:
+                break
+        else:
+            return math.inf
+        X = self.rig.robot(other).markers[marker].position
+        cam = self.rig.robot(observer).camera
+        P = state.pose_covariance
+        try:
+            L = np.linalg.cholesky(0.5 * (P + P.T) + 1e-18 * np.eye(6)) * math.sqrt(6.0)
+        except np.linalg.LinAlgError:
+            return math.inf
+        pix = []
+        for col in np.concatenate([L.T, -L.T]):
+            T = Pose(Pose.from_rotvec(col[:3], np.zeros(3)).R @ state.pose.R, state.pose.t + col[3:])
+            pix.append(cam.project((T.inverse() if inverse else T).apply(X)))
+        d = np.asarray(pix, float)
+        if not np.all(np.isfinite(d)):
+            return math.inf
+        d -= d.mean(axis=0)
+        return float(math.sqrt(max(np.linalg.eigvalsh(d.T @ d / len(d)).max(), 0.0)))
+
+    def _measured(self, row: "TrackRow") -> int:
+        """Named markers measured (not predicted) in the row."""
+        try:
+            return len(row.observations.pair(self.rig, self.source, self.target).rows)
+        except MutlocError:
+            return 0
 
     def _nearest_candidates(self, obs: Any, pose: Pose) -> Any:
         """Where a detector handed over several candidates for a marker, the
