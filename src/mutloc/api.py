@@ -3,9 +3,10 @@ and :func:`solve_bearings` (rays, any camera model)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from itertools import permutations, product
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -47,7 +48,14 @@ def invert_covariance(R: np.ndarray, t: np.ndarray, cov: np.ndarray) -> np.ndarr
 @dataclass(eq=False)
 class Estimate:
     """Relative pose ``T_qp`` (``x_q = R @ x_p + t``) from robot ``source``
-    (p) to robot ``target`` (q), with its uncertainty."""
+    (p) to robot ``target`` (q), with its uncertainty.
+
+    ``candidates``: every distinct pose of the minimal subsets, best first.
+    When the first minimal subset :func:`localize` tries already gives an
+    optimum that passes the consistency test, the other subsets are solved
+    on the first read of ``candidates`` (a callable returning the stack may
+    be given for it).
+    """
 
     source: str
     target: str
@@ -122,12 +130,30 @@ class Estimate:
         return d
 
 
+def _get_candidates(est: Estimate) -> Pose:
+    c = est.__dict__["_candidates"]
+    if not isinstance(c, Pose):
+        c = est.__dict__["_candidates"] = c()
+    return c
+
+
+def _set_candidates(est: Estimate, value: Pose | Callable[[], Pose]) -> None:
+    est.__dict__["_candidates"] = value
+
+
+# A property over the dataclass field: ``Estimate(candidates=...)``,
+# ``dataclasses.replace`` and reads all go through it.
+Estimate.candidates = property(_get_candidates, _set_candidates,  # type: ignore[assignment]
+                               doc="Every distinct candidate pose, best first (a Pose stack).")
+
+
 def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: np.ndarray) -> PairProblem:
     """The solver's form of the given rows (rays are computed by the solver)."""
     table = pair.table
-    obs = pair.parent
     labels = _Labels(pair, rows)
-    return PairProblem.trusted(side, table.points[prow], None, obs.uv[rows], table.K, table.dist, labels)
+    if rows is pair.rows:  # the named observations: their arrays are kept on the pair
+        return PairProblem.trusted(side, pair.points, None, pair.uv, table.K, table.dist, labels)
+    return PairProblem.trusted(side, table.points[prow], None, pair.parent.uv[rows], table.K, table.dist, labels)
 
 
 class _Labels:
@@ -221,7 +247,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     for side, prow, rows in _labellings(rig, pair):
         problem = _problem(pair, side, prow, rows)
         try:
-            sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer)
+            sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer,
+                         accept=_accept(len(rows), pixel_sigma, confidence))
         except MutlocError as exc:
             if not pair.anonymous:
                 raise
@@ -246,7 +273,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
             sol, prow, rows, test = robust.solution, prow[robust.keep], rows[robust.keep], robust.test
             cost_best = sol.cost
     n = sol.n_obs
-    names = pair.table.names(prow)
+    names = pair.names if prow is pair.points_index else pair.table.names(prow)
     ambiguous = None
     assignment = None
     if pair.anonymous:
@@ -267,9 +294,9 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         pose=sol.pose,
         covariance=sol.covariance(sigma_used),
         pixel_sigma=sigma_used,
-        reprojection_rms_px=float(np.sqrt(cost_best / n)),
-        markers_used=list(names),
-        candidates=sol.candidates,
+        reprojection_rms_px=math.sqrt(cost_best / n),
+        markers_used=names,
+        candidates=lambda s=sol: s.candidates,  # solved for on first read (Solution)
         consistency=test,
         rejected=rejected,
         identity_ambiguous=ambiguous,
@@ -357,14 +384,26 @@ def localize_batch(rig: Any, frames: Sequence[ObservationSet | Mapping[str, Any]
     return out
 
 
-def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: str) -> Solution:
+def _accept(n: int, sigma: float, confidence: float) -> float | None:
+    """The cost at which the first minimal subset's optimum is kept without
+    solving the others: one that passes the consistency test (at the default
+    confidence when the test is disabled, so the shortcut never keeps a
+    misfit the full search would improve on)."""
+    dof = 2 * n - 6
+    if dof <= 0:
+        return None
+    return chi2_quantile(confidence if confidence < 1.0 else DEFAULT_CONFIDENCE, dof) * sigma * sigma
+
+
+def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: str,
+           accept: float | None = None) -> Solution:
     extra = None
     if initializer in ("essential", "both"):
         from .core.essential import essential_candidates
 
         extra = essential_candidates(obs.side, obs.points, obs.ensure_bearings())
     return estimate(obs, refine=refine, root_filter=root_filter, extra_candidates=extra,
-                    use_minimal=initializer != "essential")
+                    use_minimal=initializer != "essential", accept=accept)
 
 
 def solve_bearings(bearings_p: Any, points_q: Any, bearings_q: Any, points_p: Any, *,
