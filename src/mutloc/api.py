@@ -243,25 +243,30 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     pair.require()
     obs = pair.parent
     results: list[tuple[float, np.ndarray, Solution, np.ndarray]] = []
-    errors: list[MutlocError] = []
-    for side, prow, rows in _labellings(rig, pair):
-        problem = _problem(pair, side, prow, rows)
-        try:
-            sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer,
-                         accept=_accept(len(rows), pixel_sigma, confidence))
-        except MutlocError as exc:
-            if not pair.anonymous:
-                raise
-            errors.append(exc)
-            continue
-        results.append((sol.cost, prow, sol, rows))
-    if not results:
-        raise errors[0]
-    results.sort(key=lambda r: r[0])
-    cost_best, prow, sol, rows = results[0]
+    if pair.anonymous:
+        errors: list[MutlocError] = []
+        for side, prow, rows in _labellings(rig, pair):
+            problem = _problem(pair, side, prow, rows)
+            try:
+                sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer,
+                             accept=_accept(len(rows), pixel_sigma, confidence))
+            except MutlocError as exc:
+                errors.append(exc)
+                continue
+            results.append((sol.cost, prow, sol, rows))
+        if not results:
+            raise errors[0]
+        results.sort(key=lambda r: r[0])
+        cost_best, prow, sol, rows = results[0]
+    else:
+        prow, rows = pair.points_index, pair.rows
+        sol = _solve(_problem(pair, pair.side, prow, rows), refine=refine, root_filter=root_filter,
+                     initializer=initializer, accept=_accept(len(rows), pixel_sigma, confidence))
+        cost_best = sol.cost
     test = consistency(sol.cost, sol.n_obs, pixel_sigma, confidence)
+    passed = test.passed
     rejected: list[dict[str, Any]] = []
-    if test.passed is False and reject_outliers and not pair.anonymous:
+    if passed is False and reject_outliers and not pair.anonymous:
         problem = _problem(pair, pair.side, pair.points_index, pair.rows)
         problem.ensure_bearings()
         robust = largest_consistent_set(problem, sol, pixel_sigma, confidence)
@@ -271,7 +276,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
             rejected = [{"observer": obs.observer[int(rows[k])], "marker": obs.marker[int(rows[k])],
                          "residual_px": float(np.sqrt(err[k]))} for k in dropped]
             sol, prow, rows, test = robust.solution, prow[robust.keep], rows[robust.keep], robust.test
-            cost_best = sol.cost
+            cost_best, passed = sol.cost, test.passed
     n = sol.n_obs
     names = pair.names if prow is pair.points_index else pair.table.names(prow)
     ambiguous = None
@@ -292,7 +297,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         source=source,
         target=target,
         pose=sol.pose,
-        covariance=sol.covariance(sigma_used),
+        # the solution's own array when there is nothing to scale (no copy)
+        covariance=sol.information_inv if sigma_used == 1.0 else sol.covariance(sigma_used),
         pixel_sigma=sigma_used,
         reprojection_rms_px=math.sqrt(cost_best / n),
         markers_used=names,
@@ -302,9 +308,9 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         identity_ambiguous=ambiguous,
         assignment=assignment,
     )
-    if test.passed is False:
+    if passed is False:
         raise InconsistentObservationsError(_inconsistency_message(est, pair, rows, sol, pixel_sigma), est)
-    if test.passed is None and not allow_unverified:
+    if passed is None and not allow_unverified:
         raise UnverifiedError(
             f"only {n} marker observations between {source!r} and {target!r} ({', '.join(names)}): "
             f"{len(est.candidates)} poses fit them exactly and nothing can verify the one chosen; accept the risk "

@@ -284,6 +284,7 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
     best = np.inf
     R = np.empty((3, 3))
     t = np.empty(3)
+    H = np.empty((6, 6))
     for jj in range(min(n_refine, nd)):
         i = order[jj]
         # A runner-up whose start is far worse than the optimum found so far
@@ -296,7 +297,7 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
         R[:, :] = Rc[i]
         t[:] = tc[i]
         if max_iter > 0:
-            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter)
+            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H)
         else:
             c = costs[i]
         if c < best:
@@ -432,16 +433,19 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R,
     J = np.empty((1, 6))
     ws = np.empty(WS_SIZE)
     costs = np.empty(max(nc, 1))
-    i0 = -1
-    for i in range(nc):
-        costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, Rc[i], tc[i], r, J, ws)
-        if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
-            i0 = i
-    if i0 < 0:
+    i0 = 0
+    if nc > 1:  # a lone root needs no ranking: the refinement evaluates it
+        i0 = -1
+        for i in range(nc):
+            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, Rc[i], tc[i], r, J, ws)
+            if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
+                i0 = i
+    if nc == 0 or i0 < 0:
         return _FALL_BACK, np.inf
     R[:, :] = Rc[i0]
     t[:] = tc[i0]
-    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, max_iter)
+    # H: J^T J at the refined pose, as information() would compute it.
+    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, max_iter, H)
     if not c <= accept:
         return _FALL_BACK, c
     # Another root that starts within the margin solve_kernel refines
@@ -450,8 +454,6 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R,
     for i in range(nc):
         if i != i0 and costs[i] <= 25.0 * c + 1e-12 and not _same_basin(Rc[i], tc[i], R, t):
             return _FALL_BACK, c
-    if not information(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, H):
-        return _FALL_BACK, c
     if not _inverse_checked(H, _MAX_COND, Hinv):
         return _FALL_BACK, c
     return _OK, c
@@ -523,7 +525,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, Kp, dp, Kq, dq, accept, max_iter,
                                         R, t, H, Hinv)
         if status == _OK:
-            return Solution(Pose(R, t), c, H, Hinv, None, None, n, True,
+            return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True,
                             ranked=lambda: _ranked(obs))
     subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
     n_extra = 0
