@@ -126,7 +126,8 @@ class Solution:
     ``candidates`` (every distinct pose of every minimal subset, ranked by
     the objective before refinement) and ``candidate_costs``: when the first
     minimal subset already gave a verified optimum (``estimate(accept=...)``)
-    the other subsets were not solved, and both are computed on first access.
+    the other subsets were not solved (``extra["first_subset"]`` is True),
+    and both are computed on first access.
     """
 
     __slots__ = ("pose", "cost", "information", "information_inv", "n_obs", "refined", "extra", "_ranked")
@@ -525,7 +526,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, Kp, dp, Kq, dq, accept, max_iter,
                                         R, t, H, Hinv)
         if status == _OK:
-            return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True,
+            return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True, {"first_subset": True},
                             ranked=lambda: _ranked(obs))
     subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
     n_extra = 0
