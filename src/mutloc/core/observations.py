@@ -329,9 +329,19 @@ class ObservationSet:
         key = ("pair", source, target)
         hit = self._memo.get(key)
         if hit is not None and hit[0] is rig:
-            return hit[1]
+            return _with_parent(hit[1], self)
         result = self._pair(rig, source, target)
-        self._memo[key] = (rig, result)
+        if result.parent is self:
+            # Kept without its parent: a set holding a pair that holds the set
+            # is a reference cycle, and a set used once and dropped (a frame,
+            # a dict turned into a set) would then wait for the cyclic garbage
+            # collector instead of being freed at once.  What the solver reads
+            # is computed now, so every pair handed out has it.
+            result.points, result.uv, result.names, result.count  # noqa: B018
+            template = _with_parent(result, None)
+        else:
+            template = result  # of the set of best candidates, not of this one
+        self._memo[key] = (rig, template)
         return result
 
     def _pair(self, rig: Any, source: str, target: str) -> "PairObservations":
@@ -387,6 +397,18 @@ class ObservationSet:
             return self.best().pair(rig, source, target)
         return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
                                 np.array(rows, dtype=np.int64), anonymous, table)
+
+
+def _with_parent(pair: "PairObservations", parent: ObservationSet | None) -> "PairObservations":
+    """A copy of ``pair`` (and what it has computed) whose parent is ``parent``
+    (a parent-less copy keeps nothing of its set alive); a pair whose parent
+    is another set is returned as is."""
+    if pair.parent is not None and parent is not None:
+        return pair
+    obj = object.__new__(PairObservations)
+    obj.__dict__.update(pair.__dict__)
+    obj.__dict__["parent"] = parent
+    return obj
 
 
 @dataclass(frozen=True)
