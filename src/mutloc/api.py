@@ -228,7 +228,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     """
     rig = load_rig(rig)
     source, target = rig.default_pair(source, target)
-    pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+    if not (type(pixel_sigma) is float and 0.0 < pixel_sigma < math.inf):  # the common case, at once
+        pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
     if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
         raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
     if initializer not in ("minimal", "essential", "both"):
@@ -403,11 +404,11 @@ def _accept(n: int, sigma: float, confidence: float) -> float | None:
 
 def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: str,
            accept: float | None = None) -> Solution:
-    extra = None
-    if initializer in ("essential", "both"):
-        from .core.essential import essential_candidates
+    if initializer == "minimal":
+        return estimate(obs, refine=refine, root_filter=root_filter, accept=accept)
+    from .core.essential import essential_candidates
 
-        extra = essential_candidates(obs.side, obs.points, obs.ensure_bearings())
+    extra = essential_candidates(obs.side, obs.points, obs.ensure_bearings())
     return estimate(obs, refine=refine, root_filter=root_filter, extra_candidates=extra,
                     use_minimal=initializer != "essential", accept=accept)
 
