@@ -12,6 +12,7 @@ back whenever it cannot vouch for its answer.
 from __future__ import annotations
 
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -128,5 +129,8 @@ def test_localize_candidates_are_read_lazily_and_survive_replace():
         assert moved.candidates is cand
         inv = est.inverse()
         np.testing.assert_allclose(inv.candidates.inverse().R, cand.R, atol=1e-12)
+        again = pickle.loads(pickle.dumps(est))
+        np.testing.assert_allclose(again.candidates.R, cand.R, atol=0)
+        np.testing.assert_allclose(again.R, est.R, atol=0)
         d = est.to_dict()
         assert d["status"] == "solved" and d["markers_used"] == ["Q0", "Q1", "P0", "P1"]

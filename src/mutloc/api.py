@@ -109,6 +109,13 @@ class Estimate:
             extra=dict(self.extra),
         )
 
+    def __getstate__(self) -> dict[str, Any]:
+        # candidates solved before pickling or copying: the callable that
+        # would solve them later does not travel
+        state = dict(self.__dict__)
+        state["_candidates"] = self.candidates
+        return state
+
     def to_dict(self) -> dict[str, Any]:
         """The result JSON of SPEC (plus identity fields for anonymous markers)."""
         d: dict[str, Any] = {"from": self.source, "to": self.target}
