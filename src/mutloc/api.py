@@ -3,9 +3,10 @@ and :func:`solve_bearings` (rays, any camera model)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from itertools import permutations, product
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -47,7 +48,14 @@ def invert_covariance(R: np.ndarray, t: np.ndarray, cov: np.ndarray) -> np.ndarr
 @dataclass(eq=False)
 class Estimate:
     """Relative pose ``T_qp`` (``x_q = R @ x_p + t``) from robot ``source``
-    (p) to robot ``target`` (q), with its uncertainty."""
+    (p) to robot ``target`` (q), with its uncertainty.
+
+    ``candidates``: every distinct pose of the minimal subsets, best first.
+    When the first minimal subset :func:`localize` tries already gives an
+    optimum that passes the consistency test, the other subsets are solved
+    on the first read of ``candidates`` (a callable returning the stack may
+    be given for it).
+    """
 
     source: str
     target: str
@@ -101,6 +109,13 @@ class Estimate:
             extra=dict(self.extra),
         )
 
+    def __getstate__(self) -> dict[str, Any]:
+        # candidates solved before pickling or copying: the callable that
+        # would solve them later does not travel
+        state = dict(self.__dict__)
+        state["_candidates"] = self.candidates
+        return state
+
     def to_dict(self) -> dict[str, Any]:
         """The result JSON of SPEC (plus identity fields for anonymous markers)."""
         d: dict[str, Any] = {"from": self.source, "to": self.target}
@@ -122,12 +137,30 @@ class Estimate:
         return d
 
 
+def _get_candidates(est: Estimate) -> Pose:
+    c = est.__dict__["_candidates"]
+    if not isinstance(c, Pose):
+        c = est.__dict__["_candidates"] = c()
+    return c
+
+
+def _set_candidates(est: Estimate, value: Pose | Callable[[], Pose]) -> None:
+    est.__dict__["_candidates"] = value
+
+
+# A property over the dataclass field: ``Estimate(candidates=...)``,
+# ``dataclasses.replace`` and reads all go through it.
+Estimate.candidates = property(_get_candidates, _set_candidates,  # type: ignore[assignment]
+                               doc="Every distinct candidate pose, best first (a Pose stack).")
+
+
 def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: np.ndarray) -> PairProblem:
     """The solver's form of the given rows (rays are computed by the solver)."""
     table = pair.table
-    obs = pair.parent
     labels = _Labels(pair, rows)
-    return PairProblem.trusted(side, table.points[prow], None, obs.uv[rows], table.K, table.dist, labels)
+    if rows is pair.rows:  # the named observations: their arrays are kept on the pair
+        return PairProblem.trusted(side, pair.points, None, pair.uv, table.K, table.dist, labels)
+    return PairProblem.trusted(side, table.points[prow], None, pair.parent.uv[rows], table.K, table.dist, labels)
 
 
 class _Labels:
@@ -202,7 +235,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     """
     rig = load_rig(rig)
     source, target = rig.default_pair(source, target)
-    pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+    if not (type(pixel_sigma) is float and 0.0 < pixel_sigma < math.inf):  # the common case, at once
+        pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
     if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
         raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
     if initializer not in ("minimal", "essential", "both"):
@@ -217,24 +251,30 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     pair.require()
     obs = pair.parent
     results: list[tuple[float, np.ndarray, Solution, np.ndarray]] = []
-    errors: list[MutlocError] = []
-    for side, prow, rows in _labellings(rig, pair):
-        problem = _problem(pair, side, prow, rows)
-        try:
-            sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer)
-        except MutlocError as exc:
-            if not pair.anonymous:
-                raise
-            errors.append(exc)
-            continue
-        results.append((sol.cost, prow, sol, rows))
-    if not results:
-        raise errors[0]
-    results.sort(key=lambda r: r[0])
-    cost_best, prow, sol, rows = results[0]
+    if pair.anonymous:
+        errors: list[MutlocError] = []
+        for side, prow, rows in _labellings(rig, pair):
+            problem = _problem(pair, side, prow, rows)
+            try:
+                sol = _solve(problem, refine=refine, root_filter=root_filter, initializer=initializer,
+                             accept=_accept(len(rows), pixel_sigma, confidence))
+            except MutlocError as exc:
+                errors.append(exc)
+                continue
+            results.append((sol.cost, prow, sol, rows))
+        if not results:
+            raise errors[0]
+        results.sort(key=lambda r: r[0])
+        cost_best, prow, sol, rows = results[0]
+    else:
+        prow, rows = pair.points_index, pair.rows
+        sol = _solve(_problem(pair, pair.side, prow, rows), refine=refine, root_filter=root_filter,
+                     initializer=initializer, accept=_accept(len(rows), pixel_sigma, confidence))
+        cost_best = sol.cost
     test = consistency(sol.cost, sol.n_obs, pixel_sigma, confidence)
+    passed = test.passed
     rejected: list[dict[str, Any]] = []
-    if test.passed is False and reject_outliers and not pair.anonymous:
+    if passed is False and reject_outliers and not pair.anonymous:
         problem = _problem(pair, pair.side, pair.points_index, pair.rows)
         problem.ensure_bearings()
         robust = largest_consistent_set(problem, sol, pixel_sigma, confidence)
@@ -244,9 +284,9 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
             rejected = [{"observer": obs.observer[int(rows[k])], "marker": obs.marker[int(rows[k])],
                          "residual_px": float(np.sqrt(err[k]))} for k in dropped]
             sol, prow, rows, test = robust.solution, prow[robust.keep], rows[robust.keep], robust.test
-            cost_best = sol.cost
+            cost_best, passed = sol.cost, test.passed
     n = sol.n_obs
-    names = pair.table.names(prow)
+    names = pair.names if prow is pair.points_index else pair.table.names(prow)
     ambiguous = None
     assignment = None
     if pair.anonymous:
@@ -265,19 +305,20 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         source=source,
         target=target,
         pose=sol.pose,
-        covariance=sol.covariance(sigma_used),
+        # the solution's own array when there is nothing to scale (no copy)
+        covariance=sol.information_inv if sigma_used == 1.0 else sol.covariance(sigma_used),
         pixel_sigma=sigma_used,
-        reprojection_rms_px=float(np.sqrt(cost_best / n)),
-        markers_used=list(names),
-        candidates=sol.candidates,
+        reprojection_rms_px=math.sqrt(cost_best / n),
+        markers_used=names,
+        candidates=lambda s=sol: s.candidates,  # solved for on first read (Solution)
         consistency=test,
         rejected=rejected,
         identity_ambiguous=ambiguous,
         assignment=assignment,
     )
-    if test.passed is False:
+    if passed is False:
         raise InconsistentObservationsError(_inconsistency_message(est, pair, rows, sol, pixel_sigma), est)
-    if test.passed is None and not allow_unverified:
+    if passed is None and not allow_unverified:
         raise UnverifiedError(
             f"only {n} marker observations between {source!r} and {target!r} ({', '.join(names)}): "
             f"{len(est.candidates)} poses fit them exactly and nothing can verify the one chosen; accept the risk "
@@ -357,14 +398,26 @@ def localize_batch(rig: Any, frames: Sequence[ObservationSet | Mapping[str, Any]
     return out
 
 
-def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: str) -> Solution:
-    extra = None
-    if initializer in ("essential", "both"):
-        from .core.essential import essential_candidates
+def _accept(n: int, sigma: float, confidence: float) -> float | None:
+    """The cost at which the first minimal subset's optimum is kept without
+    solving the others: one that passes the consistency test (at the default
+    confidence when the test is disabled, so the shortcut never keeps a
+    misfit the full search would improve on)."""
+    dof = 2 * n - 6
+    if dof <= 0:
+        return None
+    return chi2_quantile(confidence if confidence < 1.0 else DEFAULT_CONFIDENCE, dof) * sigma * sigma
 
-        extra = essential_candidates(obs.side, obs.points, obs.ensure_bearings())
+
+def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: str,
+           accept: float | None = None) -> Solution:
+    if initializer == "minimal":
+        return estimate(obs, refine=refine, root_filter=root_filter, accept=accept)
+    from .core.essential import essential_candidates
+
+    extra = essential_candidates(obs.side, obs.points, obs.ensure_bearings())
     return estimate(obs, refine=refine, root_filter=root_filter, extra_candidates=extra,
-                    use_minimal=initializer != "essential")
+                    use_minimal=initializer != "essential", accept=accept)
 
 
 def solve_bearings(bearings_p: Any, points_q: Any, bearings_q: Any, points_p: Any, *,

@@ -24,6 +24,9 @@ from ..errors import InputError, RigError
 
 __all__ = [
     "Camera",
+    "intrinsics",
+    "project_scalar",
+    "project_jac_scalar",
     "project_kernel",
     "project_jac_kernel",
     "undistort_kernel",
@@ -51,23 +54,19 @@ _UNDIST_MAX_HALVINGS = 40
 
 
 @numba.njit(cache=True, fastmath=False)
-def _distort(dist, x, y):
-    """Distorted normalized point of the undistorted normalized (x, y)."""
-    xd, yd, _, _, _, _, _ = _distort_jac(dist, x, y)
-    return xd, yd
+def intrinsics(K, dist):
+    """``K`` and ``dist`` as one tuple of 13 floats ``(fx, skew, cx, fy, cy,
+    k1, k2, p1, p2, k3, k4, k5, k6)``: what the ``*_scalar`` kernels take.
+    A tuple of floats costs nothing to pass to a compiled function, where
+    every array argument costs reference counting: inner loops that project
+    thousands of points read their cameras once with this."""
+    return (K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], dist[0], dist[1], dist[2], dist[3], dist[4], dist[5],
+            dist[6], dist[7])
 
 
 @numba.njit(cache=True, fastmath=False)
-def _distort_jac(dist, x, y):
+def _distort_terms(k1, k2, p1, p2, k3, k4, k5, k6, x, y):
     """Distorted point, its 2x2 Jacobian (a b; c d) wrt (x, y), and the radial factor."""
-    k1 = dist[0]
-    k2 = dist[1]
-    p1 = dist[2]
-    p2 = dist[3]
-    k3 = dist[4]
-    k4 = dist[5]
-    k5 = dist[6]
-    k6 = dist[7]
     x2 = x * x
     y2 = y * y
     xy = x * y
@@ -88,60 +87,84 @@ def _distort_jac(dist, x, y):
 
 
 @numba.njit(cache=True, fastmath=False)
+def _distort(dist, x, y):
+    """Distorted normalized point of the undistorted normalized (x, y)."""
+    xd, yd, _, _, _, _, _ = _distort_jac(dist, x, y)
+    return xd, yd
+
+
+@numba.njit(cache=True, fastmath=False)
+def _distort_jac(dist, x, y):
+    """Distorted point, its 2x2 Jacobian (a b; c d) wrt (x, y), and the radial factor."""
+    return _distort_terms(dist[0], dist[1], dist[2], dist[3], dist[4], dist[5], dist[6], dist[7], x, y)
+
+
+@numba.njit(cache=True, fastmath=False)
+def project_scalar(c, X0, X1, X2):
+    """``(ok, u, v)``: distorted pixel of camera-frame point ``(X0, X1, X2)``
+    for the camera ``c`` (:func:`intrinsics`); not ok (NaN pixel) if the
+    point is not strictly in front of the camera, or the pixel not finite."""
+    if not (X2 > 0.0):
+        return False, np.nan, np.nan
+    x = X0 / X2
+    y = X1 / X2
+    xd, yd, _, _, _, _, _ = _distort_terms(c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], x, y)
+    u = c[0] * xd + c[1] * yd + c[2]
+    v = c[3] * yd + c[4]
+    return math.isfinite(u) and math.isfinite(v), u, v
+
+
+@numba.njit(cache=True, fastmath=False)
+def project_jac_scalar(c, X0, X1, X2):
+    """As :func:`project_scalar`, plus d(u, v)/dX row by row:
+    ``(ok, u, v, J00, J01, J02, J10, J11, J12)`` (NaN on failure)."""
+    if not (X2 > 0.0):
+        return False, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    iz = 1.0 / X2
+    x = X0 * iz
+    y = X1 * iz
+    xd, yd, a, b, cc, d, _ = _distort_terms(c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], x, y)
+    fx = c[0]
+    s = c[1]
+    fy = c[3]
+    u = fx * xd + s * yd + c[2]
+    v = fy * yd + c[4]
+    # d(u,v)/d(x,y) = [[fx, s], [0, fy]] @ [[a, b], [c, d]]
+    dux = fx * a + s * cc
+    duy = fx * b + s * d
+    dvx = fy * cc
+    dvy = fy * d
+    # d(x,y)/dX = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
+    return (math.isfinite(u) and math.isfinite(v), u, v, dux * iz, duy * iz, -(dux * x + duy * y) * iz,
+            dvx * iz, dvy * iz, -(dvx * x + dvy * y) * iz)
+
+
+@numba.njit(cache=True, fastmath=False)
 def project_kernel(K, dist, X, uv) -> bool:
     """Distorted pixel of camera-frame point ``X`` into ``uv``.
 
     Returns False (``uv`` = NaN) if ``X`` is not strictly in front of the
     camera or the projection is not finite.
     """
-    z = X[2]
-    if not (z > 0.0):
-        uv[0] = np.nan
-        uv[1] = np.nan
-        return False
-    x = X[0] / z
-    y = X[1] / z
-    xd, yd = _distort(dist, x, y)
-    u = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
-    v = K[1, 1] * yd + K[1, 2]
+    ok, u, v = project_scalar(intrinsics(K, dist), X[0], X[1], X[2])
     uv[0] = u
     uv[1] = v
-    return math.isfinite(u) and math.isfinite(v)
+    return ok
 
 
 @numba.njit(cache=True, fastmath=False)
 def project_jac_kernel(K, dist, X, uv, J) -> bool:
     """As :func:`project_kernel`, plus ``J`` (2, 3) = d(u, v)/dX (NaN on failure)."""
-    z = X[2]
-    if not (z > 0.0):
-        uv[0] = np.nan
-        uv[1] = np.nan
-        for i in range(2):
-            for j in range(3):
-                J[i, j] = np.nan
-        return False
-    iz = 1.0 / z
-    x = X[0] * iz
-    y = X[1] * iz
-    xd, yd, a, b, c, d, _ = _distort_jac(dist, x, y)
-    fx = K[0, 0]
-    s = K[0, 1]
-    fy = K[1, 1]
-    uv[0] = fx * xd + s * yd + K[0, 2]
-    uv[1] = fy * yd + K[1, 2]
-    # d(u,v)/d(x,y) = [[fx, s], [0, fy]] @ [[a, b], [c, d]]
-    dux = fx * a + s * c
-    duy = fx * b + s * d
-    dvx = fy * c
-    dvy = fy * d
-    # d(x,y)/dX = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
-    J[0, 0] = dux * iz
-    J[0, 1] = duy * iz
-    J[0, 2] = -(dux * x + duy * y) * iz
-    J[1, 0] = dvx * iz
-    J[1, 1] = dvy * iz
-    J[1, 2] = -(dvx * x + dvy * y) * iz
-    return math.isfinite(uv[0]) and math.isfinite(uv[1])
+    ok, u, v, j00, j01, j02, j10, j11, j12 = project_jac_scalar(intrinsics(K, dist), X[0], X[1], X[2])
+    uv[0] = u
+    uv[1] = v
+    J[0, 0] = j00
+    J[0, 1] = j01
+    J[0, 2] = j02
+    J[1, 0] = j10
+    J[1, 1] = j11
+    J[1, 2] = j12
+    return ok
 
 
 @numba.njit(cache=True, fastmath=False)

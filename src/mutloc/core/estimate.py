@@ -9,9 +9,10 @@ position in the *other* robot's frame is ``points[k]``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from itertools import combinations
+from typing import Callable
 
 import numpy as np
 from numba import njit
@@ -120,19 +121,40 @@ class PairProblem:
         return (self.side, self.points, meas, basis, Kp, dp, Kq, dq, self.mode)
 
 
-@dataclass
 class Solution:
-    """What :func:`estimate` found: the best pose and everything behind it."""
+    """What :func:`estimate` found: the best pose and everything behind it.
 
-    pose: Pose
-    cost: float
-    information: np.ndarray
-    information_inv: np.ndarray
-    candidates: Pose
-    candidate_costs: np.ndarray
-    n_obs: int
-    refined: bool = True
-    extra: dict = field(default_factory=dict)
+    ``candidates`` (every distinct pose of every minimal subset, ranked by
+    the objective before refinement) and ``candidate_costs``: when the first
+    minimal subset already gave a verified optimum (``estimate(accept=...)``)
+    the other subsets were not solved (``extra["first_subset"]`` is True),
+    and both are computed on first access.
+    """
+
+    __slots__ = ("pose", "cost", "information", "information_inv", "n_obs", "refined", "extra", "_ranked")
+
+    def __init__(self, pose: Pose, cost: float, information: np.ndarray, information_inv: np.ndarray,
+                 candidates: Pose | None, candidate_costs: np.ndarray | None, n_obs: int, refined: bool = True,
+                 extra: dict | None = None, ranked: "Callable[[], tuple[Pose, np.ndarray]] | None" = None):
+        self.pose, self.cost, self.n_obs, self.refined = pose, cost, n_obs, refined
+        self.information, self.information_inv = information, information_inv
+        self.extra = {} if extra is None else extra
+        self._ranked = ranked if candidates is None else (candidates, candidate_costs)
+
+    def _ranking(self) -> tuple[Pose, np.ndarray]:
+        if callable(self._ranked):
+            self._ranked = self._ranked()
+        return self._ranked
+
+    @property
+    def candidates(self) -> Pose:
+        """Every distinct candidate pose, best first (a stack)."""
+        return self._ranking()[0]
+
+    @property
+    def candidate_costs(self) -> np.ndarray:
+        """The objective at each of :attr:`candidates` (before refinement)."""
+        return self._ranking()[1]
 
     def covariance(self, sigma: float) -> np.ndarray:
         """6x6 covariance of (left rotation vector, translation)."""
@@ -264,6 +286,7 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
     best = np.inf
     R = np.empty((3, 3))
     t = np.empty(3)
+    H = np.empty((6, 6))
     for jj in range(min(n_refine, nd)):
         i = order[jj]
         # A runner-up whose start is far worse than the optimum found so far
@@ -276,7 +299,7 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
         R[:, :] = Rc[i]
         t[:] = tc[i]
         if max_iter > 0:
-            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter)
+            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H)
         else:
             c = costs[i]
         if c < best:
@@ -334,8 +357,108 @@ def _inverse_checked(H, max_cond, out):
     return True
 
 
-# Status codes of solve_kernel.
-_OK, _UNDISTORT, _NO_CANDIDATE, _BEHIND, _DEGENERATE = 0, 1, 2, 3, 4
+# Status codes of solve_kernel (and first_subset_kernel, which adds _FALL_BACK).
+_OK, _UNDISTORT, _NO_CANDIDATE, _BEHIND, _DEGENERATE, _FALL_BACK = 0, 1, 2, 3, 4, 5
+
+
+@njit(cache=True)
+def bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings):
+    """Unit rays of the pixels ``meas`` into ``bearings``; the index of the
+    first pixel that cannot be undistorted, or -1."""
+    for i in range(side.shape[0]):
+        if side[i] == 0:
+            ok = undistort_kernel(Kp, dp, meas[i], bearings[i])
+        else:
+            ok = undistort_kernel(Kq, dq, meas[i], bearings[i])
+        if not ok:
+            return i
+    return -1
+
+
+@njit(cache=True)
+def first_subset(side, bearings, sub):
+    """The minimal subset tried first, into ``sub`` (3 indices): the two rays
+    of one camera furthest apart (the widest baseline a pair of markers
+    offers) and one ray of the other camera; False when one camera saw
+    everything (a plain PnP problem: four nearly coplanar markers have two
+    poses that fit, and one subset's roots need not reach both)."""
+    n = side.shape[0]
+    best = 2.0
+    a = -1
+    b = -1
+    for i in range(n):
+        for j in range(i + 1, n):
+            if side[i] == side[j]:
+                d = (bearings[i, 0] * bearings[j, 0] + bearings[i, 1] * bearings[j, 1]
+                     + bearings[i, 2] * bearings[j, 2])
+                if d < best:
+                    best, a, b = d, i, j
+    sub[0] = a
+    sub[1] = b
+    for k in range(n):
+        if side[k] != side[a]:
+            sub[2] = k
+            return True
+    return False
+
+
+@njit(cache=True)
+def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R, t, H, Hinv):
+    """The estimate from one well-chosen minimal subset (pixel objective, at
+    least four observations): its roots ranked on every observation, the
+    best refined.  Accepted (status 0, the cost) only when the refined cost
+    is at most ``accept`` and no other root starts close enough to it to
+    lie in another basin; anything else returns :data:`_FALL_BACK` and the
+    caller solves every subset (:func:`solve_kernel`), which also reports
+    the failures."""
+    n = side.shape[0]
+    bearings = np.empty((n, 3))
+    if bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings) >= 0:
+        return _FALL_BACK, np.inf
+    sub = np.empty(3, dtype=np.int64)
+    if not first_subset(side, bearings, sub):
+        return _FALL_BACK, np.inf
+    sd = np.empty(3, dtype=np.int64)
+    b = np.empty((3, 3))
+    X = np.empty((3, 3))
+    for j in range(3):
+        sd[j] = side[sub[j]]
+        b[j] = bearings[sub[j]]
+        X[j] = points[sub[j]]
+    Rc = np.empty((_PER_SUBSET, 3, 3))
+    tc = np.empty((_PER_SUBSET, 3))
+    rg = np.empty((_PER_SUBSET, 3))
+    nc = solve_minimal_kernel(sd, b, X, Rc, tc, rg)
+    basis = np.empty((n, 3, 3))
+    tangent_bases(bearings, basis)
+    r = np.empty(2 * n)
+    J = np.empty((1, 6))
+    ws = np.empty(WS_SIZE)
+    costs = np.empty(max(nc, 1))
+    i0 = 0
+    if nc > 1:  # a lone root needs no ranking: the refinement evaluates it
+        i0 = -1
+        for i in range(nc):
+            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, Rc[i], tc[i], r, J, ws)
+            if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
+                i0 = i
+    if nc == 0 or i0 < 0:
+        return _FALL_BACK, np.inf
+    R[:, :] = Rc[i0]
+    t[:] = tc[i0]
+    # H: J^T J at the refined pose, as information() would compute it.
+    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, max_iter, H)
+    if not c <= accept:
+        return _FALL_BACK, c
+    # Another root that starts within the margin solve_kernel refines
+    # runner-ups by, and not in the basin just found: the answer may be
+    # ambiguous, and only the full search can say.
+    for i in range(nc):
+        if i != i0 and costs[i] <= 25.0 * c + 1e-12 and not _same_basin(Rc[i], tc[i], R, t):
+            return _FALL_BACK, c
+    if not _inverse_checked(H, _MAX_COND, Hinv):
+        return _FALL_BACK, c
+    return _OK, c
 
 
 @njit(cache=True)
@@ -351,13 +474,9 @@ def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, subsets, ro
     """
     n = side.shape[0]
     if mode == MODE_PIXEL:
-        for i in range(n):
-            if side[i] == 0:
-                ok = undistort_kernel(Kp, dp, meas[i], bearings[i])
-            else:
-                ok = undistort_kernel(Kq, dq, meas[i], bearings[i])
-            if not ok:
-                return _UNDISTORT, i, 0, 0, np.inf
+        i = bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings)
+        if i >= 0:
+            return _UNDISTORT, i, 0, 0, np.inf
     basis = np.empty((n, 3, 3))
     tangent_bases(bearings, basis)
     nc = n_extra
@@ -381,8 +500,16 @@ _NO_SUBSETS = np.empty((0, 3), dtype=np.int64)
 
 def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
              root_filter: bool = False, extra_candidates: tuple[np.ndarray, np.ndarray] | None = None,
-             use_minimal: bool = True) -> Solution:
+             use_minimal: bool = True, accept: float | None = None) -> Solution:
     """The best pose T_qp for ``obs`` with all distinct candidates.
+
+    With ``accept`` (a cost in pixels squared, e.g. the consistency test's
+    threshold times sigma squared) and four or more pixel observations, one
+    well-chosen minimal subset is solved first; when its best root refines
+    to a cost at most ``accept`` and none of its other roots could lie in
+    another basin, that optimum is returned and the other subsets are solved
+    only if ``candidates`` is read.  Otherwise (or without ``accept``) every
+    subset is solved.
 
     Raises ObservationError when a pixel cannot be undistorted,
     NoSolutionError when no candidate keeps every marker in front of the
@@ -390,6 +517,18 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
     isolated (singular information matrix).
     """
     n = len(obs.side)
+    if (accept is not None and refine and use_minimal and extra_candidates is None and not root_filter
+            and n > 3 and obs.pixels is not None):
+        R = np.empty((3, 3))
+        t = np.empty(3)
+        H = np.empty((6, 6))
+        Hinv = np.empty((6, 6))
+        (Kp, Kq), (dp, dq) = obs.K, obs.dist
+        status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, Kp, dp, Kq, dq, accept, max_iter,
+                                        R, t, H, Hinv)
+        if status == _OK:
+            return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True, {"first_subset": True},
+                            ranked=lambda: _ranked(obs))
     subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
     n_extra = 0
     size = len(subsets) * PER_SUBSET
@@ -447,3 +586,21 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         n_obs=n,
         refined=refine,
     )
+
+
+def _ranked(obs: PairProblem) -> tuple[Pose, np.ndarray]:
+    """Every subset's distinct candidates, ranked as :func:`estimate` without
+    ``accept`` ranks them (four or more observations: no preference for
+    facing cameras)."""
+    bearings = obs.ensure_bearings()
+    subsets = minimal_subsets(obs.side)
+    size = max(len(subsets) * _PER_SUBSET, 1)
+    Rc = np.empty((size, 3, 3))
+    tc = np.empty((size, 3))
+    nc = minimal_candidates_kernel(obs.side, obs.points, bearings, subsets, False, Rc, tc)
+    order = np.empty(size, dtype=np.int64)
+    costs = np.empty(size)
+    nd, _ = rank_refine_kernel(*obs.kernel_args(), Rc, tc, nc, 0, 0, len(obs.side) == 3, order, costs,
+                               np.empty((3, 3)), np.empty(3))
+    sel = order[:nd]
+    return Pose(Rc[sel], tc[sel]), costs[sel]

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
@@ -93,9 +94,13 @@ class ObservationSet:
     marker of unknown identity), ``uv`` (n, 2) raw pixels, ``time`` (n,)
     seconds (NaN: untimed), ``score`` (n,) detector confidence (1 for given
     pixels).  Iterating yields :class:`Observation` records.
+
+    What is derived from the columns alone or with one rig (whether a marker
+    has alternatives, a pair's solver form) is computed once and kept: a set
+    localized again, or in every iteration of a filter, is not scanned again.
     """
 
-    __slots__ = ("observer", "marker", "uv", "time", "score")
+    __slots__ = ("observer", "marker", "uv", "time", "score", "_memo")
 
     def __init__(self, observer: Sequence[str], marker: Sequence[str | None], uv: Any,
                  time: Any = None, score: Any = None) -> None:
@@ -114,7 +119,7 @@ class ObservationSet:
         time.flags.writeable = False
         score.flags.writeable = False
         for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
-                     ("score", score)):
+                     ("score", score), ("_memo", {})):
             object.__setattr__(self, k, v)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -167,7 +172,7 @@ class ObservationSet:
         time = np.full(n, np.nan if time is None else float(time))
         score = np.ones(n) if score is None else np.asarray(score, dtype=float)
         for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
-                     ("score", score)):
+                     ("score", score), ("_memo", {})):
             if isinstance(v, np.ndarray):
                 v.flags.writeable = False
             object.__setattr__(obj, k, v)
@@ -268,7 +273,10 @@ class ObservationSet:
     @property
     def has_alternatives(self) -> bool:
         """Whether some marker has more than one candidate at one time."""
-        return len(self.best()) != len(self)
+        alt = self._memo.get("alternatives")
+        if alt is None:
+            alt = self._memo["alternatives"] = len(self.best()) != len(self)
+        return alt
 
     def to_dict(self) -> dict[str, Any]:
         """The SPEC's form ``{observer: {marker: (u, v)}}`` (best candidates;
@@ -315,7 +323,28 @@ class ObservationSet:
         solver form, checked against the rig on the way (unknown robot or
         marker, a robot seeing its own marker, a pixel far outside the image:
         ObservationError naming observer and marker).  Rows of markers of
-        unknown identity are returned apart; other robots' rows are skipped."""
+        unknown identity are returned apart; other robots' rows are skipped.
+        Kept for the last rig asked about (rigs, like sets, are not changed
+        once built)."""
+        key = ("pair", source, target)
+        hit = self._memo.get(key)
+        if hit is not None and hit[0] is rig:
+            return _with_parent(hit[1], self)
+        result = self._pair(rig, source, target)
+        if result.parent is self:
+            # Kept without its parent: a set holding a pair that holds the set
+            # is a reference cycle, and a set used once and dropped (a frame,
+            # a dict turned into a set) would then wait for the cyclic garbage
+            # collector instead of being freed at once.  What the solver reads
+            # is computed now, so every pair handed out has it.
+            result.points, result.uv, result.names, result.count  # noqa: B018
+            template = _with_parent(result, None)
+        else:
+            template = result  # of the set of best candidates, not of this one
+        self._memo[key] = (rig, template)
+        return result
+
+    def _pair(self, rig: Any, source: str, target: str) -> "PairObservations":
         table = rig.pair_table(source, target)
         index = table.index
         robots = rig.robots
@@ -370,6 +399,18 @@ class ObservationSet:
                                 np.array(rows, dtype=np.int64), anonymous, table)
 
 
+def _with_parent(pair: "PairObservations", parent: ObservationSet | None) -> "PairObservations":
+    """A copy of ``pair`` (and what it has computed) whose parent is ``parent``
+    (a parent-less copy keeps nothing of its set alive); a pair whose parent
+    is another set is returned as is."""
+    if pair.parent is not None and parent is not None:
+        return pair
+    obj = object.__new__(PairObservations)
+    obj.__dict__.update(pair.__dict__)
+    obj.__dict__["parent"] = parent
+    return obj
+
+
 @dataclass(frozen=True)
 class PairObservations:
     """The observations between robots p (``source``) and q (``target``):
@@ -389,9 +430,23 @@ class PairObservations:
     @property
     def names(self) -> list[str]:
         """The observed markers' names, row by row."""
-        return [self.parent.marker[i] for i in self.rows.tolist()]
+        return list(self._names)
 
-    @property
+    @cached_property
+    def _names(self) -> tuple[str, ...]:
+        return tuple(self.parent.marker[i] for i in self.rows.tolist())
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        """(n, 3) position of each row's marker in its owner's frame (shared: do not modify)."""
+        return np.ascontiguousarray(self.table.points[self.points_index])
+
+    @cached_property
+    def uv(self) -> np.ndarray:
+        """(n, 2) each row's raw pixel (shared: do not modify)."""
+        return np.ascontiguousarray(self.parent.uv[self.rows])
+
+    @cached_property
     def count(self) -> int:
         """Observations between the pair, named and anonymous."""
         return len(self.rows) + sum(len(v) for v in self.anonymous.values())

@@ -66,6 +66,15 @@ class Pose:
     # -- construction -------------------------------------------------------
 
     @classmethod
+    def trusted(cls, R: np.ndarray, t: np.ndarray) -> "Pose":
+        """From float64 arrays already shaped (..., 3, 3) and (..., 3), not
+        checked (the solvers' own output)."""
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "R", R)
+        object.__setattr__(obj, "t", t)
+        return obj
+
+    @classmethod
     def identity(cls, shape: int | tuple[int, ...] = ()) -> "Pose":
         """The identity (a stack of them when ``shape`` is given)."""
         shape = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .camera import project_jac_kernel, project_kernel
+from .camera import intrinsics, project_jac_scalar, project_scalar
 
 #: Scratch floats :func:`residuals` needs.
 WS_SIZE = 29
@@ -70,10 +70,12 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
 
     Returns False when a marker falls behind the camera observing it.
     """
-    X = ws[0:3]
-    uv = ws[3:5]
     Jp = ws[5:11].reshape((2, 3))
     dX = ws[11:29].reshape((3, 6))
+    # The cameras as scalars, read once: the loop below then calls no
+    # compiled function with array arguments (each costs reference counting).
+    cp = intrinsics(Kp, dp)
+    cq = intrinsics(Kq, dq)
     n = side.shape[0]
     for i in range(n):
         if side[i] == 0:
@@ -81,8 +83,9 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
             d0 = pts[i, 0] - t[0]
             d1 = pts[i, 1] - t[1]
             d2 = pts[i, 2] - t[2]
-            for a in range(3):
-                X[a] = R[0, a] * d0 + R[1, a] * d1 + R[2, a] * d2
+            X0 = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2
+            X1 = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
+            X2 = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
             if want_jac:
                 # dX/dtheta = R^T [Q - t]x,  dX/dt = -R^T
                 for a in range(3):
@@ -96,17 +99,17 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
                     dX[a, 3] = -c0
                     dX[a, 4] = -c1
                     dX[a, 5] = -c2
-            K = Kp
-            dist = dp
+            cam = cp
         else:
             # q sees p's marker P: X = R P + t.
-            for a in range(3):
-                X[a] = R[a, 0] * pts[i, 0] + R[a, 1] * pts[i, 1] + R[a, 2] * pts[i, 2] + t[a]
+            X0 = R[0, 0] * pts[i, 0] + R[0, 1] * pts[i, 1] + R[0, 2] * pts[i, 2] + t[0]
+            X1 = R[1, 0] * pts[i, 0] + R[1, 1] * pts[i, 1] + R[1, 2] * pts[i, 2] + t[1]
+            X2 = R[2, 0] * pts[i, 0] + R[2, 1] * pts[i, 1] + R[2, 2] * pts[i, 2] + t[2]
             if want_jac:
                 # dX/dtheta = -[R P]x, dX/dt = I
-                y0 = X[0] - t[0]
-                y1 = X[1] - t[1]
-                y2 = X[2] - t[2]
+                y0 = X0 - t[0]
+                y1 = X1 - t[1]
+                y2 = X2 - t[2]
                 dX[0, 0] = 0.0
                 dX[0, 1] = y2
                 dX[0, 2] = -y1
@@ -119,22 +122,23 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
                 for a in range(3):
                     for c in range(3):
                         dX[a, 3 + c] = 1.0 if a == c else 0.0
-            K = Kq
-            dist = dq
+            cam = cq
         if mode == MODE_PIXEL:
             if want_jac:
-                if not project_jac_kernel(K, dist, X, uv, Jp):
-                    return False
-            elif not project_kernel(K, dist, X, uv):
+                ok, u, v, Jp[0, 0], Jp[0, 1], Jp[0, 2], Jp[1, 0], Jp[1, 1], Jp[1, 2] = project_jac_scalar(
+                    cam, X0, X1, X2)
+            else:
+                ok, u, v = project_scalar(cam, X0, X1, X2)
+            if not ok:
                 return False
-            r[2 * i] = uv[0] - meas[i, 0]
-            r[2 * i + 1] = uv[1] - meas[i, 1]
+            r[2 * i] = u - meas[i, 0]
+            r[2 * i + 1] = v - meas[i, 1]
         else:
-            den = basis[i, 2, 0] * X[0] + basis[i, 2, 1] * X[1] + basis[i, 2, 2] * X[2]
+            den = basis[i, 2, 0] * X0 + basis[i, 2, 1] * X1 + basis[i, 2, 2] * X2
             if not den > 0.0:
                 return False
             for k in range(2):
-                num = basis[i, k, 0] * X[0] + basis[i, k, 1] * X[1] + basis[i, k, 2] * X[2]
+                num = basis[i, k, 0] * X0 + basis[i, k, 1] * X1 + basis[i, k, 2] * X2
                 r[2 * i + k] = num / den
                 for a in range(3):
                     Jp[k, a] = (basis[i, k, a] * den - num * basis[i, 2, a]) / (den * den)
@@ -249,34 +253,45 @@ def normal_equations(J, r, H, g):
     """H = J^T J and g = J^T r without a BLAS call (tiny matrices)."""
     m = J.shape[0]
     for a in range(6):
-        s = 0.0
-        for k in range(m):
-            s += J[k, a] * r[k]
-        g[a] = s
+        g[a] = 0.0
         for b in range(a + 1):
-            s = 0.0
-            for k in range(m):
-                s += J[k, a] * J[k, b]
-            H[a, b] = s
-            H[b, a] = s
+            H[a, b] = 0.0
+    # Row by row: the 27 sums are independent, so they proceed side by side
+    # instead of one dependent chain after another (same order of additions
+    # per entry, same result).
+    for k in range(m):
+        rk = r[k]
+        for a in range(6):
+            ja = J[k, a]
+            g[a] += ja * rk
+            for b in range(a + 1):
+                H[a, b] += ja * J[k, b]
+    for a in range(6):
+        for b in range(a):
+            H[b, a] = H[a, b]
 
 
 @njit(cache=True)
-def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
-    """Levenberg-Marquardt on SE(3) from (R, t), updated in place.
+def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H=None):
+    """Levenberg-Marquardt on SE(3) from (R, t), updated in place; ``H``
+    (6, 6), if given, receives J^T J at the returned pose (what
+    :func:`information` computes) when the cost is finite.
 
     Returns (final cost, iterations used).
     """
+    if H is None:
+        H = np.empty((6, 6))
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((2 * n, 6))
-    H = np.empty((6, 6))
     g = np.empty(6)
     A = np.empty((6, 6))
+    L = np.empty((6, 6))
     delta = np.empty(6)
     Rn = np.empty((3, 3))
     tn = np.empty(3)
     r2 = np.empty(2 * n)
+    J2 = np.empty((2 * n, 6))
     ws = np.empty(WS_SIZE)
     if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, ws):
         return np.inf, 0
@@ -285,8 +300,10 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
         c += r[k] * r[k]
     lam = 1e-4
     it = 0
+    fresh = False  # whether H is J^T J at the current pose
     for it in range(1, max_iter + 1):
         normal_equations(J, r, H, g)
+        fresh = True
         improved = False
         small = False
         scale = 1.0 + np.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
@@ -294,9 +311,13 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             A[:, :] = H
             for k in range(6):
                 A[k, k] += lam * (H[k, k] + 1e-12)
-            if not solve_spd(A, -g, delta):
+            if not cholesky(A, L):
                 lam *= 10.0
                 continue
+            # delta = -(A^-1 g): negation is exact, so this is A^-1 (-g).
+            cho_solve(L, g, delta)
+            for k in range(6):
+                delta[k] = -delta[k]
             step = 0.0
             for k in range(3):
                 step += delta[k] ** 2 + (delta[3 + k] / scale) ** 2
@@ -308,10 +329,19 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             so3_exp_left(delta[:3], R, Rn)
             for k in range(3):
                 tn[k] = t[k] + delta[3 + k]
-            cn = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J, ws)
+            # The trial point's Jacobian comes with its residuals: a step is
+            # accepted far more often than not, and then it is the next one's.
+            cn = np.inf
+            if residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J2, True, ws):
+                cn = 0.0
+                for k in range(2 * n):
+                    cn += r2[k] * r2[k]
             if cn <= c:
                 R[:, :] = Rn
                 t[:] = tn
+                r, r2 = r2, r
+                J, J2 = J2, J
+                fresh = False
                 dc = c - cn
                 c = cn
                 lam = max(lam * 0.1, 1e-12)
@@ -326,7 +356,8 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter):
             lam *= 10.0
         if not improved or small:
             break
-        residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, ws)
+    if not fresh:
+        normal_equations(J, r, H, g)
     return c, it
 
 

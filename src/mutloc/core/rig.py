@@ -186,6 +186,9 @@ class Rig:
 
     def default_pair(self, source: str | None = None, target: str | None = None) -> tuple[str, str]:
         """Resolve ``(source, target)``; both may be omitted for a two-robot rig."""
+        if source is None and target is None and len(self.robots) == 2:
+            first, second = self.robots
+            return first, second
         for what, value in (("source", source), ("target", target)):
             if value is not None and not isinstance(value, str):
                 raise ObservationError(f"{what} must be a robot name (a string), got {value!r}")
