@@ -78,9 +78,12 @@ def run(args: argparse.Namespace) -> int:
         for robot in rig.default_pair(args.source, args.target):
             if rig.robot(robot).base_from_camera is None:
                 raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
+    team = team_mode(rig, args)
+    # Teams report the causal filter: the default lag applies to pairs only; an explicit one is refused.
+    lag = 0 if team and args.smooth_lag is None else args.smooth_lag
     options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
-                            smooth_lag=args.smooth_lag)
-    if team_mode(rig, args):
+                            smooth_lag=lag)
+    if team:
         return _run_team(args, rig, options, out)
     if args.observations:
         traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,

@@ -149,9 +149,10 @@ class TeamTracker:
         self.robots = [n for n in names if n != reference]
         self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
         self.confidence = confidence
-        self.options = options if options is not None else FilterOptions()
+        self.options = options if options is not None else FilterOptions(smooth_lag=0)
         if self.options.smooth_lag:
-            raise InputError("smoothing (--smooth-lag) is not available for teams yet")
+            raise InputError("smoothing (--smooth-lag) is not available for teams yet: "
+                             "teams report the causal filter (smooth_lag=0)")
         self.filters = {r: ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence) for r in self.robots}
         self.rejections = {r: 0 for r in self.robots}
         self.last_time: float | None = None
@@ -523,4 +524,4 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
 
 
 def _options(filter: str | FilterOptions) -> FilterOptions:
-    return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter)
+    return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter, smooth_lag=0)
