@@ -425,9 +425,9 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R,
         sd[j] = side[sub[j]]
         b[j] = bearings[sub[j]]
         X[j] = points[sub[j]]
-    Rc = np.empty((_PER_SUBSET, 3, 3))
-    tc = np.empty((_PER_SUBSET, 3))
-    rg = np.empty((_PER_SUBSET, 3))
+    Rc = np.empty((PER_SUBSET, 3, 3))
+    tc = np.empty((PER_SUBSET, 3))
+    rg = np.empty((PER_SUBSET, 3))
     nc = solve_minimal_kernel(sd, b, X, Rc, tc, rg)
     basis = np.empty((n, 3, 3))
     tangent_bases(bearings, basis)
@@ -594,7 +594,7 @@ def _ranked(obs: PairProblem) -> tuple[Pose, np.ndarray]:
     facing cameras)."""
     bearings = obs.ensure_bearings()
     subsets = minimal_subsets(obs.side)
-    size = max(len(subsets) * _PER_SUBSET, 1)
+    size = max(len(subsets) * PER_SUBSET, 1)
     Rc = np.empty((size, 3, 3))
     tc = np.empty((size, 3))
     nc = minimal_candidates_kernel(obs.side, obs.points, bearings, subsets, False, Rc, tc)
