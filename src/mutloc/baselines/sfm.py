@@ -19,13 +19,13 @@ features and verified matches), so different pose sources are compared with
 one triangulator.
 
 Everything runs in a temporary directory (removed on exit), on the CPU,
-with fixed random seeds; nothing is downloaded.  Feature extraction and
-matching use ``num_threads`` threads (each image and each pair is computed
-alone, so the result does not depend on them); incremental mapping and
-triangulation run on one thread, because Ceres sums a large bundle
-adjustment's terms in a varying order on several, and the same seed then
-gives a different model.  With one thread the same images and seed give the
-same model, bit for bit.
+with fixed random seeds; nothing is downloaded.  Matching uses
+``num_threads`` threads (each pair is computed alone, so the result does not
+depend on them); feature extraction runs on one thread, because with several
+COLMAP numbers the images in the order their features are finished, and the
+mapper breaks ties by that number; incremental mapping and triangulation run
+on one thread too (Ceres sums a large bundle adjustment's terms in a varying
+order on several).  The same images and seed then give the same model.
 """
 
 from __future__ import annotations
@@ -253,7 +253,10 @@ class SfmScene:
                 h, w = np.asarray(img).shape[:2]
                 groups.setdefault((model, tuple(params), w, h), []).append(fname)
             extraction = pycolmap.FeatureExtractionOptions()
-            extraction.num_threads = self.num_threads
+            # One thread: COLMAP numbers the images in the order their features
+            # are written, which with several threads varies run to run, and the
+            # mapper breaks ties by that number (measured: a different model).
+            extraction.num_threads = 1
             extraction.use_gpu = False
             extraction.sift.max_num_features = self.max_features
             for (model, params, _w, _h), names in groups.items():
