@@ -2,8 +2,9 @@
 
 The paper compares mutual localization with Bundler run over *all* the images
 of its experiment.  :class:`SfmScene` does the same with a maintained engine,
-COLMAP (through ``pycolmap``): SIFT features, exhaustive matching with
-geometric verification, incremental mapping with bundle adjustment.  The
+COLMAP (through ``pycolmap``): SIFT features, matching of every image pair
+(or of the pairs given) with geometric verification, incremental mapping
+with bundle adjustment.  The
 camera intrinsics are fixed to the calibration (``OPENCV`` or
 ``FULL_OPENCV`` model; focal length, principal point and distortion are never
 refined), so only poses and structure are estimated.
@@ -18,8 +19,13 @@ features and verified matches), so different pose sources are compared with
 one triangulator.
 
 Everything runs in a temporary directory (removed on exit), on the CPU,
-with a bounded number of threads and fixed random seeds; nothing is
-downloaded.
+with fixed random seeds; nothing is downloaded.  Matching uses
+``num_threads`` threads (each pair is computed alone, so the result does not
+depend on them); feature extraction runs on one thread, because with several
+COLMAP numbers the images in the order their features are finished, and the
+mapper breaks ties by that number; incremental mapping and triangulation run
+on one thread too (Ceres sums a large bundle adjustment's terms in a varying
+order on several).  The same images and seed then give the same model.
 """
 
 from __future__ import annotations
@@ -28,7 +34,8 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from contextlib import nullcontext
+from typing import Any, Callable, ContextManager, Iterable, Mapping
 
 import numpy as np
 
@@ -36,10 +43,10 @@ from ..core.camera import Camera
 from ..core.pose import Pose
 from ..errors import InputError, NoSolutionError
 
-__all__ = ["SfmScene", "SfmResult", "ScaleReference", "MAX_FEATURES", "colmap_camera_params"]
+__all__ = ["SfmScene", "SfmResult", "ScaleReference", "MAX_FEATURES", "colmap_camera_params", "farthest_reference"]
 
-# SIFT features per image: COLMAP's default is 8192; 4096 keeps exhaustive
-# matching of ~100 images within a minute or two on two cores.
+# SIFT features per image: COLMAP's default is 8192.  The experiments'
+# 960x540 renders give 1500-2000 each (measured), so the cap does not bind there.
 MAX_FEATURES = 4096
 
 
@@ -50,6 +57,19 @@ class ScaleReference:
     a: str
     b: str
     distance: float
+
+
+def farthest_reference(centres: Mapping[str, Any], registered: Iterable[str]) -> ScaleReference:
+    """The scale reference of the two registered images farthest apart among
+    ``centres`` (name -> true camera centre), with their true distance;
+    :class:`~mutloc.errors.NoSolutionError` when fewer than two are registered."""
+    reg = set(registered)
+    names = [n for n in centres if n in reg]
+    if len(names) < 2:
+        raise NoSolutionError("fewer than two reference images registered: no scale reference")
+    dist = lambda ab: float(np.linalg.norm(np.asarray(centres[ab[0]], float) - np.asarray(centres[ab[1]], float)))
+    a, b = max(((a, b) for i, a in enumerate(names) for b in names[i + 1:]), key=dist)
+    return ScaleReference(a, b, dist((a, b)))
 
 
 @dataclass
@@ -126,15 +146,19 @@ class SfmScene:
 
     ``images`` maps a name to a BGR (or grey) uint8 image; ``cameras`` gives
     each image's camera (one :class:`~mutloc.core.camera.Camera` for all, or
-    a mapping name -> camera).  Features are extracted and matched
-    (exhaustively) on entering the ``with`` block; :meth:`reconstruct` and
+    a mapping name -> camera).  Features are extracted and matched on
+    entering the ``with`` block -- every pair of images, or only ``pairs``
+    (name pairs, either order) when given; :meth:`reconstruct` and
     :meth:`triangulate` then work on them.  Use as a context manager: the
-    working directory is deleted on exit.
+    working directory is deleted on exit.  ``timer(stage)``, if given, is
+    entered around each stage (a context manager; for run-time reports).
     """
 
     def __init__(self, images: Mapping[str, np.ndarray], cameras: Camera | Mapping[str, Camera], *,
                  seed: int = 0, num_threads: int = 2, max_features: int = MAX_FEATURES,
-                 workdir: str | Path | None = None, progress: bool = False, verbose: bool = False) -> None:
+                 pairs: Iterable[tuple[str, str]] | None = None, workdir: str | Path | None = None,
+                 progress: bool = False, verbose: bool = False,
+                 timer: Callable[[str], ContextManager[Any]] | None = None) -> None:
         if len(images) < 2:
             raise InputError(f"structure from motion needs at least two images, got {len(images)}")
         for n in images:
@@ -160,6 +184,15 @@ class SfmScene:
         self._workdir = Path(workdir) if workdir is not None else None
         self.progress = bool(progress)
         self.verbose = bool(verbose)
+        self.pairs: list[tuple[str, str]] | None = None
+        if pairs is not None:
+            seen = set()
+            for a, b in pairs:
+                if a not in images or b not in images or a == b:
+                    raise InputError(f"image pair ({a!r}, {b!r}) is not two different images of the scene")
+                seen.add((a, b) if a < b else (b, a))
+            self.pairs = sorted(seen)
+        self._timer = timer or (lambda _name: nullcontext())
 
     # -- lifecycle ---------------------------------------------------------
 
@@ -211,24 +244,28 @@ class SfmScene:
         pycolmap.set_random_seed(self.seed)
         self.image_dir.mkdir(exist_ok=True)
         groups: dict[tuple[str, tuple[float, ...], int, int], list[str]] = {}
-        for n, img in self._images.items():
-            fname = n + ".png"
-            if not cv2.imwrite(str(self.image_dir / fname), np.asarray(img)):
-                raise InputError(f"could not write image {n!r}")
-            model, params = colmap_camera_params(self._cameras[n])
-            h, w = np.asarray(img).shape[:2]
-            groups.setdefault((model, tuple(params), w, h), []).append(fname)
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = self.num_threads
-        extraction.use_gpu = False
-        extraction.sift.max_num_features = self.max_features
-        for (model, params, _w, _h), names in groups.items():
-            reader = pycolmap.ImageReaderOptions()
-            reader.camera_model = model
-            reader.camera_params = ",".join(repr(p) for p in params)
-            pycolmap.extract_features(self.database, self.image_dir, image_names=names,
-                                      camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                                      extraction_options=extraction, device=pycolmap.Device.cpu)
+        with self._timer("SfM: feature extraction"):
+            for n, img in self._images.items():
+                fname = n + ".png"
+                if not cv2.imwrite(str(self.image_dir / fname), np.asarray(img)):
+                    raise InputError(f"could not write image {n!r}")
+                model, params = colmap_camera_params(self._cameras[n])
+                h, w = np.asarray(img).shape[:2]
+                groups.setdefault((model, tuple(params), w, h), []).append(fname)
+            extraction = pycolmap.FeatureExtractionOptions()
+            # One thread: COLMAP numbers the images in the order their features
+            # are written, which with several threads varies run to run, and the
+            # mapper breaks ties by that number (measured: a different model).
+            extraction.num_threads = 1
+            extraction.use_gpu = False
+            extraction.sift.max_num_features = self.max_features
+            for (model, params, _w, _h), names in groups.items():
+                reader = pycolmap.ImageReaderOptions()
+                reader.camera_model = model
+                reader.camera_params = ",".join(repr(p) for p in params)
+                pycolmap.extract_features(self.database, self.image_dir, image_names=names,
+                                          camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                                          extraction_options=extraction, device=pycolmap.Device.cpu)
         bar.update(1)
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = self.num_threads
@@ -239,8 +276,17 @@ class SfmScene:
         # Rendered images carry no watermarks; still images of a static robot
         # would otherwise be mistaken for one.
         verification.detect_watermark = False
-        pycolmap.match_exhaustive(self.database, matching_options=matching, verification_options=verification,
-                                  device=pycolmap.Device.cpu)
+        with self._timer("SfM: matching and verification"):
+            if self.pairs is None:
+                pycolmap.match_exhaustive(self.database, matching_options=matching,
+                                          verification_options=verification, device=pycolmap.Device.cpu)
+            elif self.pairs:
+                listing = self._dir / "pairs.txt"
+                listing.write_text("".join(f"{a}.png {b}.png\n" for a, b in self.pairs), encoding="utf-8")
+                pairing = pycolmap.ImportedPairingOptions()
+                pairing.match_list_path = listing
+                pycolmap.match_image_pairs(self.database, matching_options=matching, pairing_options=pairing,
+                                           verification_options=verification, device=pycolmap.Device.cpu)
         bar.update(1)
         bar.close()
 
@@ -250,7 +296,9 @@ class SfmScene:
         import pycolmap
 
         opt = pycolmap.IncrementalPipelineOptions()
-        opt.num_threads = self.num_threads
+        # One thread: with more, Ceres sums a large bundle adjustment's terms
+        # in a varying order and the same seed gives a (slightly) different model.
+        opt.num_threads = 1
         opt.random_seed = self.seed
         opt.multiple_models = True
         # The calibration is known: intrinsics stay fixed.
@@ -259,7 +307,7 @@ class SfmScene:
         opt.ba_refine_extra_params = False
         opt.mapper.abs_pose_refine_focal_length = False
         opt.mapper.abs_pose_refine_extra_params = False
-        opt.mapper.num_threads = self.num_threads
+        opt.mapper.num_threads = 1
         opt.mapper.random_seed = self.seed
         opt.triangulation.random_seed = self.seed
         opt.extract_colors = False
@@ -290,7 +338,9 @@ class SfmScene:
         out.mkdir()
         pycolmap.set_random_seed(self.seed)
         try:
-            models = pycolmap.incremental_mapping(self.database, self.image_dir, out, options=self._mapping_options())
+            with self._timer("SfM: incremental mapping"):
+                models = pycolmap.incremental_mapping(self.database, self.image_dir, out,
+                                                      options=self._mapping_options())
         except RuntimeError as e:  # COLMAP's checks surface as RuntimeError
             raise NoSolutionError(f"structure from motion failed: {e}") from None
         if not models:
@@ -347,8 +397,9 @@ class SfmScene:
         opt.image_names = [n + ".png" for n in poses]
         opt.extract_colors = True
         try:
-            rec = pycolmap.triangulate_points(rec, self.database, self.image_dir, out, clear_points=True, options=opt,
-                                              refine_intrinsics=False)
+            with self._timer("SfM: triangulation from given poses"):
+                rec = pycolmap.triangulate_points(rec, self.database, self.image_dir, out, clear_points=True,
+                                                  options=opt, refine_intrinsics=False)
         except RuntimeError as e:
             raise NoSolutionError(f"triangulation failed: {e}") from None
         pts = [p for p in rec.points3D.values() if p.track.length() >= min_track]

@@ -17,7 +17,9 @@ the same two frames:
   with the same camera (the photos a Bundler user takes), intrinsics fixed to
   the calibration, metric scale from the true distance between the two
   registered walk-around views farthest apart (an oracle that favours the
-  baseline).  A position is solved when both its frames are registered;
+  baseline); features matched between the image pairs whose views can share
+  a point of the scene on the true poses (another oracle in its favour).
+  A position is solved when both its frames are registered;
 - ``egomotion``: the older two-frame baseline -- SIFT matches between the two
   frames of one position, five-point essential matrix + RANSAC, scale from the
   true camera distance (an oracle) (:mod:`mutloc.baselines.egomotion`);
@@ -32,7 +34,8 @@ positions both methods solved and over all positions, an unsolved position
 counting as an infinite error.  The room's light is fixed for the whole
 experiment (every image sees the same scene).
 
-Output in ``OUT/localization/``: ``results.json`` (SPEC), ``report.md``
+Output in ``OUT/localization/``: ``results.json`` (SPEC; ``timing``: CPU
+and wall seconds by stage), ``report.md``
 (Table II form, the paper's numbers beside ours, improvement factors),
 ``positions.csv`` (every position and method), ``translation_error.png`` and
 ``rotation_error.png`` (error against ground-truth X and Z).
@@ -48,7 +51,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._common import fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions, write_results
+from ._common import (StageTimer, fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions,
+                      write_results)
 
 __all__ = ["run_localization", "localization_rig", "METHODS", "PAPER", "QUICK", "FOOT"]
 
@@ -115,7 +119,7 @@ def _grid_pose(x: float, z: float, heading: float):
     return looking_pose(pos, so3_exp([0.0, heading, 0.0]) @ (-pos / np.linalg.norm(pos)))
 
 
-def _solve_position(rig, balls, img: dict[str, np.ndarray], truth, seed: int) -> dict[str, Any]:
+def _solve_position(rig, balls, img: dict[str, np.ndarray], truth, seed: int, timer) -> dict[str, Any]:
     """Every method on one pair of frames: {method: (t_err, r_err) or failure reason}."""
     import mutloc
     from ..baselines.dugas import dugas_pose
@@ -125,69 +129,78 @@ def _solve_position(rig, balls, img: dict[str, np.ndarray], truth, seed: int) ->
     from ..track.frames import detect_markers
 
     out: dict[str, Any] = {}
-    det = {o: detect_markers(balls, o, img[o]) for o in ("p", "q")}
+    with timer("detect balls"):
+        det = {o: detect_markers(balls, o, img[o]) for o in ("p", "q")}
     obs = {o: {n: tuple(map(float, d.uv)) for n, d in det[o].detections.items()} for o in det}
-    try:
-        out["mutual"] = pose_errors(mutloc.localize(balls, obs, "p", "q"), truth)
-    except MutlocError as e:
-        out["mutual"] = str(e)
-    try:
-        lq = list(balls.robot("q").markers)
-        lp = list(balls.robot("p").markers)
-        if any(n not in obs["p"] for n in lq) or any(n not in obs["q"] for n in lp):
-            raise mutloc.errors.TooFewObservationsError("a light was not detected")
-        cam_p, cam_q = rig.robot("p").camera, rig.robot("q").camera
-        est = dugas_pose(cam_p.pixels_to_bearings(np.array([obs["p"][n] for n in lq])),
-                         cam_q.pixels_to_bearings(np.array([obs["q"][n] for n in lp])),
-                         balls.robot("p").marker_positions(lp), balls.robot("q").marker_positions(lq))
-        out["dugas"] = pose_errors(est, truth)
-    except MutlocError as e:
-        out["dugas"] = str(e)
-    try:
-        out["tag"] = pose_errors(tag_pose(img["q"], rig.robot("p").markers["TP"], rig.robot("q").camera), truth)
-    except MutlocError as e:
-        out["tag"] = str(e)
-    try:
-        est, _n = egomotion_pose(img["p"], img["q"], rig.robot("p").camera, rig.robot("q").camera,
-                                 float(np.linalg.norm(truth.t)), seed=seed)
-        out["egomotion"] = pose_errors(est, truth)
-    except MutlocError as e:
-        out["egomotion"] = str(e)
+    with timer("mutual localization and Dugas"):
+        try:
+            out["mutual"] = pose_errors(mutloc.localize(balls, obs, "p", "q"), truth)
+        except MutlocError as e:
+            out["mutual"] = str(e)
+        try:
+            lq = list(balls.robot("q").markers)
+            lp = list(balls.robot("p").markers)
+            if any(n not in obs["p"] for n in lq) or any(n not in obs["q"] for n in lp):
+                raise mutloc.errors.TooFewObservationsError("a light was not detected")
+            cam_p, cam_q = rig.robot("p").camera, rig.robot("q").camera
+            est = dugas_pose(cam_p.pixels_to_bearings(np.array([obs["p"][n] for n in lq])),
+                             cam_q.pixels_to_bearings(np.array([obs["q"][n] for n in lp])),
+                             balls.robot("p").marker_positions(lp), balls.robot("q").marker_positions(lq))
+            out["dugas"] = pose_errors(est, truth)
+        except MutlocError as e:
+            out["dugas"] = str(e)
+    with timer("tag baseline"):
+        try:
+            out["tag"] = pose_errors(tag_pose(img["q"], rig.robot("p").markers["TP"], rig.robot("q").camera), truth)
+        except MutlocError as e:
+            out["tag"] = str(e)
+    with timer("two-frame egomotion baseline"):
+        try:
+            est, _n = egomotion_pose(img["p"], img["q"], rig.robot("p").camera, rig.robot("q").camera,
+                                     float(np.linalg.norm(truth.t)), seed=seed)
+            out["egomotion"] = pose_errors(est, truth)
+        except MutlocError as e:
+            out["egomotion"] = str(e)
     return out
 
 
-def _bundler(rig, frames: dict[str, np.ndarray], walk: list[tuple[str, Any, np.ndarray]], truths: dict[int, Any],
-             seed: int, progress: bool) -> tuple[dict[int, Any], dict[str, Any]]:
+def _bundler(setup: "_Setup", frames: dict[str, np.ndarray], walk: list[tuple[str, Any, np.ndarray]],
+             truths: dict[int, Any], seed: int, progress: bool, timer) -> tuple[dict[int, Any], dict[str, Any]]:
     """The Bundler baseline over every image: {position: errors or failure reason}, and a summary.
 
     ``frames`` holds each position's ``pNN``/``qNN`` frames, ``walk`` the
-    walk-around views ``(name, T_wc, image)``.  Metric scale: the true
-    distance between the two registered walk-around views farthest apart.
+    walk-around views ``(name, T_wc, image)``.  Features are matched between
+    every pair of images whose views can share a point of the scene
+    (:func:`mutloc.sim.walkaround.view_overlap` > 0 on the true poses).
+    Metric scale: the true distance between the two registered walk-around
+    views farthest apart.
     """
-    from ..baselines.sfm import ScaleReference, SfmScene
-    from ..errors import MutlocError, NoSolutionError
+    import pycolmap
+
+    from ..baselines.sfm import SfmScene, farthest_reference
+    from ..errors import MutlocError
+    from ..sim.walkaround import view_overlap
 
     images = dict(frames)
     images.update({n: img for n, _T, img in walk})
     started = time.perf_counter()
-    import pycolmap
-
-    info: dict[str, Any] = {"images": len(images), "robot_frames": len(frames), "walkaround_views": len(walk),
-                            "pycolmap": str(pycolmap.__version__)}
+    with timer("SfM: choose image pairs"):
+        overlap = view_overlap(setup.room, setup.views(list(frames)), objects=setup.objects(list(frames)))
+        pairs = [(a, b) for (a, b), f in overlap.items() if a < b and max(f, overlap[(b, a)]) > 0]
+    n = len(images)
+    info: dict[str, Any] = {"images": n, "robot_frames": len(frames), "walkaround_views": len(walk),
+                            "pycolmap": str(pycolmap.__version__), "matched_pairs": len(pairs),
+                            "all_pairs": n * (n - 1) // 2}
     out: dict[int, Any] = {}
     try:
-        with SfmScene(images, rig.robot("q").camera, seed=seed, num_threads=2, progress=progress) as scene:
+        with SfmScene(images, setup.rig.robot("q").camera, seed=seed, num_threads=2, pairs=pairs,
+                      progress=progress, timer=timer) as scene:
             res = scene.reconstruct()
-        centres = {n: T.t for n, T in ((n, T) for n, T, _ in walk) if n in res.poses}
-        pairs = [(a, b) for i, a in enumerate(centres) for b in list(centres)[i + 1:]]
-        if not pairs:
-            raise NoSolutionError("fewer than two walk-around views registered: no scale reference")
-        a, b = max(pairs, key=lambda ab: float(np.linalg.norm(centres[ab[0]] - centres[ab[1]])))
-        ref = ScaleReference(a, b, float(np.linalg.norm(centres[a] - centres[b])))
+        ref = farthest_reference({n: T.t for n, T, _ in walk}, res.poses)
         res = res.scaled(ref)
         info.update({"registered_images": len(res.poses), "models": res.models, "sfm_points": res.points,
                      "mean_reprojection_px": res.mean_reprojection_px,
-                     "scale_reference": {"a": a, "b": b, "distance_m": ref.distance}})
+                     "scale_reference": {"a": ref.a, "b": ref.b, "distance_m": ref.distance}})
         for k, truth in truths.items():
             try:
                 out[k] = pose_errors(res.relative(f"p{k:02d}", f"q{k:02d}"), truth)
@@ -200,20 +213,73 @@ def _bundler(rig, frames: dict[str, np.ndarray], walk: list[tuple[str, Any, np.n
     return out, info
 
 
+class _Setup:
+    """The experiment's scene: rig, grid cells, p's poses, q's world pose, room, lamp, walk-around."""
+
+    def __init__(self, seed: int, xs: list[int], zs: list[int], walkaround_views: int) -> None:
+        from ..sim.render import CAMERA_HEIGHT, room_around
+        from ..sim.walkaround import walkaround_poses
+        from ..sim.world import Light, camera_to_world_facing
+
+        rng = np.random.default_rng(seed)
+        self.rig = localization_rig()
+        self.balls = _balls_only(self.rig)
+        self.cells = [(x, z) for z in zs for x in xs]
+        self.headings = np.radians(rng.uniform(-HEADING_JITTER_DEG, HEADING_JITTER_DEG, len(self.cells)))
+        self.poses = [_grid_pose(x * FOOT, z * FOOT, h) for (x, z), h in zip(self.cells, self.headings)]
+        self.T_wq = camera_to_world_facing((0.0, 0.0, CAMERA_HEIGHT))
+        self.room = room_around([self.T_wq.t] + [(self.T_wq @ T).t for T in self.poses], seed,
+                                floor_decals=FLOOR_DECALS)
+        # One lamp for the whole experiment, above the middle of the grid (the
+        # world's default light would follow p).
+        P = np.array([self.T_wq.t] + [(self.T_wq @ T).t for T in self.poses])
+        self.mid = 0.5 * (P.min(axis=0) + P.max(axis=0))
+        self.light = Light(position=(float(self.mid[0]) + 0.7, float(self.mid[1]) - 0.9, self.room.height - 0.2))
+        self.walk = {f"w{j:02d}": T for j, T in enumerate(walkaround_poses(
+            self.mid, int(walkaround_views), radius=WALKAROUND_RADIUS, height=WALKAROUND_HEIGHT, room=self.room))}
+
+    def world(self, k: int):
+        """The world with p at grid cell ``k``."""
+        from ..sim.world import World, WorldRobot
+
+        return World(robots={"q": WorldRobot(self.rig.robot("q"), self.T_wq),
+                             "p": WorldRobot(self.rig.robot("p"), self.T_wq @ self.poses[k])},
+                     room=self.room, light=self.light)
+
+    def objects(self, frames: Sequence[str]) -> dict[str, dict[Any, np.ndarray]]:
+        """The robots in each view's world (for :func:`mutloc.sim.walkaround.view_overlap`): q everywhere,
+        p at cell k in the frames of position k."""
+        from ..sim.walkaround import robot_points
+
+        q = robot_points(self.rig.robot("q"), self.T_wq)
+        out: dict[str, dict[Any, np.ndarray]] = {n: {"q": q} for n in self.walk}
+        for n in frames:
+            k = int(n[1:])
+            out[n] = {"q": q, ("p", k): robot_points(self.rig.robot("p"), self.T_wq @ self.poses[k])}
+        return out
+
+    def views(self, frames: Sequence[str]) -> dict[str, tuple[Any, Any]]:
+        """(camera, T_wc) of the named robot frames (``pNN``, ``qNN``) and of every walk-around view."""
+        cam = self.rig.robot("q").camera
+        out = {n: (cam, self.T_wq if n[0] == "q" else self.T_wq @ self.poses[int(n[1:])]) for n in frames}
+        out.update({n: (cam, T) for n, T in self.walk.items()})
+        return out
+
+
 def run_localization(out_dir: str | Path, *, seed: int = 0, grid_x_ft: Sequence[int] = GRID_X_FT,
                      grid_z_ft: Sequence[int] = GRID_Z_FT, walkaround_views: int = WALKAROUND_VIEWS,
                      progress: bool = True, command: str | None = None) -> dict[str, Any]:
     """Run the localization experiment; write ``out_dir/localization/...``.
 
     ``walkaround_views`` extra photos of the room are given to the Bundler
-    baseline.  Returns the results dict (also ``results.json``).
-    Deterministic for a ``seed``.
+    baseline.  Returns the results dict (also ``results.json``, with the run
+    time by stage under ``timing``).  Deterministic for a ``seed``.
     """
     from tqdm import tqdm
 
-    from ..sim.render import CAMERA_HEIGHT, project_markers, relative_pose, render, room_around
-    from ..sim.walkaround import render_view, walkaround_poses
-    from ..sim.world import Light, World, WorldRobot, camera_to_world_facing
+    from ..sim.render import project_markers, relative_pose, render
+    from ..sim.walkaround import render_view
+    from ..sim.world import World, WorldRobot
 
     xs = [int(x) for x in grid_x_ft]
     zs = [int(z) for z in grid_z_ft]
@@ -224,52 +290,40 @@ def run_localization(out_dir: str | Path, *, seed: int = 0, grid_x_ft: Sequence[
     out = Path(out_dir) / NAME
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    rig = localization_rig()
-    balls = _balls_only(rig)
-
-    cells = [(x, z) for z in zs for x in xs]
-    headings = np.radians(rng.uniform(-HEADING_JITTER_DEG, HEADING_JITTER_DEG, len(cells)))
-    poses = [_grid_pose(x * FOOT, z * FOOT, h) for (x, z), h in zip(cells, headings)]
-    T_wq = camera_to_world_facing((0.0, 0.0, CAMERA_HEIGHT))
-    room = room_around([T_wq.t] + [(T_wq @ T).t for T in poses], seed, floor_decals=FLOOR_DECALS)
-    # One lamp for the whole experiment, above the middle of the grid (the
-    # world's default light would follow p).
-    P = np.array([T_wq.t] + [(T_wq @ T).t for T in poses])
-    mid = 0.5 * (P.min(axis=0) + P.max(axis=0))
-    light = Light(position=(float(mid[0]) + 0.7, float(mid[1]) - 0.9, room.height - 0.2))
+    timer = StageTimer()
+    setup = _Setup(seed, xs, zs, walkaround_views)
+    rig, balls = setup.rig, setup.balls
 
     rows: list[dict[str, Any]] = []
     frames: dict[str, np.ndarray] = {}
     truths: dict[int, Any] = {}
-    bar = tqdm(total=len(cells), desc="localization experiment (grid)", unit="pos", disable=not progress,
+    bar = tqdm(total=len(setup.cells), desc="localization experiment (grid)", unit="pos", disable=not progress,
                leave=False)
-    for k, ((xf, zf), T) in enumerate(zip(cells, poses)):
-        world = World(robots={"q": WorldRobot(rig.robot("q"), T_wq), "p": WorldRobot(rig.robot("p"), T_wq @ T)},
-                      room=room, light=light)
+    for k, (xf, zf) in enumerate(setup.cells):
+        world = setup.world(k)
         truth = relative_pose(world, "p", "q")
         row: dict[str, Any] = {"x_ft": xf, "z_ft": zf, "x_m": float(truth.t[0]), "z_m": float(truth.t[2]),
-                               "heading_deg": float(np.degrees(headings[k]))}
+                               "heading_deg": float(np.degrees(setup.headings[k]))}
         seen = {o: project_markers(world, o, check_occlusion=True) for o in ("p", "q")}
         need = {"p": set(balls.robot("q").markers), "q": set(balls.robot("p").markers)}
         if any(not need[o] <= set(seen[o]) for o in need):
             row["visible"] = False
         else:
             row["visible"] = True
-            img = {o: render(world, o, seed=seed * 1000 + k, noise_sigma=NOISE_SIGMA) for o in ("p", "q")}
-            row.update(_solve_position(rig, balls, img, truth, seed))
+            with timer("render robot frames"):
+                img = {o: render(world, o, seed=seed * 1000 + k, noise_sigma=NOISE_SIGMA) for o in ("p", "q")}
+            row.update(_solve_position(rig, balls, img, truth, seed, timer))
             frames[f"p{k:02d}"], frames[f"q{k:02d}"] = img["p"], img["q"]
             truths[k] = truth
         rows.append(row)
         bar.update(1)
     bar.close()
     # The walk-around: q in its place, p elsewhere, the same lamp and camera.
-    world_q = World(robots={"q": WorldRobot(rig.robot("q"), T_wq)}, room=room, light=light)
-    walk = [(f"w{j:02d}", T, render_view(world_q, rig.robot("q").camera, T, seed=seed * 1000 + 900 + j,
-                                         noise_sigma=NOISE_SIGMA))
-            for j, T in enumerate(walkaround_poses(mid, int(walkaround_views), radius=WALKAROUND_RADIUS,
-                                                   height=WALKAROUND_HEIGHT, room=room))]
-    bundler, bundler_info = _bundler(rig, frames, walk, truths, seed, progress)
+    world_q = World(robots={"q": WorldRobot(rig.robot("q"), setup.T_wq)}, room=setup.room, light=setup.light)
+    with timer("render walk-around"):
+        walk = [(n, T, render_view(world_q, rig.robot("q").camera, T, seed=seed * 1000 + 900 + j,
+                                   noise_sigma=NOISE_SIGMA)) for j, (n, T) in enumerate(setup.walk.items())]
+    bundler, bundler_info = _bundler(setup, frames, walk, truths, seed, progress, timer)
     for k, row in enumerate(rows):
         if row["visible"]:
             row["bundler"] = bundler[k]
@@ -303,15 +357,17 @@ def run_localization(out_dir: str | Path, *, seed: int = 0, grid_x_ft: Sequence[
             "foot_m": FOOT, "heading_jitter_deg": HEADING_JITTER_DEG, "sensor_noise_dn": NOISE_SIGMA,
             "floor_decals_per_m2": FLOOR_DECALS, "positions": len(rows), "visible_positions": len(usable),
             "walkaround_views": int(walkaround_views), "walkaround_radius_m": WALKAROUND_RADIUS,
-            "walkaround_height_m": WALKAROUND_HEIGHT, "light_position": list(light.position),
+            "walkaround_height_m": WALKAROUND_HEIGHT, "light_position": list(setup.light.position),
         },
         "command": command or f"mutloc.experiments.localization.run_localization(seed={seed})",
         "versions": versions(),
         "elapsed_s": round(elapsed, 2),
     }
+    with timer("plots and files"):
+        _write_csv(rows, out / "positions.csv")
+        _plots(rows, results, out)
+    results["timing"] = timer.as_dict()
     write_results(results, out)
-    _write_csv(rows, out / "positions.csv")
-    _plots(rows, results, out)
     (out / "report.md").write_text(_report(results), encoding="utf-8")
     return results
 
@@ -465,14 +521,21 @@ def _report(results: dict[str, Any]) -> str:
             lines.append(f"- {LABELS[m]}: " + "; ".join(f"{why} ({n} positions)" for why, n in reasons.items()))
     lines += [
         "", "Notes:", "",
-        "- The Bundler row is the paper's baseline as real structure from motion: COLMAP (SIFT, exhaustive "
-        "matching with geometric verification, incremental mapping and bundle adjustment) over every image of "
+        "- The Bundler row is the paper's baseline as real structure from motion: COLMAP (SIFT, matching with "
+        "geometric verification, incremental mapping and bundle adjustment) over every image of "
         "the experiment -- both robots' frames at all positions and a walk-around of the room with the same "
         "camera (views on a circle around the robots, looking across them, as a Bundler user would take). "
         "The intrinsics are fixed to the calibration. Structure from motion has no metric scale: it gets the "
         "true distance between the two registered walk-around photos farthest apart, an oracle that favours "
         "it (a tape measure would add its own error). A position counts as solved only when both robots' "
         "frames of that position are registered; T_qp is then read off their two camera poses.",
+        f"- Matched pairs: {b.get('matched_pairs', '?')} of the {b.get('all_pairs', '?')} image pairs -- those "
+        "whose views can share a point of the scene, judged on the true poses (room surfaces and robots, "
+        "occlusion ignored, so an upper bound). This is a second oracle in the baseline's favour, like COLMAP's "
+        "spatial matching with exact position priors: a pair that shares no point can only give false matches "
+        "(the two robots' look-alike bodies and repeated floor tiles: measured for seed 0 against the true "
+        "epipolar geometry, about 1% of the verified matches of such pairs are right). Feature extraction and "
+        "mapping run on one thread, so the same seed gives the same model.",
         "- The two-frame egomotion row is the weaker baseline of the previous version (only the two frames of "
         "one position, no other images). It gets the true camera distance as its scale (two views cannot observe "
         "it): an oracle that favours it. With these cameras (62 x 37 degrees, 0.5 m above the floor) facing each "

@@ -24,7 +24,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._common import fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions, write_results
+from ._common import (StageTimer, fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions,
+                      write_results)
 
 __all__ = ["run_noise", "PAPER_TRANSLATION_M", "PAPER_ROTATION_DEG", "METHODS", "QUICK"]
 
@@ -170,6 +171,7 @@ def run_noise(out_dir: str | Path, *, seed: int = 0, sigmas: Sequence[float] = (
     out = Path(out_dir) / NAME
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    timer = StageTimer()
     rng = np.random.default_rng(seed)
     rig = standard_rig("balls")
 
@@ -185,24 +187,26 @@ def run_noise(out_dir: str | Path, *, seed: int = 0, sigmas: Sequence[float] = (
         attempts = 0
         for _ in range(poses_per_distance):
             bar.set_postfix(distance_m=d)
-            scene, n_att = _make_scene(rng, rig, d)
+            with timer("render and detect scenes"):
+                scene, n_att = _make_scene(rng, rig, d)
             attempts += n_att
             # The CRB shape: sigma scales it, so one set of unit draws per scene.
             z = rng.multivariate_normal(np.zeros(6), scene.info_inv, size=CRB_SAMPLES_PER_SCENE)
             unit_t = np.linalg.norm(z[:, 3:], axis=1)
             unit_r = np.degrees(np.linalg.norm(z[:, :3], axis=1))
-            for s in sigmas:
-                errs["crlb"][s][0].extend((s * unit_t).tolist())
-                errs["crlb"][s][1].extend((s * unit_r).tolist())
-                for _trial in range(trials_per_pose if s > 0 else 1):
-                    noisy = {o: {n: uv + rng.normal(scale=s, size=2) if s > 0 else uv.copy()
-                                 for n, uv in det.items()} for o, det in scene.detected.items()}
-                    for method, e in _solve_errors(scene, noisy, s).items():
-                        if e is None:
-                            fails[method] += 1
-                            continue
-                        errs[method][s][0].append(e[0])
-                        errs[method][s][1].append(e[1])
+            with timer("solve (best root, refined)"):
+                for s in sigmas:
+                    errs["crlb"][s][0].extend((s * unit_t).tolist())
+                    errs["crlb"][s][1].extend((s * unit_r).tolist())
+                    for _trial in range(trials_per_pose if s > 0 else 1):
+                        noisy = {o: {n: uv + rng.normal(scale=s, size=2) if s > 0 else uv.copy()
+                                     for n, uv in det.items()} for o, det in scene.detected.items()}
+                        for method, e in _solve_errors(scene, noisy, s).items():
+                            if e is None:
+                                fails[method] += 1
+                                continue
+                            errs[method][s][0].append(e[0])
+                            errs[method][s][1].append(e[1])
             bar.update(1)
         by_distance[key] = {
             "distance_m": d,
@@ -239,8 +243,10 @@ def run_noise(out_dir: str | Path, *, seed: int = 0, sigmas: Sequence[float] = (
         "versions": versions(),
         "elapsed_s": round(elapsed, 2),
     }
+    with timer("plots and files"):
+        _plots(results, out)
+    results["timing"] = timer.as_dict()
     write_results(results, out)
-    _plots(results, out)
     (out / "report.md").write_text(_report(results), encoding="utf-8")
     return results
 

@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ._common import fmt, versions
+from ._common import StageTimer, fmt, timing_lines, versions
 
 __all__ = ["run_all", "runner", "quick_kwargs"]
 
@@ -37,13 +37,31 @@ def run_all(out_dir: str | Path, *, seed: int = 0, quick: bool = False, progress
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    timer = StageTimer()
     results: dict[str, dict[str, Any]] = {}
     for name in EXPERIMENTS:
         kwargs = quick_kwargs(name) if quick else {}
-        results[name] = runner(name)(out, seed=seed, progress=progress, command=command, **kwargs)
+        with timer(name):
+            results[name] = runner(name)(out, seed=seed, progress=progress, command=command, **kwargs)
     elapsed = time.perf_counter() - started
-    (out / "report.md").write_text(_report(results, out, seed, command, elapsed), encoding="utf-8")
+    timing = timer.as_dict()
+    (out / "report.md").write_text(_report(results, out, seed, command, elapsed, timing), encoding="utf-8")
+    if progress:  # the log: where the time went
+        import sys
+
+        print("\n".join(_timing_summary(results, timing)), file=sys.stderr)
     return results
+
+
+def _timing_summary(results: dict[str, dict[str, Any]], timing: dict[str, Any]) -> list[str]:
+    """One line per experiment and stage: CPU and wall seconds."""
+    lines = [f"mutloc experiment all: {timing['cpu_s']:.0f} s CPU, {timing['wall_s']:.0f} s wall"]
+    for name, r in results.items():
+        t = timing["stages"][name]
+        lines.append(f"  {name}: {t['cpu_s']:.0f} s CPU, {t['wall_s']:.0f} s wall")
+        for stage, st in r.get("timing", {}).get("stages", {}).items():
+            lines.append(f"    {stage}: {st['cpu_s']:.1f} s CPU, {st['wall_s']:.1f} s wall")
+    return lines
 
 
 def _section(name: str, out: Path) -> list[str]:
@@ -62,7 +80,8 @@ def _section(name: str, out: Path) -> list[str]:
     return lines
 
 
-def _report(results: dict[str, dict[str, Any]], out: Path, seed: int, command: str | None, elapsed: float) -> str:
+def _report(results: dict[str, dict[str, Any]], out: Path, seed: int, command: str | None, elapsed: float,
+            timing: dict[str, Any]) -> str:
     loc = results["localization"]["methods"]
     rec = results["reconstruction"]["methods"]
     noise = results["noise"]
@@ -102,6 +121,7 @@ def _report(results: dict[str, dict[str, Any]], out: Path, seed: int, command: s
     for name in ("localization", "noise", "reconstruction"):
         lines += _section(name, out)
     lines += ["## Reproduce everything", "", "```", command or f"mutloc experiment all --out {out} --seed {seed}",
-              "```", "", f"Seed {seed}; total run time {elapsed:.0f} s.", "",
-              "Versions: " + ", ".join(f"{k} {v}" for k, v in versions().items()) + ".", ""]
+              "```", "", f"Seed {seed}; total run time {elapsed:.0f} s.", ""]
+    lines += timing_lines(timing, "Run time by experiment (each experiment's report has its stages)")
+    lines += ["Versions: " + ", ".join(f"{k} {v}" for k, v in versions().items()) + ".", ""]
     return "\n".join(lines)
