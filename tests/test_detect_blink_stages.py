@@ -96,3 +96,36 @@ def test_srgb_table_is_the_standard_curve():
     x = np.arange(256) / 255.0
     ref = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
     np.testing.assert_allclose(SRGB_LUT, ref, atol=1e-6)
+
+
+def _clipped_disc(uv, radius, shape=(90, 120), n=8):
+    """A saturated disc (255, area-sampled n x n per pixel) on a grey background."""
+    ys, xs = np.mgrid[0:shape[0] * n, 0:shape[1] * n]
+    inside = ((xs + 0.5) / n - 0.5 - uv[0]) ** 2 + ((ys + 0.5) / n - 0.5 - uv[1]) ** 2 <= radius ** 2
+    cover = inside.reshape(shape[0], n, shape[1], n).mean(axis=(1, 3))
+    return (60.0 + 195.0 * cover).round().astype(np.uint8)
+
+
+@pytest.mark.parametrize("uv", [(60.3, 44.7), (58.85, 46.2)])
+def test_plateau_circle_ignores_bleed_beside_a_clipped_light(uv):
+    """Glow over a bright patch beside a light clips too: the plateau's
+    centroid moves towards it by pixels, its outline's circle does not."""
+    tr = _tracker()
+    img = _clipped_disc(uv, 10.0)
+    # The bleed: a clipped patch touching the disc's upper right.
+    img[int(uv[1]) - 16:int(uv[1]) - 2, int(uv[0]) + 2:int(uv[0]) + 16] = 255
+    ys, xs = np.nonzero(img >= 250)
+    assert math.hypot(xs.mean() - uv[0], ys.mean() - uv[1]) > 2.0  # the bias exists
+    centre, radius = tr._plateau_circle(img, np.array([xs.mean(), ys.mean()]), 25)
+    np.testing.assert_allclose(centre, uv, atol=0.3)
+    assert abs(radius - 10.0) < 0.6
+    # Without the bleed, the same answer.
+    centre, _ = tr._plateau_circle(_clipped_disc(uv, 10.0), np.array(uv), 25)
+    np.testing.assert_allclose(centre, uv, atol=0.3)
+
+
+def test_plateau_circle_refuses_what_is_no_disc():
+    tr = _tracker()
+    img = np.full((90, 120), 60, np.uint8)
+    img[30:50, 20:100] = 255  # a clipped strip (a bright window, say)
+    assert tr._plateau_circle(img, np.array([60.0, 40.0]), 25) is None

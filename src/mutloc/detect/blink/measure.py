@@ -14,6 +14,10 @@ from .state import Plate, Track
 
 __all__ = ["MeasureStage"]
 
+# Triples of points sampled along a plateau's outline, as fractions of its
+# length (see MeasureStage._plateau_circle).
+_TRIPLES = np.random.default_rng(0).random((300, 3))
+
 
 class MeasureStage:
     """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
@@ -229,6 +233,81 @@ class MeasureStage:
         if math.hypot(*(found - uv)) > max(2.0, 0.5 * r_core):
             return None
         return found
+
+    @staticmethod
+    def _plateau_circle(img: np.ndarray, uv: np.ndarray, r: int) -> tuple[np.ndarray, float] | None:
+        """Centre and radius of the clipped plateau around ``uv``, by a robust
+        circle fit to its outline.
+
+        Where the light's glow adds to a bright background the plateau bleeds
+        outwards on that side, which drags a centroid by pixels; the outline
+        on the other sides is the core's own.  The outline (less the window's
+        edge) is fitted by the circle most of its points lie on (within 1 px;
+        a fixed sample of triples of points proposes circles), refined by a
+        least-squares fit to those points.  None if they are under 40 % of
+        the outline or do not go round at least 6 of 8 octants.
+        """
+        h, w = img.shape
+        cx, cy = round(float(uv[0])), round(float(uv[1]))
+        x0, x1, y0, y1 = max(0, cx - r), min(w, cx + r + 1), max(0, cy - r), min(h, cy + r + 1)
+        if x1 - x0 < 5 or y1 - y0 < 5:
+            return None
+        mask = (img[y0:y1, x0:x1] >= CLIP_LEVEL).view(np.uint8)
+        n, labels = cv2.connectedComponents(mask, connectivity=8)
+        if n < 2:
+            return None
+        # The plateau: the clipped component nearest the window's centre.
+        lx, ly = cx - x0, cy - y0
+        if labels[ly, lx]:
+            lab = labels[ly, lx]
+        else:
+            pts = cv2.findNonZero(mask).reshape(-1, 2)
+            k = int(np.argmin((pts[:, 0] - lx) ** 2 + (pts[:, 1] - ly) ** 2))
+            lab = labels[pts[k, 1], pts[k, 0]]
+        comp = (labels == lab).astype(np.uint8)
+        contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not contours:
+            return None
+        c = max(contours, key=len).reshape(-1, 2).astype(float)
+        ph, pw = comp.shape
+        inner = ((c[:, 0] > 0) & (c[:, 0] < pw - 1) & (c[:, 1] > 0) & (c[:, 1] < ph - 1))
+        c = c[inner]
+        if len(c) < 12:
+            return None
+        # Circles through triples of outline points (a fixed sample: the
+        # same frame measures the same); the one most points lie on wins.
+        idx = (_TRIPLES * len(c)).astype(int)
+        p1, p2, p3 = c[idx[:, 0]], c[idx[:, 1]], c[idx[:, 2]]
+        a, b = p2 - p1, p3 - p1
+        det = 2.0 * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+        ok = np.abs(det) > 1e-6
+        a, b, det, p1 = a[ok], b[ok], det[ok], p1[ok]
+        if not len(det):
+            return None
+        aa, bb = (a * a).sum(axis=1), (b * b).sum(axis=1)
+        centres = p1 + np.column_stack([(b[:, 1] * aa - a[:, 1] * bb) / det, (a[:, 0] * bb - b[:, 0] * aa) / det])
+        radii = np.hypot(*(centres - p1).T)
+        dist = np.hypot(c[None, :, 0] - centres[:, None, 0], c[None, :, 1] - centres[:, None, 1])
+        score = (np.abs(dist - radii[:, None]) <= 1.0).sum(axis=1)
+        score[radii > r] = 0
+        best = int(np.argmax(score))
+        inl = np.abs(dist[best] - radii[best]) <= 1.0
+        for _ in range(2):
+            if inl.sum() < max(12, 0.4 * len(c)):
+                return None
+            q = c[inl]
+            # Algebraic (Kasa) fit on the inliers: x^2 + y^2 = 2ax + 2by + k.
+            m = np.column_stack([2 * q[:, 0], 2 * q[:, 1], np.ones(len(q))])
+            sol, *_ = np.linalg.lstsq(m, (q * q).sum(axis=1), rcond=None)
+            centre = sol[:2]
+            rad = math.sqrt(max(sol[2] + centre @ centre, 0.0))
+            inl = np.abs(np.hypot(*(c - centre).T) - rad) <= 1.0
+        # The fitted points must go round the circle, not be one short arc.
+        ang = np.arctan2(*(c[inl] - centre).T[::-1])
+        if len(np.unique(np.floor((ang + math.pi) / (math.pi / 4)).astype(int) % 8)) < 6:
+            return None
+        # Boundary pixels lie half a pixel inside the plateau's edge.
+        return centre + np.array([x0, y0], float), rad + 0.5
 
     @staticmethod
     def _spot_area(img: np.ndarray, uv: np.ndarray, peak: float, r: int) -> float:
