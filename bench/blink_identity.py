@@ -28,6 +28,7 @@ import numpy as np
 
 from mutloc.detect.blink import BlinkTracker
 from mutloc.sim.render import moving_world, project_markers, render
+from mutloc.sim.tracking import light_identity
 from mutloc.sim.world import light_is_on, standard_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -59,32 +60,9 @@ def sequence(size: tuple[int, int], f: float, distance: float, seed: int, n: int
 
 def identity(results, truth, lit, fps: float, tol: float) -> dict:
     """Identity fraction after the first second, and the failures."""
-    good = total = wrong = 0
-    failures = []
-    for k, (res, tr, on) in enumerate(zip(results, truth, lit)):
-        for name, det in res.detections.items():
-            # A wrong label: reported nearer another light than its own, or
-            # measured lit (not predicted) far from its own.
-            d = {o: float(np.hypot(*(det.uv - np.asarray(u)))) for o, u in tr.items()}
-            if name in d and (min(d, key=d.get) != name or (not det.predicted and d[name] > 10.0)):
-                wrong += 1
-        if k < fps:
-            continue
-        for name, uv in tr.items():
-            if not on[name]:
-                continue
-            total += 1
-            det = res.detections.get(name)
-            if det is None:
-                failures.append((k, name, "missing"))
-                continue
-            d = {o: float(np.hypot(*(det.uv - np.asarray(u)))) for o, u in tr.items()}
-            if d[name] <= tol and min(d, key=d.get) == name:
-                good += 1
-            else:
-                failures.append((k, name, f"off by {d[name]:.1f} px"))
-    return {"good": good, "total": total, "fraction": good / max(total, 1), "wrong_labels": wrong,
-            "failures": failures}
+    r = light_identity(results, truth, lit, fps, tol)
+    return {"good": r.good, "total": r.total, "fraction": r.fraction, "wrong_labels": r.wrong,
+            "failures": r.failures}
 
 
 def run_tracker(rig, markers, frames, fps: float, use_camera: bool = True):

@@ -21,6 +21,7 @@ from mutloc.core.rig import Rig, Robot
 from mutloc.core.sphere import sphere_centre_pixel, sphere_image
 from mutloc.detect.blink import BlinkParams, BlinkTracker
 from mutloc.errors import InputError
+from mutloc.sim.tracking import light_identity
 
 FPS = 30.0
 
@@ -169,28 +170,9 @@ def fast_sequence(distance: float, seed: int, n: int = 66):
 
 
 def identity_counts(results, truth, lit, tol: float = 3.0) -> tuple[int, int, int]:
-    """(good, total, wrong): among frames after the first second in which a
-    light is lit and visible, those reporting it by its own name within
-    ``tol`` px of its true projection and nearer it than the other light;
-    wrong: reports (any frame) nearer the other light than their own, or
-    measured lit more than 10 px from their own."""
-    good = total = wrong = 0
-    for k, (res, tr, on) in enumerate(zip(results, truth, lit)):
-        for name, det in res.detections.items():
-            d = {o: float(np.linalg.norm(det.uv - np.asarray(u))) for o, u in tr.items()}
-            if name in d and (min(d, key=d.get) != name or (not det.predicted and d[name] > 10.0)):
-                wrong += 1
-        if k < FPS:
-            continue
-        for name, uv in tr.items():
-            if not on[name]:
-                continue
-            total += 1
-            det = res.detections.get(name)
-            if det is not None:
-                d = {o: float(np.linalg.norm(det.uv - np.asarray(u))) for o, u in tr.items()}
-                good += d[name] <= tol and min(d, key=d.get) == name
-    return good, total, wrong
+    """(good, total, wrong) of :func:`mutloc.sim.tracking.light_identity`."""
+    r = light_identity(results, truth, lit, FPS, tol)
+    return r.good, r.total, r.wrong
 
 
 @pytest.mark.slow

@@ -19,7 +19,8 @@ from ..core.rig import Rig
 if TYPE_CHECKING:
     from .world import World
 
-__all__ = ["ObservationSequence", "observation_sequence", "correct_detections"]
+__all__ = ["ObservationSequence", "observation_sequence", "correct_detections", "LightIdentity",
+           "light_identity"]
 
 
 @dataclass
@@ -117,3 +118,55 @@ def correct_detections(world: "World", t: float, rng: np.random.Generator | None
             name.append(m)
             uv.append(np.asarray(p, float) + rng.normal(0.0, sigma, 2))
     return ObservationSet(observer, name, np.reshape(uv, (-1, 2)), float(t))
+
+
+@dataclass
+class LightIdentity:
+    """How well a blink tracker named the lights of a rendered sequence.
+
+    ``good`` of ``total``: (frame, light) pairs after the first second with
+    the light lit and visible, reported under its own name within the
+    tolerance of its true projection and nearer it than any other light;
+    ``wrong``: reports (any frame) nearer another light than their own, or
+    measured lit more than 10 px from their own; ``failures``: (frame,
+    light, why) for each counted pair that was not good."""
+
+    good: int
+    total: int
+    wrong: int
+    failures: list[tuple[int, str, str]]
+
+    @property
+    def fraction(self) -> float:
+        return self.good / max(self.total, 1)
+
+
+def light_identity(results: Sequence, truth: Sequence[dict], lit: Sequence[dict], fps: float,
+                   tol: float = 3.0) -> LightIdentity:
+    """Score blink-tracker ``results`` (one DetectionResult per frame) against
+    each frame's true light pixels ``truth`` ({name: uv}) and ``lit``
+    ({name: bool}); frames within the first second are not counted (a blink
+    needs a history to be named), wrong labels are counted in every frame."""
+    good = total = wrong = 0
+    failures: list[tuple[int, str, str]] = []
+    for k, (res, tr, on) in enumerate(zip(results, truth, lit)):
+        for name, det in res.detections.items():
+            d = {o: float(np.hypot(*(det.uv - np.asarray(u)))) for o, u in tr.items()}
+            if name in d and (min(d, key=d.get) != name or (not det.predicted and d[name] > 10.0)):
+                wrong += 1
+        if k < fps:
+            continue
+        for name in tr:
+            if not on[name]:
+                continue
+            total += 1
+            det = res.detections.get(name)
+            if det is None:
+                failures.append((k, name, "missing"))
+                continue
+            d = {o: float(np.hypot(*(det.uv - np.asarray(u)))) for o, u in tr.items()}
+            if d[name] <= tol and min(d, key=d.get) == name:
+                good += 1
+            else:
+                failures.append((k, name, f"off by {d[name]:.1f} px"))
+    return LightIdentity(good, total, wrong, failures)
