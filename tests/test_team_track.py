@@ -259,13 +259,20 @@ def test_cli_team_in_base_frames(team_log, tmp_path, capsys):
     assert err.startswith("mutloc: error:") and "'r2'" in err and "base_from_camera" in err
 
 
-@pytest.mark.slow
-def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
-    """Three robots carrying AprilTags, rendered (480x270, 8 frames): localize-images
-    on the first frame and track from the three image folders, against the truth."""
-    sim = tmp_path / "sim"
+@pytest.fixture(scope="module")
+def tag_team_sim(tmp_path_factory):
+    """Three robots carrying AprilTags, rendered by ``mutloc simulate`` (480x270, 8 frames at 10 fps)."""
+    sim = tmp_path_factory.mktemp("tag_team") / "sim"
     assert main(["simulate", "--robots", "3", "--markers", "tags", "--frames", "8", "--fps", "10", "--size",
                  "480x270", "--focal", "400", "--seed", "2", "--out", str(sim), "--no-progress"]) == 0
+    return sim
+
+
+@pytest.mark.slow
+def test_rendered_tag_team_localize_images_and_track(tag_team_sim, tmp_path, capsys):
+    """localize-images on the first frame and track from the three image
+    folders, against the truth."""
+    sim = tag_team_sim
     capsys.readouterr()
     truth = json.loads((sim / "truth.json").read_text())
     assert truth["reference"] == "r0" and len(truth["frames"]) == 8
@@ -322,3 +329,61 @@ def test_rendered_tag_team_localize_images_and_track(tmp_path, capsys):
     assert r1.t_source is None and "no r1 frame" in r1.reason
     assert r2.status.value == "corrupt" or "unreadable image" in r2.reason
 
+
+
+@pytest.mark.slow
+def test_rendered_tag_team_from_one_ros2_bag(tag_team_sim, tmp_path, capsys):
+    """The same three cameras recorded as three image topics of one ROS 2 bag
+    (as a team's recorder would): ``track --stream rK=BAG --topic rK=/rK/image``
+    gives the trajectories tracked from the image folders."""
+    import cv2
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    sim = tag_team_sim
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    Image, Header, Time = (store.types[t] for t in ("sensor_msgs/msg/Image", "std_msgs/msg/Header",
+                                                    "builtin_interfaces/msg/Time"))
+    bag = tmp_path / "team_bag"
+    t0 = 1700000000.0  # a wall-clock stamp, as a recorder writes; the trajectory keeps it
+    with Writer(bag, version=8) as writer:
+        conns = {r: writer.add_connection(f"/{r}/image", Image.__msgtype__, typestore=store)
+                 for r in ("r0", "r1", "r2")}
+        for k in range(8):
+            for r in ("r0", "r2", "r1"):  # recorders interleave topics in no fixed order
+                img = cv2.imread(str(sim / r / f"{k:06d}.png"))
+                t = t0 + k / 10 + {"r0": 0.0, "r1": 0.001, "r2": 0.002}[r]  # within --tolerance
+                sec = int(t)
+                msg = Image(header=Header(stamp=Time(sec=sec, nanosec=int(round((t - sec) * 1e9))), frame_id=r),
+                            height=img.shape[0], width=img.shape[1], encoding="bgr8", is_bigendian=0,
+                            step=3 * img.shape[1], data=img.reshape(-1))
+                writer.write(conns[r], int(round(t * 1e9)), store.serialize_cdr(msg, Image.__msgtype__))
+    out = tmp_path / "from_bag"
+    assert main(["track", "--rig", str(sim / "rig.yaml"), "--pixel-sigma", "0.3", "--out", str(out),
+                 "--no-progress", "--bag", str(tmp_path / "poses_bag"),
+                 *[a for r in ("r0", "r1", "r2") for a in ("--stream", f"{r}={bag}", "--topic", f"{r}=/{r}/image")]]) == 0
+    capsys.readouterr()
+    folders = tmp_path / "from_folders"
+    assert main(["track", "--rig", str(sim / "rig.yaml"), *[a for i in range(3) for a in
+                 ("--stream", f"r{i}={sim / f'r{i}'}")], "--pixel-sigma", "0.3", "--out", str(folders),
+                 "--no-progress"]) == 0
+    capsys.readouterr()
+    for r in ("r1", "r2"):
+        _, true_poses = read_tum(sim / f"truth_{r}.tum")
+        a = read_trajectory_csv(out / f"trajectory_{r}.csv")
+        b = read_trajectory_csv(folders / f"trajectory_{r}.csv")
+        assert len(a) == len(b) == 8
+        # a team frame is stamped with the mean of its cameras' stamps (0, 1 and 2 ms late here)
+        assert [row["t"] - t0 for row in a] == pytest.approx([k / 10 + 0.001 for k in range(8)], abs=1e-5)
+        assert all(row["status"] == "solved" for row in a), [row["status"] for row in a]
+        for k, (x, y) in enumerate(zip(a, b)):
+            # same pixels, so the same poses (the filter's time steps differ by the stamps' microseconds)
+            assert np.linalg.norm(x["pose"].t - y["pose"].t) < 1e-4
+            assert x["pose"].translation_error(true_poses[k]) < 0.03
+    # the poses bag written from the bag input has one topic per robot, read back with rosbags
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / "poses_bag"]) as reader:
+        topics = {c.topic: c.msgcount for c in reader.connections}
+    assert {t for t in topics if t != "/tf"} == {"/mutloc/r1_in_r0", "/mutloc/r2_in_r0"}, topics
+    assert all(n == 8 for t, n in topics.items() if t != "/tf")
