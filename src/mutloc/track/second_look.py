@@ -1,0 +1,232 @@
+"""A second look at partly hidden balls, where and as large as the pose says they appear.
+
+The first look measures every ball on its own, its size free.  A partly
+hidden ball then shows a short arc whose centre slides with the size, is
+taken for the wrong blob, or is turned down by the rig check because the
+size (hence the distance) read off the short arc is wrong; with two balls a
+robot, the pose then rests on three observations (unverified) or none.
+
+The mutual geometry says where each ball must appear and how large (its
+radius over its distance): from a pose -- the first solve, each candidate
+of an unverified one, or, when the first solve fails its consistency test,
+the candidates with one observation left out -- every partly hidden or
+missing ball is measured again with its size fixed to the prediction
+(:func:`mutloc.detect.balls.refit.refit_ball`), and the pose solved again
+(twice).  The result is kept only if it is *verified*: it passes its
+consistency test and has more observations (or, as many, a smaller
+residual) than the first look.  The rim measurement's own size bias is
+taken from the whole balls of the same image.
+
+Only frames with a ball partly hidden (visible fraction below
+:data:`PARTLY_HIDDEN`) or missing pay for it.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..api import Estimate, localize
+from ..core.pose import Pose
+from ..core.rig import MarkerKind, Rig
+from ..detect.base import DetectionResult
+from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
+
+__all__ = ["PARTLY_HIDDEN", "ball_centres", "needs_second_look", "second_look"]
+
+#: A ball whose first look saw less of its rim than this is measured again.
+PARTLY_HIDDEN = 0.9
+#: Solves after the first: refit from the pose, solve, refit from the new pose, solve.
+_ROUNDS = 2
+#: Verified poses closer than this are the same answer.
+_SAME_M, _SAME_DEG = 0.01, 1.0
+
+
+def _balls(rig: Rig, robot: str) -> dict[str, Any]:
+    return {n: m for n, m in rig.robot(robot).markers.items() if m.kind == MarkerKind.BALL and m.color is not None}
+
+
+def ball_centres(rig: Rig, pose: Pose, source: str, target: str) -> dict[str, dict[str, np.ndarray]]:
+    """``{observer: {ball: centre in the observer's camera frame}}`` for the balls of the pair under ``pose`` (T_qp)."""
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for observer, other, T in ((target, source, pose), (source, target, pose.inverse())):
+        out[observer] = {n: T.apply(m.position) for n, m in _balls(rig, other).items()}
+    return out
+
+
+def _hidden(det: DetectionResult, name: str) -> bool:
+    d = det.detections.get(name)
+    return d is None or (d.visible_fraction is not None and d.visible_fraction < PARTLY_HIDDEN)
+
+
+def needs_second_look(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str) -> bool:
+    """True when a ball of the pair is missing or partly hidden in the other robot's image."""
+    return any(_hidden(detections[obs], n) for obs, other in ((source, target), (target, source))
+               for n in _balls(rig, other))
+
+
+def _copy(det: DetectionResult) -> DetectionResult:
+    return DetectionResult(dict(det.detections), list(det.missing), dict(det.missing_reasons),
+                           {n: list(a) for n, a in det.alternatives.items()})
+
+
+def _rim_offset(ctx: Any, rig: Rig, other: str, det: DetectionResult, centres: Mapping[str, np.ndarray],
+                apparent_radius_px: Any) -> float | None:
+    """Median (first-look radius - predicted radius) over the whole balls of one image (None: none)."""
+    balls = _balls(rig, other)
+    diffs = []
+    for name, X in centres.items():
+        d = det.detections.get(name)
+        if d is None or _hidden(det, name) or "radius_px" not in d.info:
+            continue
+        r = apparent_radius_px(ctx, name, balls[name], X)
+        if r is not None and abs(float(d.info["radius_px"]) - r) < 0.1 * r:
+            diffs.append(float(d.info["radius_px"]) - r)
+    return float(np.median(diffs)) if diffs else None
+
+
+def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult], pose: Pose,
+               source: str, target: str, left_out: tuple[str, str] | None) -> dict[str, DetectionResult]:
+    """The detections with every partly hidden, missing (or ``left_out``) ball measured again under ``pose``."""
+    from ..detect.balls.refit import apparent_radius_px, refit_ball
+
+    centres = ball_centres(rig, pose, source, target)
+    others = {source: target, target: source}
+    offsets = {obs: _rim_offset(contexts[obs], rig, others[obs], detections[obs], centres[obs], apparent_radius_px)
+               for obs in detections}
+    known = [o for o in offsets.values() if o is not None]
+    out = {}
+    for obs, det in detections.items():
+        new = _copy(det)
+        balls = _balls(rig, others[obs])
+        off = offsets[obs] if offsets[obs] is not None else (float(np.mean(known)) if known else 0.0)
+        for name, X in centres[obs].items():
+            if not (_hidden(det, name) or left_out == (obs, name)):
+                continue
+            found = refit_ball(contexts[obs], name, balls[name], X, radius_offset_px=off)
+            new.alternatives.pop(name, None)
+            if found is not None:
+                new.detections[name] = found
+                new.missing = [m for m in new.missing if m != name]
+                new.missing_reasons.pop(name, None)
+            elif name in new.detections:
+                # Not where the pose puts it: the first look's blob is not this ball.
+                del new.detections[name]
+                new.missing.append(name)
+                new.missing_reasons[name] = "rejected: no ball of its size where the other balls put it"
+        out[obs] = new
+    return out
+
+
+def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult],
+                source: str, target: str) -> dict[str, DetectionResult]:
+    """The detections with every partly hidden ball measured again with the size of its robot's whole balls
+    in the same image (before any pose: balls of one robot are at about the same distance)."""
+    from ..detect.balls.refit import refit_ball
+
+    out = {}
+    for obs, det in detections.items():
+        balls = _balls(rig, target if obs == source else source)
+        new = _copy(det)
+        whole = [float(d.info["distance_m"]) for n, d in det.detections.items()
+                 if n in balls and not _hidden(det, n) and "distance_m" in d.info]
+        if whole:
+            dist = float(np.median(whole))
+            for name, d in det.detections.items():
+                if name in balls and _hidden(det, name):
+                    bearing = contexts[obs].cam.camera.pixels_to_bearings(d.uv)
+                    found = refit_ball(contexts[obs], name, balls[name], bearing * dist)
+                    if found is not None:
+                        new.detections[name] = found
+                        new.alternatives.pop(name, None)
+        out[obs] = new
+    return out
+
+
+def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None, error: Exception | None,
+                solve: Any) -> list[tuple[Pose, tuple[str, str] | None]]:
+    """Poses to predict the balls from, each with the observation it leaves out (if any)."""
+    from .frames import observations_of
+
+    if est is None and isinstance(error, UnverifiedError):
+        est = error.estimate  # type: ignore[assignment]
+    if est is not None:
+        if est.status == "solved":
+            return [(est.pose, None)]
+        return [(p, None) for p in est.candidates]
+    if not isinstance(error, InconsistentObservationsError):
+        return []
+    out: list[tuple[Pose, tuple[str, str] | None]] = []
+    for obs, det in detections.items():
+        for name in det.detections:
+            dets = {o: _copy(d) for o, d in detections.items()}
+            del dets[obs].detections[name]
+            dets[obs].alternatives.pop(name, None)
+            try:
+                sub = solve(observations_of(dets))
+            except MutlocError:
+                continue
+            out += [(p, (obs, name)) for p in sub.candidates]
+    return out
+
+
+def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
+                est: Estimate | None, error: Exception | None, source: str, target: str, *,
+                pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate, dict[str, DetectionResult]] | None:
+    """A verified pose (and its detections) from the balls measured again, or None.
+
+    ``est`` is the first look's estimate (None when it raised ``error``);
+    ``images`` the BGR images per observer, ``options`` as :func:`mutloc.localize`.
+    Returns a result only when it passes its consistency test and beats the
+    first look (more observations, or as many with a smaller residual).
+    """
+    if not needs_second_look(rig, detections, source, target):
+        return None
+    from ..detect.balls.refit import RefitContext
+    from .frames import observations_of
+
+    opts = dict(options, allow_unverified=True)
+
+    def solve(obs: Any) -> Estimate:
+        return localize(rig, obs, source, target, pixel_sigma=pixel_sigma, **opts)
+
+    contexts = {obs: RefitContext.of(images[obs], rig.robot(obs).camera) for obs in detections}
+    hyps = []
+    for dets in ([detections] if est is not None and est.status == "solved"
+                 else [detections, _mate_sized(rig, contexts, detections, source, target)]):
+        first, err = est, error
+        if dets is not detections:
+            try:
+                first, err = solve(observations_of(dets)), None
+            except MutlocError as exc:
+                first, err = None, exc
+        hyps += [(pose, left_out, dets) for pose, left_out in _hypotheses(dets, first, err, solve)]
+    if not hyps:
+        return None
+    results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
+    for pose, left_out, base in hyps:
+        cur, dets, res = pose, base, None
+        for _ in range(_ROUNDS):
+            dets = _refit_all(rig, contexts, base, cur, source, target, left_out)
+            try:
+                res = solve(observations_of(dets))
+            except MutlocError:
+                res = None
+                break
+            cur = res.pose
+        if res is not None and res.status == "solved":
+            results.append((res, dets))
+    if not results:
+        return None
+    most = max(len(r.markers_used) for r, _ in results)
+    top = sorted((r for r in results if len(r[0].markers_used) == most), key=lambda r: r[0].reprojection_rms_px)
+    res, dets = top[0]
+    # Two verified poses that disagree (a look-alike where a wrong candidate
+    # put a ball): nothing tells which is right, so neither is taken.
+    if any(o.pose.translation_error(res.pose) > _SAME_M or o.pose.rotation_error_deg(res.pose) > _SAME_DEG
+           for o, _ in top[1:]):
+        return None
+    if est is not None and est.status == "solved" and most < len(est.markers_used):
+        return None
+    return res, dets
