@@ -37,8 +37,13 @@ __all__ = ["PARTLY_HIDDEN", "ball_centres", "needs_second_look", "second_look"]
 
 #: A ball whose first look saw less of its rim than this is measured again.
 PARTLY_HIDDEN = 0.9
+#: A partly hidden ball whose first-look size is within this (pixels) of the
+#: predicted one (after the rim's own bias) keeps its first-look centre.
+_SIZE_TOL = 0.05
 #: Solves after the first: refit from the pose, solve, refit from the new pose, solve.
 _ROUNDS = 2
+#: A ball looked for on its own must be within this factor of the robots' distance.
+_RANGE = 1.25
 #: Verified poses closer than this are the same answer.
 _SAME_M, _SAME_DEG = 0.01, 1.0
 
@@ -71,38 +76,53 @@ def _copy(det: DetectionResult) -> DetectionResult:
                            {n: list(a) for n, a in det.alternatives.items()})
 
 
-def _rim_offset(ctx: Any, rig: Rig, other: str, det: DetectionResult, centres: Mapping[str, np.ndarray],
-                apparent_radius_px: Any) -> float | None:
-    """Median (first-look radius - predicted radius) over the whole balls of one image (None: none)."""
-    balls = _balls(rig, other)
-    diffs = []
-    for name, X in centres.items():
-        d = det.detections.get(name)
-        if d is None or _hidden(det, name) or "radius_px" not in d.info:
-            continue
-        r = apparent_radius_px(ctx, name, balls[name], X)
-        if r is not None and abs(float(d.info["radius_px"]) - r) < 0.1 * r:
-            diffs.append(float(d.info["radius_px"]) - r)
-    return float(np.median(diffs)) if diffs else None
+def _size_errors(contexts: Mapping[str, Any], rig: Rig, detections: Mapping[str, DetectionResult],
+                 centres: Mapping[str, Mapping[str, np.ndarray]], others: Mapping[str, str]
+                 ) -> dict[tuple[str, str], float]:
+    """``{(observer, ball): first-look radius - predicted radius}`` (pixels) of every ball found."""
+    from ..detect.balls.refit import apparent_radius_px
+
+    out = {}
+    for obs, det in detections.items():
+        balls = _balls(rig, others[obs])
+        for name, X in centres[obs].items():
+            d = det.detections.get(name)
+            if d is not None and "radius_px" in d.info:
+                r = apparent_radius_px(contexts[obs], name, balls[name], X)
+                if r is not None:
+                    out[(obs, name)] = float(d.info["radius_px"]) - r
+    return out
+
+
+def _rim_offset(obs: str, errors: Mapping[tuple[str, str], float], detections: Mapping[str, DetectionResult]
+                ) -> float:
+    """The rim measurement's size bias in ``obs``'s image: the median size error of its whole balls, else of
+    the whole balls of both images, else of every ball found (a hard light leaves no ball whole), else 0."""
+    whole = {k: e for k, e in errors.items() if not _hidden(detections[k[0]], k[1])}
+    for pick in ([e for k, e in whole.items() if k[0] == obs], list(whole.values()), list(errors.values())):
+        if pick:
+            return float(np.median(pick))
+    return 0.0
 
 
 def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult], pose: Pose,
                source: str, target: str, left_out: tuple[str, str] | None) -> dict[str, DetectionResult]:
-    """The detections with every partly hidden, missing (or ``left_out``) ball measured again under ``pose``."""
-    from ..detect.balls.refit import apparent_radius_px, refit_ball
+    """The detections with every missing (or ``left_out``) ball measured again under ``pose``, and every
+    partly hidden one whose first-look size is off the predicted one (its centre slid along its arc)."""
+    from ..detect.balls.refit import refit_ball
 
     centres = ball_centres(rig, pose, source, target)
     others = {source: target, target: source}
-    offsets = {obs: _rim_offset(contexts[obs], rig, others[obs], detections[obs], centres[obs], apparent_radius_px)
-               for obs in detections}
-    known = [o for o in offsets.values() if o is not None]
+    errors = _size_errors(contexts, rig, detections, centres, others)
     out = {}
     for obs, det in detections.items():
         new = _copy(det)
         balls = _balls(rig, others[obs])
-        off = offsets[obs] if offsets[obs] is not None else (float(np.mean(known)) if known else 0.0)
+        off = _rim_offset(obs, errors, detections)
         for name, X in centres[obs].items():
-            if not (_hidden(det, name) or left_out == (obs, name)):
+            err = errors.get((obs, name))
+            if left_out != (obs, name) and name in det.detections and not (
+                    _hidden(det, name) and (err is None or abs(err - off) > _SIZE_TOL)):
                 continue
             found = refit_ball(contexts[obs], name, balls[name], X, radius_offset_px=off)
             new.alternatives.pop(name, None)
@@ -141,6 +161,58 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
                         new.detections[name] = found
                         new.alternatives.pop(name, None)
         out[obs] = new
+    return out
+
+
+def _distances(detections: Mapping[str, DetectionResult]) -> list[float]:
+    """The robots' distance as each camera's balls give it (its whole balls, if any), near ones merged."""
+    out: list[float] = []
+    for det in detections.values():
+        seen = [(float(d.info["distance_m"]), not _hidden(det, n)) for n, d in det.detections.items()
+                if "distance_m" in d.info]
+        dists = [x for x, whole in seen if whole] or [x for x, _ in seen]
+        if dists:
+            D = float(np.median(dists))
+            if all(abs(D / o - 1.0) > 0.1 for o in out):
+                out.append(D)
+    return out
+
+
+def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[str, DetectionResult],
+              distance: float, source: str, target: str) -> dict[str, DetectionResult]:
+    """The balls looked for again with the size a robots' ``distance`` gives them.
+
+    For frames the first look leaves unsolved: a ball of the other robot is
+    seen at about the robots' distance from both sides, which rules out
+    look-alikes of another size (the first look's choice of a poster's
+    discs, or a whole ball the rig check turned down because its partly
+    hidden mate's size misled it).  Balls the rig check still turns down
+    are looked for on their own; the pose's consistency test judges what
+    this finds.
+    """
+    from ..detect.balls import BallParams, detect_balls
+
+    params = BallParams(distance_range_m=(distance / _RANGE, distance * _RANGE))
+    out = {}
+    for obs in detections:
+        balls = _balls(rig, target if obs == source else source)
+        cam = rig.robot(obs).camera
+        new = detect_balls(images[obs], balls, camera=cam, params=params)
+        for name in list(new.missing):
+            found = detect_balls(images[obs], {name: balls[name]}, camera=cam, params=params)
+            if name in found.detections:
+                new.detections[name] = found.detections[name]
+                new.missing.remove(name)
+                new.missing_reasons.pop(name, None)
+        # Other kinds of marker keep what the first look found.
+        kept = _copy(detections[obs])
+        for name in balls:
+            kept.detections.pop(name, None)
+            kept.alternatives.pop(name, None)
+        kept.missing = [m for m in kept.missing if m not in balls]
+        kept.missing_reasons = {m: r for m, r in kept.missing_reasons.items() if m not in balls}
+        kept.merge(new)
+        out[obs] = kept
     return out
 
 
@@ -192,9 +264,12 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
         return localize(rig, obs, source, target, pixel_sigma=pixel_sigma, **opts)
 
     contexts = {obs: RefitContext.of(images[obs], rig.robot(obs).camera) for obs in detections}
+    bases = [detections]
+    if est is None or est.status != "solved":
+        bases += [_redetect(rig, images, detections, D, source, target) for D in _distances(detections)]
+        bases += [_mate_sized(rig, contexts, b, source, target) for b in bases]
     hyps = []
-    for dets in ([detections] if est is not None and est.status == "solved"
-                 else [detections, _mate_sized(rig, contexts, detections, source, target)]):
+    for dets in bases:
         first, err = est, error
         if dets is not detections:
             try:
