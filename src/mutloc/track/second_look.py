@@ -33,10 +33,13 @@ from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
 
-__all__ = ["PARTLY_HIDDEN", "ball_centres", "needs_second_look", "second_look"]
+__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "needs_second_look", "second_look"]
 
 #: A ball whose first look saw less of its rim than this is measured again.
 PARTLY_HIDDEN = 0.9
+#: Less of a rim than this (about 110 degrees) leaves a ball's centre along
+#: its arc resting on the predicted size alone: the ball stays missing.
+MIN_REFIT_FRACTION = 0.3
 #: A partly hidden ball whose first-look size is within this (pixels) of the
 #: predicted one (after the rim's own bias) keeps its first-look centre.
 _SIZE_TOL = 0.05
@@ -126,7 +129,7 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
                 continue
             found = refit_ball(contexts[obs], name, balls[name], X, radius_offset_px=off)
             new.alternatives.pop(name, None)
-            if found is not None:
+            if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
                 new.detections[name] = found
                 new.missing = [m for m in new.missing if m != name]
                 new.missing_reasons.pop(name, None)
@@ -157,7 +160,7 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
                 if name in balls and _hidden(det, name):
                     bearing = contexts[obs].cam.camera.pixels_to_bearings(d.uv)
                     found = refit_ball(contexts[obs], name, balls[name], bearing * dist)
-                    if found is not None:
+                    if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
                         new.detections[name] = found
                         new.alternatives.pop(name, None)
         out[obs] = new
