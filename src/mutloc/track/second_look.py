@@ -23,7 +23,8 @@ Only frames with a ball partly hidden (visible fraction below
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+import itertools
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -267,34 +268,38 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
         return localize(rig, obs, source, target, pixel_sigma=pixel_sigma, **opts)
 
     contexts = {obs: RefitContext.of(images[obs], rig.robot(obs).camera) for obs in detections}
-    bases = [detections]
-    if est is None or est.status != "solved":
-        bases += [_redetect(rig, images, detections, D, source, target) for D in _distances(detections)]
-        bases += [_mate_sized(rig, contexts, b, source, target) for b in bases]
-    hyps = []
-    for dets in bases:
-        first, err = est, error
-        if dets is not detections:
+
+    def bases() -> Iterator[tuple[dict[str, DetectionResult], Estimate | None, Exception | None]]:
+        """What to start from, cheapest first: the first look; unless it is solved, the same with its
+        partly hidden balls sized as their robot's whole ones; the balls looked for again at each
+        distance the cameras give the robots (and those sized likewise)."""
+        yield detections, est, error
+        if est is not None and est.status == "solved":
+            return
+        redone = (_redetect(rig, images, detections, D, source, target) for D in _distances(detections))
+        for dets in itertools.chain([_mate_sized(rig, contexts, detections, source, target)],
+                                    *(([r, _mate_sized(rig, contexts, r, source, target)] for r in redone))):
             try:
-                first, err = solve(observations_of(dets)), None
+                yield dets, solve(observations_of(dets)), None
             except MutlocError as exc:
-                first, err = None, exc
-        hyps += [(pose, left_out, dets) for pose, left_out in _hypotheses(dets, first, err, solve)]
-    if not hyps:
-        return None
+                yield dets, None, exc
+
     results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
-    for pose, left_out, base in hyps:
-        cur, dets, res = pose, base, None
-        for _ in range(_ROUNDS):
-            dets = _refit_all(rig, contexts, base, cur, source, target, left_out)
-            try:
-                res = solve(observations_of(dets))
-            except MutlocError:
-                res = None
-                break
-            cur = res.pose
-        if res is not None and res.status == "solved":
-            results.append((res, dets))
+    for base, first, err in bases():
+        for pose, left_out in _hypotheses(base, first, err, solve):
+            cur, dets, res = pose, base, None
+            for _ in range(_ROUNDS):
+                dets = _refit_all(rig, contexts, base, cur, source, target, left_out)
+                try:
+                    res = solve(observations_of(dets))
+                except MutlocError:
+                    res = None
+                    break
+                cur = res.pose
+            if res is not None and res.status == "solved":
+                results.append((res, dets))
+        if results:
+            break
     if not results:
         return None
     most = max(len(r.markers_used) for r, _ in results)
