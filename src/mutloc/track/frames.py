@@ -16,6 +16,7 @@ from ..core.rig import DETECTED_KINDS, Marker, MarkerKind, Rig
 from ..detect import image_detector
 from ..detect.base import Detection, DetectionResult, as_bgr
 from ..errors import FileFormatError, InputError, MutlocError, ObservationError
+from .second_look import second_look
 
 __all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images", "observations_of"]
 
@@ -147,8 +148,6 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
         error = exc
     # Partly hidden balls are measured again where the pose puts them (only
     # when a ball is partly hidden or missing; see .second_look).
-    from .second_look import second_look
-
     better = second_look(rig, loaded, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
     if better is not None:
         est, detections = better

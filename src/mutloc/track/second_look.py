@@ -34,7 +34,7 @@ from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
 
-__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "needs_second_look", "second_look"]
+__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "look_again", "needs_second_look", "second_look"]
 
 #: A ball whose first look saw less of its rim than this is measured again.
 PARTLY_HIDDEN = 0.9
@@ -313,3 +313,21 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
     if est is not None and est.status == "solved" and most < len(est.markers_used):
         return None
     return res, dets
+
+
+def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
+               source: str, target: str, *, pixel_sigma: float = 1.0, **options: Any
+               ) -> dict[str, DetectionResult]:
+    """``detections`` with the balls the second look measured again, where it verifies a pose; else
+    ``detections`` themselves (for callers that solve the frame their own way, e.g. the tracker's filter)."""
+    if not needs_second_look(rig, detections, source, target):
+        return detections
+    from .frames import observations_of
+
+    est, error = None, None
+    try:
+        est = localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options)
+    except MutlocError as exc:
+        error = exc
+    out = second_look(rig, images, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
+    return detections if out is None else out[1]
