@@ -48,6 +48,8 @@ _SIZE_TOL = 0.05
 _ROUNDS = 2
 #: A ball looked for on its own must be within this factor of the robots' distance.
 _RANGE = 1.25
+#: A ball measured again further than this (pixels) from its first look was another blob.
+_MOVED_PX = 2.0
 #: Verified poses closer than this are the same answer.
 _SAME_M, _SAME_DEG = 0.01, 1.0
 
@@ -312,16 +314,34 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
         return None
     if est is not None and est.status == "solved" and most < len(est.markers_used):
         return None
+    notes = _changes(detections, dets)
+    if notes:
+        res.extra["second_look"] = notes
     return res, dets
+
+
+def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, DetectionResult]) -> list[str]:
+    """What the second look threw out of the first look: pixels gone, or moved further than a re-measurement."""
+    notes = []
+    for obs, det in before.items():
+        for name, d in det.detections.items():
+            new = after[obs].detections.get(name)
+            if new is None:
+                notes.append(f"dropped {obs} saw {name} (no ball of its size where the pose puts it)")
+            elif float(np.hypot(*(new.uv - d.uv))) > _MOVED_PX:
+                notes.append(f"dropped {obs} saw {name} ({float(np.hypot(*(new.uv - d.uv))):.1f} px off; "
+                             "measured again where the pose puts it)")
+    return notes
 
 
 def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
                source: str, target: str, *, pixel_sigma: float = 1.0, **options: Any
-               ) -> dict[str, DetectionResult]:
-    """``detections`` with the balls the second look measured again, where it verifies a pose; else
-    ``detections`` themselves (for callers that solve the frame their own way, e.g. the tracker's filter)."""
+               ) -> tuple[dict[str, DetectionResult], list[str]]:
+    """``detections`` with the balls the second look measured again, where it verifies a pose (else
+    ``detections`` themselves), and notes on the first look's pixels it threw out -- for callers that
+    solve the frame their own way (the tracker's filter)."""
     if not needs_second_look(rig, detections, source, target):
-        return detections
+        return detections, []
     from .frames import observations_of
 
     est, error = None, None
@@ -330,4 +350,6 @@ def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str,
     except MutlocError as exc:
         error = exc
     out = second_look(rig, images, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
-    return detections if out is None else out[1]
+    if out is None:
+        return detections, []
+    return out[1], list(out[0].extra.get("second_look", []))

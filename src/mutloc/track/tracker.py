@@ -277,12 +277,14 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                     checked = True
                 row.detections = {source: dets[source].detect(fs), target: dets[target].detect(ft)}
                 # Partly hidden balls measured again where a verified pose puts them (see .second_look).
-                row.detections = look_again(rig, {source: fs.image, target: ft.image}, row.detections, source,
-                                            target, pixel_sigma=pixel_sigma, confidence=confidence)
+                row.detections, notes = look_again(rig, {source: fs.image, target: ft.image}, row.detections,
+                                                   source, target, pixel_sigma=pixel_sigma, confidence=confidence)
                 row.observations = observations_of(row.detections, row.t)
                 if log is not None:
                     log.write(row.t, row.observations)
                 tracker.step(row)
+                if notes:
+                    row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
             rows.append(row)
             if viz is not None:
                 images = {r: (f.image, row.detections[r].detections) for r, f in ((source, fs), (target, ft))
