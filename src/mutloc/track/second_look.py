@@ -34,7 +34,8 @@ from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
 
-__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "look_again", "needs_second_look", "second_look"]
+__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "first_solve", "look_again", "needs_second_look",
+           "second_look"]
 
 #: A ball whose first look saw less of its rim than this is measured again.
 PARTLY_HIDDEN = 0.9
@@ -334,6 +335,17 @@ def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, Detectio
     return notes
 
 
+def first_solve(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str, *,
+                pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate | None, MutlocError | None]:
+    """The first look's pose, or why there is none: what :func:`second_look` starts from."""
+    from .frames import observations_of
+
+    try:
+        return localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options), None
+    except MutlocError as exc:
+        return None, exc
+
+
 def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
                source: str, target: str, *, pixel_sigma: float = 1.0, **options: Any
                ) -> tuple[dict[str, DetectionResult], list[str]]:
@@ -342,13 +354,7 @@ def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str,
     solve the frame their own way (the tracker's filter)."""
     if not needs_second_look(rig, detections, source, target):
         return detections, []
-    from .frames import observations_of
-
-    est, error = None, None
-    try:
-        est = localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options)
-    except MutlocError as exc:
-        error = exc
+    est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
     out = second_look(rig, images, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
     if out is None:
         return detections, []
