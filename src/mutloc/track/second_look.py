@@ -113,15 +113,18 @@ def _rim_offset(obs: str, errors: Mapping[tuple[str, str], float], detections: M
 
 
 def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult], pose: Pose,
-               source: str, target: str, left_out: tuple[str, str] | None) -> dict[str, DetectionResult]:
+               source: str, target: str, left_out: tuple[str, str] | None
+               ) -> tuple[dict[str, DetectionResult], bool]:
     """The detections with every missing (or ``left_out``) ball measured again under ``pose``, and every
-    partly hidden one whose first-look size is off the predicted one (its centre slid along its arc)."""
+    partly hidden one whose first-look size is off the predicted one (its centre slid along its arc);
+    and whether any ball was measured again or dropped."""
     from ..detect.balls.refit import refit_ball
 
     centres = ball_centres(rig, pose, source, target)
     others = {source: target, target: source}
     errors = _size_errors(contexts, rig, detections, centres, others)
     out = {}
+    touched = False
     for obs, det in detections.items():
         new = _copy(det)
         balls = _balls(rig, others[obs])
@@ -135,15 +138,17 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
             new.alternatives.pop(name, None)
             if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
                 new.detections[name] = found
+                touched = True
                 new.missing = [m for m in new.missing if m != name]
                 new.missing_reasons.pop(name, None)
             elif name in new.detections:
                 # Not where the pose puts it: the first look's blob is not this ball.
                 del new.detections[name]
+                touched = True
                 new.missing.append(name)
                 new.missing_reasons[name] = "rejected: no ball of its size where the other balls put it"
         out[obs] = new
-    return out
+    return out, touched
 
 
 def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult],
@@ -289,14 +294,17 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
 
     results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
     for base, first, err in bases():
+        # A base looked for again that verifies on its own is an answer even if nothing needs a refit.
+        own = first if base is not detections and first is not None and first.status == "solved" else None
         for pose, left_out in _hypotheses(base, first, err, solve):
-            cur, dets, res = pose, base, None
+            cur, dets, res = pose, base, (own if left_out is None else None)
             for _ in range(_ROUNDS):
-                dets = _refit_all(rig, contexts, base, cur, source, target, left_out)
+                again, touched = _refit_all(rig, contexts, base, cur, source, target, left_out)
+                if not touched:
+                    break  # nothing measured again: the solve would repeat the last one
                 try:
-                    res = solve(observations_of(dets))
+                    res, dets = solve(observations_of(again)), again
                 except MutlocError:
-                    res = None
                     break
                 cur = res.pose
             if res is not None and res.status == "solved":
