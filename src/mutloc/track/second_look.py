@@ -255,6 +255,14 @@ def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None,
     return out
 
 
+def _anchored(est: Estimate, detections: Mapping[str, DetectionResult]) -> bool:
+    """At least half of the pose's observations are first-look pixels: a ball measured again sits where
+    the pose puts it, so a pose resting mostly on such balls would confirm itself."""
+    refits = sum(bool(d.info.get("refit")) for det in detections.values() for n, d in det.detections.items()
+                 if n in est.markers_used)
+    return 2 * refits <= len(est.markers_used)
+
+
 def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
                 est: Estimate | None, error: Exception | None, source: str, target: str, *,
                 pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate, dict[str, DetectionResult]] | None:
@@ -307,7 +315,7 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
                 except MutlocError:
                     break
                 cur = res.pose
-            if res is not None and res.status == "solved":
+            if res is not None and res.status == "solved" and _anchored(res, dets):
                 results.append((res, dets))
         if results:
             break
