@@ -9,13 +9,19 @@ robot, the pose then rests on three observations (unverified) or none.
 The mutual geometry says where each ball must appear and how large (its
 radius over its distance): from a pose -- the first solve, each candidate
 of an unverified one, or, when the first solve fails its consistency test,
-the candidates with one observation left out -- every partly hidden or
-missing ball is measured again with its size fixed to the prediction
-(:func:`mutloc.detect.balls.refit.refit_ball`), and the pose solved again
-(twice).  The result is kept only if it is *verified*: it passes its
-consistency test and has more observations (or, as many, a smaller
-residual) than the first look.  The rim measurement's own size bias is
-taken from the whole balls of the same image.
+the candidates with one observation left out -- every missing ball, and
+every partly hidden one whose first-look size is off the predicted one, is
+measured again with its size fixed to the prediction
+(:func:`mutloc.detect.balls.refit.refit_ball`; the rim measurement's own
+size bias is taken from the whole balls), and the pose solved again
+(twice).  Frames the first look leaves unsolved also start from the partly
+hidden balls sized as their robot's whole ones, and from the balls looked
+for again at the distance either camera's balls give.
+
+A result is kept only if it is *verified* (passes its consistency test),
+rests on first-look pixels for at least half of its observations, has at
+least as many observations as a verified first look, and no other verified
+result disagrees with it.
 
 Only frames with a ball partly hidden (visible fraction below
 :data:`PARTLY_HIDDEN`) or missing pay for it.
@@ -47,7 +53,7 @@ MIN_REFIT_FRACTION = 0.3
 _SIZE_TOL = 0.05
 #: Solves after the first: refit from the pose, solve, refit from the new pose, solve.
 _ROUNDS = 2
-#: A ball looked for on its own must be within this factor of the robots' distance.
+#: Balls looked for again must be within this factor of the robots' distance.
 _RANGE = 1.25
 #: A ball measured again further than this (pixels) from its first look was another blob.
 _MOVED_PX = 2.0
@@ -270,8 +276,8 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
 
     ``est`` is the first look's estimate (None when it raised ``error``);
     ``images`` the BGR images per observer, ``options`` as :func:`mutloc.localize`.
-    Returns a result only when it passes its consistency test and beats the
-    first look (more observations, or as many with a smaller residual).
+    Returns a result only as the module says (verified, anchored on first-look
+    pixels, not fewer observations than a verified first look, unambiguous).
     """
     if not needs_second_look(rig, detections, source, target):
         return None

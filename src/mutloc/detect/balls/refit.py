@@ -185,10 +185,6 @@ def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray,
                          ctx.rim_gains)
         tol = max(1.0, 0.1 * r) if it == 0 else max(0.75, 0.05 * r)
         near = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol)
-        if it == 0:
-            inside = rim.valid & (np.where(rim.valid, rim.radius, 1e9) < rexp - tol)
-            cut = float(inside.sum()) / n_rays
-            lost = 1.0 - float(rim.valid.sum()) / n_rays
         rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
         fit = _fit(ctx, rim, near & rim.valid, d, cos_a)
         if fit is None:
@@ -207,7 +203,5 @@ def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray,
     if float(np.hypot(*(cand.uv - uv0))) > limit:
         return None
     cand.info["refit"] = True
-    cand.info["cut"] = cut
-    cand.info["lost"] = lost
     return Detection(marker=name, uv=cand.uv, score=cand.score, info=cand.info, visible_fraction=vis,
                      residual_px=float(cand.info["rms_px"]))
