@@ -203,16 +203,18 @@ def test_partly_hidden_balls_pose_accuracy(occluded_runs):
     err = np.array([(et, er) for et, er, _, _ in occluded_runs])
     truly = [v for *_, hidden in occluded_runs for v in hidden.values()]
     assert min(truly) < 0.72 and max(truly) > 0.3  # the scenes do hide 30-70 %
-    # Issue 12 asks for a median of 0.1 cm and a 90th percentile of 0.5 cm;
-    # measured here (see README): median 0.19 cm / 0.03 deg, 3 of 12 scenes
-    # without a pose (a hidden ball reported missing leaves too few).  With
-    # two balls a robot, the depth rests on each ball's pixel: 0.1 px at 3 m
-    # is ~0.4 cm.  These bounds guard what is reached, not the issue's goal.
-    finite = err[np.isfinite(err[:, 0])]
-    assert len(finite) >= 9, err
-    assert np.median(err[:, 0]) <= 0.0025, err
+    # Issue 12's targets, a scene without a pose counting as an infinite
+    # error: median 0.1 cm and 0.05 deg, 90th percentile 0.5 cm.  Measured
+    # (see README): median 0.017 cm, 90th percentile 0.20 cm, one scene of
+    # twelve without a pose (both partly hidden balls lost among look-alikes).
+    assert np.median(err[:, 0]) <= 0.001, err
     assert np.median(err[:, 1]) <= 0.05, err
-    assert np.percentile(finite[:, 0], 75) <= 0.005, err
+    assert np.quantile(err[:, 0], 0.9, method="higher") <= 0.005, err
+    # Partly hidden balls measured again with the size the pose predicts
+    # (mutloc.track.second_look) are marked, and some scenes need them.
+    refits = sum(bool(d.info.get("refit")) for _, _, dets, _ in occluded_runs if dets is not None
+                 for res in dets.values() for d in res.detections.values())
+    assert refits >= 4
 
 
 @pytest.mark.slow
@@ -226,8 +228,9 @@ def test_visible_fraction_follows_the_truth(occluded_runs):
             if det is not None:
                 gaps.append(det.visible_fraction - vis)
     gaps = np.array(gaps)
-    # Measured: 15 of the 24 partly hidden balls found (the rest missing).
-    assert len(gaps) >= 14
+    # Measured: 22 of the 24 partly hidden balls found (15 by the first look
+    # alone; the second look measures the others where the pose puts them).
+    assert len(gaps) >= 20
     assert np.median(np.abs(gaps)) < 0.12, gaps
 
 

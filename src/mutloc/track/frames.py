@@ -10,12 +10,13 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from ..api import Estimate, load_rig, localize
+from ..api import Estimate, load_rig
 from ..core.observations import ObservationSet
 from ..core.rig import DETECTED_KINDS, Marker, MarkerKind, Rig
 from ..detect import image_detector
 from ..detect.base import Detection, DetectionResult, as_bgr
 from ..errors import FileFormatError, InputError, ObservationError
+from .second_look import first_solve, second_look
 
 __all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images", "observations_of"]
 
@@ -133,10 +134,19 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
     localize ``source`` in ``target``'s frame (``options`` as :func:`mutloc.localize`)."""
     rig, source, target = prepare_pair(rig, images, source, target, "image")
     detections: dict[str, DetectionResult] = {}
+    loaded: dict[str, np.ndarray] = {}
     for observer, other in ((source, target), (target, source)):
         img = images[observer]
         if isinstance(img, (str, Path)):
             img = read_image(img)
+        loaded[observer] = img
         detections[observer] = detect_markers(rig, observer, img, targets=[other])
-    est = localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options)
+    est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
+    # Partly hidden balls are measured again where the pose puts them (only
+    # when a ball is partly hidden or missing; see .second_look).
+    better = second_look(rig, loaded, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
+    if better is not None:
+        est, detections = better
+    if est is None:
+        raise error  # type: ignore[misc]
     return FrameResult(est, detections)

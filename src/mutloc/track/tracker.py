@@ -27,6 +27,7 @@ from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
 from .filtering import FilterOptions, PairTracker
 from .frames import detect_markers, expanded_rig, observations_of, prepare_pair
+from .second_look import look_again
 from .sources import Frame
 from .status import FrameStatus
 
@@ -275,10 +276,15 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                     check_streams(rig, source, target, fs.image, ft.image)
                     checked = True
                 row.detections = {source: dets[source].detect(fs), target: dets[target].detect(ft)}
+                # Partly hidden balls measured again where a verified pose puts them (see .second_look).
+                row.detections, notes = look_again(rig, {source: fs.image, target: ft.image}, row.detections,
+                                                   source, target, pixel_sigma=pixel_sigma, confidence=confidence)
                 row.observations = observations_of(row.detections, row.t)
                 if log is not None:
                     log.write(row.t, row.observations)
                 tracker.step(row)
+                if notes:
+                    row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
             rows.append(row)
             if viz is not None:
                 images = {r: (f.image, row.detections[r].detections) for r, f in ((source, fs), (target, ft))

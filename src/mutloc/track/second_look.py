@@ -1,0 +1,383 @@
+"""A second look at partly hidden balls, where and as large as the pose says they appear.
+
+The first look measures every ball on its own, its size free.  A partly
+hidden ball then shows a short arc whose centre slides with the size, is
+taken for the wrong blob, or is turned down by the rig check because the
+size (hence the distance) read off the short arc is wrong; with two balls a
+robot, the pose then rests on three observations (unverified) or none.
+
+The mutual geometry says where each ball must appear and how large (its
+radius over its distance): from a pose -- the first solve, each candidate
+of an unverified one, or, when the first solve fails its consistency test,
+the candidates with one observation left out -- every missing ball, and
+every partly hidden one whose first-look size is off the predicted one, is
+measured again with its size fixed to the prediction
+(:func:`mutloc.detect.balls.refit.refit_ball`; the rim measurement's own
+size bias is taken from the whole balls), and the pose solved again
+(twice).  Frames the first look leaves unsolved also start from the partly
+hidden balls sized as their robot's whole ones, and from the balls looked
+for again at the distance either camera's balls give.
+
+A result is kept only if it is *verified* (passes its consistency test),
+rests on first-look pixels for at least half of its observations, has at
+least as many observations as a verified first look, and no other verified
+result disagrees with it.
+
+Only frames with a ball partly hidden (visible fraction below
+:data:`PARTLY_HIDDEN`) or missing pay for it.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+
+from ..api import Estimate, localize
+from ..core.pose import Pose
+from ..core.rig import MarkerKind, Rig
+from ..detect.base import DetectionResult
+from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
+
+__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "first_solve", "look_again", "needs_second_look",
+           "second_look"]
+
+#: A ball whose first look saw less of its rim than this is measured again.
+PARTLY_HIDDEN = 0.9
+#: Less of a rim than this (about 110 degrees) leaves a ball's centre along
+#: its arc resting on the predicted size alone: the ball stays missing.
+MIN_REFIT_FRACTION = 0.3
+#: A partly hidden ball whose first-look size is within this (pixels) of the
+#: predicted one (after the rim's own bias) keeps its first-look centre.
+_SIZE_TOL = 0.05
+#: Solves after the first: refit from the pose, solve, refit from the new pose, solve.
+_ROUNDS = 2
+#: Balls looked for again must be within this factor of the robots' distance.
+_RANGE = 1.25
+#: A ball measured again further than this (pixels) from its first look was another blob.
+_MOVED_PX = 2.0
+#: Verified poses closer than this are the same answer.
+_SAME_M, _SAME_DEG = 0.01, 1.0
+
+
+def _balls(rig: Rig, robot: str) -> dict[str, Any]:
+    return {n: m for n, m in rig.robot(robot).markers.items() if m.kind == MarkerKind.BALL and m.color is not None}
+
+
+def ball_centres(rig: Rig, pose: Pose, source: str, target: str) -> dict[str, dict[str, np.ndarray]]:
+    """``{observer: {ball: centre in the observer's camera frame}}`` for the balls of the pair under ``pose`` (T_qp)."""
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for observer, other, T in ((target, source, pose), (source, target, pose.inverse())):
+        out[observer] = {n: T.apply(m.position) for n, m in _balls(rig, other).items()}
+    return out
+
+
+def _hidden(det: DetectionResult, name: str) -> bool:
+    d = det.detections.get(name)
+    return d is None or (d.visible_fraction is not None and d.visible_fraction < PARTLY_HIDDEN)
+
+
+def needs_second_look(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str) -> bool:
+    """True when a ball of the pair is missing or partly hidden in the other robot's image."""
+    return any(_hidden(detections[obs], n) for obs, other in ((source, target), (target, source))
+               for n in _balls(rig, other))
+
+
+def _copy(det: DetectionResult) -> DetectionResult:
+    return DetectionResult(dict(det.detections), list(det.missing), dict(det.missing_reasons),
+                           {n: list(a) for n, a in det.alternatives.items()})
+
+
+def _size_errors(contexts: Mapping[str, Any], rig: Rig, detections: Mapping[str, DetectionResult],
+                 centres: Mapping[str, Mapping[str, np.ndarray]], others: Mapping[str, str]
+                 ) -> dict[tuple[str, str], float]:
+    """``{(observer, ball): first-look radius - predicted radius}`` (pixels) of every ball found."""
+    from ..detect.balls.refit import apparent_radius_px
+
+    out = {}
+    for obs, det in detections.items():
+        balls = _balls(rig, others[obs])
+        for name, X in centres[obs].items():
+            d = det.detections.get(name)
+            if d is not None and "radius_px" in d.info:
+                r = apparent_radius_px(contexts[obs], name, balls[name], X)
+                if r is not None:
+                    out[(obs, name)] = float(d.info["radius_px"]) - r
+    return out
+
+
+def _rim_offset(obs: str, errors: Mapping[tuple[str, str], float], detections: Mapping[str, DetectionResult]
+                ) -> float:
+    """The rim measurement's size bias in ``obs``'s image: the median size error of its whole balls, else of
+    the whole balls of both images, else of every ball found (a hard light leaves no ball whole), else 0."""
+    whole = {k: e for k, e in errors.items() if not _hidden(detections[k[0]], k[1])}
+    for pick in ([e for k, e in whole.items() if k[0] == obs], list(whole.values()), list(errors.values())):
+        if pick:
+            return float(np.median(pick))
+    return 0.0
+
+
+def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult], pose: Pose,
+               source: str, target: str, left_out: tuple[str, str] | None
+               ) -> tuple[dict[str, DetectionResult], bool]:
+    """The detections with every missing (or ``left_out``) ball measured again under ``pose``, and every
+    partly hidden one whose first-look size is off the predicted one (its centre slid along its arc);
+    and whether any ball was measured again or dropped."""
+    from ..detect.balls.refit import refit_ball
+
+    centres = ball_centres(rig, pose, source, target)
+    others = {source: target, target: source}
+    errors = _size_errors(contexts, rig, detections, centres, others)
+    out = {}
+    touched = False
+    for obs, det in detections.items():
+        new = _copy(det)
+        balls = _balls(rig, others[obs])
+        off = _rim_offset(obs, errors, detections)
+        for name, X in centres[obs].items():
+            err = errors.get((obs, name))
+            if left_out != (obs, name) and name in det.detections and not (
+                    _hidden(det, name) and (err is None or abs(err - off) > _SIZE_TOL)):
+                continue
+            found = refit_ball(contexts[obs], name, balls[name], X, radius_offset_px=off)
+            new.alternatives.pop(name, None)
+            if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
+                new.detections[name] = found
+                touched = True
+                new.missing = [m for m in new.missing if m != name]
+                new.missing_reasons.pop(name, None)
+            elif name in new.detections:
+                # Not where the pose puts it: the first look's blob is not this ball.
+                del new.detections[name]
+                touched = True
+                new.missing.append(name)
+                new.missing_reasons[name] = "rejected: no ball of its size where the other balls put it"
+        out[obs] = new
+    return out, touched
+
+
+def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, DetectionResult],
+                source: str, target: str) -> dict[str, DetectionResult]:
+    """The detections with every partly hidden ball measured again with the size of its robot's whole balls
+    in the same image (before any pose: balls of one robot are at about the same distance)."""
+    from ..detect.balls.refit import refit_ball
+
+    out = {}
+    for obs, det in detections.items():
+        balls = _balls(rig, target if obs == source else source)
+        new = _copy(det)
+        whole = [float(d.info["distance_m"]) for n, d in det.detections.items()
+                 if n in balls and not _hidden(det, n) and "distance_m" in d.info]
+        if whole:
+            dist = float(np.median(whole))
+            for name, d in det.detections.items():
+                if name in balls and _hidden(det, name):
+                    bearing = contexts[obs].cam.camera.pixels_to_bearings(d.uv)
+                    found = refit_ball(contexts[obs], name, balls[name], bearing * dist)
+                    if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
+                        new.detections[name] = found
+                        new.alternatives.pop(name, None)
+        out[obs] = new
+    return out
+
+
+def _distances(detections: Mapping[str, DetectionResult]) -> list[float]:
+    """The robots' distance as each camera's balls give it (its whole balls, if any), near ones merged."""
+    out: list[float] = []
+    for det in detections.values():
+        seen = [(float(d.info["distance_m"]), not _hidden(det, n)) for n, d in det.detections.items()
+                if "distance_m" in d.info]
+        dists = [x for x, whole in seen if whole] or [x for x, _ in seen]
+        if dists:
+            D = float(np.median(dists))
+            if all(abs(D / o - 1.0) > 0.1 for o in out):
+                out.append(D)
+    return out
+
+
+def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[str, DetectionResult],
+              distance: float, source: str, target: str) -> dict[str, DetectionResult]:
+    """The balls looked for again with the size a robots' ``distance`` gives them.
+
+    For frames the first look leaves unsolved: a ball of the other robot is
+    seen at about the robots' distance from both sides, which rules out
+    look-alikes of another size (the first look's choice of a poster's
+    discs, or a whole ball the rig check turned down because its partly
+    hidden mate's size misled it).  Balls the rig check still turns down
+    are looked for on their own; the pose's consistency test judges what
+    this finds.
+    """
+    from ..detect.balls import BallParams, detect_balls
+
+    params = BallParams(distance_range_m=(distance / _RANGE, distance * _RANGE))
+    out = {}
+    for obs in detections:
+        balls = _balls(rig, target if obs == source else source)
+        cam = rig.robot(obs).camera
+        new = detect_balls(images[obs], balls, camera=cam, params=params)
+        for name in list(new.missing):
+            found = detect_balls(images[obs], {name: balls[name]}, camera=cam, params=params)
+            if name in found.detections:
+                new.detections[name] = found.detections[name]
+                new.missing.remove(name)
+                new.missing_reasons.pop(name, None)
+        # Other kinds of marker keep what the first look found.
+        kept = _copy(detections[obs])
+        for name in balls:
+            kept.detections.pop(name, None)
+            kept.alternatives.pop(name, None)
+        kept.missing = [m for m in kept.missing if m not in balls]
+        kept.missing_reasons = {m: r for m, r in kept.missing_reasons.items() if m not in balls}
+        kept.merge(new)
+        out[obs] = kept
+    return out
+
+
+def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None, error: Exception | None,
+                solve: Any) -> list[tuple[Pose, tuple[str, str] | None]]:
+    """Poses to predict the balls from, each with the observation it leaves out (if any)."""
+    from .frames import observations_of
+
+    if est is None and isinstance(error, UnverifiedError):
+        est = error.estimate  # type: ignore[assignment]
+    if est is not None:
+        if est.status == "solved":
+            return [(est.pose, None)]
+        return [(p, None) for p in est.candidates]
+    if not isinstance(error, InconsistentObservationsError):
+        return []
+    out: list[tuple[Pose, tuple[str, str] | None]] = []
+    for obs, det in detections.items():
+        for name in det.detections:
+            dets = {o: _copy(d) for o, d in detections.items()}
+            del dets[obs].detections[name]
+            dets[obs].alternatives.pop(name, None)
+            try:
+                sub = solve(observations_of(dets))
+            except MutlocError:
+                continue
+            out += [(p, (obs, name)) for p in sub.candidates]
+    return out
+
+
+def _anchored(est: Estimate, detections: Mapping[str, DetectionResult]) -> bool:
+    """At least half of the pose's observations are first-look pixels: a ball measured again sits where
+    the pose puts it, so a pose resting mostly on such balls would confirm itself."""
+    refits = sum(bool(d.info.get("refit")) for det in detections.values() for n, d in det.detections.items()
+                 if n in est.markers_used)
+    return 2 * refits <= len(est.markers_used)
+
+
+def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
+                est: Estimate | None, error: Exception | None, source: str, target: str, *,
+                pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate, dict[str, DetectionResult]] | None:
+    """A verified pose (and its detections) from the balls measured again, or None.
+
+    ``est`` is the first look's estimate (None when it raised ``error``);
+    ``images`` the BGR images per observer, ``options`` as :func:`mutloc.localize`.
+    Returns a result only as the module says (verified, anchored on first-look
+    pixels, not fewer observations than a verified first look, unambiguous).
+    """
+    if not needs_second_look(rig, detections, source, target):
+        return None
+    from ..detect.balls.refit import RefitContext
+    from .frames import observations_of
+
+    opts = dict(options, allow_unverified=True)
+
+    def solve(obs: Any) -> Estimate:
+        return localize(rig, obs, source, target, pixel_sigma=pixel_sigma, **opts)
+
+    contexts = {obs: RefitContext.of(images[obs], rig.robot(obs).camera) for obs in detections}
+
+    def bases() -> Iterator[tuple[dict[str, DetectionResult], Estimate | None, Exception | None]]:
+        """What to start from, cheapest first: the first look; unless it is solved, the same with its
+        partly hidden balls sized as their robot's whole ones; the balls looked for again at each
+        distance the cameras give the robots (and those sized likewise)."""
+        yield detections, est, error
+        if est is not None and est.status == "solved":
+            return
+        redone = (_redetect(rig, images, detections, D, source, target) for D in _distances(detections))
+        for dets in itertools.chain([_mate_sized(rig, contexts, detections, source, target)],
+                                    *(([r, _mate_sized(rig, contexts, r, source, target)] for r in redone))):
+            try:
+                yield dets, solve(observations_of(dets)), None
+            except MutlocError as exc:
+                yield dets, None, exc
+
+    results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
+    for base, first, err in bases():
+        # A base looked for again that verifies on its own is an answer even if nothing needs a refit.
+        own = first if base is not detections and first is not None and first.status == "solved" else None
+        for pose, left_out in _hypotheses(base, first, err, solve):
+            cur, dets, res = pose, base, (own if left_out is None else None)
+            for _ in range(_ROUNDS):
+                again, touched = _refit_all(rig, contexts, base, cur, source, target, left_out)
+                if not touched:
+                    break  # nothing measured again: the solve would repeat the last one
+                try:
+                    res, dets = solve(observations_of(again)), again
+                except MutlocError:
+                    break
+                cur = res.pose
+            if res is not None and res.status == "solved" and _anchored(res, dets):
+                results.append((res, dets))
+        if results:
+            break
+    if not results:
+        return None
+    most = max(len(r.markers_used) for r, _ in results)
+    top = sorted((r for r in results if len(r[0].markers_used) == most), key=lambda r: r[0].reprojection_rms_px)
+    res, dets = top[0]
+    # Two verified poses that disagree (a look-alike where a wrong candidate
+    # put a ball): nothing tells which is right, so neither is taken.
+    if any(o.pose.translation_error(res.pose) > _SAME_M or o.pose.rotation_error_deg(res.pose) > _SAME_DEG
+           for o, _ in top[1:]):
+        return None
+    if est is not None and est.status == "solved" and most < len(est.markers_used):
+        return None
+    notes = _changes(detections, dets)
+    if notes:
+        res.extra["second_look"] = notes
+    return res, dets
+
+
+def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, DetectionResult]) -> list[str]:
+    """What the second look threw out of the first look: pixels gone, or moved further than a re-measurement."""
+    notes = []
+    for obs, det in before.items():
+        for name, d in det.detections.items():
+            new = after[obs].detections.get(name)
+            if new is None:
+                notes.append(f"dropped {obs} saw {name} (no ball of its size where the pose puts it)")
+            elif float(np.hypot(*(new.uv - d.uv))) > _MOVED_PX:
+                notes.append(f"dropped {obs} saw {name} ({float(np.hypot(*(new.uv - d.uv))):.1f} px off; "
+                             "measured again where the pose puts it)")
+    return notes
+
+
+def first_solve(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str, *,
+                pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate | None, MutlocError | None]:
+    """The first look's pose, or why there is none: what :func:`second_look` starts from."""
+    from .frames import observations_of
+
+    try:
+        return localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options), None
+    except MutlocError as exc:
+        return None, exc
+
+
+def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
+               source: str, target: str, *, pixel_sigma: float = 1.0, **options: Any
+               ) -> tuple[dict[str, DetectionResult], list[str]]:
+    """``detections`` with the balls the second look measured again, where it verifies a pose (else
+    ``detections`` themselves), and notes on the first look's pixels it threw out -- for callers that
+    solve the frame their own way (the tracker's filter)."""
+    if not needs_second_look(rig, detections, source, target):
+        return detections, []
+    est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
+    out = second_look(rig, images, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
+    if out is None:
+        return detections, []
+    return out[1], list(out[0].extra.get("second_look", []))
