@@ -186,68 +186,146 @@ def coarse_blobs(mask: np.ndarray, sx: float, sy: float, min_r: float, max_r: fl
     Each external contour may hold several circles: a ball touching another
     blob of a similar hue (a printed disc behind it, a second ball) merges
     with it in the mask, so after the best circle of a contour the points it
-    does not explain are searched again.
+    does not explain are searched again (:func:`_contour_circles`).
     """
+    return [Blob(*row) for row in _coarse_rows(mask, sx, sy, min_r, max_r).tolist()]
+
+
+def _coarse_rows(mask: np.ndarray, sx: float, sy: float, min_r: float, max_r: float) -> np.ndarray:
+    """:func:`coarse_blobs` as rows ``(u, v, radius, quality, fill)`` (n, 5)."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     scale = 0.5 * (sx + sy)
     # A contour through pixel centres of a disc of radius r has ~0.87 * 2 pi r
     # points (8-connected); a partly hidden ball still shows over half of it.
     min_len = max(4, int(0.5 * 0.87 * 2 * math.pi * (0.7 * min_r / scale)))
-    out = []
-    for c in [c for c in contours if len(c) >= min_len]:
-        cpts = c.reshape(-1, 2).astype(np.float64)  # coarse pixel centres
-        area = cv2.contourArea(c) + 0.5 * len(c) + 1.0  # pixel count of the filled blob
+    keep = [c for c in contours if len(c) >= min_len]
+    rows = np.empty((3 * len(keep), 5))
+    if not keep:
+        return rows
+    lens = np.array([len(c) for c in keep], np.int64)
+    pts = np.concatenate(keep).reshape(-1, 2).astype(np.float64)  # coarse pixel centres
+    n = _contour_circles(pts, lens, mask, float(sx), float(sy), float(scale), float(min_r), float(max_r), min_len,
+                         _TRIPLETS, rows)
+    return rows[:n]
+
+
+@numba.njit(cache=True, fastmath=False)
+def _contour_circles(pts, lens, mask, sx, sy, scale, min_r, max_r, min_len, triplets, out):
+    """Up to three circles per contour (``pts`` holds the contours of lengths ``lens`` one after the other).
+
+    Writes rows ``(u, v, radius, quality, fill)`` in full-resolution pixels
+    into ``out``; returns how many.  One compiled pass: the per-contour
+    work is small, and in Python its overhead was most of the coarse search.
+    """
+    nb = 0
+    start = 0
+    for c in range(lens.shape[0]):
+        L = lens[c]
+        cp = pts[start : start + L]
+        start += L
+        # Pixel count of the filled blob: the outline's area (shoelace, as
+        # cv2.contourArea; exact for integer points) plus half its length.
+        a = 0.0
+        px = cp[L - 1, 0]
+        py = cp[L - 1, 1]
+        for i in range(L):
+            a += px * cp[i, 1] - py * cp[i, 0]
+            px = cp[i, 0]
+            py = cp[i, 1]
+        area = abs(a * 0.5) + 0.5 * L + 1.0
         r_eq = math.sqrt(area / math.pi) * scale
         if r_eq < 0.6 * min_r:
             continue
-        if len(cpts) < 6:
-            m = cpts.mean(axis=0)
-            out.append(Blob((m[0] + 0.5) * sx - 0.5, (m[1] + 0.5) * sy - 0.5, r_eq, 0.3, 1.0))
+        if L < 6:
+            mx = 0.0
+            my = 0.0
+            for i in range(L):
+                mx += cp[i, 0]
+                my += cp[i, 1]
+            out[nb, 0] = (mx / L + 0.5) * sx - 0.5
+            out[nb, 1] = (my / L + 0.5) * sy - 0.5
+            out[nb, 2] = r_eq
+            out[nb, 3] = 0.3
+            out[nb, 4] = 1.0
+            nb += 1
             continue
         # No circle is much bigger than the contour holding it.
-        span = 0.5 * float(np.hypot(*(cpts.max(axis=0) - cpts.min(axis=0))))
-        rmin_c, rmax_c = 0.5 * min_r / scale, min(1.2 * span + 1.0, 1.5 * max_r / scale)
-        rest = cpts
+        x0 = x1 = cp[0, 0]
+        y0 = y1 = cp[0, 1]
+        for i in range(1, L):
+            x0 = min(x0, cp[i, 0])
+            x1 = max(x1, cp[i, 0])
+            y0 = min(y0, cp[i, 1])
+            y1 = max(y1, cp[i, 1])
+        span = 0.5 * math.hypot(x1 - x0, y1 - y0)
+        rmin_c = 0.5 * min_r / scale
+        rmax_c = min(1.2 * span + 1.0, 1.5 * max_r / scale)
+        rest = cp.copy()
         for _ in range(3):
-            fit = ransac_circle(rest, max(1.0, 0.08 * r_eq / scale), rmin_c, rmax_c)
-            if fit is None:
+            ok, cu, cv_, r, frac = _ransac_circle_kernel(rest, max(1.0, 0.08 * r_eq / scale), triplets, rmin_c, rmax_c)
+            if not ok:
                 break
-            cu, cv_, r, frac = fit
             # Support: how much of the circle's own circumference the contour
             # covers (a clean disc ~1, a rectangle's inscribed circle little).
-            support = min(1.0, frac * len(rest) / (0.87 * 2 * math.pi * max(r, 0.5)))
+            support = min(1.0, frac * rest.shape[0] / (0.87 * 2 * math.pi * max(r, 0.5)))
             if support >= 0.25:
-                fill = fill_fraction(mask, cu, cv_, r + 0.5)
+                fill = _fill_kernel(mask, cu, cv_, r + 0.5)
                 # The contour runs through the outermost pixel centres: half
                 # a (coarse) pixel inside the true rim.
                 R = (r + 0.5) * scale
                 if 0.6 * min_r <= R <= 1.5 * max_r:
                     # Quality: support times how well the blob fills its
                     # circle (a ring or a crescent does not).
-                    out.append(Blob((cu + 0.5) * sx - 0.5, (cv_ + 0.5) * sy - 0.5, R, support * fill, fill))
+                    out[nb, 0] = (cu + 0.5) * sx - 0.5
+                    out[nb, 1] = (cv_ + 0.5) * sy - 0.5
+                    out[nb, 2] = R
+                    out[nb, 3] = support * fill
+                    out[nb, 4] = fill
+                    nb += 1
             # Whatever this circle explains is set aside; the rest may hold
             # another one.
-            far = np.abs(np.hypot(rest[:, 0] - cu, rest[:, 1] - cv_) - r) > 2.0 * max(1.0, 0.08 * r)
-            rest = rest[far]
-            if len(rest) < max(12, min_len):
+            band = 2.0 * max(1.0, 0.08 * r)
+            k = 0
+            for i in range(rest.shape[0]):
+                if abs(math.hypot(rest[i, 0] - cu, rest[i, 1] - cv_) - r) > band:
+                    rest[k, 0] = rest[i, 0]
+                    rest[k, 1] = rest[i, 1]
+                    k += 1
+            rest = rest[:k]
+            if k < max(12, min_len):
                 break
-    return out
+    return nb
 
 
-def _blob_chroma(coarse: np.ndarray, blob: Blob, sx: float, sy: float) -> float:
-    """Chroma of a blob: the best of its centre and four points halfway to its rim.
+def _blob_chroma(coarse: np.ndarray, rows: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """Chroma of each blob (rows of :func:`_coarse_rows`): the best of its centre and four points halfway to its rim.
 
     Several points, because an occluder may cover the centre.
     """
-    h, w = coarse.shape[:2]
-    cu, cv_, r = (blob.u + 0.5) / sx - 0.5, (blob.v + 0.5) / sy - 0.5, 0.5 * blob.radius / sx
-    best = 0.0
-    for du, dv in ((0.0, 0.0), (r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):
-        i, j = int(round(cv_ + dv)), int(round(cu + du))
-        if 0 <= i < h and 0 <= j < w:
-            px = coarse[i, j]
-            best = max(best, float(max(px)) - float(min(px)))
-    return best
+    out = np.zeros(len(rows))
+    _chroma_kernel(coarse, np.ascontiguousarray(rows), float(sx), float(sy), out)
+    return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def _chroma_kernel(coarse, rows, sx, sy, out) -> None:
+    h = coarse.shape[0]
+    w = coarse.shape[1]
+    for b in range(rows.shape[0]):
+        cu = (rows[b, 0] + 0.5) / sx - 0.5
+        cv_ = (rows[b, 1] + 0.5) / sy - 0.5
+        r = 0.5 * rows[b, 2] / sx
+        best = 0.0
+        for k in range(5):
+            du = r if k == 1 else (-r if k == 2 else 0.0)
+            dv = r if k == 3 else (-r if k == 4 else 0.0)
+            i = round(cv_ + dv)
+            j = round(cu + du)
+            if 0 <= i < h and 0 <= j < w:
+                hi = max(coarse[i, j, 0], coarse[i, j, 1], coarse[i, j, 2])
+                lo = min(coarse[i, j, 0], coarse[i, j, 1], coarse[i, j, 2])
+                best = max(best, float(hi) - float(lo))
+        out[b] = best
 
 
 #: Blobs of at least this quality look like whole discs; the others (down
@@ -274,12 +352,11 @@ def find_blobs(
     sy = H / coarse.shape[0]
     out = []
     for mask in hue_masks(hsv, searches, params.hue_tol_deg, v_floor):
-        blobs = []
-        for b in coarse_blobs(mask, sx, sy, params.min_radius_px, max_r):
-            # A ball split by a pole leaves half-discs: support ~0.5 of
-            # their circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
-            if b.quality >= 0.15:
-                blobs.append(Blob(b.u, b.v, b.radius, b.quality, b.fill, _blob_chroma(coarse, b, sx, sy)))
+        rows = _coarse_rows(mask, sx, sy, params.min_radius_px, max_r)
+        # A ball split by a pole leaves half-discs: support ~0.5 of their
+        # circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
+        rows = rows[rows[:, 3] >= 0.15]
+        blobs = [Blob(*row, chroma) for row, chroma in zip(rows.tolist(), _blob_chroma(coarse, rows, sx, sy).tolist())]
         blobs.sort(key=lambda b: -b.quality * evidence(2.0 * math.pi * b.radius) * vivid(b.chroma))
         out.append(blobs)
     return out
