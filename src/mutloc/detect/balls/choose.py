@@ -20,6 +20,7 @@ import numpy as np
 
 from .cues import evidence, hue_chroma, shading_contrast, vivid
 from .fit import CameraModel, Fit
+from .numeric import column_medians
 from .params import BallParams
 from .rim import Rim
 from .search import BallSearch
@@ -79,7 +80,8 @@ def score_candidate(
     rim_frac = float(inl.sum()) / n_rays
     inner = rim.inner[inl]
     # Hue of the ball as seen (inner colours of the inlier rays), vs nominal.
-    ball = np.median(inner, axis=0)
+    ball = np.empty(3)
+    column_medians(inner, ball)
     if gains is not None:
         # As under white light (gains in the rim values, see .light).
         ball = ball * gains

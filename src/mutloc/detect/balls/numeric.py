@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["circle3", "kasa_circle", "median_inplace", "solve3"]
+__all__ = ["circle3", "column_medians", "kasa_circle", "median_inplace", "solve3"]
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -96,6 +96,20 @@ def median_inplace(a, k) -> float:
     if k % 2 == 1:
         return a[k // 2]
     return 0.5 * (a[k // 2 - 1] + a[k // 2])
+
+
+@numba.njit(cache=True, fastmath=False)
+def column_medians(a, out) -> None:
+    """Median of each column of ``a`` (n, m) into ``out`` (m,), as ``np.median(a, axis=0)``; NaN when n is 0."""
+    n = a.shape[0]
+    buf = np.empty(n)
+    for c in range(a.shape[1]):
+        if n == 0:
+            out[c] = np.nan
+            continue
+        for i in range(n):
+            buf[i] = a[i, c]
+        out[c] = median_inplace(buf, n)
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")

@@ -147,11 +147,23 @@ def value_floor(img: np.ndarray) -> int:
     percentile of V, kept within [12, 40].  Every 4th row and column is
     plenty for a percentile.
     """
-    sub = cv2.cvtColor(np.ascontiguousarray(img[::4, ::4]), cv2.COLOR_BGR2HSV_FULL)
-    hist = np.bincount(cv2.extractChannel(sub, 2).ravel(), minlength=256)
-    cum = np.cumsum(hist)
-    p99 = int(np.searchsorted(cum, 0.99 * cum[-1]))
-    return int(np.clip(0.12 * p99, 12, 40))
+    return int(np.clip(0.12 * _value_p99(img, 4), 12, 40))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _value_p99(img, step):
+    """99th percentile of HSV's V (the largest of B, G, R) over every ``step``-th row and column."""
+    hist = np.zeros(256, np.int64)
+    for y in range(0, img.shape[0], step):
+        for x in range(0, img.shape[1], step):
+            hist[max(img[y, x, 0], img[y, x, 1], img[y, x, 2])] += 1
+    target = 0.99 * hist.sum()
+    acc = 0
+    for v in range(256):
+        acc += hist[v]
+        if acc >= target:
+            return v
+    return 256
 
 
 def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_floor: int) -> list[np.ndarray]:
