@@ -175,9 +175,7 @@ def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_flo
     The hue test is a lookup table on the hue channel, which handles red's
     wrap-around for free and serves eight markers per pass, one bit each.
     """
-    hue = cv2.extractChannel(hsv, 0)
     s_floor = min(int(np.clip(0.4 * 255 * s.saturation, 40, 110)) for s in searches)
-    sv = cv2.inRange(hsv, (0, s_floor, v_floor), (255, 255, 255))
     # Degrees of each 8-bit HSV_FULL hue bin; half a bin (0.7 deg) of slack.
     deg = np.arange(256) * (360.0 / 256.0)
     masks: list[np.ndarray] = []
@@ -187,9 +185,19 @@ def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_flo
         for bit, s in enumerate(chunk):
             dh = np.abs((deg - s.hue_deg + 180.0) % 360.0 - 180.0)
             table[dh <= tol_deg + 0.71] |= np.uint8(1 << bit)
-        label = cv2.bitwise_and(cv2.LUT(hue, table), sv)
+        label = np.empty(hsv.shape[:2], np.uint8)
+        _label_kernel(hsv, table, s_floor, int(v_floor), label)
         masks.extend(np.bitwise_and(label, np.uint8(1 << bit)) for bit in range(len(chunk)))
     return masks
+
+
+@numba.njit(cache=True, fastmath=False)
+def _label_kernel(hsv, table, s_floor, v_floor, out) -> None:
+    """``table[hue]`` where saturation and value reach their floors, else 0 (one pass over the HSV image)."""
+    for y in range(out.shape[0]):
+        for x in range(out.shape[1]):
+            ok = (hsv[y, x, 1] >= s_floor) & (hsv[y, x, 2] >= v_floor)
+            out[y, x] = table[hsv[y, x, 0]] * ok
 
 
 def coarse_blobs(mask: np.ndarray, sx: float, sy: float, min_r: float, max_r: float) -> list[Blob]:
@@ -296,10 +304,12 @@ def _contour_circles(pts, lens, mask, sx, sy, scale, min_r, max_r, min_len, trip
                     nb += 1
             # Whatever this circle explains is set aside; the rest may hold
             # another one.
-            band = 2.0 * max(1.0, 0.08 * r)
+            lo2, hi2 = _ring(r, 2.0 * max(1.0, 0.08 * r))
             k = 0
             for i in range(rest.shape[0]):
-                if abs(math.hypot(rest[i, 0] - cu, rest[i, 1] - cv_) - r) > band:
+                dx = rest[i, 0] - cu
+                dy = rest[i, 1] - cv_
+                if not (lo2 <= dx * dx + dy * dy <= hi2):
                     rest[k, 0] = rest[i, 0]
                     rest[k, 1] = rest[i, 1]
                     k += 1
@@ -432,10 +442,7 @@ def _ransac_circle_kernel(pts, tol, triplets, rmin, rmax):
         # Nearly collinear points give huge circles that hug straight edges.
         if r < rmin or r > rmax:
             continue
-        cnt = 0
-        for i in range(n):
-            if abs(math.hypot(pts[i, 0] - ux, pts[i, 1] - uy) - r) <= tol:
-                cnt += 1
+        cnt = _count_on(pts, ux, uy, r, tol)
         if cnt > best:
             best = cnt
             bu, bv, br = ux, uy, r
@@ -448,14 +455,33 @@ def _ransac_circle_kernel(pts, tol, triplets, rmin, rmax):
     k = 0
     for _ in range(2):
         k = 0
+        lo2, hi2 = _ring(out[2], tol)
         for i in range(n):
-            mask[i] = abs(math.hypot(pts[i, 0] - out[0], pts[i, 1] - out[1]) - out[2]) <= tol
+            dx = pts[i, 0] - out[0]
+            dy = pts[i, 1] - out[1]
+            mask[i] = lo2 <= dx * dx + dy * dy <= hi2
             if mask[i]:
                 k += 1
         if k < 5 or not kasa_circle(pts, mask, out):
             return False, 0.0, 0.0, 0.0, 0.0
+    return True, out[0], out[1], out[2], _count_on(pts, out[0], out[1], out[2], tol) / n
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _ring(r, tol):
+    """Squared distances bounding the ring ``|d - r| <= tol``: a point is tested without a square root."""
+    lo = r - tol
+    return (lo * lo if lo > 0.0 else -1.0), (r + tol) * (r + tol)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _count_on(pts, ux, uy, r, tol):
+    """How many of ``pts`` lie within ``tol`` of the circle ``(ux, uy, r)``."""
+    lo2, hi2 = _ring(r, tol)
     k = 0
-    for i in range(n):
-        if abs(math.hypot(pts[i, 0] - out[0], pts[i, 1] - out[1]) - out[2]) <= tol:
+    for i in range(pts.shape[0]):
+        dx = pts[i, 0] - ux
+        dy = pts[i, 1] - uy
+        if lo2 <= dx * dx + dy * dy <= hi2:
             k += 1
-    return True, out[0], out[1], out[2], k / n
+    return k
