@@ -40,7 +40,16 @@ class Rim:
     @property
     def pts(self) -> np.ndarray:
         """Edge pixels (n, 2); NaN where not valid."""
-        return np.column_stack([self.cx + np.cos(self.ang) * self.radius, self.cy + np.sin(self.ang) * self.radius])
+        out = np.empty((len(self.ang), 2))
+        _rim_points(float(self.cx), float(self.cy), self.ang, self.radius, out)
+        return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def _rim_points(cx, cy, ang, radius, out) -> None:
+    for i in range(ang.shape[0]):
+        out[i, 0] = cx + math.cos(ang[i]) * radius[i]
+        out[i, 1] = cy + math.sin(ang[i]) * radius[i]
 
 
 def window(rexp: np.ndarray) -> float:
