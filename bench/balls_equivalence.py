@@ -8,10 +8,11 @@ demo frames, and the scenes of bench/balls_real.py (every condition, ``--n``
 per condition, both robots' images; each image searched for the other
 robot's balls and for the observer's own, which must not be found on
 posters).  Each image runs through both detectors with the camera, without
-it, for linear images and at full-resolution search.  Prints, per image set,
-the detections compared, the largest centre difference (px), the largest
-score difference, markers found by one only, and differing missing reasons
-or alternatives.  ``--cache`` keeps the rendered images (an .npz per set) for
+it, through a lens with radial distortion, for linear images, at full- and
+at quarter-resolution search, without white balance and with a fixed light
+colour.  Prints, per image set, the detections compared, the largest centre
+difference (px), the largest score difference, markers found by one only,
+and differing missing reasons or alternatives.  ``--cache`` keeps the rendered images (an .npz per set) for
 repeated runs.
 """
 
@@ -34,6 +35,7 @@ import bench_detectors as bd  # noqa: E402
 from ball_tools import demo_image  # noqa: E402
 from compare_balls import load_old  # noqa: E402
 
+from mutloc.core.camera import Camera  # noqa: E402
 from mutloc.detect.balls import BallParams, detect_balls  # noqa: E402
 from mutloc.sim.render import render  # noqa: E402
 from mutloc.sim.world import standard_rig  # noqa: E402
@@ -105,17 +107,23 @@ def main() -> None:
     args = ap.parse_args()
     cv2.setNumThreads(1)
     old, OldParams = load_old(args.rev)
-    variants = [({}, {}), ({"camera": None}, {"camera": None}),
-                ({"params": OldParams(srgb=False)}, {"params": BallParams(srgb=False)}),
-                ({"params": OldParams(downscale=1, hue_tol_deg=20.0)},
-                 {"params": BallParams(downscale=1, hue_tol_deg=20.0)})]
+    variants = [({}, {}), ({"camera": None}, {"camera": None})]
+    for p in ({"srgb": False}, {"downscale": 1, "hue_tol_deg": 20.0}, {"min_radius_px": 6.0},
+              {"white_balance": "off"}, {"white_balance": (255, 190, 120)}):
+        try:  # parameters the revision does not know are left out
+            variants.append(({"params": OldParams(**p)}, {"params": BallParams(**p)}))
+        except TypeError:
+            print(f"(revision {args.rev} has no {', '.join(p)}: not compared)")
     total = {"max_uv": 0.0}
     print(f"{'set':22s} {'compared':>8s} {'max d(uv) px':>12s} {'max d(score)':>12s} {'one only':>8s} "
           f"{'reasons':>7s} {'alts':>4s}")
     for name, items in image_sets(args.n, args.cache):
         acc = {"n": 0, "max_uv": 0.0, "max_score": 0.0, "one_only": 0, "reasons": 0, "alts": 0}
         for img, markers, cam in items:
-            for ko, kn in variants:
+            # Also through a lens with distortion (the fit's other path).
+            h, w = img.shape[:2]
+            lens = Camera(cam.K, dist=[-0.12, 0.03, 0.0, 0.0], size=(w, h)) if cam is not None else None
+            for ko, kn in variants + [({"camera": lens}, {"camera": lens})]:
                 compare(old(img, markers, **{"camera": cam, **ko}), detect_balls(img, markers, **{"camera": cam, **kn}),
                         acc)
         total["max_uv"] = max(total["max_uv"], acc["max_uv"])
