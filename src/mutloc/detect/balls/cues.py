@@ -8,6 +8,8 @@ import math
 import numba
 import numpy as np
 
+from .numeric import sort_inplace
+
 __all__ = ["evidence", "hue_chroma", "shading_contrast", "vivid"]
 
 
@@ -77,7 +79,7 @@ def _shading_kernel(img, lut, cx, cy, inner):
     ring = np.empty(n)
     for k in range(n):
         ring[k] = inner[k, 0] + inner[k, 1] + inner[k, 2]
-    ring.sort()
+    sort_inplace(ring, n)
     # 10th and 90th percentiles (robust to a stray ray).
     lo = ring[n // 10]
     hi = ring[(9 * n) // 10]
