@@ -20,6 +20,7 @@ import numpy as np
 
 from .cues import evidence, hue_chroma, shading_contrast, vivid
 from .fit import CameraModel, Fit
+from .numeric import column_medians
 from .params import BallParams
 from .rim import Rim
 from .search import BallSearch
@@ -79,7 +80,8 @@ def score_candidate(
     rim_frac = float(inl.sum()) / n_rays
     inner = rim.inner[inl]
     # Hue of the ball as seen (inner colours of the inlier rays), vs nominal.
-    ball = np.median(inner, axis=0)
+    ball = np.empty(3)
+    column_medians(inner, ball)
     if gains is not None:
         # As under white light (gains in the rim values, see .light).
         ball = ball * gains
@@ -174,6 +176,21 @@ def choose_consistent(
     best_val = -math.inf
     best: tuple[Candidate | None, ...] = tuple(None for _ in group)
     best_worst = 0.0
+    # Each pair of candidates is checked once, not once per combination.
+    pairs: dict[tuple[int, int, int, int], float | None] = {}
+
+    def pair_z(i: int, ci: Candidate, j: int, cj: Candidate) -> float | None:
+        """Normalised error of the pair's distance; -inf when one blob; None when nothing to check."""
+        key = (i, j, id(ci), id(cj))
+        if key not in pairs:
+            z: float | None = -math.inf
+            if not same_blob(ci, cj):
+                L = float(np.linalg.norm(group[i].position - group[j].position))  # type: ignore[operator]
+                z = None if L < 1e-6 else (  # same place on the robot: nothing to check
+                    (float(np.linalg.norm(ci.xyz - cj.xyz)) - L) / (0.01 + range_sigma(ci) + range_sigma(cj)))
+            pairs[key] = z
+        return pairs[key]
+
     for combo in itertools.product(*options):
         val = 0.0
         for c in combo:
@@ -189,13 +206,12 @@ def choose_consistent(
                 cj = combo[j]
                 if cj is None or cj.xyz is None:
                     continue
-                if same_blob(ci, cj):
+                z = pair_z(i, ci, j, cj)
+                if z == -math.inf:
                     val = -math.inf
                     break
-                L = float(np.linalg.norm(group[i].position - group[j].position))  # type: ignore[operator]
-                if L < 1e-6:
-                    continue  # same place on the robot: nothing to check
-                z = (float(np.linalg.norm(ci.xyz - cj.xyz)) - L) / (0.01 + range_sigma(ci) + range_sigma(cj))
+                if z is None:
+                    continue
                 val -= 0.5 * z * z
                 worst = max(worst, abs(z))
             if val == -math.inf:

@@ -5,7 +5,10 @@ from __future__ import annotations
 import colorsys
 import math
 
+import numba
 import numpy as np
+
+from .numeric import sort_inplace
 
 __all__ = ["evidence", "hue_chroma", "shading_contrast", "vivid"]
 
@@ -30,9 +33,30 @@ def evidence(rim_length_px: float) -> float:
 
 def hue_chroma(bgr: np.ndarray, lut: np.ndarray) -> tuple[float, float]:
     """Hue (deg) and chroma (max - min, 0..255 encoded) of a BGR colour in ``lut``'s values."""
-    enc = np.searchsorted(lut, np.clip(bgr, 0.0, 1.0)).clip(0, 255).astype(float)
-    h, _, _ = colorsys.rgb_to_hsv(*(enc[::-1] / 255.0))
-    return 360.0 * h, float(enc.max() - enc.min())
+    b, g, r = _encode(lut, float(bgr[0]), float(bgr[1]), float(bgr[2]))
+    h, _, _ = colorsys.rgb_to_hsv(r / 255.0, g / 255.0, b / 255.0)
+    return 360.0 * h, max(b, g, r) - min(b, g, r)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _encode(lut, b, g, r):
+    """The 0..255 values whose ``lut`` entries first reach ``b, g, r`` (clipped to 0..1)."""
+    out = np.empty(3)
+    n = lut.shape[0]
+    for c, v in enumerate((b, g, r)):
+        v = min(max(v, 0.0), 1.0)
+        lo = 0
+        if v != v:  # NaN sorts last
+            lo = n
+        hi = n
+        while lo < hi:  # the first index with lut >= v
+            mid = (lo + hi) // 2
+            if lut[mid] < v:
+                lo = mid + 1
+            else:
+                hi = mid
+        out[c] = min(lo, 255)
+    return out[0], out[1], out[2]
 
 
 def shading_contrast(img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inner: np.ndarray) -> float:
@@ -42,14 +66,35 @@ def shading_contrast(img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inn
     printed disc of the same colour is flat.  ``inner`` (n, 3) holds the
     ball colours next to the rim, in ``lut``'s values.
     """
-    Himg, Wimg = img.shape[:2]
-    ring = np.sort(inner.sum(axis=1))
-    if len(ring) < 4:
+    return float(_shading_kernel(img, lut, float(cx), float(cy), inner))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _shading_kernel(img, lut, cx, cy, inner):
+    # Sums in NumPy's order (three values in turn, nine pairwise), so the
+    # figures match the array code they replace.
+    n = inner.shape[0]
+    if n < 4:
         return 0.0
+    ring = np.empty(n)
+    for k in range(n):
+        ring[k] = inner[k, 0] + inner[k, 1] + inner[k, 2]
+    sort_inplace(ring, n)
     # 10th and 90th percentiles (robust to a stray ray).
-    vals = [float(ring[len(ring) // 10]), float(ring[(9 * len(ring)) // 10])]
-    i, j = int(round(cy)), int(round(cx))
-    if 1 <= i < Himg - 1 and 1 <= j < Wimg - 1:
-        vals.append(float(lut[img[i - 1 : i + 2, j - 1 : j + 2]].sum(axis=2).mean()))
-    hi = max(vals)
-    return (hi - min(vals)) / hi if hi > 0 else 0.0
+    lo = ring[n // 10]
+    hi = ring[(9 * n) // 10]
+    mn = min(lo, hi)
+    mx = max(lo, hi)
+    i = round(cy)
+    j = round(cx)
+    if 1 <= i < img.shape[0] - 1 and 1 <= j < img.shape[1] - 1:
+        s = np.empty(9, np.float32)
+        for a in range(3):
+            for b in range(3):
+                p = img[i - 1 + a, j - 1 + b]
+                s[3 * a + b] = lut[p[0]] + lut[p[1]] + lut[p[2]]
+        tot = (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))) + s[8]
+        mid = float(tot / np.float32(9.0))
+        mn = min(mn, mid)
+        mx = max(mx, mid)
+    return (mx - mn) / mx if mx > 0 else 0.0

@@ -188,12 +188,12 @@ def cone_fit(bear, fin, init, f, d, w):
 def cone_rim(camera: Camera, d: np.ndarray, cos_t: float, n: int = _OUTLINE_POINTS) -> np.ndarray | None:
     """Pixels (n, 2) of the cone's rim: the outline of the sphere's image; None if it does not project."""
     uv = np.empty((n, 2))
-    _cone_rim_kernel(camera.K, camera.dist, d, cos_t, uv)
-    return uv if np.all(np.isfinite(uv)) else None
+    return uv if _cone_rim_kernel(camera.K, camera.dist, d, cos_t, uv) else None
 
 
 @numba.njit(cache=True, fastmath=False)
-def _cone_rim_kernel(K, dist, d, cos_t, uv) -> None:
+def _cone_rim_kernel(K, dist, d, cos_t, uv) -> bool:
+    """Writes the rim's pixels into ``uv``; False if some do not project (not finite)."""
     n = uv.shape[0]
     sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
     # Orthonormal e1, e2 perpendicular to d (d[2] > 0, so never degenerate).
@@ -211,6 +211,10 @@ def _cone_rim_kernel(K, dist, d, cos_t, uv) -> None:
         rays[i, 1] = cos_t * d[1] + sin_t * (c * e11 + sn * e21)
         rays[i, 2] = cos_t * d[2] + sin_t * (c * e12 + sn * e22)
     project_many(K, dist, rays, uv)
+    for i in range(n):
+        if not (math.isfinite(uv[i, 0]) and math.isfinite(uv[i, 1])):
+            return False
+    return True
 
 
 @numba.njit(cache=True, fastmath=False)

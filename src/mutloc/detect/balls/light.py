@@ -15,6 +15,7 @@ saturation floor is relative, and the rim is found by unmixing colours.
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 from .params import BallParams
@@ -41,8 +42,8 @@ def light_gains(img: np.ndarray, params: BallParams) -> np.ndarray | None:
     if wb == "auto":
         # Every 8th row and column is plenty for a mean (and cheap: this
         # runs on every image).
-        sub = img[::8, ::8].reshape(-1, 3)
-        mean = (_LIN_SRGB if params.srgb else _LIN)[sub].mean(axis=0)
+        mean = np.empty(3)
+        _mean_colour(img, _LIN_SRGB if params.srgb else _LIN, 8, mean)
         top = float(mean.max())
         if top <= 1e-6 or float(mean.min()) >= params.auto_white_balance_below * top:
             return None
@@ -53,6 +54,20 @@ def light_gains(img: np.ndarray, params: BallParams) -> np.ndarray | None:
         light = lin / float(lin.max())
     # A channel the light hardly has cannot be recovered beyond noise.
     return (1.0 / np.maximum(light, 1.0 / 16.0)) ** (1.0 / gamma)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _mean_colour(img, table, step, out) -> None:
+    """Mean of ``table[img]`` per channel over every ``step``-th row and column (summed row by row)."""
+    out[:] = 0.0
+    n = 0
+    for y in range(0, img.shape[0], step):
+        for x in range(0, img.shape[1], step):
+            for c in range(3):
+                out[c] += table[img[y, x, c]]
+            n += 1
+    for c in range(3):
+        out[c] /= max(n, 1)
 
 
 def _tables(gains: np.ndarray) -> np.ndarray:

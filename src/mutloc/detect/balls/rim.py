@@ -40,7 +40,16 @@ class Rim:
     @property
     def pts(self) -> np.ndarray:
         """Edge pixels (n, 2); NaN where not valid."""
-        return np.column_stack([self.cx + np.cos(self.ang) * self.radius, self.cy + np.sin(self.ang) * self.radius])
+        out = np.empty((len(self.ang), 2))
+        _rim_points(float(self.cx), float(self.cy), self.ang, self.radius, out)
+        return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def _rim_points(cx, cy, ang, radius, out) -> None:
+    for i in range(ang.shape[0]):
+        out[i, 0] = cx + math.cos(ang[i]) * radius[i]
+        out[i, 1] = cy + math.sin(ang[i]) * radius[i]
 
 
 def window(rexp: np.ndarray) -> float:
@@ -136,6 +145,7 @@ def edges_kernel(img, lut, gain, cx, cy, ang, rexp, h, w2, step, e, valid, inner
     P = np.empty((K, 3))
     alpha = np.empty(K)
     B = np.empty(3)
+    G = np.empty(3)
     for i in range(n):
         valid[i] = False
         e[i] = np.nan
@@ -160,7 +170,7 @@ def edges_kernel(img, lut, gain, cx, cy, ang, rexp, h, w2, step, e, valid, inner
         # that first edge: the colours next to the rim are the ones that
         # mix in its pixels (a background that changes a few pixels out, a
         # poster's border, must not count).
-        ok, ei, con = unmix_edge(P, 0, K - 1, step, alpha, B)
+        ok, ei, con = _unmix_edge(P, 0, K - 1, step, alpha, B, G)
         if not ok:
             continue
         j0 = int(round((ei - w2) / step))
@@ -170,7 +180,7 @@ def edges_kernel(img, lut, gain, cx, cy, ang, rexp, h, w2, step, e, valid, inner
             j1 = min(j1, K - 1)
             if j1 - j0 < 6:
                 continue
-            ok, e2, con = unmix_edge(P, j0, j1, step, alpha, B)
+            ok, e2, con = _unmix_edge(P, j0, j1, step, alpha, B, G)
             if not ok:
                 continue
             ei = t0 + j0 * step + e2
@@ -192,7 +202,12 @@ def unmix_edge(P, j0, j1, step, alpha, B):
     ``alpha``; returns ``(ok, edge, contrast)``, not ok when the profile is
     not one clean ball-to-background step.
     """
-    G = np.empty(3)
+    return _unmix_edge(P, j0, j1, step, alpha, B, np.empty(3))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _unmix_edge(P, j0, j1, step, alpha, B, G):
+    """:func:`unmix_edge` with the background colour's buffer ``G`` given (no allocation per ray)."""
     dd = 0.0
     bb = 0.0
     gg = 0.0

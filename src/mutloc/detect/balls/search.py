@@ -147,11 +147,23 @@ def value_floor(img: np.ndarray) -> int:
     percentile of V, kept within [12, 40].  Every 4th row and column is
     plenty for a percentile.
     """
-    sub = cv2.cvtColor(np.ascontiguousarray(img[::4, ::4]), cv2.COLOR_BGR2HSV_FULL)
-    hist = np.bincount(cv2.extractChannel(sub, 2).ravel(), minlength=256)
-    cum = np.cumsum(hist)
-    p99 = int(np.searchsorted(cum, 0.99 * cum[-1]))
-    return int(np.clip(0.12 * p99, 12, 40))
+    return int(np.clip(0.12 * _value_p99(img, 4), 12, 40))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _value_p99(img, step):
+    """99th percentile of HSV's V (the largest of B, G, R) over every ``step``-th row and column."""
+    hist = np.zeros(256, np.int64)
+    for y in range(0, img.shape[0], step):
+        for x in range(0, img.shape[1], step):
+            hist[max(img[y, x, 0], img[y, x, 1], img[y, x, 2])] += 1
+    target = 0.99 * hist.sum()
+    acc = 0
+    for v in range(256):
+        acc += hist[v]
+        if acc >= target:
+            return v
+    return 256
 
 
 def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_floor: int) -> list[np.ndarray]:
@@ -163,9 +175,7 @@ def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_flo
     The hue test is a lookup table on the hue channel, which handles red's
     wrap-around for free and serves eight markers per pass, one bit each.
     """
-    hue = cv2.extractChannel(hsv, 0)
     s_floor = min(int(np.clip(0.4 * 255 * s.saturation, 40, 110)) for s in searches)
-    sv = cv2.inRange(hsv, (0, s_floor, v_floor), (255, 255, 255))
     # Degrees of each 8-bit HSV_FULL hue bin; half a bin (0.7 deg) of slack.
     deg = np.arange(256) * (360.0 / 256.0)
     masks: list[np.ndarray] = []
@@ -175,9 +185,19 @@ def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_flo
         for bit, s in enumerate(chunk):
             dh = np.abs((deg - s.hue_deg + 180.0) % 360.0 - 180.0)
             table[dh <= tol_deg + 0.71] |= np.uint8(1 << bit)
-        label = cv2.bitwise_and(cv2.LUT(hue, table), sv)
+        label = np.empty(hsv.shape[:2], np.uint8)
+        _label_kernel(hsv, table, s_floor, int(v_floor), label)
         masks.extend(np.bitwise_and(label, np.uint8(1 << bit)) for bit in range(len(chunk)))
     return masks
+
+
+@numba.njit(cache=True, fastmath=False)
+def _label_kernel(hsv, table, s_floor, v_floor, out) -> None:
+    """``table[hue]`` where saturation and value reach their floors, else 0 (one pass over the HSV image)."""
+    for y in range(out.shape[0]):
+        for x in range(out.shape[1]):
+            ok = (hsv[y, x, 1] >= s_floor) & (hsv[y, x, 2] >= v_floor)
+            out[y, x] = table[hsv[y, x, 0]] * ok
 
 
 def coarse_blobs(mask: np.ndarray, sx: float, sy: float, min_r: float, max_r: float) -> list[Blob]:
@@ -186,68 +206,148 @@ def coarse_blobs(mask: np.ndarray, sx: float, sy: float, min_r: float, max_r: fl
     Each external contour may hold several circles: a ball touching another
     blob of a similar hue (a printed disc behind it, a second ball) merges
     with it in the mask, so after the best circle of a contour the points it
-    does not explain are searched again.
+    does not explain are searched again (:func:`_contour_circles`).
     """
+    return [Blob(*row) for row in _coarse_rows(mask, sx, sy, min_r, max_r).tolist()]
+
+
+def _coarse_rows(mask: np.ndarray, sx: float, sy: float, min_r: float, max_r: float) -> np.ndarray:
+    """:func:`coarse_blobs` as rows ``(u, v, radius, quality, fill)`` (n, 5)."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     scale = 0.5 * (sx + sy)
     # A contour through pixel centres of a disc of radius r has ~0.87 * 2 pi r
     # points (8-connected); a partly hidden ball still shows over half of it.
     min_len = max(4, int(0.5 * 0.87 * 2 * math.pi * (0.7 * min_r / scale)))
-    out = []
-    for c in [c for c in contours if len(c) >= min_len]:
-        cpts = c.reshape(-1, 2).astype(np.float64)  # coarse pixel centres
-        area = cv2.contourArea(c) + 0.5 * len(c) + 1.0  # pixel count of the filled blob
+    keep = [c for c in contours if len(c) >= min_len]
+    rows = np.empty((3 * len(keep), 5))
+    if not keep:
+        return rows
+    lens = np.array([len(c) for c in keep], np.int64)
+    pts = np.concatenate(keep).reshape(-1, 2).astype(np.float64)  # coarse pixel centres
+    n = _contour_circles(pts, lens, mask, float(sx), float(sy), float(scale), float(min_r), float(max_r), min_len,
+                         _TRIPLETS, rows)
+    return rows[:n]
+
+
+@numba.njit(cache=True, fastmath=False)
+def _contour_circles(pts, lens, mask, sx, sy, scale, min_r, max_r, min_len, triplets, out):
+    """Up to three circles per contour (``pts`` holds the contours of lengths ``lens`` one after the other).
+
+    Writes rows ``(u, v, radius, quality, fill)`` in full-resolution pixels
+    into ``out``; returns how many.  One compiled pass: the per-contour
+    work is small, and in Python its overhead was most of the coarse search.
+    """
+    nb = 0
+    start = 0
+    for c in range(lens.shape[0]):
+        L = lens[c]
+        cp = pts[start : start + L]
+        start += L
+        # Pixel count of the filled blob: the outline's area (shoelace, as
+        # cv2.contourArea; exact for integer points) plus half its length.
+        a = 0.0
+        px = cp[L - 1, 0]
+        py = cp[L - 1, 1]
+        for i in range(L):
+            a += px * cp[i, 1] - py * cp[i, 0]
+            px = cp[i, 0]
+            py = cp[i, 1]
+        area = abs(a * 0.5) + 0.5 * L + 1.0
         r_eq = math.sqrt(area / math.pi) * scale
         if r_eq < 0.6 * min_r:
             continue
-        if len(cpts) < 6:
-            m = cpts.mean(axis=0)
-            out.append(Blob((m[0] + 0.5) * sx - 0.5, (m[1] + 0.5) * sy - 0.5, r_eq, 0.3, 1.0))
+        if L < 6:
+            mx = 0.0
+            my = 0.0
+            for i in range(L):
+                mx += cp[i, 0]
+                my += cp[i, 1]
+            out[nb, 0] = (mx / L + 0.5) * sx - 0.5
+            out[nb, 1] = (my / L + 0.5) * sy - 0.5
+            out[nb, 2] = r_eq
+            out[nb, 3] = 0.3
+            out[nb, 4] = 1.0
+            nb += 1
             continue
         # No circle is much bigger than the contour holding it.
-        span = 0.5 * float(np.hypot(*(cpts.max(axis=0) - cpts.min(axis=0))))
-        rmin_c, rmax_c = 0.5 * min_r / scale, min(1.2 * span + 1.0, 1.5 * max_r / scale)
-        rest = cpts
+        x0 = x1 = cp[0, 0]
+        y0 = y1 = cp[0, 1]
+        for i in range(1, L):
+            x0 = min(x0, cp[i, 0])
+            x1 = max(x1, cp[i, 0])
+            y0 = min(y0, cp[i, 1])
+            y1 = max(y1, cp[i, 1])
+        span = 0.5 * math.hypot(x1 - x0, y1 - y0)
+        rmin_c = 0.5 * min_r / scale
+        rmax_c = min(1.2 * span + 1.0, 1.5 * max_r / scale)
+        rest = cp.copy()
         for _ in range(3):
-            fit = ransac_circle(rest, max(1.0, 0.08 * r_eq / scale), rmin_c, rmax_c)
-            if fit is None:
+            ok, cu, cv_, r, frac = _ransac_circle_kernel(rest, max(1.0, 0.08 * r_eq / scale), triplets, rmin_c, rmax_c)
+            if not ok:
                 break
-            cu, cv_, r, frac = fit
             # Support: how much of the circle's own circumference the contour
             # covers (a clean disc ~1, a rectangle's inscribed circle little).
-            support = min(1.0, frac * len(rest) / (0.87 * 2 * math.pi * max(r, 0.5)))
+            support = min(1.0, frac * rest.shape[0] / (0.87 * 2 * math.pi * max(r, 0.5)))
             if support >= 0.25:
-                fill = fill_fraction(mask, cu, cv_, r + 0.5)
+                fill = _fill_kernel(mask, cu, cv_, r + 0.5)
                 # The contour runs through the outermost pixel centres: half
                 # a (coarse) pixel inside the true rim.
                 R = (r + 0.5) * scale
                 if 0.6 * min_r <= R <= 1.5 * max_r:
                     # Quality: support times how well the blob fills its
                     # circle (a ring or a crescent does not).
-                    out.append(Blob((cu + 0.5) * sx - 0.5, (cv_ + 0.5) * sy - 0.5, R, support * fill, fill))
+                    out[nb, 0] = (cu + 0.5) * sx - 0.5
+                    out[nb, 1] = (cv_ + 0.5) * sy - 0.5
+                    out[nb, 2] = R
+                    out[nb, 3] = support * fill
+                    out[nb, 4] = fill
+                    nb += 1
             # Whatever this circle explains is set aside; the rest may hold
             # another one.
-            far = np.abs(np.hypot(rest[:, 0] - cu, rest[:, 1] - cv_) - r) > 2.0 * max(1.0, 0.08 * r)
-            rest = rest[far]
-            if len(rest) < max(12, min_len):
+            lo2, hi2 = _ring(r, 2.0 * max(1.0, 0.08 * r))
+            k = 0
+            for i in range(rest.shape[0]):
+                dx = rest[i, 0] - cu
+                dy = rest[i, 1] - cv_
+                if not (lo2 <= dx * dx + dy * dy <= hi2):
+                    rest[k, 0] = rest[i, 0]
+                    rest[k, 1] = rest[i, 1]
+                    k += 1
+            rest = rest[:k]
+            if k < max(12, min_len):
                 break
-    return out
+    return nb
 
 
-def _blob_chroma(coarse: np.ndarray, blob: Blob, sx: float, sy: float) -> float:
-    """Chroma of a blob: the best of its centre and four points halfway to its rim.
+def _blob_chroma(coarse: np.ndarray, rows: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """Chroma of each blob (rows of :func:`_coarse_rows`): the best of its centre and four points halfway to its rim.
 
     Several points, because an occluder may cover the centre.
     """
-    h, w = coarse.shape[:2]
-    cu, cv_, r = (blob.u + 0.5) / sx - 0.5, (blob.v + 0.5) / sy - 0.5, 0.5 * blob.radius / sx
-    best = 0.0
-    for du, dv in ((0.0, 0.0), (r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):
-        i, j = int(round(cv_ + dv)), int(round(cu + du))
-        if 0 <= i < h and 0 <= j < w:
-            px = coarse[i, j]
-            best = max(best, float(max(px)) - float(min(px)))
-    return best
+    out = np.zeros(len(rows))
+    _chroma_kernel(coarse, np.ascontiguousarray(rows), float(sx), float(sy), out)
+    return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def _chroma_kernel(coarse, rows, sx, sy, out) -> None:
+    h = coarse.shape[0]
+    w = coarse.shape[1]
+    for b in range(rows.shape[0]):
+        cu = (rows[b, 0] + 0.5) / sx - 0.5
+        cv_ = (rows[b, 1] + 0.5) / sy - 0.5
+        r = 0.5 * rows[b, 2] / sx
+        best = 0.0
+        for k in range(5):
+            du = r if k == 1 else (-r if k == 2 else 0.0)
+            dv = r if k == 3 else (-r if k == 4 else 0.0)
+            i = round(cv_ + dv)
+            j = round(cu + du)
+            if 0 <= i < h and 0 <= j < w:
+                hi = max(coarse[i, j, 0], coarse[i, j, 1], coarse[i, j, 2])
+                lo = min(coarse[i, j, 0], coarse[i, j, 1], coarse[i, j, 2])
+                best = max(best, float(hi) - float(lo))
+        out[b] = best
 
 
 #: Blobs of at least this quality look like whole discs; the others (down
@@ -274,12 +374,11 @@ def find_blobs(
     sy = H / coarse.shape[0]
     out = []
     for mask in hue_masks(hsv, searches, params.hue_tol_deg, v_floor):
-        blobs = []
-        for b in coarse_blobs(mask, sx, sy, params.min_radius_px, max_r):
-            # A ball split by a pole leaves half-discs: support ~0.5 of
-            # their circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
-            if b.quality >= 0.15:
-                blobs.append(Blob(b.u, b.v, b.radius, b.quality, b.fill, _blob_chroma(coarse, b, sx, sy)))
+        rows = _coarse_rows(mask, sx, sy, params.min_radius_px, max_r)
+        # A ball split by a pole leaves half-discs: support ~0.5 of their
+        # circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
+        rows = rows[rows[:, 3] >= 0.15]
+        blobs = [Blob(*row, chroma) for row, chroma in zip(rows.tolist(), _blob_chroma(coarse, rows, sx, sy).tolist())]
         blobs.sort(key=lambda b: -b.quality * evidence(2.0 * math.pi * b.radius) * vivid(b.chroma))
         out.append(blobs)
     return out
@@ -343,10 +442,7 @@ def _ransac_circle_kernel(pts, tol, triplets, rmin, rmax):
         # Nearly collinear points give huge circles that hug straight edges.
         if r < rmin or r > rmax:
             continue
-        cnt = 0
-        for i in range(n):
-            if abs(math.hypot(pts[i, 0] - ux, pts[i, 1] - uy) - r) <= tol:
-                cnt += 1
+        cnt = _count_on(pts, ux, uy, r, tol)
         if cnt > best:
             best = cnt
             bu, bv, br = ux, uy, r
@@ -359,14 +455,33 @@ def _ransac_circle_kernel(pts, tol, triplets, rmin, rmax):
     k = 0
     for _ in range(2):
         k = 0
+        lo2, hi2 = _ring(out[2], tol)
         for i in range(n):
-            mask[i] = abs(math.hypot(pts[i, 0] - out[0], pts[i, 1] - out[1]) - out[2]) <= tol
+            dx = pts[i, 0] - out[0]
+            dy = pts[i, 1] - out[1]
+            mask[i] = lo2 <= dx * dx + dy * dy <= hi2
             if mask[i]:
                 k += 1
         if k < 5 or not kasa_circle(pts, mask, out):
             return False, 0.0, 0.0, 0.0, 0.0
+    return True, out[0], out[1], out[2], _count_on(pts, out[0], out[1], out[2], tol) / n
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _ring(r, tol):
+    """Squared distances bounding the ring ``|d - r| <= tol``: a point is tested without a square root."""
+    lo = r - tol
+    return (lo * lo if lo > 0.0 else -1.0), (r + tol) * (r + tol)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _count_on(pts, ux, uy, r, tol):
+    """How many of ``pts`` lie within ``tol`` of the circle ``(ux, uy, r)``."""
+    lo2, hi2 = _ring(r, tol)
     k = 0
-    for i in range(n):
-        if abs(math.hypot(pts[i, 0] - out[0], pts[i, 1] - out[1]) - out[2]) <= tol:
+    for i in range(pts.shape[0]):
+        dx = pts[i, 0] - ux
+        dy = pts[i, 1] - uy
+        if lo2 <= dx * dx + dy * dy <= hi2:
             k += 1
-    return True, out[0], out[1], out[2], k / n
+    return k

@@ -1,0 +1,99 @@
+"""The ball detector's compiled cues against the NumPy / OpenCV / colorsys expressions they replace.
+
+The detector's speed-up moved these figures into Numba; they must stay the
+same numbers, bit for bit (a ranking or a threshold must not flip), so each
+is checked against the array code it replaced, on random inputs.
+"""
+
+import colorsys
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mutloc.detect.balls.cues import hue_chroma, shading_contrast
+from mutloc.detect.balls.light import light_gains
+from mutloc.detect.balls.numeric import column_medians
+from mutloc.detect.balls.params import BallParams, value_lut
+from mutloc.detect.balls.search import value_floor
+
+SEEDS = st.integers(0, 2**32 - 1)
+
+
+def _image(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """A random BGR image, sometimes with a colour cast, sometimes a strided view."""
+    img = rng.integers(0, 256, (h + 3, w + 5, 3), dtype=np.uint8)
+    if rng.random() < 0.5:
+        img = (img * rng.uniform(0.1, 1.0, 3)).astype(np.uint8)
+    return img[1 : 1 + h, 2 : 2 + w] if rng.random() < 0.5 else np.ascontiguousarray(img[:h, :w])
+
+
+@settings(max_examples=60, deadline=None)
+@given(SEEDS, st.integers(1, 97))
+def test_column_medians_are_numpys(seed, n):
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(0, 1, (n, 3))
+    if n > 3:
+        a[rng.integers(0, n, n // 3)] = a[0]  # ties
+    out = np.empty(3)
+    column_medians(a, out)
+    assert np.array_equal(out, np.median(a, axis=0))
+
+
+@settings(max_examples=40, deadline=None)
+@given(SEEDS, st.integers(1, 90), st.integers(1, 90))
+def test_value_floor_is_the_hsv_percentile(seed, h, w):
+    img = _image(np.random.default_rng(seed), h, w)
+    v = cv2.extractChannel(cv2.cvtColor(np.ascontiguousarray(img[::4, ::4]), cv2.COLOR_BGR2HSV_FULL), 2)
+    cum = np.cumsum(np.bincount(v.ravel(), minlength=256))
+    assert value_floor(img) == int(np.clip(0.12 * int(np.searchsorted(cum, 0.99 * cum[-1])), 12, 40))
+
+
+@settings(max_examples=40, deadline=None)
+@given(SEEDS, st.integers(1, 90), st.integers(1, 90), st.booleans())
+def test_light_gains_come_from_the_numpy_mean(seed, h, w, srgb):
+    img = _image(np.random.default_rng(seed), h, w)
+    gamma = 2.2 if srgb else 1.0
+    mean = ((np.arange(256) / 255.0) ** gamma)[img[::8, ::8].reshape(-1, 3)].mean(axis=0)
+    params = BallParams(srgb=srgb)
+    got = light_gains(img, params)
+    top = float(mean.max())
+    if top <= 1e-6 or float(mean.min()) >= params.auto_white_balance_below * top:
+        assert got is None
+    else:
+        assert np.array_equal(got, (1.0 / np.maximum(mean / top, 1.0 / 16.0)) ** (1.0 / gamma))
+
+
+@settings(max_examples=80, deadline=None)
+@given(SEEDS, st.booleans())
+def test_hue_chroma_is_searchsorted_and_colorsys(seed, srgb):
+    rng = np.random.default_rng(seed)
+    lut = value_lut(srgb, 1.7)
+    bgr = rng.uniform(-0.2, 1.2, 3) if rng.random() < 0.5 else lut[rng.integers(0, 256, 3)].astype(float)
+    enc = np.searchsorted(lut, np.clip(bgr, 0.0, 1.0)).clip(0, 255).astype(float)
+    h, _, _ = colorsys.rgb_to_hsv(*(enc[::-1] / 255.0))
+    assert hue_chroma(bgr, lut) == (360.0 * h, float(enc.max() - enc.min()))
+
+
+@settings(max_examples=80, deadline=None)
+@given(SEEDS, st.integers(0, 97))
+def test_shading_contrast_is_the_numpy_figure(seed, n):
+    rng = np.random.default_rng(seed)
+    lut = value_lut(True, 1.7)
+    img = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
+    inner = rng.uniform(0, 1, (n, 3)) * rng.uniform(0.01, 1)
+    cx, cy = rng.uniform(-1, 12), rng.uniform(-1, 10)
+    if rng.random() < 0.3:  # exactly between pixels: rounding half to even
+        cx, cy = np.floor(cx) + 0.5, np.floor(cy) + 0.5
+    # The array code the compiled cue replaced.
+    ring = np.sort(inner.sum(axis=1))
+    want = 0.0
+    if len(ring) >= 4:
+        vals = [float(ring[len(ring) // 10]), float(ring[(9 * len(ring)) // 10])]
+        i, j = int(round(cy)), int(round(cx))
+        if 1 <= i < 8 and 1 <= j < 10:
+            vals.append(float(lut[img[i - 1 : i + 2, j - 1 : j + 2]].sum(axis=2).mean()))
+        hi = max(vals)
+        want = (hi - min(vals)) / hi if hi > 0 else 0.0
+    assert shading_contrast(img, lut, cx, cy, inner) == want
