@@ -317,6 +317,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         """Forget every track and the previous frame (e.g. after a cut)."""
         self._prev: np.ndarray | None = None
         self._colour: np.ndarray | None = None  # the current frame, (H, W, channels) uint8
+        self._prev_colour: np.ndarray | None = None  # the previous one, as it was (not aligned)
         self._prev_t = math.nan
         self._frame = 0
         self._times: deque[float] = deque(maxlen=self.window)
@@ -383,6 +384,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         as :func:`~mutloc.detect.base.as_bgr` accepts).  ``t``: its time in
         seconds, strictly increasing; default ``frame_index / fps``.
         """
+        self._prev_colour = self._colour
         cur, self._colour = self._to_brightness(image)
         if t is None:
             t = self._frame / self.fps
