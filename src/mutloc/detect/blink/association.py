@@ -17,7 +17,7 @@ PLATEAU_DISAGREE_PX = 3.0
 # A spot found by its colour alone (see BlinkTracker._colour_contrast) is
 # taken for the track's light only this close (px) to where it looked: colour
 # confirms a light where it is expected, it does not pull a track elsewhere.
-COLOUR_JUMP_PX = 6.0
+COLOUR_JUMP_PX = 12.0
 
 # An unidentified track whose light turns up more than this many search
 # radii from its prediction, without a candidate of its own there, follows
