@@ -15,6 +15,7 @@ ratio counts the frames after the first ``--warmup`` seconds (1 s, as the
 blink-identity figure), for balls and tags every frame.
 
     python bench/trust_sequences.py [--seeds 10] [--frames 60] [--fps 30] [--kinds balls,lights,tags]
+                                   [--seed-list 2,5,6] [--cache DIR]
 
 Writes bench/trust_results.json.
 """
@@ -39,16 +40,28 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine  # noqa: E402
 
 
-def run(kind: str, seed: int, n: int, fps: float, warmup: float) -> dict:
+def rendered(world, kind: str, seed: int, n: int, fps: float, cache: Path | None) -> dict[str, list[np.ndarray]]:
+    """Both robots' frames, rendered or read from ``cache`` (one npz per kind and seed)."""
+    path = None if cache is None else cache / f"{kind}_s{seed}_n{n}_fps{fps:g}.npz"
+    if path is not None and path.exists():
+        data = np.load(path)
+        return {r: list(data[r]) for r in ("p", "q")}
+    images = {r: [render(world, r, i / fps, seed=seed + i, noise_sigma=1.0) for i in range(n)] for r in ("p", "q")}
+    if path is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez(path, **{r: np.array(v) for r, v in images.items()})
+    return images
+
+
+def run(kind: str, seed: int, n: int, fps: float, warmup: float, cache: Path | None = None) -> dict:
     rig = standard_rig(kind)
     world = moving_world(rig, distance=2.0, seed=seed)
-    frames = {r: [] for r in ("p", "q")}
+    images = rendered(world, kind, seed, n, fps, cache)
+    frames = {r: [Frame(i, i / fps, img) for i, img in enumerate(images[r])] for r in ("p", "q")}
     truth, oracle = [], []
     rng = np.random.default_rng(seed)
     for i in range(n):
         t = i / fps
-        for r in ("p", "q"):
-            frames[r].append(Frame(i, t, render(world, r, t, seed=seed + i, noise_sigma=1.0)))
         truth.append(relative_pose(world, "p", "q", t))
         oracle.append((t, correct_detections(world, t, rng)))
     ideal = track_log(rig, oracle, progress=False)
@@ -77,12 +90,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", default="balls,lights,tags")
     ap.add_argument("--warmup", type=float, default=1.0,
                     help="seconds at the start not counted for lights (blink identification needs a history)")
+    ap.add_argument("--seed-list", default=None, help="comma-separated seeds instead of 0..seeds-1")
+    ap.add_argument("--cache", default=None, help="folder caching the rendered frames")
     ap.add_argument("--out", default=str(Path(__file__).with_name("trust_results.json")))
     args = ap.parse_args(argv)
+    cache = Path(args.cache) if args.cache else None
+    seeds = [int(s) for s in args.seed_list.split(",")] if args.seed_list else list(range(args.seeds))
     res = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "kinds": {}}
     for kind in args.kinds.split(","):
         warmup = args.warmup if kind == "lights" else 0.0
-        per = [run(kind, s, args.frames, args.fps, warmup) for s in tqdm(range(args.seeds), desc=kind)]
+        per = [{"seed": s, **run(kind, s, args.frames, args.fps, warmup, cache)} for s in tqdm(seeds, desc=kind)]
         tot: dict = {k: sum(p[k] for p in per) for k in ("frames", "solved", "solved_wrong", "solvable",
                                                           "solvable_solved")}
         for key in ("statuses", "correct_detection_statuses"):

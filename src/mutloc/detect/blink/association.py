@@ -14,6 +14,16 @@ from .state import Track
 # centroid was dragged by bleed (see BlinkTracker._plateau_circle).
 PLATEAU_DISAGREE_PX = 3.0
 
+# A spot found by its colour alone (see BlinkTracker._colour_contrast) is
+# taken for the track's light only this close (px) to where it looked: colour
+# confirms a light where it is expected, it does not pull a track elsewhere.
+COLOUR_JUMP_PX = 12.0
+
+# An unidentified track whose light turns up more than this many search
+# radii from its prediction, without a candidate of its own there, follows
+# another object from now on: its history restarts (see _restart).
+RESTART_REACHES = 2.0
+
 __all__ = ["AssociationStage"]
 
 
@@ -96,9 +106,16 @@ class AssociationStage:
         if tr.is_on:
             # The ring lies beyond the glow around a saturated light (which
             # on a bright background leaves little contrast just outside it).
-            tr.is_on = (self._contrast(cur, np.array([x0 + px, y0 + py], float), tr.spread, 80.0,
-                                       margin=self._glow_px)
-                        >= 0.5 * self.diff_threshold)
+            at = np.array([x0 + px, y0 + py], float)
+            con = self._contrast(cur, at, tr.spread, 80.0, margin=self._glow_px)
+            tr.is_on = con >= 0.5 * self.diff_threshold
+            tr.by_colour = False
+            if not tr.is_on and self.colour_contrast > 0 and con >= 0:
+                # A light over background nearly as bright in its own colour
+                # (a green light on a green poster, both clipping in green)
+                # stands out in the other channels instead.
+                tr.is_on = tr.by_colour = \
+                    self._colour_contrast(at, tr.spread, self._glow_px) >= self.colour_contrast
         if tr.is_on and tr.expect_on(self._times[-1]) < -self.expect_off:
             # An identified light blinks on schedule: now is well inside its
             # "off" half, so what is bright here is something else.
@@ -110,6 +127,9 @@ class AssociationStage:
             tr.is_on = False
             return None
         uv, rms = found
+        if tr.by_colour and math.hypot(*(uv - centre)) > COLOUR_JUMP_PX:
+            tr.is_on = False
+            return None
         # The lit spot's own size keeps the windows fitted to the light --
         # once the spot is taken to be the light (see _commit).
         tr.measured_spread = rms
@@ -139,6 +159,21 @@ class AssociationStage:
         return uv
 
     @staticmethod
+    def _restart(tr: Track, frame: int, t: float) -> None:
+        """The track's spot is far from where it looked: another object, so
+        what it saw before is not this one's history."""
+        last = tr.hist[-1]
+        tr.hist.clear()
+        tr.hist.append(last)
+        tr.events.clear()
+        tr.events.append(True)
+        tr.samples.clear()
+        tr.hi = tr.lo = math.nan
+        tr.last_on_pos = None
+        tr.born_frame, tr.born_t = frame, t
+        tr.plates.clear()
+
+    @staticmethod
     def _not_on(tr: Track) -> None:
         """What the track saw was not its light: record it as off this frame."""
         tr.is_on = False
@@ -151,6 +186,10 @@ class AssociationStage:
         tr.jump = jump
         tr.pos = pos
         tr.spread += 0.3 * (tr.measured_spread - tr.spread)
+        # A spot window that grows with what it measures takes in bright
+        # surroundings, grows further and drags the centroid off the light
+        # (measured at 3 m: 20 px spreads, reports 15-25 px off).
+        tr.spread = min(tr.spread, self.max_spread)
         if math.isfinite(tr.measured_area):
             tr.area = tr.measured_area if not math.isfinite(tr.area) else \
                 tr.area + 0.3 * (tr.measured_area - tr.area)

@@ -72,9 +72,24 @@ class MeasureStage:
         # continues too.  (The ring's 80th percentile forgives a small bright
         # neighbour.)
         need = 0.5 * self.diff_threshold
+
+        def lit_spot(c: np.ndarray, on: bool, sp: float) -> bool:
+            con = self._contrast(cur if on else prev, c, sp, 80.0, margin=self._glow_px)
+            if con >= need:
+                return True
+            if on or self.colour_contrast <= 0 or con < 0:
+                # Switching on, a spot must stand out in brightness (with
+                # colour as well: 3 m seed 2 of bench/blink_identity.py lost
+                # 7 frames, measured).
+                return False
+            # A light switching off over background as bright in its own
+            # colour: its colour in the previous frame (as it was, not
+            # aligned: where it was then) must stand out instead.
+            at = c - np.asarray(exposed, float)
+            return self._colour_contrast(at, sp, self._glow_px, self._prev_colour) >= self.colour_contrast
+
         is_light = np.array([
-            self._contrast(turned_on if on else turned_off, c, sp) >= need
-            and self._contrast(cur if on else prev, c, sp, 80.0, margin=self._glow_px) >= need
+            self._contrast(turned_on if on else turned_off, c, sp) >= need and lit_spot(c, on, sp)
             for c, on, sp in zip(cents, lit_now, spread)
         ], bool)
         return cents[is_light], lit_now[is_light], spread[is_light]
@@ -116,6 +131,41 @@ class MeasureStage:
             k = round(ring_q / 100.0 * (ring.size - 1))
             level = float(np.partition(ring, k)[k])
         return float(inner.max()) - level
+
+    def _colour_contrast(self, c: np.ndarray, spread: float, margin: int = 0,
+                         img: np.ndarray | None = None) -> float:
+        """How far the colour of the brightest spot near ``c`` lies from the
+        median colour of a ring around it (largest channel difference, grey
+        levels) in ``img`` (default the current frame); 0 unless the spot has the colour of one
+        of the lights (within ``colour_match``, channels scaled to a brightest
+        of 1).  A lit light over background nearly as bright as it in its own
+        colour stands out in the other channels."""
+        img = self._colour if img is None else img
+        if img is None or img.ndim < 3 or img.shape[2] < 3:
+            return 0.0
+        r_in = int(min(max(8, 3.0 * self.max_blob_std), max(2, math.ceil(2.0 * spread) + 1)) + margin)
+        r_out = r_in + 3
+        cx, cy = round(float(c[0])), round(float(c[1]))
+        h, w = img.shape[:2]
+        x0, x1, y0, y1 = max(0, cx - r_out), min(w, cx + r_out + 1), max(0, cy - r_out), min(h, cy + r_out + 1)
+        ys, xs = np.ogrid[y0 - cy:y1 - cy, x0 - cx:x1 - cx]
+        d = np.maximum(np.abs(ys), np.abs(xs))
+        patch = img[y0:y1, x0:x1].astype(np.int16)
+        inner, ring = patch[d <= r_in], patch[d > r_in + 1]
+        if inner.size == 0 or ring.size == 0:
+            return 0.0
+        v = inner.max(axis=1)
+        core = inner[v >= v.max() - 2]
+        # The purest of the brightest pixels: a lit light's own colour (its
+        # glow is mixed with the background's).
+        peak = core[int(np.argmin(core.sum(axis=1)))]
+        # Only a spot of one of the lights' own colours (any of them: which
+        # light it is, its blink says) -- bright texture of another colour
+        # than its surroundings is not a light.
+        norm = peak / max(float(peak.max()), 1.0)
+        if float(np.abs(self._lit_colours - norm[None, :]).max(axis=1).min()) > self.colour_match:
+            return 0.0
+        return float(np.abs(peak - np.median(ring, axis=0)).max())
 
     @staticmethod
     def _halo_radius(clip_radius: float) -> int:

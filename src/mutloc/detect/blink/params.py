@@ -69,6 +69,15 @@ class BlinkParams:
     #: and while above ``expect_off`` after an off period (due on) its gate
     #: is doubled.  1 disables both.
     expect_off: float = 0.5
+    #: A bright spot that fails the brightness-contrast test is still taken
+    #: for a lit light if it has the colour of one of the lights (``color``,
+    #: default white; each channel within ``colour_match`` of it, channels
+    #: scaled to a brightest of 1) and that colour differs from the median of
+    #: its surroundings by at least ``colour_contrast`` grey levels in some
+    #: channel: a green light over a green poster barely changes the
+    #: brightest channel but empties the others.  0 disables it.
+    colour_contrast: float = 40.0
+    colour_match: float = 0.25
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),

@@ -57,6 +57,7 @@ class Track:
     clip_radius: float = math.nan  # radius (px) of the clipped core when last on
     measured_area: float = math.nan  # apparent area (px^2) of the spot found this frame
     area: float = math.nan  # apparent area of the lit light (px^2), smoothed over "on" frames
+    by_colour: bool = False  # this frame: taken for lit by its colour contrast alone
     plates: list[Plate] = field(default_factory=list)  # oldest first
     # The identified light's blink, fitted to its history: (time of the last
     # sample, frequency, cosine and sine amplitudes); None if unidentified.

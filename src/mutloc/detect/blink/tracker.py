@@ -83,7 +83,7 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import DetectionResult, as_bgr
-from .association import AssociationStage
+from .association import RESTART_REACHES, AssociationStage
 from .identity import IdentityStage
 from .measure import MeasureStage
 from .motion import GlobalMotion
@@ -169,6 +169,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         self.fps = fps
         names: list[str] = []
         freqs: list[float] = []
+        colours: list[np.ndarray] = []
         # Per marker: a sphere (has a radius), whose image centre needs the camera's correction.
         self._sphere: dict[str, bool] = {}
         for name, m in markers.items():
@@ -195,11 +196,16 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
                     raise InputError(f"marker {name!r}: radius must be positive, got {radius}")
             names.append(str(name))
             freqs.append(hz)
+            # The lit colour, BGR scaled to a brightest channel of 1 (a light
+            # of unknown colour: white).
+            rgb = np.asarray(m.color if getattr(m, "color", None) is not None else (255, 255, 255), float)[::-1]
+            colours.append(rgb / max(float(rgb.max()), 1.0))
             self._sphere[str(name)] = radius is not None
         if not names:
             raise InputError("BlinkTracker: no marker has a blink_hz")
         self.marker_names = names
         self.freqs = np.array(freqs)
+        self._lit_colours = np.array(colours)
 
         order = np.argsort(self.freqs)
         sorted_f = self.freqs[order]
@@ -272,6 +278,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         self.gate_growth = float(gate_growth)
         self.gate_speed = float(number("gate_speed", p.gate_speed, 0.0, math.inf, lo_open=False))
         self.expect_off = float(number("expect_off", p.expect_off, 0.0, 1.0, lo_open=False))
+        self.colour_contrast = float(number("colour_contrast", p.colour_contrast, 0.0, 255.0, lo_open=False))
+        self.colour_match = float(number("colour_match", p.colour_match, 0.0, 1.0, lo_open=False))
         # Limits in pixels that depend on the image size (None: derived from
         # it at the first frame, see _set_scale).
         self._max_speed_arg = None if max_speed is None else float(max_speed)
@@ -309,6 +317,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         """Forget every track and the previous frame (e.g. after a cut)."""
         self._prev: np.ndarray | None = None
         self._colour: np.ndarray | None = None  # the current frame, (H, W, channels) uint8
+        self._prev_colour: np.ndarray | None = None  # the previous one, as it was (not aligned)
         self._prev_t = math.nan
         self._frame = 0
         self._times: deque[float] = deque(maxlen=self.window)
@@ -338,6 +347,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         scale = max(1.0, short_side / 540.0)
         self.max_speed = (0.6 * short_side if self._max_speed_arg is None else self._max_speed_arg)
         self.max_gate_px = self._max_gate_arg * scale
+        self.max_spread = 10.0 * scale  # px; see AssociationStage._commit
         self.max_blob_std = (max(6.0, 0.03 * short_side) if self._max_blob_std_arg is None
                              else self._max_blob_std_arg)
         self.max_blob_area = (max(900, round(4 * math.pi * self.max_blob_std**2))
@@ -374,6 +384,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         as :func:`~mutloc.detect.base.as_bgr` accepts).  ``t``: its time in
         seconds, strictly increasing; default ``frame_index / fps``.
         """
+        self._prev_colour = self._colour
         cur, self._colour = self._to_brightness(image)
         if t is None:
             t = self._frame / self.fps
@@ -498,6 +509,9 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
                 # light passing by, not this one.
                 self._not_on(tr)
                 continue
+            if (tr.marker is None and not recentred and jump != math.inf
+                    and jump > RESTART_REACHES * self._reach(tr.spread)):
+                self._restart(tr, frame, t)
             observed.append((jump, j, uv))
 
         # --- unexplained candidates -> new tracks (nearby ones merged) ---
