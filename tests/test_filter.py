@@ -546,8 +546,6 @@ def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_o
     np.testing.assert_allclose(P, A @ P0 @ A.T + 0.25 * K @ K.T, rtol=1e-4, atol=1e-14)
     np.testing.assert_allclose(Pr, A @ Pr0 @ A.T + 4.0 * K @ K.T, rtol=1e-4, atol=1e-14)
     # The gate: the innovation against the stated noise's covariance.
-    innov = prob.pixels.ravel() - pix(np.array([*so3_log(prior.R @ post.R.T), *(prior.t - post.t)])) \
-        + H[:, :6] @ np.r_[so3_log(prior.R @ post.R.T), prior.t - post.t] * 0
     nu = prob.pixels.ravel() - _problem(rig, prior).pixels.ravel()
     S = H @ Pr0 @ H.T + 4.0 * np.eye(8)
     assert chi2 == pytest.approx(nu @ np.linalg.solve(S, nu), rel=0.05)

@@ -28,7 +28,6 @@ for what is well posed.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numba import njit
@@ -477,7 +476,6 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     if status != 0:
         return np.inf
     # r's ties as a problem of their own
-    m = ties.shape[0]
     scam = cam[ties]
     sown = own[ties]
     spts = pts[ties]
