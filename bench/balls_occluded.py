@@ -2,13 +2,15 @@
 """Partly hidden balls (issue 12), per scene, on tuning and held-out seeds.
 
     python bench/balls_occluded.py --gen bench --start 0 --n 12      # bench/balls_real.py's scenes
-    python bench/balls_occluded.py --gen test --start 0 --n 40       # tests/test_balls_real.py's generator
-    python bench/balls_occluded.py --gen test --start 300 --n 40     # held out: seeds nothing was tuned on
+    python bench/balls_occluded.py --gen test --start 0 --n 12       # tests/test_balls_real.py's scenes
+    python bench/balls_occluded.py --gen alt --start 0 --n 40        # scenes of that kind, other draws
+    python bench/balls_occluded.py --gen alt --start 300 --n 40      # held out: seeds nothing was tuned on
 
 Scenes: p 1.2-3.5 m in front of q, one ball of each robot 30-70 % hidden by
 a pole, a cable or a box edge ("bench": the scenes of bench/balls_real.py,
-"test": those of tests/test_balls_real.py's ``occluded_runs``, scene ``i``
-for i in [start, start+n)).  Pose from mutloc.track.localize_images against
+"test": those of tests/test_balls_real.py's ``occluded_runs``, "alt": the
+same distributions drawn in another order; scene ``i`` for i in
+[start, start+n)).  Pose from mutloc.track.localize_images against
 the rendered pose.  Prints median / 90th percentile of the translation error
 (a scene without a pose counted infinite), the same over the posed scenes,
 median rotation error, and the count of solved / unverified / unposed
@@ -36,23 +38,28 @@ sys.path.insert(0, str(Path(__file__).parent))
 from balls_real import scene as bench_scene  # noqa: E402
 
 
-def test_scene(i: int, rig):
-    """Scene ``i`` of tests/test_balls_real.py's ``occluded_runs`` (same draws in the same order)."""
+def test_scene(i: int, rig, exact: bool = True):
+    """Scene ``i`` of tests/test_balls_real.py's ``occluded_runs`` (same draws in the same order); with
+    ``exact`` False the same distributions drawn in another order (each occluder's draws after its ball's
+    choice): other scenes of the same kind."""
     rng = np.random.default_rng(1000 + i)
     d = rng.uniform(1.2, 3.5)
     T = facing_pose(d, np.radians(rng.uniform(-10, 10)), np.radians(rng.uniform(-10, 10)),
                     rng.uniform(-0.15, 0.15) * d)
     world = two_robot_world(rig, T, seed=i)
+    sides = (("q", ["M3", "M4"]), ("p", ["M1", "M2"]))
+    if exact:
+        picks = [(obs, str(rng.choice(ms))) for obs, ms in sides]
     props = []
-    for obs, ms in (("q", ["M3", "M4"]), ("p", ["M1", "M2"])):
-        m = str(rng.choice(ms))
+    for k, (obs, ms) in enumerate(sides):
+        m = picks[k][1] if exact else str(rng.choice(ms))
         props.append(occluder(world, obs, m, rng.uniform(0.3, 0.7), OCCLUDERS[rng.integers(3)],
                               side=rng.choice([-1, 1])))
     return with_props(world, *props)
 
 
 def images(gen: str, i: int, rig, cache: Path | None):
-    w = bench_scene("occluded", i, rig) if gen == "bench" else test_scene(i, rig)
+    w = bench_scene("occluded", i, rig) if gen == "bench" else test_scene(i, rig, exact=gen == "test")
     f = cache / f"{gen}_{i}.npz" if cache else None
     if f is not None and f.exists():
         z = np.load(f)
@@ -65,7 +72,7 @@ def images(gen: str, i: int, rig, cache: Path | None):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--gen", choices=["bench", "test"], default="test")
+    ap.add_argument("--gen", choices=["bench", "test", "alt"], default="test")
     ap.add_argument("--start", type=int, default=0)
     ap.add_argument("--n", type=int, default=40)
     ap.add_argument("--cache", type=Path, default=None, help="folder to keep the rendered images in")

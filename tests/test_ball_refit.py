@@ -172,7 +172,8 @@ def test_balls_near_measures_a_hidden_ball_within_the_rig_s_reach():
 
 
 def _occluded_run(i: int):
-    """Scene ``i`` of tests/test_balls_real.py's ``occluded_runs``: one ball of each robot 30-70 % hidden."""
+    """A scene like tests/test_balls_real.py's ``occluded_runs`` (one ball of each robot 30-70 % hidden;
+    its draws in another order: bench/balls_occluded.py --gen alt)."""
     from mutloc.sim.scenes import OCCLUDERS
 
     rng = np.random.default_rng(1000 + i)

@@ -368,8 +368,11 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
             except MutlocError as exc:
                 yield dets, None, exc
 
-    results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
+    # Verified poses of earlier starts that disagreed among themselves.
+    ambiguous: list[list[Pose]] = []
+    chosen = None
     for base, first, err in bases():
+        results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
         # A base looked for again that verifies on its own is an answer even if nothing needs a refit.
         own = first if base is not detections and first is not None and first.status == "solved" else None
         for pose, left_out in _hypotheses(base, first, err, solve):
@@ -391,24 +394,35 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
                     kept = (res, again)
             if kept is not None:
                 results.append(kept)
-        if results:
-            break
-    if not results:
+        if not results:
+            continue
+        most = max(len(r.markers_used) for r, _ in results)
+        top = sorted((r for r in results if len(r[0].markers_used) == most),
+                     key=lambda r: r[0].reprojection_rms_px)
+        # Two verified poses that disagree (a look-alike where a wrong candidate
+        # put a ball): nothing tells which is right, so neither is taken from
+        # this start; a later start (a look that does not rest on the same
+        # blobs) may settle it, if its answer is one of them.
+        if any(not _same(o.pose, top[0][0].pose) for o, _ in top[1:]):
+            ambiguous.append([o.pose for o, _ in top])
+            continue
+        if all(any(_same(p, top[0][0].pose) for p in poses) for poses in ambiguous):
+            chosen = top[0]
+        break
+    if chosen is None:
         return None
-    most = max(len(r.markers_used) for r, _ in results)
-    top = sorted((r for r in results if len(r[0].markers_used) == most), key=lambda r: r[0].reprojection_rms_px)
-    res, dets = top[0]
-    # Two verified poses that disagree (a look-alike where a wrong candidate
-    # put a ball): nothing tells which is right, so neither is taken.
-    if any(o.pose.translation_error(res.pose) > _SAME_M or o.pose.rotation_error_deg(res.pose) > _SAME_DEG
-           for o, _ in top[1:]):
-        return None
+    res, dets = chosen
+    most = len(res.markers_used)
     if est is not None and est.status == "solved" and most < len(est.markers_used):
         return None
     notes = _changes(detections, dets)
     if notes:
         res.extra["second_look"] = notes
     return res, dets
+
+
+def _same(a: Pose, b: Pose) -> bool:
+    return a.translation_error(b) <= _SAME_M and a.rotation_error_deg(b) <= _SAME_DEG
 
 
 def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, DetectionResult]) -> list[str]:
