@@ -14,7 +14,9 @@ same distributions drawn in another order; scene ``i`` for i in
 the rendered pose.  Prints median / 90th percentile of the translation error
 (a scene without a pose counted infinite), the same over the posed scenes,
 median rotation error, and the count of solved / unverified / unposed
-scenes; ``--json`` writes the per-scene rows.
+scenes, and the CPU time of localize_images per frame (one run, measured
+under whatever load there is: compare runs made together); ``--json``
+writes the per-scene rows.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -85,12 +88,15 @@ def main() -> None:
     for i in range(args.start, args.start + args.n):
         w, imgs = images(args.gen, i, rig, args.cache)
         truth = relative_pose(w, "p", "q")
+        c0 = time.process_time()
         try:
             est = localize_images(rig, imgs).estimate
-            row = dict(i=i, status=est.status, cm=100 * float(np.linalg.norm(est.t - truth.t)),
+            ms = 1000 * (time.process_time() - c0)
+            row = dict(i=i, ms=ms, status=est.status, cm=100 * float(np.linalg.norm(est.t - truth.t)),
                        deg=float(rotation_error_deg(est.R, truth.R)), used=len(est.markers_used))
         except MutlocError as exc:
-            row = dict(i=i, status="none", cm=float("inf"), deg=float("inf"), used=0, why=type(exc).__name__)
+            ms = 1000 * (time.process_time() - c0)
+            row = dict(i=i, ms=ms, status="none", cm=float("inf"), deg=float("inf"), used=0, why=type(exc).__name__)
         rows.append(row)
         print(json.dumps(row), flush=True)
     e = np.array([r["cm"] for r in rows])
@@ -100,7 +106,9 @@ def main() -> None:
           f"p90 {np.quantile(e, 0.9, method='higher'):.3f} cm; posed median {np.median(fin):.3f}, "
           f"p90 {np.quantile(fin, 0.9, method='higher'):.3f} cm; median rot "
           f"{np.median([r['deg'] for r in rows]):.4f} deg; solved {st.count('solved')}, "
-          f"unverified {st.count('unverified')}, no pose {st.count('none')}")
+          f"unverified {st.count('unverified')}, no pose {st.count('none')}; CPU per frame (both images' "
+          f"detection, solve, second look) median {np.median([r['ms'] for r in rows]):.0f} ms, "
+          f"max {max(r['ms'] for r in rows):.0f} ms")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 
