@@ -205,8 +205,10 @@ def test_partly_hidden_balls_pose_accuracy(occluded_runs):
     assert min(truly) < 0.72 and max(truly) > 0.3  # the scenes do hide 30-70 %
     # Issue 12's targets, a scene without a pose counting as an infinite
     # error: median 0.1 cm and 0.05 deg, 90th percentile 0.5 cm.  Measured
-    # (see README): median 0.017 cm, 90th percentile 0.20 cm, one scene of
-    # twelve without a pose (both partly hidden balls lost among look-alikes).
+    # (see README): median 0.017 cm, 90th percentile 0.046 cm, every scene
+    # posed (one was not before the second look searched the blobs near a
+    # missing ball's mates and settled ties from a later start).
+    assert np.isfinite(err).all(), err
     assert np.median(err[:, 0]) <= 0.001, err
     assert np.median(err[:, 1]) <= 0.05, err
     assert np.quantile(err[:, 0], 0.9, method="higher") <= 0.005, err

@@ -19,7 +19,9 @@ hidden balls sized as their robot's whole ones, and from the balls looked
 for again at the distance either camera's balls give.
 
 A result is kept only if it is *verified* (passes its consistency test),
-rests on first-look pixels for at least half of its observations, has at
+rests for at least half of its observations on pixels found before the pose
+(a ball measured again counts when the look before the pose found it within
+:data:`_MOVED_PX` of where it is measured now), has at
 least as many observations as a verified first look, and no other verified
 result disagrees with it.
 
@@ -234,6 +236,56 @@ def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[st
     return out
 
 
+def _near_mates(rig: Rig, images: Mapping[str, np.ndarray], contexts: Mapping[str, Any],
+                detections: Mapping[str, DetectionResult], source: str, target: str
+                ) -> Iterator[dict[str, DetectionResult]]:
+    """The detections with each missing ball taken, in turn, from the blobs of its colour within the rig's
+    reach of its robot's balls found (and sized as they are).
+
+    For frames the first look leaves with too few observations: a partly
+    hidden ball scores low for being hidden (its score scales with its
+    visible rim), and its free size, read off a short arc, can put it out
+    of the rig's distances.  Here it needs only the score of
+    :data:`MIN_REFIT_FRACTION` of a rim, is measured with its mates' size,
+    and must lie where the rig can put it (its distance to a mate over the
+    mates' distance, with :data:`_RANGE` to spare); the pose's consistency
+    test judges what this finds.
+    """
+    from ..detect.balls.refit import balls_near
+
+    options: dict[str, list[tuple[str, Any]]] = {}
+    for obs, det in detections.items():
+        balls = _balls(rig, target if obs == source else source)
+        mates = {n: d for n, d in det.detections.items() if n in balls and "distance_m" in d.info}
+        if not mates:
+            continue
+        D = float(np.median([float(d.info["distance_m"]) for d in mates.values()]))
+        f = contexts[obs].cam.f
+        for name in balls:
+            if name in det.detections:
+                continue
+            reach = [(d.uv, float(np.linalg.norm(balls[name].position - balls[m].position)) / D * f * _RANGE)
+                     for m, d in mates.items()]
+            for found in balls_near(contexts[obs], name, balls[name], D, reach):
+                if found.visible_fraction >= MIN_REFIT_FRACTION:
+                    options.setdefault(obs, []).append((name, found))
+    if not options:
+        return
+    per_obs = [[(obs, None)] + [(obs, o) for o in opts] for obs, opts in options.items()]
+    for pick in itertools.product(*per_obs):
+        if all(o is None for _, o in pick):
+            continue
+        out = {o: _copy(d) for o, d in detections.items()}
+        for obs, o in pick:
+            if o is not None:
+                name, d = o
+                out[obs].detections[name] = d
+                out[obs].missing = [m for m in out[obs].missing if m != name]
+                out[obs].missing_reasons.pop(name, None)
+                out[obs].alternatives.pop(name, None)
+        yield out
+
+
 def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None, error: Exception | None,
                 solve: Any) -> list[tuple[Pose, tuple[str, str] | None]]:
     """Poses to predict the balls from, each with the observation it leaves out (if any)."""
@@ -261,10 +313,18 @@ def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None,
     return out
 
 
-def _anchored(est: Estimate, detections: Mapping[str, DetectionResult]) -> bool:
-    """At least half of the pose's observations are first-look pixels: a ball measured again sits where
-    the pose puts it, so a pose resting mostly on such balls would confirm itself."""
-    refits = sum(bool(d.info.get("refit")) for det in detections.values() for n, d in det.detections.items()
+def _anchored(est: Estimate, detections: Mapping[str, DetectionResult], base: Mapping[str, DetectionResult]
+              ) -> bool:
+    """At least half of the pose's observations rest on pixels found without the pose: a ball measured again
+    sits where the pose puts it, so a pose resting mostly on such balls would confirm itself -- unless the
+    look before the pose (``base``) found that ball within :data:`_MOVED_PX` of where it is measured now."""
+    def own(obs: str, name: str, d: Any) -> bool:
+        if not d.info.get("refit"):
+            return True
+        b = base[obs].detections.get(name)
+        return b is not None and float(np.hypot(*(d.uv - b.uv))) <= _MOVED_PX
+
+    refits = sum(not own(obs, n, d) for obs, det in detections.items() for n, d in det.detections.items()
                  if n in est.markers_used)
     return 2 * refits <= len(est.markers_used)
 
@@ -299,48 +359,70 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
         if est is not None and est.status == "solved":
             return
         redone = (_redetect(rig, images, detections, D, source, target) for D in _distances(detections))
+        near = (d for d in _near_mates(rig, images, contexts, detections, source, target))
         for dets in itertools.chain([_mate_sized(rig, contexts, detections, source, target)],
-                                    *(([r, _mate_sized(rig, contexts, r, source, target)] for r in redone))):
+                                    *(([r, _mate_sized(rig, contexts, r, source, target)] for r in redone)),
+                                    near):
             try:
                 yield dets, solve(observations_of(dets)), None
             except MutlocError as exc:
                 yield dets, None, exc
 
-    results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
+    # Verified poses of earlier starts that disagreed among themselves.
+    ambiguous: list[list[Pose]] = []
+    chosen = None
     for base, first, err in bases():
+        results: list[tuple[Estimate, dict[str, DetectionResult]]] = []
         # A base looked for again that verifies on its own is an answer even if nothing needs a refit.
         own = first if base is not detections and first is not None and first.status == "solved" else None
         for pose, left_out in _hypotheses(base, first, err, solve):
-            cur, dets, res = pose, base, (own if left_out is None else None)
+            res = own if left_out is None else None
+            kept = (res, base) if res is not None and _anchored(res, base, base) else None
+            cur = pose
             for _ in range(_ROUNDS):
                 again, touched = _refit_all(rig, contexts, base, cur, source, target, left_out)
                 if not touched:
                     break  # nothing measured again: the solve would repeat the last one
                 try:
-                    res, dets = solve(observations_of(again)), again
+                    res = solve(observations_of(again))
                 except MutlocError:
                     break
                 cur = res.pose
-            if res is not None and res.status == "solved" and _anchored(res, dets):
-                results.append((res, dets))
-        if results:
-            break
-    if not results:
+                # The last verified round counts: a ball at the edge of measurable
+                # (MIN_REFIT_FRACTION) may drop out of a later one.
+                if res.status == "solved" and _anchored(res, again, base):
+                    kept = (res, again)
+            if kept is not None:
+                results.append(kept)
+        if not results:
+            continue
+        most = max(len(r.markers_used) for r, _ in results)
+        top = sorted((r for r in results if len(r[0].markers_used) == most),
+                     key=lambda r: r[0].reprojection_rms_px)
+        # Two verified poses that disagree (a look-alike where a wrong candidate
+        # put a ball): nothing tells which is right, so neither is taken from
+        # this start; a later start (a look that does not rest on the same
+        # blobs) may settle it, if its answer is one of them.
+        if any(not _same(o.pose, top[0][0].pose) for o, _ in top[1:]):
+            ambiguous.append([o.pose for o, _ in top])
+            continue
+        if all(any(_same(p, top[0][0].pose) for p in poses) for poses in ambiguous):
+            chosen = top[0]
+        break
+    if chosen is None:
         return None
-    most = max(len(r.markers_used) for r, _ in results)
-    top = sorted((r for r in results if len(r[0].markers_used) == most), key=lambda r: r[0].reprojection_rms_px)
-    res, dets = top[0]
-    # Two verified poses that disagree (a look-alike where a wrong candidate
-    # put a ball): nothing tells which is right, so neither is taken.
-    if any(o.pose.translation_error(res.pose) > _SAME_M or o.pose.rotation_error_deg(res.pose) > _SAME_DEG
-           for o, _ in top[1:]):
-        return None
+    res, dets = chosen
+    most = len(res.markers_used)
     if est is not None and est.status == "solved" and most < len(est.markers_used):
         return None
     notes = _changes(detections, dets)
     if notes:
         res.extra["second_look"] = notes
     return res, dets
+
+
+def _same(a: Pose, b: Pose) -> bool:
+    return a.translation_error(b) <= _SAME_M and a.rotation_error_deg(b) <= _SAME_DEG
 
 
 def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, DetectionResult]) -> list[str]:

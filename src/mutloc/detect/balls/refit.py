@@ -32,9 +32,9 @@ from .light import light_gains, lut_gains
 from .occlusion import smooth_rim
 from .params import BallParams, value_lut
 from .rim import Rim, rim_radii, sample_rim
-from .search import BallSearch
+from .search import BallSearch, find_blobs, value_floor
 
-__all__ = ["RefitContext", "apparent_radius_px", "fixed_cone_fit", "refit_ball"]
+__all__ = ["RefitContext", "apparent_radius_px", "balls_near", "fixed_cone_fit", "refit_ball"]
 
 
 @dataclass
@@ -205,3 +205,33 @@ def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray,
     cand.info["refit"] = True
     return Detection(marker=name, uv=cand.uv, score=cand.score, info=cand.info, visible_fraction=vis,
                      residual_px=float(cand.info["rms_px"]))
+
+
+def balls_near(ctx: RefitContext, name: str, marker: Marker, distance_m: float,
+               reach: list[tuple[np.ndarray, float]]) -> list[Detection]:
+    """``marker``'s ball measured as :func:`refit_ball` does, at ``distance_m``, on each blob of its colour
+    whose circle comes within ``reach`` (``(pixel, radius px)`` pairs) -- whatever the blob scores.
+
+    For a ball the first look turned down: a partly hidden one scores low for
+    being hidden and its free size is off; the blob's circle is found again
+    from its visible outline (as the detector's rescue does) and the ball
+    measured from there with the size ``distance_m`` gives it.
+    """
+    from .detector import refine_blob
+
+    params = ctx.params
+    s = BallSearch.from_marker(name, marker, params)
+    H, W = ctx.img.shape[:2]
+    rmax = float(params.max_radius_px) if params.max_radius_px is not None else min(H, W) / 3.0
+    k = 2 if min(H, W) // 2 >= 120 else 1
+    vf = value_floor(ctx.img)
+    out = []
+    blobs = [b for b in find_blobs(ctx.img, [s], k, rmax, vf, params, gains=ctx.gains)[0]
+             if any(math.hypot(b.u - float(uv[0]), b.v - float(uv[1])) <= r + b.radius for uv, r in reach)]
+    for b in blobs[: 2 * int(params.max_candidates)]:
+        c = refine_blob(ctx.img, ctx.lut, s, b, ctx.cam, rmax, params, v_floor=vf, gains=ctx.gains, recentre_it=True)
+        uv = c.uv if c is not None else np.array([b.u, b.v])
+        d = refit_ball(ctx, name, marker, ctx.cam.camera.pixels_to_bearings(uv) * distance_m)
+        if d is not None and not any(float(np.hypot(*(d.uv - o.uv))) < 1.0 for o in out):
+            out.append(d)
+    return out
