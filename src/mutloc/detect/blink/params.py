@@ -90,6 +90,6 @@ class BlinkParams:
     max_blob_area: int | None = None
     max_blob_std: float | None = None
     #: Cap on simultaneous tracks (identified, then confident ones kept).
-    max_tracks: int = 64
+    max_tracks: int = 128
     #: ``"max"`` (HSV value; coloured LEDs) or ``"gray"`` (luma).
     brightness: str = "max"
