@@ -64,6 +64,8 @@ class BirthStage:
         if one is None:
             return
         uv1, peak1 = one
+        if math.hypot(*(uv1 - (cand - shift))) > self._reach(tr.spread):
+            return  # the centroid wandered onto a larger bright patch: not the light's spot
         step = self.max_speed / self.fps  # the fastest image motion assumed, px per frame
         two = self._lit_spot_near(prev2, uv1 - self._prev_shift, math.ceil(step) + 1, tr.spread)
         if two is None:
