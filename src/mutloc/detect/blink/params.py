@@ -78,6 +78,10 @@ class BlinkParams:
     #: brightest channel but empties the others.  0 disables it.
     colour_contrast: float = 40.0
     colour_match: float = 0.25
+    #: A track born when its light switches off starts with a velocity,
+    #: measured in the two frames before (where the light was lit; see
+    #: :mod:`mutloc.detect.blink.birth`).  False: none until it is seen on.
+    birth_motion: bool = True
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),
@@ -86,6 +90,6 @@ class BlinkParams:
     max_blob_area: int | None = None
     max_blob_std: float | None = None
     #: Cap on simultaneous tracks (identified, then confident ones kept).
-    max_tracks: int = 64
+    max_tracks: int = 128
     #: ``"max"`` (HSV value; coloured LEDs) or ``"gray"`` (luma).
     brightness: str = "max"

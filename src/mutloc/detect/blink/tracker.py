@@ -84,6 +84,7 @@ from ...core.rig import Marker
 from ...errors import InputError
 from ..base import DetectionResult, as_bgr
 from .association import RESTART_REACHES, AssociationStage
+from .birth import BirthStage
 from .identity import IdentityStage
 from .measure import MeasureStage
 from .motion import GlobalMotion
@@ -93,7 +94,7 @@ from .state import Track
 __all__ = ["BlinkTracker"]
 
 
-class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
+class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage):
     """Streaming detector of blinking-light markers, told apart by ``blink_hz``.
 
     Call :meth:`update` once per frame; it returns a
@@ -278,6 +279,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         self.gate_growth = float(gate_growth)
         self.gate_speed = float(number("gate_speed", p.gate_speed, 0.0, math.inf, lo_open=False))
         self.expect_off = float(number("expect_off", p.expect_off, 0.0, 1.0, lo_open=False))
+        self.birth_motion = bool(p.birth_motion)
         self.colour_contrast = float(number("colour_contrast", p.colour_contrast, 0.0, 255.0, lo_open=False))
         self.colour_match = float(number("colour_match", p.colour_match, 0.0, 1.0, lo_open=False))
         # Limits in pixels that depend on the image size (None: derived from
@@ -316,6 +318,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
     def reset(self) -> None:
         """Forget every track and the previous frame (e.g. after a cut)."""
         self._prev: np.ndarray | None = None
+        self._prev2: np.ndarray | None = None  # the frame before that (see BirthStage)
+        self._prev_shift = np.zeros(2)  # camera shift from the frame before to the previous one
         self._colour: np.ndarray | None = None  # the current frame, (H, W, channels) uint8
         self._prev_colour: np.ndarray | None = None  # the previous one, as it was (not aligned)
         self._prev_t = math.nan
@@ -413,10 +417,10 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
         shift = self._motion.update(cur) if self.stabilize else np.zeros(2)
         self._times.append(t)
         if prev is not None:
-            self.last_shift = shift
+            self._prev_shift, self.last_shift = self.last_shift, shift
             self._offset = self._offset + shift
             self._step(cur, prev, t, shift)
-        self._prev = cur
+        self._prev2, self._prev = prev, cur
         self._prev_t = t
         result = self._report(t, cur.shape)
         self._frame += 1
@@ -527,6 +531,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage):
                         events=deque([True], maxlen=self.window),
                         last_polarity_on=bool(lit_now[r]))
             self._next_id += 1
+            if self.birth_motion and not lit_now[r]:
+                self._motion_at_birth(tr, c, prev_raw, cur, shift)
             tracks.append(tr)
             uv = self._observe(tr, cur, prev, c, bool(lit_now[r]), backfill=True)
             if uv is not None:
