@@ -82,6 +82,11 @@ class BlinkParams:
     #: measured in the two frames before (where the light was lit; see
     #: :mod:`mutloc.detect.blink.birth`).  False: none until it is seen on.
     birth_motion: bool = True
+    #: A light's name, just lost by its track, is handed at once to the
+    #: unidentified track that took over its spot if that track's on / off
+    #: history agrees with the light's fitted blink; revoked if it later
+    #: disagrees (see :mod:`mutloc.detect.blink.inherit`).
+    inherit_identity: bool = True
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),

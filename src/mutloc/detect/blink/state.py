@@ -62,6 +62,8 @@ class Track:
     # The identified light's blink, fitted to its history: (time of the last
     # sample, frequency, cosine and sine amplitudes); None if unidentified.
     blink: tuple[float, float, float, float] | None = None
+    inherited: str | None = None  # a name taken over from a lost track (see inherit.py)
+    no_inherit: bool = False  # an inherited name was revoked: never inherit again
 
     def expect_on(self, t: float) -> float:
         """How surely the identified light is on at ``t``: the fitted

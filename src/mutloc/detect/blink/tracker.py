@@ -86,6 +86,7 @@ from ..base import DetectionResult, as_bgr
 from .association import RESTART_REACHES, AssociationStage
 from .birth import BirthStage
 from .identity import IdentityStage
+from .inherit import InheritStage
 from .measure import MeasureStage
 from .motion import GlobalMotion
 from .params import BlinkParams
@@ -94,7 +95,7 @@ from .state import Track
 __all__ = ["BlinkTracker"]
 
 
-class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage):
+class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, InheritStage):
     """Streaming detector of blinking-light markers, told apart by ``blink_hz``.
 
     Call :meth:`update` once per frame; it returns a
@@ -280,6 +281,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage):
         self.gate_speed = float(number("gate_speed", p.gate_speed, 0.0, math.inf, lo_open=False))
         self.expect_off = float(number("expect_off", p.expect_off, 0.0, 1.0, lo_open=False))
         self.birth_motion = bool(p.birth_motion)
+        self.inherit_identity = bool(p.inherit_identity)
         self.colour_contrast = float(number("colour_contrast", p.colour_contrast, 0.0, 255.0, lo_open=False))
         self.colour_match = float(number("colour_match", p.colour_match, 0.0, 1.0, lo_open=False))
         # Limits in pixels that depend on the image size (None: derived from
@@ -326,6 +328,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage):
         self._frame = 0
         self._times: deque[float] = deque(maxlen=self.window)
         self._tracks: list[Track] = []
+        self._holders: dict = {}  # name -> (last holder, its blink, score, frame): InheritStage
         self._next_id = 0
         self._offset = np.zeros(2)  # cumulative camera shift: image = stabilised + offset
         self.last_shift = np.zeros(2)  # camera shift estimated at the last frame (px)
@@ -589,4 +592,6 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage):
             kept = kept[: self.max_tracks]
         self._tracks = kept
         self._identify()
+        if self.inherit_identity:
+            self._inherit()
 
