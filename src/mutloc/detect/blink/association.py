@@ -127,6 +127,21 @@ class AssociationStage:
             tr.is_on = False
             return None
         uv, rms = found
+        if math.hypot(*(uv - centre)) > r:
+            # The bright spot's centroid grew onto a larger bright patch
+            # beside it (trust seed 0: 32 px up a lit edge).  Just switched
+            # on, ``centre`` (the change region's centroid) locates the
+            # light, and the track's spread was just fitted to the region's;
+            # else a clipped spot's own plateau does.
+            if event_on:
+                uv, rms = np.asarray(centre, float), tr.spread
+            else:
+                circle = self._plateau_circle(cur, np.array([x0 + px, y0 + py], float),
+                                              self._spot(tr.spread)) if peak >= CLIP_LEVEL else None
+                if circle is None or math.hypot(*(circle[0] - centre)) > r:
+                    tr.is_on = False
+                    return None
+                uv, rms = circle[0], tr.spread
         if tr.by_colour and math.hypot(*(uv - centre)) > COLOUR_JUMP_PX:
             tr.is_on = False
             return None
