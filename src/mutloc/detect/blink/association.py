@@ -127,17 +127,16 @@ class AssociationStage:
             tr.is_on = False
             return None
         uv, rms = found
-        if math.hypot(*(uv - centre)) > r:
-            # The bright spot's centroid grew onto a larger bright patch
+        if peak >= CLIP_LEVEL and math.hypot(*(uv - centre)) > 2 * r and rms > 3.0 * tr.spread:
+            # The clipped spot's centroid grew onto a larger bright patch
             # beside it (trust seed 0: 32 px up a lit edge).  Just switched
             # on, ``centre`` (the change region's centroid) locates the
             # light, and the track's spread was just fitted to the region's;
-            # else a clipped spot's own plateau does.
+            # else the light's own clipped plateau does.
             if event_on:
                 uv, rms = np.asarray(centre, float), tr.spread
             else:
-                circle = self._plateau_circle(cur, np.array([x0 + px, y0 + py], float),
-                                              self._spot(tr.spread)) if peak >= CLIP_LEVEL else None
+                circle = self._plateau_circle(cur, np.array([x0 + px, y0 + py], float), self._spot(tr.spread))
                 if circle is None or math.hypot(*(circle[0] - centre)) > r:
                     tr.is_on = False
                     return None
