@@ -181,7 +181,7 @@ def apparent_radius_px(ctx: RefitContext, name: str, marker: Marker, centre: np.
 
 def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, *,
                radius_offset_px: float = 0.0, max_shift_px: float | None = None,
-               narrow_px: float | None = 1.5) -> Detection | None:
+               narrow_px: float | None = 1.5, narrow_below: float = 0.3) -> Detection | None:
     """``marker``'s ball measured with the size its camera-frame ``centre`` (metres) gives it.
 
     ``radius_offset_px`` is added to that size: the rim measurement's own
@@ -196,7 +196,24 @@ def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray,
     be measured there: too little rim (below ``params.min_visible_fraction``),
     not of the marker's colour, or a centre more than ``max_shift_px``
     (default: a third of the radius plus a pixel) from the prediction.
+
+    When that finds the ball missing or under ``narrow_below`` of its rim,
+    the rays whose edge missed the outline are measured again within
+    ``+-narrow_px`` of it (see :func:`_narrow_resample`) and the ball with
+    more rim is kept.  Only then: those rays' edges run a little inside the
+    outline (~0.1-0.3 px) and would shift a ball measured well without them.
     """
+    det = _refit(ctx, name, marker, centre, radius_offset_px, max_shift_px, None)
+    if narrow_px is None or (det is not None and float(det.visible_fraction or 0.0) >= narrow_below):
+        return det
+    again = _refit(ctx, name, marker, centre, radius_offset_px, max_shift_px, narrow_px)
+    if again is None or (det is not None and float(again.visible_fraction or 0.0) <= float(det.visible_fraction or 0.0)):
+        return det
+    return again
+
+
+def _refit(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, radius_offset_px: float,
+           max_shift_px: float | None, narrow_px: float | None) -> Detection | None:
     params = ctx.params
     s = BallSearch.from_marker(name, marker, params)
     pred = _predicted(ctx, s.radius_m, centre)
