@@ -282,3 +282,25 @@ def test_track_uses_the_second_look(filter):
         truth = relative_pose(w, "p", "q")
         assert [r.status for r in traj.rows] == ["solved"] * 3, traj.summary()
         assert max(r.estimate.pose.translation_error(truth) for r in traj.rows) < 0.002
+
+
+@pytest.mark.parametrize("i, obs, m", [(36, "q", "M4"), (37, "q", "M3")])
+def test_refit_finds_the_rim_against_a_background_of_a_near_hue(i, obs, m):
+    """A partly hidden ball bordering a background close to its own hue (a
+    light stripe, a salmon poster): the wide window's edges land pixels off
+    the outline and the fit drops them, measuring far less rim than shows;
+    the rays measured again close to the predicted outline find it, and the
+    centre stays where the true pose puts it."""
+    w = _occluded_run(i)
+    img = render(w, obs, seed=i, noise_sigma=1.0)
+    ctx = RefitContext.of(img, RIG.robot(obs).camera)
+    owner = "p" if obs == "q" else "q"
+    marker = RIG.robot(owner).markers[m]
+    X = _truth_centre(w, obs, m)
+    shown = ball_visibility(w, obs, m)
+    wide = refit_ball(ctx, m, marker, X, radius_offset_px=-0.065, narrow_px=None)
+    assert wide is not None and wide.visible_fraction < shown - 0.1
+    det = refit_ball(ctx, m, marker, X, radius_offset_px=-0.065)
+    assert det is not None
+    assert abs(det.visible_fraction - shown) < 0.1, (det.visible_fraction, shown)
+    assert np.linalg.norm(det.uv - project_markers(w, obs)[m]) < 0.1

@@ -31,7 +31,7 @@ from .fit import CameraModel, Fit, bearings, cone_rim
 from .light import light_gains, lut_gains
 from .occlusion import smooth_rim
 from .params import BallParams, value_lut
-from .rim import Rim, rim_radii, sample_rim
+from .rim import Rim, edges_kernel, rim_radii, sample_rim
 from .search import BallSearch, find_blobs, value_floor
 
 __all__ = ["RefitContext", "apparent_radius_px", "balls_near", "fixed_cone_fit", "refit_ball"]
@@ -132,6 +132,47 @@ def _predicted(ctx: RefitContext, radius_m: float, centre: np.ndarray
     return d, cos_a, outline, float(np.hypot(outline[:, 0] - c[0], outline[:, 1] - c[1]).mean())
 
 
+def _near(rim: Rim, rexp: np.ndarray, tol: float) -> np.ndarray:
+    """Rays whose edge lies within ``tol`` pixels of the expected radius."""
+    return rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol)
+
+
+def _narrow_resample(ctx: RefitContext, rim: Rim, near: np.ndarray, rexp: np.ndarray, tol: float,
+                     half_px: float, max_colour_deg: float = 8.0) -> np.ndarray:
+    """Rays whose edge missed the expected outline measured again in a window of ``+-half_px`` around it.
+
+    Against a background of a hue near the ball's (a light stripe next to
+    it, a poster), the wide window's far end is not the colour that mixes in
+    the rim's pixels, and the edge lands pixels off.  The pose places the
+    outline to a fraction of a pixel, so the colours just either side of it
+    are the ones to unmix.  Replaces those rays in ``rim`` in place; returns
+    the new ``near``.
+    """
+    params = ctx.params
+    n = len(rim.ang)
+    e = np.empty(n)
+    valid = np.empty(n, np.bool_)
+    inner = np.empty((n, 3))
+    contrast = np.empty(n)
+    h = min(half_px, max(float(rexp.min()) - 0.75, 1.5))
+    edges_kernel(ctx.img, ctx.lut, ctx.rim_gains, rim.cx, rim.cy, rim.ang, rexp, h, 2.0 * h, params.step_px,
+                 e, valid, inner, contrast)
+    take = ~near & valid & (np.abs(np.where(valid, e, 1e9) - rexp) <= tol)
+    # Only where the inside is the ball's colour (that of the rays that did
+    # find the outline): an occluder's edge near the outline must not count.
+    if np.count_nonzero(near) < 4:
+        return near
+    ref = np.median(rim.inner[near] / np.linalg.norm(rim.inner[near], axis=1, keepdims=True), axis=0)
+    ref /= np.linalg.norm(ref)
+    cosang = (inner @ ref) / np.maximum(np.linalg.norm(inner, axis=1), 1e-12)
+    take &= np.where(take, cosang, 0.0) > math.cos(math.radians(max_colour_deg))
+    rim.radius = np.where(take, e, rim.radius)
+    rim.valid = rim.valid | take
+    rim.inner = np.where(take[:, None], inner, rim.inner)
+    rim.contrast = np.where(take, contrast, rim.contrast)
+    return near | take
+
+
 def apparent_radius_px(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray) -> float | None:
     """Mean radius (pixels) of the outline a ball at camera-frame ``centre`` projects to (None: it does not)."""
     p = _predicted(ctx, BallSearch.from_marker(name, marker, ctx.params).radius_m, centre)
@@ -139,7 +180,8 @@ def apparent_radius_px(ctx: RefitContext, name: str, marker: Marker, centre: np.
 
 
 def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, *,
-               radius_offset_px: float = 0.0, max_shift_px: float | None = None) -> Detection | None:
+               radius_offset_px: float = 0.0, max_shift_px: float | None = None,
+               narrow_px: float | None = 1.5, narrow_below: float = 0.3) -> Detection | None:
     """``marker``'s ball measured with the size its camera-frame ``centre`` (metres) gives it.
 
     ``radius_offset_px`` is added to that size: the rim measurement's own
@@ -154,7 +196,24 @@ def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray,
     be measured there: too little rim (below ``params.min_visible_fraction``),
     not of the marker's colour, or a centre more than ``max_shift_px``
     (default: a third of the radius plus a pixel) from the prediction.
+
+    When that finds the ball missing or under ``narrow_below`` of its rim,
+    the rays whose edge missed the outline are measured again within
+    ``+-narrow_px`` of it (see :func:`_narrow_resample`) and the ball with
+    more rim is kept.  Only then: those rays' edges run a little inside the
+    outline (~0.1-0.3 px) and would shift a ball measured well without them.
     """
+    det = _refit(ctx, name, marker, centre, radius_offset_px, max_shift_px, None)
+    if narrow_px is None or (det is not None and float(det.visible_fraction or 0.0) >= narrow_below):
+        return det
+    again = _refit(ctx, name, marker, centre, radius_offset_px, max_shift_px, narrow_px)
+    if again is None or (det is not None and float(again.visible_fraction or 0.0) <= float(det.visible_fraction or 0.0)):
+        return det
+    return again
+
+
+def _refit(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, radius_offset_px: float,
+           max_shift_px: float | None, narrow_px: float | None) -> Detection | None:
     params = ctx.params
     s = BallSearch.from_marker(name, marker, params)
     pred = _predicted(ctx, s.radius_m, centre)
@@ -184,7 +243,9 @@ def refit_ball(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray,
         rim = sample_rim(ctx.img, ctx.lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px,
                          ctx.rim_gains)
         tol = max(1.0, 0.1 * r) if it == 0 else max(0.75, 0.05 * r)
-        near = rim.valid & (np.abs(np.where(rim.valid, rim.radius, 1e9) - rexp) <= tol)
+        near = _near(rim, rexp, tol)
+        if narrow_px is not None and not near.all():
+            near = _narrow_resample(ctx, rim, near, rexp, tol, narrow_px)
         rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
         fit = _fit(ctx, rim, near & rim.valid, d, cos_a)
         if fit is None:
