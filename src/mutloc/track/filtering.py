@@ -45,6 +45,7 @@ from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..errors import InconsistentObservationsError, InputError, MutlocError, positive_number
+from .hindsight import TentativeFrames
 from .status import FrameStatus
 
 if TYPE_CHECKING:
@@ -173,6 +174,8 @@ class PairTracker:
         self._restarted = False
         #: While the track is tentative: the markers of the three-marker frame that started it.
         self._tentative: frozenset[str] | None = None
+        #: ... and its frames since, reported again once it is confirmed (see .hindsight).
+        self._tentative_frames = TentativeFrames()
         #: When a list: per frame, (prediction, state after the frame, row) while the
         #: track runs, None where it (re)starts or is lost -- for smoothing.
         self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
@@ -290,33 +293,52 @@ class PairTracker:
         """Update a tentative track with the row; the row reports its
         per-frame result unless this frame confirms the track."""
         if self._measured(row) > MIN_OBSERVATIONS:
-            # Four or more markers judge themselves: solved, the frame starts
-            # the track; inconsistent, the tentative track (which may share
-            # the bad detection, and so agree with it) goes too.
-            self.filter.state, self._tentative = None, None
-            self._restart(row, "")
+            # Four or more markers judge themselves: solved, and consistent
+            # with the track where it predicted them sharply, the frame
+            # confirms the track; solved but not that, it starts a new one;
+            # inconsistent, the tentative track (which may share the bad
+            # detection, and so agree with it) goes too.
+            alone = _copy_row(row)
+            solve_row(alone, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+            if alone.status != FrameStatus.SOLVED or not self._confirm(row, state, _copy_row(row)):
+                self.filter.state, self._tentative = None, None
+                self._restart(row, "")
             return
         trial = _copy_row(row)
-        self._filtered_step(trial, state)
-        used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
-        new = used - self._tentative
-        # The new markers must have been predicted sharply: a wrong start
-        # (three markers fit any one bad detection exactly) is exposed only
-        # where the track's prediction could have missed them.
-        spread = max((self._spread_px(state, m) for m in new), default=math.inf)
-        if trial.status == FrameStatus.SOLVED and spread <= CONFIRM_SPREAD * self.pixel_sigma:
-            started = ", ".join(sorted(self._tentative))
-            self._tentative = None
-            row.status, row.estimate = trial.status, trial.estimate
-            note = (f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started} "
-                    f"(new markers predicted within {spread:.1f} px)")
-            row.reason = f"{note}; {trial.reason}" if trial.reason else note
+        if self._confirm(row, state, trial):
             return
         if trial.status in (FrameStatus.REJECTED, FrameStatus.FAILED) or self.filter.state is None:
             self.filter.state, self._tentative = None, None
             self._restart(row, "")
             return
+        if self.history is not None:
+            self._tentative_frames.add(len(self.history), row, trial, state, self.filter.state)
         solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+
+    def _confirm(self, row: "TrackRow", state: FilterState, trial: "TrackRow") -> bool:
+        """Filter ``trial`` (a copy of ``row``) into the tentative track; when
+        it confirms the track, report ``row`` (and the tentative frames, see
+        :mod:`.hindsight`) as the confirmed track does and return True."""
+        self._filtered_step(trial, state)
+        used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
+        new = used - self._tentative
+        # The new markers must have been predicted sharply: a wrong start
+        # (three markers fit any one bad detection exactly) is exposed only
+        # where the track's prediction could have missed them.  Every
+        # measured marker must agree (none dropped).
+        spread = max((self._spread_px(state, m) for m in new), default=math.inf)
+        if (trial.status != FrameStatus.SOLVED or spread > CONFIRM_SPREAD * self.pixel_sigma
+                or len(used) < self._measured(row)):
+            return False
+        started = ", ".join(sorted(self._tentative))
+        self._tentative = None
+        row.status, row.estimate = trial.status, trial.estimate
+        note = (f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started} "
+                f"(new markers predicted within {spread:.1f} px)")
+        row.reason = f"{note}; {trial.reason}" if trial.reason else note
+        if self.history is not None:
+            self._tentative_frames.confirm(self.history, len(self.history), self.options.smooth_lag, row.t)
+        return True
 
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
         names = [problem.labels[k] for k in upd.used.tolist()]
@@ -331,6 +353,7 @@ class PairTracker:
         frame of three measured markers starts a tentative one.  Returns
         whether it did; with ``keep_failure`` the row keeps the per-frame
         result either way."""
+        self._tentative_frames.clear()
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
         # Only a frame solved on measured markers alone starts a track: four
