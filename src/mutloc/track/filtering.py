@@ -180,6 +180,8 @@ class PairTracker:
         #: track runs, None where it (re)starts or is lost -- for smoothing.
         self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
             [] if self.options.smooth_lag > 0 and self.filtering else None
+        #: Every row filtered, aligned with ``history`` (for the hindsight checks).
+        self._stepped: list[Any] = []
 
     @property
     def filtering(self) -> bool:
@@ -195,6 +197,8 @@ class PairTracker:
             return
         if self.filter.state is not None and row.t < self.filter.state.time:
             raise InputError(f"frame at {row.t} s comes before the previous one ({self.filter.state.time} s)")
+        if self.history is not None:
+            self._stepped.append(row)
         lost = ""
         if self.filter.state is not None:
             state = self.filter.predict(row.t)
@@ -243,6 +247,7 @@ class PairTracker:
         if not lag or not self.history:
             return
         hist = self.history
+        self._tentative_frames.report(self, hist, self._stepped, lag)
         for k, j in self.segments():
             priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
             gains = rts_gains(priors, posts)
@@ -326,7 +331,7 @@ class PairTracker:
         # (three markers fit any one bad detection exactly) is exposed only
         # where the track's prediction could have missed them.  Every
         # measured marker must agree (none dropped).
-        spread = max((self._spread_px(state, m) for m in new), default=math.inf)
+        spread = max((self.spread_px(state, m) for m in new), default=math.inf)
         if (trial.status != FrameStatus.SOLVED or spread > CONFIRM_SPREAD * self.pixel_sigma
                 or len(used) < self._measured(row)):
             return False
@@ -337,7 +342,7 @@ class PairTracker:
                 f"(new markers predicted within {spread:.1f} px)")
         row.reason = f"{note}; {trial.reason}" if trial.reason else note
         if self.history is not None:
-            self._tentative_frames.confirm(self.history, len(self.history), self.options.smooth_lag, row.t)
+            self._tentative_frames.confirm(len(self.history), self.options.smooth_lag, row.t)
         return True
 
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
@@ -377,7 +382,7 @@ class PairTracker:
             row.reason = f"{note}; {row.reason}" if row.reason else note
         return started or tentative
 
-    def _spread_px(self, state: FilterState, marker: str) -> float:
+    def spread_px(self, state: FilterState, marker: str) -> float:
         """1-sigma (px, largest axis) of where ``state`` predicts ``marker``
         in its observer's image (unscented, from the pose covariance)."""
         for observer, other, inverse in ((self.target, self.source, False), (self.source, self.target, True)):
