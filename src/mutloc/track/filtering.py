@@ -23,10 +23,13 @@ it) until a frame of three markers, at least one of them not among the
 starting three and predicted sharply (``CONFIRM_SPREAD``), is consistent
 with it -- two different marker sets, each fixing the pose on its own,
 agree through the motion prior.  From that frame on the track is confirmed
-and reports as above.  A tentative track that any frame contradicts is
+and reports as above; with the fixed-lag smoother, so do its tentative
+frames within the lag that the frames after them verify (see
+:mod:`.hindsight`).  A tentative track that any frame contradicts is
 dropped, and a frame of four or more markers decides for itself: solved,
-it starts the track; not, the tentative track goes (it may share the frame's
-bad detection and so agree with it).
+it confirms the track where it agrees with it as above, else starts a new
+one; not solved, the tentative track goes (it may share the frame's bad
+detection and so agree with it).
 """
 
 from __future__ import annotations
