@@ -151,13 +151,19 @@ def test_outliers_are_rejected_or_harmless(runs):
 
 def test_the_smoother_does_better_than_the_causal_filter(runs):
     """The default fixed lag (10 frames, 1/3 s) against the causal filter
-    (--smooth-lag 0) on the same frames: same statuses, smaller errors, and
-    the causal filter's sigmas calibrated too."""
+    (--smooth-lag 0) on the same frames: same statuses (but for the frames of
+    a tentative track confirmed in hindsight, which the causal filter leaves
+    with their per-frame statuses), smaller errors, and the causal filter's
+    sigmas calibrated too."""
     e_cv, e_causal = [], []
     for seed, r in runs.items():
         seq, traj_c = r["cv"]
         _, traj_f = r["causal"]
-        assert [str(a.status) for a in traj_c.rows] == [str(b.status) for b in traj_f.rows]
+        for a, b in zip(traj_c.rows, traj_f.rows, strict=True):
+            if "confirmed in hindsight" in a.reason:
+                assert str(b.status) in ("unverified", "too_few"), (seed, a.t, b.status)
+            else:
+                assert str(a.status) == str(b.status), (seed, a.t)
         e_cv.append(_errors(traj_c, seq))
         e_causal.append(_errors(traj_f, seq))
         z, nees = _normalised(traj_f, seq)

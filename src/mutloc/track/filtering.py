@@ -23,10 +23,13 @@ it) until a frame of three markers, at least one of them not among the
 starting three and predicted sharply (``CONFIRM_SPREAD``), is consistent
 with it -- two different marker sets, each fixing the pose on its own,
 agree through the motion prior.  From that frame on the track is confirmed
-and reports as above.  A tentative track that any frame contradicts is
+and reports as above; with the fixed-lag smoother, so do its tentative
+frames within the lag that the frames after them verify (see
+:mod:`.hindsight`).  A tentative track that any frame contradicts is
 dropped, and a frame of four or more markers decides for itself: solved,
-it starts the track; not, the tentative track goes (it may share the frame's
-bad detection and so agree with it).
+it confirms the track where it agrees with it as above, else starts a new
+one; not solved, the tentative track goes (it may share the frame's bad
+detection and so agree with it).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..errors import InconsistentObservationsError, InputError, MutlocError, positive_number
+from .hindsight import TentativeFrames
 from .status import FrameStatus
 
 if TYPE_CHECKING:
@@ -173,10 +177,14 @@ class PairTracker:
         self._restarted = False
         #: While the track is tentative: the markers of the three-marker frame that started it.
         self._tentative: frozenset[str] | None = None
+        #: ... and its frames since, reported again once it is confirmed (see .hindsight).
+        self._tentative_frames = TentativeFrames()
         #: When a list: per frame, (prediction, state after the frame, row) while the
         #: track runs, None where it (re)starts or is lost -- for smoothing.
         self.history: list[tuple[FilterState, FilterState, Any] | None] | None = \
             [] if self.options.smooth_lag > 0 and self.filtering else None
+        #: Every row filtered, aligned with ``history`` (for the hindsight checks).
+        self._stepped: list[Any] = []
 
     @property
     def filtering(self) -> bool:
@@ -192,6 +200,8 @@ class PairTracker:
             return
         if self.filter.state is not None and row.t < self.filter.state.time:
             raise InputError(f"frame at {row.t} s comes before the previous one ({self.filter.state.time} s)")
+        if self.history is not None:
+            self._stepped.append(row)
         lost = ""
         if self.filter.state is not None:
             state = self.filter.predict(row.t)
@@ -240,6 +250,7 @@ class PairTracker:
         if not lag or not self.history:
             return
         hist = self.history
+        self._tentative_frames.report(self, hist, self._stepped, lag)
         for k, j in self.segments():
             priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
             gains = rts_gains(priors, posts)
@@ -290,33 +301,52 @@ class PairTracker:
         """Update a tentative track with the row; the row reports its
         per-frame result unless this frame confirms the track."""
         if self._measured(row) > MIN_OBSERVATIONS:
-            # Four or more markers judge themselves: solved, the frame starts
-            # the track; inconsistent, the tentative track (which may share
-            # the bad detection, and so agree with it) goes too.
-            self.filter.state, self._tentative = None, None
-            self._restart(row, "")
+            # Four or more markers judge themselves: solved, and consistent
+            # with the track where it predicted them sharply, the frame
+            # confirms the track; solved but not that, it starts a new one;
+            # inconsistent, the tentative track (which may share the bad
+            # detection, and so agree with it) goes too.
+            alone = _copy_row(row)
+            solve_row(alone, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+            if alone.status != FrameStatus.SOLVED or not self._confirm(row, state, _copy_row(row)):
+                self.filter.state, self._tentative = None, None
+                self._restart(row, "")
             return
         trial = _copy_row(row)
-        self._filtered_step(trial, state)
-        used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
-        new = used - self._tentative
-        # The new markers must have been predicted sharply: a wrong start
-        # (three markers fit any one bad detection exactly) is exposed only
-        # where the track's prediction could have missed them.
-        spread = max((self._spread_px(state, m) for m in new), default=math.inf)
-        if trial.status == FrameStatus.SOLVED and spread <= CONFIRM_SPREAD * self.pixel_sigma:
-            started = ", ".join(sorted(self._tentative))
-            self._tentative = None
-            row.status, row.estimate = trial.status, trial.estimate
-            note = (f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started} "
-                    f"(new markers predicted within {spread:.1f} px)")
-            row.reason = f"{note}; {trial.reason}" if trial.reason else note
+        if self._confirm(row, state, trial):
             return
         if trial.status in (FrameStatus.REJECTED, FrameStatus.FAILED) or self.filter.state is None:
             self.filter.state, self._tentative = None, None
             self._restart(row, "")
             return
+        if self.history is not None:
+            self._tentative_frames.add(len(self.history), row, trial, state, self.filter.state)
         solve_row(row, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+
+    def _confirm(self, row: "TrackRow", state: FilterState, trial: "TrackRow") -> bool:
+        """Filter ``trial`` (a copy of ``row``) into the tentative track; when
+        it confirms the track, report ``row`` (and the tentative frames, see
+        :mod:`.hindsight`) as the confirmed track does and return True."""
+        self._filtered_step(trial, state)
+        used = set(trial.estimate.markers_used) if trial.estimate is not None else set()
+        new = used - self._tentative
+        # The new markers must have been predicted sharply: a wrong start
+        # (three markers fit any one bad detection exactly) is exposed only
+        # where the track's prediction could have missed them.  Every
+        # measured marker must agree (none dropped).
+        spread = max((self.spread_px(state, m) for m in new), default=math.inf)
+        if (trial.status != FrameStatus.SOLVED or spread > CONFIRM_SPREAD * self.pixel_sigma
+                or len(used) < self._measured(row)):
+            return False
+        started = ", ".join(sorted(self._tentative))
+        self._tentative = None
+        row.status, row.estimate = trial.status, trial.estimate
+        note = (f"track confirmed: {', '.join(sorted(used))} agree with the track started on {started} "
+                f"(new markers predicted within {spread:.1f} px)")
+        row.reason = f"{note}; {trial.reason}" if trial.reason else note
+        if self.history is not None:
+            self._tentative_frames.confirm(len(self.history), self.options.smooth_lag, row.t)
+        return True
 
     def _accepted(self, row: "TrackRow", problem: PairProblem, upd: FilterUpdate) -> None:
         names = [problem.labels[k] for k in upd.used.tolist()]
@@ -331,6 +361,7 @@ class PairTracker:
         frame of three measured markers starts a tentative one.  Returns
         whether it did; with ``keep_failure`` the row keeps the per-frame
         result either way."""
+        self._tentative_frames.clear()
         trial = row if keep_failure else _copy_row(row)
         solve_row(trial, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
         # Only a frame solved on measured markers alone starts a track: four
@@ -354,7 +385,7 @@ class PairTracker:
             row.reason = f"{note}; {row.reason}" if row.reason else note
         return started or tentative
 
-    def _spread_px(self, state: FilterState, marker: str) -> float:
+    def spread_px(self, state: FilterState, marker: str) -> float:
         """1-sigma (px, largest axis) of where ``state`` predicts ``marker``
         in its observer's image (unscented, from the pose covariance)."""
         for observer, other, inverse in ((self.target, self.source, False), (self.source, self.target, True)):

@@ -1,0 +1,147 @@
+"""A tentative track's frames, reported again once the track is confirmed.
+
+While a track started from three measured markers is tentative, its frames
+keep their per-frame statuses (``unverified``, ``too_few``): nothing
+confirms them yet.  The filter runs through them all the same, and when a
+later frame confirms the track (see :mod:`mutloc.track.filtering`), the
+tentative frames within the smoother's lag before it -- whose reports come
+that late anyway -- are reported as the confirmed track does (``solved``
+with three or more markers, ``partial``, ``predicted``) and join the
+smoothed segment, going back from the confirming frame as long as each
+three-marker frame is *verified by the frames after it*: a track run
+backward in time over the ``smooth_lag`` frames after it, from the last of
+them that fixes the pose on its own, must predict all of its markers within
+``CONFIRM_SPREAD`` pixel sigmas and agree with them.  The forward track
+cannot vouch for them: while it was tentative its prior was vague, and one
+bad detection in a three-marker frame bends it without a trace.  The frame
+that started the track keeps its status (its pose is its own untested
+three-marker fit).  Without smoothing (``smooth_lag`` 0, a robot acting on
+each frame as it comes) no status changes afterwards.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Sequence
+
+from ..core.filter import ConstantVelocityFilter
+from ..core.observations import MIN_OBSERVATIONS
+from ..errors import MutlocError
+from .status import FrameStatus
+
+if TYPE_CHECKING:
+    from ..core.filter import FilterState
+    from .tracker import TrackRow
+
+__all__ = ["TentativeFrames", "verified_backward"]
+
+
+@dataclass
+class _Pending:
+    index: int  # the frame's entry in the tracker's smoothing history
+    row: "TrackRow"
+    status: Any
+    estimate: Any
+    reason: str
+    prior: "FilterState"
+    post: "FilterState"
+
+
+class TentativeFrames:
+    """The frames of the current tentative track, with what the filter made
+    of them; after a confirmation, those that may be reported again."""
+
+    def __init__(self) -> None:
+        self._pending: list[_Pending] = []
+        #: Per confirmation: (its time, the tentative frames within the lag before it).
+        self.confirmed: list[tuple[float, list[_Pending]]] = []
+
+    def clear(self) -> None:
+        """The tentative track ended (dropped, restarted or lost)."""
+        self._pending.clear()
+
+    def add(self, index: int, row: "TrackRow", trial: "TrackRow", prior: "FilterState",
+            post: "FilterState") -> None:
+        """Frame ``row`` (history entry ``index``) ran through the tentative
+        track: ``trial`` holds the status, estimate and reason a confirmed
+        track would have given it, ``prior``/``post`` the filter's states."""
+        self._pending.append(_Pending(index, row, trial.status, trial.estimate, trial.reason, prior, post))
+
+    def confirm(self, index: int, lag: int, t: float) -> None:
+        """The frame at history entry ``index`` (time ``t``) confirmed the
+        track: keep its tentative frames within ``lag`` entries before it."""
+        near = [p for p in self._pending if index - p.index <= lag and p.estimate is not None]
+        if near:
+            self.confirmed.append((t, near))
+        self.clear()
+
+    def report(self, tracker: Any, history: list, stepped: Sequence["TrackRow"], lag: int) -> int:
+        """Report the kept frames as the confirmed track does, going back
+        from each confirming frame while every three-marker frame is
+        verified by the ``lag`` frames after it (``stepped``: every row
+        the tracker filtered, aligned with ``history``).  Returns how many."""
+        done = 0
+        for t, frames in self.confirmed:
+            for p in reversed(frames):
+                if p.status == FrameStatus.SOLVED and \
+                        not verified_backward(tracker, p.row, stepped[p.index + 1:p.index + 1 + lag]):
+                    break
+                note = f"confirmed in hindsight by the frame at t = {t:.3f} s and the frames after it"
+                p.row.status, p.row.estimate = p.status, p.estimate
+                p.row.reason = f"{note}; {p.reason}" if p.reason else note
+                history[p.index] = (p.prior, p.post, p.row)
+                done += 1
+        self.confirmed.clear()
+        return done
+
+
+def verified_backward(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"]) -> bool:
+    """Whether a track run backward in time over ``later`` (the frames after
+    ``row``, in time order) predicts every marker of ``row`` within
+    ``CONFIRM_SPREAD`` pixel sigmas and agrees with all of them.
+
+    ``tracker``: the :class:`~mutloc.track.filtering.PairTracker` (its rig,
+    noise, options and spread measure).  The backward track starts from the
+    last frame of ``later`` that ``localize`` fixes on measured markers alone
+    (three or more) and runs with time reversed; it is independent of ``row``."""
+    from .filtering import CONFIRM_SPREAD, lost_reason, solve_row
+
+    f = ConstantVelocityFilter(tracker.options.noise, tracker.pixel_sigma, tracker.confidence,
+                               measure_noise=tracker.options.measure_noise)
+    for r in reversed(later):
+        problem = _problem(tracker, r)
+        if problem is None:
+            continue
+        if f.state is None:
+            if len(problem.side) < MIN_OBSERVATIONS:
+                continue
+            alone = replace(r, reason="", estimate=None, detections={})
+            solve_row(alone, tracker.rig, tracker.source, tracker.target, tracker.pixel_sigma, tracker.confidence)
+            if alone.status in (FrameStatus.SOLVED, FrameStatus.UNVERIFIED) and alone.estimate is not None:
+                f.reset(-r.t, alone.estimate.pose, alone.estimate.covariance)
+            continue
+        f.predict(-r.t)
+        if lost_reason(f.state, tracker.options):
+            return False
+        f.update(problem)
+    problem = _problem(tracker, row)
+    if f.state is None or problem is None:
+        return False
+    state = f.predict(-row.t)
+    markers = [label.rsplit(" saw ", 1)[-1] for label in problem.labels]
+    if max(tracker.spread_px(state, m) for m in markers) > CONFIRM_SPREAD * tracker.pixel_sigma:
+        return False
+    upd = f.update(problem)
+    return bool(upd.accepted and len(upd.used) == len(markers))
+
+
+def _problem(tracker: Any, row: "TrackRow") -> Any:
+    """The row's named, measured observations in the filter's form (None if none)."""
+    obs = row.observations
+    if obs is None or obs.has_alternatives:
+        return None
+    try:
+        pair = obs.pair(tracker.rig, tracker.source, tracker.target)
+    except MutlocError:
+        return None
+    return tracker.problem(pair) if len(pair.rows) else None
