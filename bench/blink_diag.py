@@ -10,7 +10,7 @@ second), the nearest tracks and the identity figures that decide their name
 amplitude, switch events against those needed, recent brightness history).
 
     python bench/blink_diag.py trust SEED --cache /tmp/tl_hold [--observer p] [--why]
-    python bench/blink_diag.py identity SEED --distance 2 --cache /tmp/lt_hold [--why]
+    python bench/blink_diag.py identity SEED --distance 2 --cache /tmp/lt_hold [--why] [--param colour_contrast=0]
 
 Reads the frames the two benches cached (bench/trust_sequences.py,
 bench/blink_identity.py); renders them if the cache lacks them.
@@ -19,6 +19,7 @@ bench/blink_identity.py); renders them if the cache lacks them.
 from __future__ import annotations
 
 import argparse
+import ast
 import sys
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import numpy as np
 
 from mutloc.core.rig import MarkerKind
 from mutloc.detect.blink import BlinkTracker
+from mutloc.detect.blink.params import BlinkParams
 from mutloc.sim.render import moving_world, project_markers
 from mutloc.sim.world import light_is_on, standard_rig
 
@@ -61,8 +63,8 @@ def why(bt: BlinkTracker, name: str, uv: np.ndarray, t: float) -> list[str]:
     return out
 
 
-def run(frames, truth, lit, markers, camera, fps: float, explain: bool) -> None:
-    bt = BlinkTracker(markers, fps, camera=camera)
+def run(frames, truth, lit, markers, camera, fps: float, explain: bool, params: BlinkParams | None = None) -> None:
+    bt = BlinkTracker(markers, fps, params=params, camera=camera)
     for i, img in enumerate(frames):
         t = i / fps
         res = bt.update(img, t)
@@ -97,7 +99,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--why", action="store_true", help="explain lights lit but not reported")
+    ap.add_argument("--param", action="append", default=[], help="a BlinkParams field, NAME=VALUE (Python literal)")
     args = ap.parse_args(argv)
+    params = BlinkParams(**{k: ast.literal_eval(v) for k, v in (p.split("=", 1) for p in args.param)})
     cache = Path(args.cache) if args.cache else None
     fps = args.fps
     if args.bench == "identity":
@@ -105,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         rig, markers, frames, truth, on = sequence((960, 540), 800.0, args.distance, args.seed, n, fps, 4.0, 15.0,
                                                    cache)
         lit = [{m: ("L" if on[i][m] else "o") for m in markers} for i in range(n)]
-        run(frames, truth, lit, markers, rig.robot("q").camera, fps, args.why)
+        run(frames, truth, lit, markers, rig.robot("q").camera, fps, args.why, params)
         return 0
     n = args.frames or 60
     rig = standard_rig("lights")
@@ -123,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             lit.append({m: ("h" if m not in seen else "L" if light_is_on(everyone[m], i / fps) else "o")
                         for m in markers})
         print(f"=== observer {obs}: " + ", ".join(f"{k} {m.blink_hz:g} Hz" for k, m in markers.items()))
-        run(images[obs], truth, lit, markers, rig.robot(obs).camera, fps, args.why)
+        run(images[obs], truth, lit, markers, rig.robot(obs).camera, fps, args.why, params)
     return 0
 
 
