@@ -21,23 +21,16 @@ import pytest
 
 from mutloc.detect.blink import BlinkTracker
 from mutloc.detect.blink.params import BlinkParams
-from mutloc.sim.render import moving_world, project_markers, render
-from mutloc.sim.tracking import light_identity
-from mutloc.sim.world import light_is_on, standard_rig
+from mutloc.sim.render import moving_world
+from mutloc.sim.tracking import light_identity, light_view
+from mutloc.sim.world import standard_rig
 
 FPS = 30.0
 
 
 def _frames(rig, world, observer: str, other: str, n: int, seed0: int):
     markers = rig.robot(other).markers
-    frames, truth, lit = [], [], []
-    for k in range(n):
-        t = k / FPS
-        frames.append(render(world, observer, t, seed=seed0 + k, noise_sigma=1.0))
-        truth.append({m: u for m, u in project_markers(world, observer, t, check_occlusion=True).items()
-                      if m in markers})
-        lit.append({m: light_is_on(mk, t) for m, mk in markers.items()})
-    return markers, frames, truth, lit
+    return (markers, *light_view(world, observer, list(markers), n, FPS, seed0))
 
 
 def _run(rig, observer, data, params):
