@@ -154,9 +154,10 @@ class IdentityStage:
                 # track taking over its spot may inherit it -- but is reported
                 # only once the light is measured lit at the track, or while
                 # where it was last lit still lies within its gate (the
-                # report does not rest on the velocity alone).
-                tr.unconfirmed = (tr.last_on_pos is None
-                                  or math.hypot(*(tr.pos - tr.last_on_pos)) > self._gate(tr, self._times[-1]))
+                # report does not rest on the velocity alone; the gate not
+                # widened for a light due on, which is for finding it).
+                tr.unconfirmed = (tr.last_on_pos is None or math.hypot(*(tr.pos - tr.last_on_pos))
+                                  > self._gate(tr, self._times[-1], due_on=False))
 
     @staticmethod
     def _blink_phase(tr, times_all: np.ndarray, f: float, n: int) -> tuple[float, float, float, float]:
