@@ -13,9 +13,9 @@ import pytest
 
 from mutloc.detect.blink import BlinkTracker
 from mutloc.detect.blink.params import BlinkParams
-from mutloc.sim.render import moving_world, project_markers, render
-from mutloc.sim.tracking import light_identity
-from mutloc.sim.world import light_is_on, standard_rig
+from mutloc.sim.render import moving_world
+from mutloc.sim.tracking import light_identity, light_view
+from mutloc.sim.world import standard_rig
 
 FPS = 30.0
 N = 60
@@ -27,13 +27,7 @@ def _view(seed: int, observer: str):
     rig = standard_rig("lights")
     world = moving_world(rig, distance=2.0, seed=seed)
     markers = rig.robot("q" if observer == "p" else "p").markers
-    frames, truth, lit = [], [], []
-    for k in range(N):
-        t = k / FPS
-        frames.append(render(world, observer, t, seed=seed + k, noise_sigma=1.0))
-        truth.append({n: u for n, u in project_markers(world, observer, t, check_occlusion=True).items()
-                      if n in markers})
-        lit.append({n: light_is_on(m, t) for n, m in markers.items()})
+    frames, truth, lit = light_view(world, observer, list(markers), N, FPS, seed)
     return rig, markers, frames, truth, lit, observer
 
 

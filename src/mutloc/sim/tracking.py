@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from .world import World
 
 __all__ = ["ObservationSequence", "observation_sequence", "correct_detections", "LightIdentity",
-           "light_identity"]
+           "light_identity", "light_view"]
 
 
 @dataclass
@@ -118,6 +118,26 @@ def correct_detections(world: "World", t: float, rng: np.random.Generator | None
             name.append(m)
             uv.append(np.asarray(p, float) + rng.normal(0.0, sigma, 2))
     return ObservationSet(observer, name, np.reshape(uv, (-1, 2)), float(t))
+
+
+def light_view(world: "World", observer: str, lights: Sequence[str], n: int, fps: float,
+               seed: int) -> tuple[list[np.ndarray], list[dict], list[dict]]:
+    """Robot ``observer``'s first ``n`` rendered frames (frame ``k`` rendered
+    with seed ``seed + k``, sensor noise 1 grey level), and per frame the true
+    pixels of the ``lights`` in view and not hidden, and which are on: the
+    input of :func:`light_identity`."""
+    from .render import project_markers, render
+    from .world import light_is_on
+
+    markers = {m.name: m for wr in world.robots.values() for m in wr.robot.markers.values()}
+    frames, truth, lit = [], [], []
+    for k in range(n):
+        t = k / fps
+        frames.append(render(world, observer, t, seed=seed + k, noise_sigma=1.0))
+        truth.append({m: u for m, u in project_markers(world, observer, t, check_occlusion=True).items()
+                      if m in lights})
+        lit.append({m: light_is_on(markers[m], t) for m in lights})
+    return frames, truth, lit
 
 
 @dataclass

@@ -30,8 +30,9 @@ __all__ = ["AssociationStage"]
 class AssociationStage:
     """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
 
-    def _gate(self, tr: Track, t: float) -> float:
-        """How far from its prediction a track's light may be at time ``t`` (px)."""
+    def _gate(self, tr: Track, t: float, due_on: bool = True) -> float:
+        """How far from its prediction a track's light may be at time ``t``
+        (px); ``due_on=False``: without the widening for a light due on."""
         # Until a track has a motion model its light may be moving at any
         # plausible speed; after that only the model's error grows -- with
         # time, not frames, and faster for a faster light.
@@ -41,7 +42,7 @@ class AssociationStage:
             growth = self.max_speed
         since = t - (tr.last_on_t if tr.last_on_pos is not None else tr.born_t)
         gate = self.gate_px + growth * since
-        if tr.expect_on(t) > self.expect_off and since > 1.5 / self.fps:
+        if due_on and tr.expect_on(t) > self.expect_off and since > 1.5 / self.fps:
             # An identified light due on (its fitted blink well inside the
             # "on" half) after an off period: its switching on is expected
             # here, and a fast one may have strayed from the prediction.
@@ -186,6 +187,7 @@ class AssociationStage:
         tr.last_on_pos = None
         tr.born_frame, tr.born_t = frame, t
         tr.plates.clear()
+        tr.first_lit_frame = -1
 
     @staticmethod
     def _not_on(tr: Track) -> None:
