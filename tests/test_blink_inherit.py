@@ -12,9 +12,8 @@ import pytest
 
 from mutloc.detect.blink import BlinkTracker, measure
 from mutloc.detect.blink.params import BlinkParams
-from mutloc.sim.render import moving_world, project_markers, render
+from mutloc.sim.render import panning_lights
 from mutloc.sim.tracking import light_identity
-from mutloc.sim.world import light_is_on, standard_rig
 
 FPS = 30.0
 N = 45  # the tracker is causal: frames 0-44 hold the loss and the re-naming
@@ -22,16 +21,7 @@ N = 45  # the tracker is causal: frames 0-44 hold the loss and the re-naming
 
 @pytest.fixture(scope="module")
 def fast_pan():
-    rig = standard_rig("lights", size=(960, 540), f=800.0)
-    world = moving_world(rig, distance=3.0, seed=2, period=4.0, pan_deg=15.0)
-    markers = rig.robot("p").markers
-    frames, truth, lit = [], [], []
-    for k in range(N):
-        t = k / FPS
-        frames.append(render(world, "q", t, seed=2 * 1000 + k, noise_sigma=1.0))
-        truth.append(project_markers(world, "q", t, check_occlusion=True))
-        lit.append({n: light_is_on(m, t) for n, m in markers.items()})
-    return rig, markers, frames, truth, lit
+    return panning_lights(3.0, 2, N, FPS)
 
 
 def _identity(data, params):

@@ -49,6 +49,7 @@ from .world import (
     cylinder_spec,
     light_is_on,
     room_textures,
+    standard_rig,
     tag_image,
     tag_scale,
     tag_spec,
@@ -59,11 +60,13 @@ __all__ = [
     "SUPERSAMPLE",
     "ball_visibility",
     "default_path",
+    "light_frames",
     "pixel_bearings",
     "render_linear",
     "room_around",
     "linear_to_srgb",
     "moving_world",
+    "panning_lights",
     "project_markers",
     "relative_pose",
     "render",
@@ -1179,6 +1182,33 @@ def project_markers(world: World, observer: str, t: float = 0.0, *,
                 continue
             out[m.name] = (float(uv[0]), float(uv[1]))
     return out
+
+
+def light_frames(world: World, observer: str, markers: Any, n: int, fps: float, *, seed: int = 0,
+                 noise_sigma: float = 1.0) -> tuple[list[np.ndarray], list[dict], list[dict]]:
+    """``n`` frames of ``observer``'s camera at ``k / fps`` (noise seed ``seed + k``),
+    each frame's exact marker pixels (:func:`project_markers`, hidden ones
+    left out) and which of ``markers`` ({name: Marker}) are lit: a blinking-light
+    sequence with its truth."""
+    frames, truth, lit = [], [], []
+    for k in range(n):
+        t = k / fps
+        frames.append(render(world, observer, t, seed=seed + k, noise_sigma=noise_sigma))
+        truth.append(project_markers(world, observer, t, check_occlusion=True))
+        lit.append({name: light_is_on(m, t) for name, m in markers.items()})
+    return frames, truth, lit
+
+
+def panning_lights(distance: float, seed: int, n: int, fps: float = 30.0, *, size: tuple[int, int] = (960, 540),
+                   f: float = 800.0, period: float = 4.0, pan_deg: float = 15.0) -> tuple:
+    """Robot q's view of p's blinking lights while p drives a ``period`` s
+    path ``distance`` m away and q's camera pans by +-``pan_deg``
+    (bench/blink_identity.py's sequences): the rig, p's markers, and
+    :func:`light_frames`' frames, truth and lit states (noise seed ``1000 seed + k``)."""
+    rig = standard_rig("lights", size=size, f=f)
+    world = moving_world(rig, distance=distance, seed=seed, period=period, pan_deg=pan_deg)
+    markers = rig.robot("p").markers
+    return (rig, markers, *light_frames(world, "q", markers, n, fps, seed=seed * 1000))
 
 
 def _occluded(scene: _Scene, world: World, observer: str, rname: str, marker: Any, t: float) -> bool:
