@@ -64,15 +64,17 @@ def _identity(data):
 
 @pytest.mark.slow
 def test_light_beside_a_pale_poster_is_kept_over_a_fast_pan(pale_poster_pan, monkeypatch):
-    """Every lit frame of M4 after the first second is named within 3 px;
-    without leaving the poster out of the centroid M4 is off or missing in
-    at least 3 of its lit frames 50-57 (measured: 4, frames 52, 53, 56, 57)."""
+    """Every lit frame of both lights after the first second is named within
+    3 px (before: M4 lost in frames 52-69; M3 6.2 px off at frame 30, where
+    the candidate the track took held no lit spot and the light, 6 px from
+    the prediction, was not looked for there); without leaving the poster out
+    of the centroid M4 is off or missing in at least 3 of its lit frames
+    50-57 (measured: 4, frames 52, 53, 56, 57)."""
     with_ = _identity(pale_poster_pan)
     monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
     without = _identity(pale_poster_pan)
     assert with_.wrong <= without.wrong
-    m4 = [f for f in with_.failures if f[1] == "M4"]
-    assert m4 == [], with_.failures
+    assert with_.failures == [], with_.failures
     assert sum(1 for k in range(30, N) if pale_poster_pan[4][k]["M4"] and "M4" in pale_poster_pan[3][k]) >= 12
     lost = [f for f in without.failures if f[1] == "M4" and 50 <= f[0] < N]
     assert len(lost) >= 3, without.failures
