@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from mutloc.detect.blink import BlinkTracker
-from mutloc.sim.render import moving_world, project_markers, render
-from mutloc.sim.tracking import light_identity
+from mutloc.sim.render import moving_world
+from mutloc.sim.tracking import light_identity, light_view
 from mutloc.sim.world import light_is_on, standard_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -46,11 +46,7 @@ def sequence(size: tuple[int, int], f: float, distance: float, seed: int, n: int
         data = np.load(cache / key, allow_pickle=True)
         frames, truth = list(data["frames"]), list(data["truth"])
     else:
-        frames, truth = [], []
-        for k in range(n):
-            t = k / fps
-            frames.append(render(world, "q", t, seed=seed * 1000 + k, noise_sigma=1.0))
-            truth.append(project_markers(world, "q", t, check_occlusion=True))
+        frames, truth, _ = light_view(world, "q", list(markers), n, fps, seed * 1000)
         if cache is not None:
             cache.mkdir(parents=True, exist_ok=True)
             np.savez(cache / key, frames=np.array(frames), truth=np.array(truth, dtype=object))

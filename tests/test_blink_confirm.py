@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mutloc.detect.blink import BlinkTracker
+from mutloc.detect.blink import BlinkTracker, measure
 from mutloc.detect.blink.params import BlinkParams
 from mutloc.sim.render import moving_world
 from mutloc.sim.tracking import light_identity, light_view
@@ -85,7 +85,10 @@ def taken_over():
 
 
 @pytest.mark.slow
-def test_a_light_taken_over_from_a_stray_is_named_from_its_own_samples(taken_over):
+def test_a_light_taken_over_from_a_stray_is_named_from_its_own_samples(taken_over, monkeypatch):
+    # With measure.NEIGHBOUR_SHARE M4 is not taken over here at all (2 m
+    # seed 2, frames 32-37 named): the take-over is reproduced by measuring as before.
+    monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
     rig, data = taken_over
     truth, lit = data[2], data[3]
     k = 36  # M4 lit; its track first lit at frame 16

@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import pytest
 
-from mutloc.detect.blink import BlinkTracker
+from mutloc.detect.blink import BlinkTracker, measure
 from mutloc.detect.blink.params import BlinkParams
-from mutloc.sim.render import moving_world, project_markers, render
+from mutloc.sim.tracking import panning_lights
 from mutloc.sim.tracking import light_identity
-from mutloc.sim.world import light_is_on, standard_rig
 
 FPS = 30.0
 N = 45  # the tracker is causal: frames 0-44 hold the loss and the re-naming
@@ -22,16 +21,7 @@ N = 45  # the tracker is causal: frames 0-44 hold the loss and the re-naming
 
 @pytest.fixture(scope="module")
 def fast_pan():
-    rig = standard_rig("lights", size=(960, 540), f=800.0)
-    world = moving_world(rig, distance=3.0, seed=2, period=4.0, pan_deg=15.0)
-    markers = rig.robot("p").markers
-    frames, truth, lit = [], [], []
-    for k in range(N):
-        t = k / FPS
-        frames.append(render(world, "q", t, seed=2 * 1000 + k, noise_sigma=1.0))
-        truth.append(project_markers(world, "q", t, check_occlusion=True))
-        lit.append({n: light_is_on(m, t) for n, m in markers.items()})
-    return rig, markers, frames, truth, lit
+    return panning_lights(3.0, 2, N, FPS)
 
 
 def _identity(data, params):
@@ -41,11 +31,18 @@ def _identity(data, params):
 
 
 @pytest.mark.slow
-def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan):
+def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monkeypatch):
     """With inheritance every lit frame of both lights after the first second
     is named within 3 px, with no wrong label added (the sequence has one
     without inheritance, at a frame before the loss); without it M4 goes unnamed in
-    at least 3 lit frames (measured: 4, frames 32-37)."""
+    at least 3 lit frames (measured: 4, frames 32-37).
+
+    The loss came from a bright neighbour dragging the light's centroid,
+    which the measurement now leaves out (``measure.NEIGHBOUR_SHARE``, see
+    tests/test_blink_neighbour.py): with it the light is not lost at all, and
+    the loss inheritance repairs is reproduced by measuring as before."""
+    assert _identity(fast_pan, BlinkParams()).failures == []
+    monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
     with_ = _identity(fast_pan, BlinkParams(inherit_identity=True))
     without = _identity(fast_pan, BlinkParams(inherit_identity=False))
     assert with_.wrong <= without.wrong <= 1

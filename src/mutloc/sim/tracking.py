@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from .world import World
 
 __all__ = ["ObservationSequence", "observation_sequence", "correct_detections", "LightIdentity",
-           "light_identity", "light_view"]
+           "light_identity", "light_view", "panning_lights"]
 
 
 @dataclass
@@ -138,6 +138,21 @@ def light_view(world: "World", observer: str, lights: Sequence[str], n: int, fps
                       if m in lights})
         lit.append({m: light_is_on(markers[m], t) for m in lights})
     return frames, truth, lit
+
+
+def panning_lights(distance: float, seed: int, n: int, fps: float = 30.0, *, size: tuple[int, int] = (960, 540),
+                   f: float = 800.0, period: float = 4.0, pan_deg: float = 15.0) -> tuple:
+    """Robot q's view of p's blinking lights while p drives a ``period`` s
+    path ``distance`` m away and q's camera pans by +-``pan_deg``
+    (bench/blink_identity.py's sequences): the rig, p's markers, and
+    :func:`light_view`'s frames, truth and lit states (noise seed ``1000 seed + k``)."""
+    from .render import moving_world
+    from .world import standard_rig
+
+    rig = standard_rig("lights", size=size, f=f)
+    world = moving_world(rig, distance=distance, seed=seed, period=period, pan_deg=pan_deg)
+    markers = rig.robot("p").markers
+    return (rig, markers, *light_view(world, "q", list(markers), n, fps, seed * 1000))
 
 
 @dataclass
