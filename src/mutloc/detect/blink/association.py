@@ -187,7 +187,6 @@ class AssociationStage:
         tr.last_on_pos = None
         tr.born_frame, tr.born_t = frame, t
         tr.plates.clear()
-        tr.first_lit_frame = -1
 
     @staticmethod
     def _not_on(tr: Track) -> None:

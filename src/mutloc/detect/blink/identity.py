@@ -61,28 +61,17 @@ class IdentityStage:
         used = np.zeros((nt, m), int)  # samples behind each score
         held = np.array([[tr.marker == name for name in self.marker_names] for tr in tracks], bool).reshape(nt, m)
         # Tracks with equally long histories share a basis: score them
-        # together.  A track is scored on its whole history and, if it was
-        # born dark and first seen lit beyond its search reach of where it
-        # was born, also on its samples since: before, it sampled another
-        # place (2 m seed 2 of bench/blink_identity.py: a track born on a
-        # stray 18 px from the light took the light over three frames later,
-        # and its four stray samples held its score at 0.31-0.39 for eight
-        # frames; since: 0.65-0.71).
+        # together.  (Scoring a track born dark elsewhere also on its samples
+        # since it was first lit named 2 m seed 2's M4 four frames sooner on
+        # the tuning sequences, but cost 3 m seed 3 of fresh ones 18 frames
+        # and added 2 wrong labels: not kept.)
         groups: dict[int, list[int]] = {}
         for i, tr in enumerate(tracks):
             tr.scores = {}
-            if tr.born_frame == frame or tr.born_pos is None:
-                tr.born_pos = tr.pos.copy()
-            if tr.is_on and tr.first_lit_frame < 0:
-                tr.first_lit_frame = frame if (
-                    frame > tr.born_frame
-                    and math.hypot(*(tr.pos - tr.born_pos)) > self._reach(tr.spread)) else tr.born_frame
             n_all = len(tr.hist)
             if n_all > len(times_all):
                 continue
             lengths = {n_all}
-            if self.fresh_history and tr.first_lit_frame > tr.born_frame:
-                lengths.add(min(n_all, frame - tr.first_lit_frame + 1))
             for n in lengths:
                 if n >= self.min_history:
                     groups.setdefault(n, []).append(i)

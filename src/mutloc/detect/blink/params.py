@@ -92,10 +92,6 @@ class BlinkParams:
     #: the light is measured lit at it (a stray coasting over background was
     #: named; see :mod:`mutloc.detect.blink.identity`).  False: at once.
     confirm_lit: bool = True
-    #: A track born dark and first seen lit beyond its search reach of where
-    #: it was born is scored on its whole history and also on its samples
-    #: since (before, it sampled another place).  False: the whole history only.
-    fresh_history: bool = True
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),

@@ -65,8 +65,6 @@ class Track:
     inherited: str | None = None  # a name taken over from a lost track (see inherit.py)
     no_inherit: bool = False  # an inherited name was revoked: never inherit again
     unconfirmed: bool = False  # named while coasting, not reported yet (see identity.py)
-    born_pos: np.ndarray | None = None  # where it was born (stabilised)
-    first_lit_frame: int = -1  # the first frame its light was measured lit (see identity.py)
 
     def expect_on(self, t: float) -> float:
         """How surely the identified light is on at ``t``: the fitted

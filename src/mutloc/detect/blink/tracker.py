@@ -282,7 +282,6 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self.expect_off = float(number("expect_off", p.expect_off, 0.0, 1.0, lo_open=False))
         self.birth_motion = bool(p.birth_motion)
         self.confirm_lit = bool(p.confirm_lit)
-        self.fresh_history = bool(p.fresh_history)
         self.inherit_identity = bool(p.inherit_identity)
         self.colour_contrast = float(number("colour_contrast", p.colour_contrast, 0.0, 255.0, lo_open=False))
         self.colour_match = float(number("colour_match", p.colour_match, 0.0, 1.0, lo_open=False))
