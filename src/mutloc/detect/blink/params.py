@@ -96,6 +96,11 @@ class BlinkParams:
     #: it was born is scored on its whole history and also on its samples
     #: since (before, it sampled another place).  False: the whole history only.
     fresh_history: bool = True
+    #: A track's motion model may be fitted in image coordinates instead of
+    #: motion-compensated ones when that predicted its light better (a camera
+    #: turning with the robot it watches; see
+    #: :mod:`mutloc.detect.blink.imageframe`).  False: compensated only.
+    image_frame: bool = True
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),
