@@ -12,6 +12,7 @@ against the renderer's true light pixels and states."""
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 import pytest
@@ -27,7 +28,6 @@ N = 44  # causal tracker: frames 0-43 hold the turn (33-43)
 
 
 def _track() -> Track:
-    from collections import deque
     return Track(id=0, pos=np.zeros(2), conf=1.0, born_frame=0, born_t=0.0, hist=deque(), events=deque(),
                  samples=deque())
 

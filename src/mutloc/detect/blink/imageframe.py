@@ -7,13 +7,14 @@ past a robot.  But a camera that keeps the other robot in view turns with it:
 at the turn the light is nearly still in the image while the background's
 shift is still growing, so in stabilised coordinates the light decelerates
 from 15 to 5 px a frame within ten frames, and a quadratic fitted over the
-last 0.4 s -- through the peak of that speed -- overshoots by 14 px across a
-three-frame off period (bench/blink_identity.py, seed 5 at 2 m, frames 32-36)
-while a quadratic in image coordinates misses by 2.
+last 0.4 s -- through the peak of that speed -- overshoots across an off
+period (bench/blink_identity.py, seed 5 at 2 m: 14.2 px at frame 36, four
+frames after the light was last seen lit) where a quadratic in image
+coordinates, whose speed changes more evenly there, misses by 10.1.
 
 Both quadratics are fitted to the same "on" centres; the one that predicted
-the latest centre better from the centres before it (one step ahead, out of
-sample) is used to predict.  The stabilised fit stays the track's velocity
+the latest centre better (by more than ``IMAGE_FRAME_NOISE_PX``) from the
+centres before it (one step ahead, out of sample) is used to predict.  The stabilised fit stays the track's velocity
 for its gate and report.
 """
 
