@@ -40,14 +40,11 @@ def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monke
     The loss came from a bright neighbour dragging the light's centroid,
     which the measurement now leaves out (``measure.NEIGHBOUR_SHARE``, see
     tests/test_blink_neighbour.py): with it the light is not lost at all, and
-    the loss inheritance repairs is reproduced by measuring as before --
-    and predicting as before: the image-frame motion model
-    (``BlinkParams.image_frame``, tests/test_blink_imageframe.py) keeps the
-    track on the light there as well."""
+    the loss inheritance repairs is reproduced by measuring as before."""
     assert _identity(fast_pan, BlinkParams()).failures == []
     monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
-    with_ = _identity(fast_pan, BlinkParams(inherit_identity=True, image_frame=False))
-    without = _identity(fast_pan, BlinkParams(inherit_identity=False, image_frame=False))
+    with_ = _identity(fast_pan, BlinkParams(inherit_identity=True))
+    without = _identity(fast_pan, BlinkParams(inherit_identity=False))
     assert with_.wrong <= without.wrong <= 1
     assert with_.total >= 12  # lit frames of both lights in frames 30-44 (16)
     assert with_.failures == [], with_.failures

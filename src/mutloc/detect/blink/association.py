@@ -8,7 +8,6 @@ import math
 import numpy as np
 
 from .halo import CLIP_LEVEL
-from .imageframe import choose_frame, fit_quadratic
 from .state import Track
 
 # Centroid and plateau outline disagreeing by more than this (px): the
@@ -186,7 +185,6 @@ class AssociationStage:
         tr.samples.clear()
         tr.hi = tr.lo = math.nan
         tr.last_on_pos = None
-        tr.fixed = None
         tr.born_frame, tr.born_t = frame, t
         tr.plates.clear()
 
@@ -226,14 +224,19 @@ class AssociationStage:
         than a velocity alone (which lags whenever the robot accelerates).
         """
         n = len(tr.samples)
-        tr.fixed = None
         if n < 2:
             tr.vel, tr.acc = np.zeros(2), np.zeros(2)
             return
         ts = np.array([s[0] for s in tr.samples])
         ps = np.array([s[1] for s in tr.samples])
-        _, tr.vel, tr.acc = fit_quadratic(ts, ps, self.fps)
-        if self.image_frame:
-            offs = [self._offset_at.get(float(x)) for x in ts]
-            choose_frame(tr, ts, ps, None if any(o is None for o in offs) else np.array(offs), self.fps)
+        tau = ts - ts[-1]
+        span = -tau[0]
+        # A quadratic needs samples spread over time; else a line.
+        if n >= 4 and span * self.fps >= 3.5:
+            a = np.column_stack([np.ones(n), tau, 0.5 * tau * tau])
+        else:
+            a = np.column_stack([np.ones(n), tau])
+        coef, *_ = np.linalg.lstsq(a, ps, rcond=None)
+        tr.vel = coef[1]
+        tr.acc = coef[2] if len(coef) > 2 else np.zeros(2)
 

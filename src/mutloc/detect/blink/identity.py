@@ -168,7 +168,7 @@ class IdentityStage:
             if tr is None or tr.last_on_pos is None or tr.unconfirmed:
                 res.missing.append(name)
                 continue
-            uv = tr.predict(t, self._horizon, self._offset) + self._offset
+            uv = tr.predict(t, self._horizon) + self._offset
             if not self._inside(uv, shape):
                 res.missing.append(name)
                 continue

@@ -101,7 +101,7 @@ class InheritStage:
             if info is None or frame - info[3] > _MEMORY_FRAMES:
                 continue
             lost, blink, score, _ = info
-            pred = lost.predict(t, self._horizon, self._offset)
+            pred = lost.predict(t, self._horizon)
             gate = self._gate(lost, t)
             best, best_d = None, np.inf
             for tr in tracks:

@@ -92,11 +92,6 @@ class BlinkParams:
     #: the light is measured lit at it (a stray coasting over background was
     #: named; see :mod:`mutloc.detect.blink.identity`).  False: at once.
     confirm_lit: bool = True
-    #: A track's motion model may be fitted in image coordinates instead of
-    #: motion-compensated ones when that predicted its light better (a camera
-    #: turning with the robot it watches; see
-    #: :mod:`mutloc.detect.blink.imageframe`).  False: compensated only.
-    image_frame: bool = True
     #: "On" centres of the last this many seconds feed the motion model.
     fit_window_s: float = 0.4
     #: Larger changed regions (a light switched in the room, a passing object),

@@ -40,9 +40,6 @@ class Track:
     samples: deque  # (t, pos) of recent "on" centres, for the motion model
     vel: np.ndarray = field(default_factory=lambda: np.zeros(2))  # px / s
     acc: np.ndarray = field(default_factory=lambda: np.zeros(2))  # px / s^2
-    # Image-fixed motion model when it predicts better (see imageframe):
-    # (camera offset at the last "on" centre, velocity, acceleration).
-    fixed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     hi: float = math.nan  # learned peak brightness when on
     lo: float = math.nan  # learned peak brightness when off
     is_on: bool = False
@@ -82,15 +79,11 @@ class Track:
         w = 2.0 * math.pi * f * (t - t0)
         return (a * math.cos(w) + b * math.sin(w)) / amp
 
-    def predict(self, t: float, horizon: float, offset: np.ndarray | None = None) -> np.ndarray:
-        """Position at time ``t`` from the motion model (stabilised coordinates);
-        ``offset``: the camera offset at ``t``, for an image-fixed model."""
+    def predict(self, t: float, horizon: float) -> np.ndarray:
+        """Position at time ``t`` from the motion model (stabilised coordinates)."""
         if self.last_on_pos is None:
             return self.pos
         dt = min(t - self.last_on_t, horizon)  # never extrapolate a curve far
-        if self.fixed is not None and offset is not None:
-            anchor, vel, acc = self.fixed
-            return self.last_on_pos + vel * dt + 0.5 * acc * dt * dt + (anchor - offset)
         return self.last_on_pos + self.vel * dt + 0.5 * self.acc * dt * dt
 
     def last_seen_frame(self) -> int:

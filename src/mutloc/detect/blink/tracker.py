@@ -283,7 +283,6 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self.birth_motion = bool(p.birth_motion)
         self.confirm_lit = bool(p.confirm_lit)
         self.inherit_identity = bool(p.inherit_identity)
-        self.image_frame = bool(p.image_frame)
         self.colour_contrast = float(number("colour_contrast", p.colour_contrast, 0.0, 255.0, lo_open=False))
         self.colour_match = float(number("colour_match", p.colour_match, 0.0, 1.0, lo_open=False))
         # Limits in pixels that depend on the image size (None: derived from
@@ -333,7 +332,6 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self._holders: dict = {}  # name -> (last holder, its blink, score, frame): InheritStage
         self._next_id = 0
         self._offset = np.zeros(2)  # cumulative camera shift: image = stabilised + offset
-        self._offset_at: dict[float, np.ndarray] = {}  # time -> offset, over the motion fit's window
         self.last_shift = np.zeros(2)  # camera shift estimated at the last frame (px)
         self._motion.reset()
 
@@ -425,9 +423,6 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         if prev is not None:
             self._prev_shift, self.last_shift = self.last_shift, shift
             self._offset = self._offset + shift
-        self._offset_at = {k: v for k, v in self._offset_at.items() if k >= t - 2 * self.fit_window_s}
-        self._offset_at[t] = self._offset
-        if prev is not None:
             self._step(cur, prev, t, shift)
         self._prev2, self._prev = prev, cur
         self._prev_t = t
@@ -455,7 +450,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         tracks = self._tracks
         off = self._offset
         for tr in tracks:
-            tr.pos = tr.predict(t, self._horizon, off)
+            tr.pos = tr.predict(t, self._horizon)
 
         # --- candidates -> tracks (global nearest neighbour, gated) ---
         # Pairs are taken in order of distance, each candidate and each track
