@@ -58,7 +58,6 @@ class IdentityStage:
         nt = len(tracks)
         scores = np.zeros((nt, m))
         allowed = np.zeros((nt, m), bool)
-        used = np.zeros((nt, m), int)  # samples behind each score
         held = np.array([[tr.marker == name for name in self.marker_names] for tr in tracks], bool).reshape(nt, m)
         # Tracks with equally long histories share a basis: score them
         # together.  (Scoring a track born dark elsewhere also on its samples
@@ -68,15 +67,10 @@ class IdentityStage:
         groups: dict[int, list[int]] = {}
         for i, tr in enumerate(tracks):
             tr.scores = {}
-            n_all = len(tr.hist)
-            if n_all > len(times_all):
-                continue
-            lengths = {n_all}
-            for n in lengths:
-                if n >= self.min_history:
-                    groups.setdefault(n, []).append(i)
+            if self.min_history <= len(tr.hist) <= len(times_all):
+                groups.setdefault(len(tr.hist), []).append(i)
         for n, members in groups.items():
-            h = np.array([list(tracks[i].hist)[-n:] for i in members], dtype=float)
+            h = np.array([tracks[i].hist for i in members], dtype=float)
             h -= h.mean(axis=1, keepdims=True)
             total = np.einsum("ij,ij->i", h, h)
             c = h @ self._basis(times_all[-n:])
@@ -104,13 +98,9 @@ class IdentityStage:
             enough_events = ev[:, None] >= 0.5 * 2.0 * self.freqs[None, :] * span[:, None]
             ok_here = np.where(held[members], ok_kept, ok) & enough_events
             for row, i in enumerate(members):
-                if n == len(tracks[i].hist):
-                    tracks[i].scores = {name: float(s) for name, s in zip(self.marker_names, at[row])}
-                # Per marker, the history that names the track, else the best score.
-                better = (ok_here[row] & ~allowed[i]) | ((ok_here[row] == allowed[i]) & (at[row] > scores[i]))
-                scores[i] = np.where(better, at[row], scores[i])
-                used[i] = np.where(better, n, used[i])
-                allowed[i] |= ok_here[row]
+                tracks[i].scores = {name: float(s) for name, s in zip(self.marker_names, at[row])}
+                scores[i] = at[row]
+                allowed[i] = ok_here[row]
         # Hysteresis: an identity is kept with a bonus.
         bonus = np.where(held, self._sticky, 0.0)
         dark = np.array([frame - tr.last_seen_frame() for tr in tracks]).reshape(nt)
@@ -126,7 +116,7 @@ class IdentityStage:
                     tr = tracks[r]
                     tr.marker = self.marker_names[c]
                     tr.score = float(scores[r, c])
-                    tr.blink = self._blink_phase(tr, times_all, float(self.freqs[c]), int(used[r, c]))
+                    tr.blink = self._blink_phase(tr, times_all, float(self.freqs[c]))
         self._confirm(before)
 
     def _confirm(self, before: list) -> None:
@@ -149,10 +139,10 @@ class IdentityStage:
                                   > self._gate(tr, self._times[-1], due_on=False))
 
     @staticmethod
-    def _blink_phase(tr, times_all: np.ndarray, f: float, n: int) -> tuple[float, float, float, float]:
-        """The track's last ``n`` brightness samples fitted by DC + cosine +
-        sine at ``f`` (times relative to the last sample): when its light is on."""
-        h = np.asarray(tr.hist, float)[-n:]
+    def _blink_phase(tr, times_all: np.ndarray, f: float) -> tuple[float, float, float, float]:
+        """The track's brightness history fitted by DC + cosine + sine at ``f``
+        (times relative to the last sample): when its light is on."""
+        h = np.asarray(tr.hist, float)
         rel = times_all[-len(h):] - times_all[-1]
         x = np.column_stack([np.ones(len(h)), np.cos(2 * np.pi * f * rel), np.sin(2 * np.pi * f * rel)])
         coef, *_ = np.linalg.lstsq(x, h, rcond=None)
