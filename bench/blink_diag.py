@@ -28,7 +28,8 @@ import numpy as np
 from mutloc.core.rig import MarkerKind
 from mutloc.detect.blink import BlinkTracker
 from mutloc.detect.blink.params import BlinkParams
-from mutloc.sim.render import moving_world, project_markers
+from mutloc.sim.render import project_markers
+from mutloc.sim.tracking import varied_world
 from mutloc.sim.world import light_is_on, standard_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -99,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--why", action="store_true", help="explain lights lit but not reported")
+    ap.add_argument("--fixed-motion", action="store_true", help="the benches' --fixed-motion scenarios")
     ap.add_argument("--param", action="append", default=[], help="a BlinkParams field, NAME=VALUE (Python literal)")
     args = ap.parse_args(argv)
     params = BlinkParams(**{k: ast.literal_eval(v) for k, v in (p.split("=", 1) for p in args.param)})
@@ -107,14 +109,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.bench == "identity":
         n = args.frames or 90
         rig, markers, frames, truth, on = sequence((960, 540), 800.0, args.distance, args.seed, n, fps, 4.0, 15.0,
-                                                   cache)
+                                                   cache, not args.fixed_motion)
         lit = [{m: ("L" if on[i][m] else "o") for m in markers} for i in range(n)]
         run(frames, truth, lit, markers, rig.robot("q").camera, fps, args.why, params)
         return 0
     n = args.frames or 60
-    rig = standard_rig("lights")
-    world = moving_world(rig, distance=2.0, seed=args.seed)
-    images = rendered(world, "lights", args.seed, n, fps, cache)
+    rig, world = varied_world(standard_rig("lights"), args.seed, distance=2.0, vary=not args.fixed_motion)
+    images = rendered(world, "lights", args.seed, n, fps, cache, not args.fixed_motion)
     everyone = {m.name: m for wr in world.robots.values() for m in wr.robot.markers.values()}
     for obs in args.observer.split(","):
         other = "q" if obs == "p" else "p"

@@ -11,7 +11,11 @@ its true projection, and closer to it than to the other light.  Wrong labels
 measured lit more than 10 px from its own) are counted separately.
 
     python bench/blink_identity.py [--seeds 0,1,2] [--distances 1.5,2,3] [--period 4] [--pan 15]
-                                   [--size 960x540 --f 800] [--frames 90] [--cache DIR]
+                                   [--size 960x540 --f 800] [--frames 90] [--cache DIR] [--fixed-motion]
+
+Each seed draws its own room, motion phases and blink phases
+(:func:`mutloc.sim.tracking.varied_world`); ``--fixed-motion`` changes only
+the room (how the figures before 2026-11-25 were measured).
 
 Writes bench/blink_identity_results.json (``--out``).
 """
@@ -27,30 +31,28 @@ from pathlib import Path
 import numpy as np
 
 from mutloc.detect.blink import BlinkTracker
-from mutloc.sim.render import moving_world
-from mutloc.sim.tracking import light_identity, light_view
-from mutloc.sim.world import light_is_on, standard_rig
+from mutloc.sim.tracking import light_identity, panning_lights
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def sequence(size: tuple[int, int], f: float, distance: float, seed: int, n: int, fps: float, period: float,
-             pan_deg: float, cache: Path | None = None):
+             pan_deg: float, cache: Path | None = None, vary: bool = True):
     """Robot q's frames of p's two lights, the true projections (visible
-    markers only) and which lights are lit, per frame."""
-    rig = standard_rig("lights", size=size, f=f)
-    world = moving_world(rig, distance=distance, seed=seed, period=period, pan_deg=pan_deg)
-    markers = rig.robot("p").markers
-    key = f"{size[0]}x{size[1]}_f{f:g}_d{distance:g}_s{seed}_n{n}_fps{fps:g}_T{period:g}_pan{pan_deg:g}.npz"
+    markers only) and which lights are lit, per frame (rendered or read from ``cache``)."""
+    key = (f"{size[0]}x{size[1]}_f{f:g}_d{distance:g}_s{seed}_n{n}_fps{fps:g}_T{period:g}_pan{pan_deg:g}"
+           f"{'_v' if vary else ''}.npz")
     if cache is not None and (cache / key).exists():
         data = np.load(cache / key, allow_pickle=True)
-        frames, truth = list(data["frames"]), list(data["truth"])
-    else:
-        frames, truth, _ = light_view(world, "q", list(markers), n, fps, seed * 1000)
-        if cache is not None:
-            cache.mkdir(parents=True, exist_ok=True)
-            np.savez(cache / key, frames=np.array(frames), truth=np.array(truth, dtype=object))
-    lit = [{name: light_is_on(m, k / fps) for name, m in markers.items()} for k in range(n)]
+        rig, markers, truth, lit = data["meta"].item()
+        return rig, markers, list(data["frames"]), truth, lit
+    rig, markers, frames, truth, lit = panning_lights(distance, seed, n, fps, size=size, f=f, period=period,
+                                                      pan_deg=pan_deg, vary=vary)
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        meta = np.empty((), dtype=object)
+        meta[()] = (rig, markers, truth, lit)
+        np.savez(cache / key, frames=np.array(frames), meta=meta)
     return rig, markers, frames, truth, lit
 
 
@@ -80,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tol", type=float, default=3.0)
     ap.add_argument("--cache", default=None, help="folder caching the rendered frames")
     ap.add_argument("--no-camera", action="store_true", help="track without the camera model")
+    ap.add_argument("--fixed-motion", action="store_true",
+                    help="same motion and blink phases for every seed (only the room changes)")
     ap.add_argument("--out", default=str(Path(__file__).with_name("blink_identity_results.json")))
     args = ap.parse_args(argv)
     from _machine import machine
@@ -92,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         for seed in (int(s) for s in args.seeds.split(",")):
             t0 = time.perf_counter()
             rig, markers, frames, truth, lit = sequence(size, args.f, d, seed, args.frames, args.fps,
-                                                        args.period, args.pan, cache)
+                                                        args.period, args.pan, cache, not args.fixed_motion)
             t1 = time.perf_counter()
             out = identity(run_tracker(rig, markers, frames, args.fps, not args.no_camera), truth, lit,
                            args.fps, args.tol)

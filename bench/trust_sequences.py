@@ -5,6 +5,11 @@ many frames are solved, how many of those are off by more than 5 cm or 2
 degrees (must be none), and how many of the frames a correct detection
 would solve are solved.
 
+Each seed draws its own room, robot motion (path and pan phases, sway,
+period) and blink phases (:func:`mutloc.sim.tracking.varied_world`);
+``--fixed-motion`` keeps the motion and blinks of seed 0's scenario and
+changes only the room (how the figures before 2026-11-25 were measured).
+
 "A correct detection would solve" is measured, not guessed: the same
 tracker (same filter, same statuses) is run on the exact projections of the
 markers a perfect detector reports -- every marker centre in the image and
@@ -15,7 +20,7 @@ ratio counts the frames after the first ``--warmup`` seconds (1 s, as the
 blink-identity figure), for balls and tags every frame.
 
     python bench/trust_sequences.py [--seeds 10] [--frames 60] [--fps 30] [--kinds balls,lights,tags]
-                                   [--seed-list 2,5,6] [--cache DIR]
+                                   [--seed-list 2,5,6] [--cache DIR] [--fixed-motion]
 
 Writes bench/trust_results.json.
 """
@@ -30,8 +35,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from mutloc.sim.render import moving_world, relative_pose, render
-from mutloc.sim.tracking import correct_detections
+from mutloc.sim.render import relative_pose, render
+from mutloc.sim.tracking import correct_detections, varied_world
 from mutloc.sim.world import standard_rig
 from mutloc.track.sources import Frame, Stream
 from mutloc.track.tracker import track, track_log
@@ -40,9 +45,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine  # noqa: E402
 
 
-def rendered(world, kind: str, seed: int, n: int, fps: float, cache: Path | None) -> dict[str, list[np.ndarray]]:
+def rendered(world, kind: str, seed: int, n: int, fps: float, cache: Path | None,
+             vary: bool = True) -> dict[str, list[np.ndarray]]:
     """Both robots' frames, rendered or read from ``cache`` (one npz per kind and seed)."""
-    path = None if cache is None else cache / f"{kind}_s{seed}_n{n}_fps{fps:g}.npz"
+    path = None if cache is None else cache / f"{kind}_s{seed}_n{n}_fps{fps:g}{'_v' if vary else ''}.npz"
     if path is not None and path.exists():
         data = np.load(path)
         return {r: list(data[r]) for r in ("p", "q")}
@@ -53,10 +59,10 @@ def rendered(world, kind: str, seed: int, n: int, fps: float, cache: Path | None
     return images
 
 
-def run(kind: str, seed: int, n: int, fps: float, warmup: float, cache: Path | None = None) -> dict:
-    rig = standard_rig(kind)
-    world = moving_world(rig, distance=2.0, seed=seed)
-    images = rendered(world, kind, seed, n, fps, cache)
+def run(kind: str, seed: int, n: int, fps: float, warmup: float, cache: Path | None = None,
+        vary: bool = True) -> dict:
+    rig, world = varied_world(standard_rig(kind), seed, distance=2.0, vary=vary)
+    images = rendered(world, kind, seed, n, fps, cache, vary)
     frames = {r: [Frame(i, i / fps, img) for i, img in enumerate(images[r])] for r in ("p", "q")}
     truth, oracle = [], []
     rng = np.random.default_rng(seed)
@@ -92,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="seconds at the start not counted for lights (blink identification needs a history)")
     ap.add_argument("--seed-list", default=None, help="comma-separated seeds instead of 0..seeds-1")
     ap.add_argument("--cache", default=None, help="folder caching the rendered frames")
+    ap.add_argument("--fixed-motion", action="store_true",
+                    help="same motion and blink phases for every seed (only the room changes)")
     ap.add_argument("--out", default=str(Path(__file__).with_name("trust_results.json")))
     args = ap.parse_args(argv)
     cache = Path(args.cache) if args.cache else None
@@ -99,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     res = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "kinds": {}}
     for kind in args.kinds.split(","):
         warmup = args.warmup if kind == "lights" else 0.0
-        per = [{"seed": s, **run(kind, s, args.frames, args.fps, warmup, cache)} for s in tqdm(seeds, desc=kind)]
+        per = [{"seed": s, **run(kind, s, args.frames, args.fps, warmup, cache, not args.fixed_motion)} for s in tqdm(seeds, desc=kind)]
         tot: dict = {k: sum(p[k] for p in per) for k in ("frames", "solved", "solved_wrong", "solvable",
                                                           "solvable_solved")}
         for key in ("statuses", "correct_detection_statuses"):

@@ -147,6 +147,41 @@ def test_moving_world_follows_its_path() -> None:
     assert max(np.linalg.norm(a.t - poses[0].t) for a in poses) > 0.3
 
 
+def test_varied_world_draws_motion_and_blinks_per_seed() -> None:
+    from mutloc.sim.tracking import varied_world
+
+    base = standard_rig("lights")
+    times = np.linspace(0.0, 3.0, 31)
+    # Without vary only the room changes: the motion is moving_world's.
+    _, fixed = varied_world(base, 5, vary=False)
+    plain = moving_world(base, seed=5)
+    for t in times[::10]:
+        np.testing.assert_allclose(relative_pose(fixed, "p", "q", t).as_matrix(),
+                                   relative_pose(plain, "p", "q", t).as_matrix(), atol=1e-12)
+    runs = {s: varied_world(base, s, distance=2.0) for s in (0, 1, 2)}
+    again = varied_world(base, 1, distance=2.0)[1]
+    for t in times[::10]:  # reproducible
+        np.testing.assert_allclose(relative_pose(again, "p", "q", t).as_matrix(),
+                                   relative_pose(runs[1][1], "p", "q", t).as_matrix(), atol=1e-12)
+    tracks, blinks = [], []
+    for rig, world in runs.values():
+        xyz = np.array([relative_pose(world, "p", "q", t).t for t in times])
+        # p stays within its path's envelope: sway <= 0.4 d, in-and-out 15 %, at camera height.
+        assert np.all(np.abs(xyz[:, 0]) <= 0.4 * 2.0 + 1e-9) and np.allclose(xyz[:, 1], 0.0, atol=1e-9)
+        assert np.all((xyz[:, 2] >= 0.85 * 2.0 - 1e-9) & (xyz[:, 2] <= 1.15 * 2.0 + 1e-9))
+        tracks.append(xyz)
+        m = rig.marker("M1")
+        on = [light_is_on(m, t) for t in times]
+        ph = m.extra["phase"]
+        assert on == [((m.blink_hz * t + ph) % 1.0) < 0.5 for t in times]
+        blinks.append(on)
+    # Different seeds: different motion and different blink phases.
+    for a in range(3):
+        for b in range(a + 1, 3):
+            assert np.max(np.linalg.norm(tracks[a] - tracks[b], axis=1)) > 0.1
+    assert len({tuple(b) for b in blinks}) > 1
+
+
 def test_project_markers_skips_points_folded_back_by_distortion() -> None:
     """With k1 = -0.3 a point 63 degrees off-axis lands *inside* the image by
     OpenCV's formula (the distortion folds over), but no camera would see it there."""

@@ -1276,20 +1276,24 @@ def two_robot_world(rig: Rig, T_qp: Pose, *, room: bool = True, seed: int = 0, s
     return World(robots=robots, room=rm)
 
 
-def default_path(distance: float = 2.0, period: float = 8.0, lateral: float = 0.3) -> Callable[[float], Pose]:
+def default_path(distance: float = 2.0, period: float = 8.0, lateral: float = 0.3,
+                 phases: tuple[float, float, float] = (0.0, 0.3, 1.0)) -> Callable[[float], Pose]:
     """T_qp(t) of p driving a smooth figure in front of q while facing it.
 
     p sways sideways by ``lateral * distance``, moves in and out by 15 %, and
-    its heading wobbles 5 degrees around the direction to q; periodic in ``period``.
+    its heading wobbles 5 degrees around the direction to q; periodic in
+    ``period``.  ``phases`` (radians) shift the sway, the in-and-out and the
+    wobble.
     """
     w = 2 * math.pi / period
+    ph_x, ph_z, ph_h = (float(a) for a in phases)
 
     def T_qp(t: float) -> Pose:
-        x = lateral * distance * math.sin(w * t)
-        z = distance * (1.0 + 0.15 * math.sin(2 * w * t + 0.3))
+        x = lateral * distance * math.sin(w * t + ph_x)
+        z = distance * (1.0 + 0.15 * math.sin(2 * w * t + ph_z))
         pos = np.array([x, 0.0, z])
         look = -pos / np.linalg.norm(pos)
-        look = so3_exp([0.0, math.radians(5.0) * math.sin(1.5 * w * t + 1.0), 0.0]) @ look
+        look = so3_exp([0.0, math.radians(5.0) * math.sin(1.5 * w * t + ph_h), 0.0]) @ look
         return looking_pose(pos, look)
 
     return T_qp
@@ -1297,13 +1301,15 @@ def default_path(distance: float = 2.0, period: float = 8.0, lateral: float = 0.
 
 def moving_world(rig: Rig, T_qp: Callable[[float], Pose] | None = None, *, distance: float = 2.0,
                  period: float = 8.0, lateral: float = 0.3, pan_deg: float = 6.0, room: bool = True,
-                 seed: int = 0, source: str | None = None, target: str | None = None, body: bool = True) -> World:
+                 seed: int = 0, source: str | None = None, target: str | None = None, body: bool = True,
+                 pan_phase: float = 1.0) -> World:
     """A standard room where p (``source``) moves relative to q (``target``) over time.
 
     ``T_qp(t)`` gives p's pose in q's frame (default :func:`default_path`);
     q stands at :data:`CAMERA_HEIGHT` near the origin and pans its heading by
-    ``pan_deg`` degrees (sinusoidally, period ``period``) so the background
-    moves too.  Use with :func:`render` / :func:`relative_pose` at any ``t``.
+    ``pan_deg`` degrees (sinusoidally, period ``period``, phase ``pan_phase``
+    radians) so the background moves too.  Use with :func:`render` /
+    :func:`relative_pose` at any ``t``.
     """
     p, q = _pair(rig, source, target)
     if not (math.isfinite(distance) and distance > 0 and math.isfinite(period) and period > 0):
@@ -1314,7 +1320,8 @@ def moving_world(rig: Rig, T_qp: Callable[[float], Pose] | None = None, *, dista
     w = 2 * math.pi / period
 
     def T_wq(t: float) -> Pose:
-        return camera_to_world_facing((0.0, 0.0, CAMERA_HEIGHT), yaw=math.radians(pan_deg) * math.sin(w * t + 1.0))
+        yaw = math.radians(pan_deg) * math.sin(w * t + pan_phase)
+        return camera_to_world_facing((0.0, 0.0, CAMERA_HEIGHT), yaw=yaw)
 
     def T_wp(t: float) -> Pose:
         return T_wq(t) @ path(t)

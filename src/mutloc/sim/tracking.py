@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from .world import World
 
 __all__ = ["ObservationSequence", "observation_sequence", "correct_detections", "LightIdentity",
-           "light_identity", "light_view", "panning_lights"]
+           "light_identity", "light_view", "panning_lights", "varied_world"]
 
 
 @dataclass
@@ -140,17 +140,50 @@ def light_view(world: "World", observer: str, lights: Sequence[str], n: int, fps
     return frames, truth, lit
 
 
+def varied_world(rig: Rig, seed: int, *, distance: float = 2.0, period: float = 8.0, pan_deg: float = 6.0,
+                 vary: bool = True) -> tuple[Rig, "World"]:
+    """:func:`mutloc.sim.render.moving_world` in room ``seed`` where, with
+    ``vary``, the seed also draws the motion and the blinks: the phases of
+    p's sway, in-and-out and heading wobble and of q's pan (uniform), the
+    sway (0.2-0.4 of ``distance``), the path period and pan amplitude (x 0.8-1.2)
+    and each blinking light's phase (uniform in cycles).  Without ``vary``
+    only the room changes with the seed.  Returns the rig (lights with their
+    drawn phases; a tracker does not read them) and the world."""
+    from dataclasses import replace
+
+    from .render import default_path, moving_world
+
+    if not vary:
+        return rig, moving_world(rig, distance=distance, seed=seed, period=period, pan_deg=pan_deg)
+    rng = np.random.default_rng([seed, 0x5CE4])
+    phases = tuple(rng.uniform(0.0, 2 * np.pi, 3))
+    lateral = float(rng.uniform(0.2, 0.4))
+    period = period * float(rng.uniform(0.8, 1.2))
+    pan_deg = pan_deg * float(rng.uniform(0.8, 1.2))
+    pan_phase = float(rng.uniform(0.0, 2 * np.pi))
+    robots = {}
+    for rname in rig.robots:
+        r = rig.robot(rname)
+        ms = {m: (replace(mk, extra={**mk.extra, "phase": float(rng.uniform())}) if mk.blink_hz is not None else mk)
+              for m, mk in r.markers.items()}
+        robots[rname] = replace(r, markers=ms)
+    rig = Rig(robots)
+    path = default_path(distance, period, lateral, phases)
+    return rig, moving_world(rig, path, distance=distance, seed=seed, period=period, pan_deg=pan_deg,
+                             pan_phase=pan_phase)
+
+
 def panning_lights(distance: float, seed: int, n: int, fps: float = 30.0, *, size: tuple[int, int] = (960, 540),
-                   f: float = 800.0, period: float = 4.0, pan_deg: float = 15.0) -> tuple:
+                   f: float = 800.0, period: float = 4.0, pan_deg: float = 15.0, vary: bool = False) -> tuple:
     """Robot q's view of p's blinking lights while p drives a ``period`` s
     path ``distance`` m away and q's camera pans by +-``pan_deg``
     (bench/blink_identity.py's sequences): the rig, p's markers, and
-    :func:`light_view`'s frames, truth and lit states (noise seed ``1000 seed + k``)."""
-    from .render import moving_world
+    :func:`light_view`'s frames, truth and lit states (noise seed ``1000 seed + k``).
+    ``vary``: the seed draws the motion and blink phases too (:func:`varied_world`)."""
     from .world import standard_rig
 
-    rig = standard_rig("lights", size=size, f=f)
-    world = moving_world(rig, distance=distance, seed=seed, period=period, pan_deg=pan_deg)
+    rig, world = varied_world(standard_rig("lights", size=size, f=f), seed, distance=distance, period=period,
+                              pan_deg=pan_deg, vary=vary)
     markers = rig.robot("p").markers
     return (rig, markers, *light_view(world, "q", list(markers), n, fps, seed * 1000))
 
