@@ -152,20 +152,23 @@ def pixel_error(side: int, point: np.ndarray, uv: np.ndarray, K, dist):
 
 
 #: Per track: how often a pixel factor found its marker behind the camera,
-#: and how many times GTSAM called back into Python for a factor.
-COUNTS = {"behind_camera": 0, "factor_calls": 0}
+#: how many times GTSAM called back into Python for a factor, and the wall
+#: time spent in those calls.
+COUNTS = {"behind_camera": 0, "factor_calls": 0, "factor_seconds": 0.0}
 
 
 def pixel_factor(key: int, fn, model) -> "gtsam.CustomFactor":
     """A CustomFactor on the pose ``key`` around :func:`pixel_error`'s ``fn``."""
 
     def error(this, values, H):
-        COUNTS["factor_calls"] += 1
+        t0 = time.perf_counter()
         T = values.atPose3(key)
         R = np.ascontiguousarray(T.rotation().matrix())
         r, J = fn(R, np.asarray(T.translation(), float), H is not None)
         if H is not None:
             H[0] = to_gtsam_jacobian(J, R)
+        COUNTS["factor_calls"] += 1
+        COUNTS["factor_seconds"] += time.perf_counter() - t0
         return r
 
     return gtsam.CustomFactor(model, [key], error)
@@ -204,7 +207,7 @@ def motion_factor(k0: int, k1: int, dt: float, model) -> "gtsam.CustomFactor":
     keys = [X(k0), V(k0), X(k1), V(k1)]
 
     def error(this, values, H):
-        COUNTS["factor_calls"] += 1
+        t0 = time.perf_counter()
         T0, T1 = values.atPose3(keys[0]), values.atPose3(keys[2])
         R0, R1 = T0.rotation().matrix(), T1.rotation().matrix()
         r, J = motion_error(R0, T0.translation(), values.atVector(keys[1]), R1, T1.translation(),
@@ -214,6 +217,8 @@ def motion_factor(k0: int, k1: int, dt: float, model) -> "gtsam.CustomFactor":
             H[1] = J[1]
             H[2] = to_gtsam_jacobian(J[2], R1)
             H[3] = J[3]
+        COUNTS["factor_calls"] += 1
+        COUNTS["factor_seconds"] += time.perf_counter() - t0
         return r
 
     return gtsam.CustomFactor(model, keys, error)
@@ -300,7 +305,7 @@ def gtsam_track(rig, seq, lag: int, robust: str, iterations: int = 1, relineariz
         return from_pose3(T), spec_covariance(smoother.marginalCovariance(X(k)), R)
 
     start, failed = None, None
-    COUNTS.update(behind_camera=0, factor_calls=0)
+    COUNTS.update(behind_camera=0, factor_calls=0, factor_seconds=0.0)
     for k, (tk, frame) in enumerate(zip(seq.times, seq.frames)):
         if start is None:
             row = TrackRow(float(tk), float(tk), float(tk), FrameStatus.SOLVED, observations=frame)
@@ -370,7 +375,8 @@ def run(rig, seeds: int, lag: int, robust: list[str], iterations: int, relineari
            "mutloc_outliers_rejected_or_dropped": {k: [] for k in MUTLOC},
            "seconds_per_frame_median": {k: [] for k in ["mutloc_default", "mutloc_causal", *robust]},
            "gtsam_pixel_factors_behind_camera": {r: [] for r in robust}, "gtsam_failed": {r: [] for r in robust},
-           "gtsam_factor_calls_per_frame": {r: [] for r in robust}}
+           "gtsam_factor_calls_per_frame": {r: [] for r in robust},
+           "gtsam_share_of_time_in_python_factors": {r: [] for r in robust}}
     for seed in range(seeds):
         seq = sequence(rig, seed)
         alone = track_estimates(rig, seq, "none")[0]
@@ -393,7 +399,9 @@ def run(rig, seeds: int, lag: int, robust: list[str], iterations: int, relineari
             tracks[f"gtsam_{r}_causal"] = head + g["causal"][len(head):]
             out["seconds_per_frame_median"][r].append(float(np.nanmedian(g["seconds"])))
             out["gtsam_pixel_factors_behind_camera"][r].append(g["behind_camera"])
-            out["gtsam_factor_calls_per_frame"][r].append(g["factor_calls"] / int(np.sum(~np.isnan(g["seconds"]))))
+            frames_run = int(np.sum(~np.isnan(g["seconds"])))
+            out["gtsam_factor_calls_per_frame"][r].append(g["factor_calls"] / frames_run)
+            out["gtsam_share_of_time_in_python_factors"][r].append(g["factor_seconds"] / np.nansum(g["seconds"]))
             out["gtsam_failed"][r].append(g["failed"])
             if g["failed"]:
                 print(f"  GTSAM {r} failed at frame {g['failed'][0]}: {g['failed'][1]}")
@@ -432,11 +440,21 @@ def main(argv: list[str] | None = None) -> int:
     print("Jacobians against central differences (max relative difference):",
           {k: f"{v:.1e}" for k, v in res["jacobian_check_max_relative_difference"].items()})
     res.update(run(rig, args.seeds, args.lag, args.robust, args.iterations, args.relinearize))
-    print("summary (min-max over seeds):")
+    sec = {k: np.array(v) for k, v in res["seconds_per_frame_median"].items()}
+    res["time_ratio_gtsam_over_mutloc"] = {f"{r}/{m}": (sec[r] / sec[m]).tolist()
+                                           for r in args.robust for m in MUTLOC}
+    print("summary (min-max over seeds; NaN: a track failed):")
     for name, d in res["tracks"].items():
-        print(f"  {name}: " + ", ".join(f"{m} {min(v):.3g}-{max(v):.3g}" for m, v in d.items()))
-    for name, v in res["seconds_per_frame_median"].items():
-        print(f"  time per frame {name}: {1e6 * min(v):.0f}-{1e6 * max(v):.0f} us")
+        print(f"  {name}: " + ", ".join(f"{m} {np.min(v):.3g}-{np.max(v):.3g}" for m, v in d.items()))
+    for name, v in sec.items():
+        print(f"  time per frame (median) {name}: {1e6 * v.min():.0f}-{1e6 * v.max():.0f} us")
+    for name, v in res["time_ratio_gtsam_over_mutloc"].items():
+        print(f"  time ratio {name}: {min(v):.1f}-{max(v):.1f}")
+    for r in args.robust:
+        print(f"  GTSAM {r}: {np.mean(res['gtsam_factor_calls_per_frame'][r]):.0f} Python factor calls per frame, "
+              f"{100 * np.min(res['gtsam_share_of_time_in_python_factors'][r]):.0f}-"
+              f"{100 * np.max(res['gtsam_share_of_time_in_python_factors'][r]):.0f}% of its time in them; failed: "
+              f"{[f for f in res['gtsam_failed'][r] if f] or 'never'}")
     Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
     return 0
 
