@@ -376,7 +376,9 @@ def run(rig, seeds: int, lag: int, robust: list[str], iterations: int, relineari
            "seconds_per_frame_median": {k: [] for k in ["mutloc_default", "mutloc_causal", *robust]},
            "gtsam_pixel_factors_behind_camera": {r: [] for r in robust}, "gtsam_failed": {r: [] for r in robust},
            "gtsam_factor_calls_per_frame": {r: [] for r in robust},
-           "gtsam_share_of_time_in_python_factors": {r: [] for r in robust}}
+           "gtsam_share_of_time_in_python_factors": {r: [] for r in robust},
+           "seconds_per_frame_mean": {k: [] for k in ["mutloc_default", "mutloc_causal", *robust]},
+           "gtsam_seconds_per_frame_mean_outside_python_factors": {r: [] for r in robust}}
     for seed in range(seeds):
         seq = sequence(rig, seed)
         alone = track_estimates(rig, seq, "none")[0]
@@ -390,7 +392,9 @@ def run(rig, seeds: int, lag: int, robust: list[str], iterations: int, relineari
             out["mutloc_outliers_rejected_or_dropped"][name].append(
                 sum(int(rows[i].status == "rejected" or "dropped" in rows[i].reason) for i in np.flatnonzero(seq.outlier)))
             mutloc_seconds(rig, seq, opts)  # warm: the first pass may compile
-            out["seconds_per_frame_median"][name].append(float(np.median(mutloc_seconds(rig, seq, opts))))
+            sec = mutloc_seconds(rig, seq, opts)
+            out["seconds_per_frame_median"][name].append(float(np.median(sec)))
+            out["seconds_per_frame_mean"][name].append(float(np.mean(sec)))
         for r in robust:
             g = gtsam_track(rig, seq, lag, r, iterations, relinearize)
             # Before its first solved frame the track reports each frame on its own, as mutloc's does.
@@ -402,6 +406,9 @@ def run(rig, seeds: int, lag: int, robust: list[str], iterations: int, relineari
             frames_run = int(np.sum(~np.isnan(g["seconds"])))
             out["gtsam_factor_calls_per_frame"][r].append(g["factor_calls"] / frames_run)
             out["gtsam_share_of_time_in_python_factors"][r].append(g["factor_seconds"] / np.nansum(g["seconds"]))
+            out["seconds_per_frame_mean"][r].append(float(np.nanmean(g["seconds"])))
+            out["gtsam_seconds_per_frame_mean_outside_python_factors"][r].append(
+                float((np.nansum(g["seconds"]) - g["factor_seconds"]) / frames_run))
             out["gtsam_failed"][r].append(g["failed"])
             if g["failed"]:
                 print(f"  GTSAM {r} failed at frame {g['failed'][0]}: {g['failed'][1]}")
@@ -435,7 +442,9 @@ def main(argv: list[str] | None = None) -> int:
         print("gtsam is not installed: pip install 'mutloc[bench]'", file=sys.stderr)
         return 2
     rig = standard_rig("balls")
-    res = {"machine": machine(), "gtsam": getattr(gtsam, "__version__", ""), "args": vars(args),
+    from importlib.metadata import version
+
+    res = {"machine": machine(), "gtsam": version("gtsam"), "args": {k: v for k, v in vars(args).items() if k != "out"},
            "jacobian_check_max_relative_difference": check_jacobians(rig, sequence(rig, 0))}
     print("Jacobians against central differences (max relative difference):",
           {k: f"{v:.1e}" for k, v in res["jacobian_check_max_relative_difference"].items()})
@@ -447,13 +456,24 @@ def main(argv: list[str] | None = None) -> int:
     for name, d in res["tracks"].items():
         print(f"  {name}: " + ", ".join(f"{m} {np.min(v):.3g}-{np.max(v):.3g}" for m, v in d.items()))
     for name, v in sec.items():
-        print(f"  time per frame (median) {name}: {1e6 * v.min():.0f}-{1e6 * v.max():.0f} us")
+        mean = np.array(res["seconds_per_frame_mean"][name])
+        print(f"  time per frame {name}: median {1e6 * v.min():.0f}-{1e6 * v.max():.0f} us, "
+              f"mean {1e6 * mean.min():.0f}-{1e6 * mean.max():.0f} us")
+    med = {k: np.array(v["filtered_median_m"]) for k, v in res["tracks"].items()}
+    res["median_error_ratio_gtsam_over_mutloc"] = {
+        f"gtsam_{r}_{w}/{m}": (med[f"gtsam_{r}_{w}"] / med[m]).tolist()
+        for r in args.robust for w, m in (("lag", "mutloc_default"), ("causal", "mutloc_causal"))}
+    for name, v in res["median_error_ratio_gtsam_over_mutloc"].items():
+        print(f"  median error ratio {name}: {' '.join(f'{x:.2f}' for x in v)}")
     for name, v in res["time_ratio_gtsam_over_mutloc"].items():
         print(f"  time ratio {name}: {min(v):.1f}-{max(v):.1f}")
     for r in args.robust:
         print(f"  GTSAM {r}: {np.mean(res['gtsam_factor_calls_per_frame'][r]):.0f} Python factor calls per frame, "
               f"{100 * np.min(res['gtsam_share_of_time_in_python_factors'][r]):.0f}-"
-              f"{100 * np.max(res['gtsam_share_of_time_in_python_factors'][r]):.0f}% of its time in them; failed: "
+              f"{100 * np.max(res['gtsam_share_of_time_in_python_factors'][r]):.0f}% of its time in them, "
+              f"{1e6 * np.min(res['gtsam_seconds_per_frame_mean_outside_python_factors'][r]):.0f}-"
+              f"{1e6 * np.max(res['gtsam_seconds_per_frame_mean_outside_python_factors'][r]):.0f} us per frame "
+              "outside them (mean); failed: "
               f"{[f for f in res['gtsam_failed'][r] if f] or 'never'}")
     Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
     return 0
