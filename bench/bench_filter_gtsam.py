@@ -16,9 +16,9 @@ dt``, both in q's frame);
   the same white-acceleration prior, default ``MotionNoise``);
 - per observation a pixel factor (q sees p's marker at ``T_qp X_p``, p sees
   q's at ``T_qp^-1 X_q``, through the camera's ``K`` and distortion) whose
-  residual and Jacobian are mutloc's own (``core.refine.residuals``),
-  noise ``--pixel-sigma`` 2 px under a robust loss (``--robust``: Huber by
-  default, or Cauchy, or none);
+  residual and Jacobian are mutloc's own (``core.refine.residuals``), at
+  the 2 px mutloc's tracks are given (``--pixel-sigma 2``) under a robust
+  loss (``--robust``: Huber by default, or Cauchy, or none);
 - the track starts as mutloc's does, at the first frame ``localize`` solves
   on its own: a prior on that pose with its covariance and a zero velocity
   with ``MotionNoise``'s initial sigmas; frames before it report what
@@ -29,8 +29,8 @@ dt``, both in q's frame);
 Each new pose is initialised from the previous frame's estimate moved by
 its velocity.  With a lag of ``--lag`` frames each frame is reported twice:
 causal (the estimate when it is the newest) and ``lag`` frames later (what
-mutloc's default fixed-lag smoother reports); the last ``lag`` frames at the
-end of the sequence.  Sigmas from GTSAM's marginal covariances, turned into
+mutloc's default fixed-lag smoother reports; the last ``lag`` frames as the
+smoother leaves them at the end of the sequence).  Sigmas from GTSAM's marginal covariances, turned into
 the SPEC's convention (GTSAM's ``Pose3`` tangent is rotation then
 translation applied on the right, ``T exp(xi)``: ``dtheta = R omega``,
 ``dt = R nu``).
@@ -438,8 +438,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--relinearize", type=float, default=1e-3, help="iSAM2 relinearisation threshold (1e-3)")
     ap.add_argument("--out", default=str(Path(__file__).with_name("filter_gtsam_results.json")))
     args = ap.parse_args(argv)
-    if gtsam is None:
-        print("gtsam is not installed: pip install 'mutloc[bench]'", file=sys.stderr)
+    if gtsam is None or not hasattr(gtsam, "IncrementalFixedLagSmoother"):
+        print("needs gtsam >= 4.3 (gtsam.IncrementalFixedLagSmoother): pip install 'mutloc[bench]'", file=sys.stderr)
         return 2
     rig = standard_rig("balls")
     from importlib.metadata import version
