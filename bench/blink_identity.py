@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from mutloc.detect.blink import BlinkTracker
-from mutloc.sim.tracking import light_identity, panning_lights
+from mutloc.sim.tracking import light_identity, light_view, varied_world
+from mutloc.sim.world import light_is_on, standard_rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -42,17 +43,19 @@ def sequence(size: tuple[int, int], f: float, distance: float, seed: int, n: int
     markers only) and which lights are lit, per frame (rendered or read from ``cache``)."""
     key = (f"{size[0]}x{size[1]}_f{f:g}_d{distance:g}_s{seed}_n{n}_fps{fps:g}_T{period:g}_pan{pan_deg:g}"
            f"{'_v' if vary else ''}.npz")
+    rig, world = varied_world(standard_rig("lights", size=size, f=f), seed, distance=distance, period=period,
+                              pan_deg=pan_deg, vary=vary)
+    markers = rig.robot("p").markers
     if cache is not None and (cache / key).exists():
         data = np.load(cache / key, allow_pickle=True)
-        rig, markers, truth, lit = data["meta"].item()
-        return rig, markers, list(data["frames"]), truth, lit
-    rig, markers, frames, truth, lit = panning_lights(distance, seed, n, fps, size=size, f=f, period=period,
-                                                      pan_deg=pan_deg, vary=vary)
+        frames, truth = list(data["frames"]), list(data["truth"])
+        lit = [{m: light_is_on(mk, k / fps) for m, mk in markers.items()} for k in range(n)]
+        return rig, markers, frames, truth, lit
+    # The same frames as mutloc.sim.tracking.panning_lights.
+    frames, truth, lit = light_view(world, "q", list(markers), n, fps, seed * 1000)
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)
-        meta = np.empty((), dtype=object)
-        meta[()] = (rig, markers, truth, lit)
-        np.savez(cache / key, frames=np.array(frames), meta=meta)
+        np.savez(cache / key, frames=np.array(frames), truth=np.array(truth, dtype=object))
     return rig, markers, frames, truth, lit
 
 
