@@ -378,6 +378,16 @@ class PairTracker:
             self.filter.reset(row.t, est.pose, est.covariance)
             self.rejections = 0
             self._restarted = True
+            if tentative and self.history is not None:
+                # The starting frame is a tentative frame like those after
+                # it: the frames after it may verify it in hindsight (the
+                # backward track that does is independent of it).
+                first = _copy_row(trial)
+                first.status = FrameStatus.SOLVED
+                first.reason = "started the track on " + ", ".join(sorted(self._tentative))
+                first.estimate = self._estimate(self.filter.state, list(est.markers_used),
+                                                est.reprojection_rms_px, est.consistency)
+                self._tentative_frames.add(len(self.history), row, first, self.filter.state, self.filter.state)
             if trial is not row:
                 row.status, row.estimate, row.reason = trial.status, trial.estimate, trial.reason
         if why and (started or tentative or keep_failure):

@@ -6,16 +6,19 @@ confirms them yet.  The filter runs through them all the same, and when a
 later frame confirms the track (see :mod:`mutloc.track.filtering`), the
 tentative frames within the smoother's lag before it -- whose reports come
 that late anyway -- are reported as the confirmed track does (``solved``
-with three or more markers, ``partial``, ``predicted``) and join the
-smoothed segment, going back from the confirming frame as long as each
-three-marker frame is *verified by the frames after it*: a track run
-backward in time over the ``smooth_lag`` frames after it, from the last of
-them that fixes the pose on its own, must predict all of its markers within
-``CONFIRM_SPREAD`` pixel sigmas and agree with them.  The forward track
+with three or more markers, ``partial``, ``predicted``), going back from
+the confirming frame as long as each three-marker frame is *verified by the
+frames after it*: a track run backward in time over the ``smooth_lag``
+frames after it, from the last of them that fixes the pose on its own, must
+predict all of its markers within ``CONFIRM_SPREAD`` pixel sigmas and agree
+with them, and predict the pose the forward track predicted within their
+joint uncertainty.  A verified frame reports the backward track's pose
+(updated with its markers); the others join the smoothed segment.  The forward track
 cannot vouch for them: while it was tentative its prior was vague, and one
 bad detection in a three-marker frame bends it without a trace.  The frame
-that started the track keeps its status (its pose is its own untested
-three-marker fit).  Without smoothing (``smooth_lag`` 0, a robot acting on
+that started the track is checked the same way (the backward track does
+not depend on it); until then its pose is its own untested three-marker
+fit.  Without smoothing (``smooth_lag`` 0, a robot acting on
 each frame as it comes) no status changes afterwards.
 """
 
@@ -24,7 +27,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Sequence
 
+import numpy as np
+
+from ..core.consistency import chi2_quantile
 from ..core.filter import ConstantVelocityFilter
+from ..core.geometry import so3_log
 from ..core.observations import MIN_OBSERVATIONS
 from ..errors import MutlocError
 from .status import FrameStatus
@@ -33,7 +40,7 @@ if TYPE_CHECKING:
     from ..core.filter import FilterState
     from .tracker import TrackRow
 
-__all__ = ["TentativeFrames", "verified_backward"]
+__all__ = ["BackwardUpdate", "TentativeFrames", "backward_update", "verified_backward"]
 
 
 @dataclass
@@ -83,22 +90,62 @@ class TentativeFrames:
         done = 0
         for t, frames in self.confirmed:
             for p in reversed(frames):
-                if p.status == FrameStatus.SOLVED and \
-                        not verified_backward(tracker, p.row, stepped[p.index + 1:p.index + 1 + lag]):
-                    break
+                back = None
+                if p.status == FrameStatus.SOLVED:
+                    back = backward_update(tracker, p.row, stepped[p.index + 1:p.index + 1 + lag], p.prior)
+                    if back is None:
+                        break
                 note = f"confirmed in hindsight by the frame at t = {t:.3f} s and the frames after it"
                 p.row.status, p.row.estimate = p.status, p.estimate
                 p.row.reason = f"{note}; {p.reason}" if p.reason else note
-                history[p.index] = (p.prior, p.post, p.row)
+                if back is None:
+                    history[p.index] = (p.prior, p.post, p.row)
+                else:
+                    # The pose of the backward track that verified the frame,
+                    # updated with its markers: smoothed by the frames after
+                    # it and independent of those before, which the forward
+                    # track -- tentative, its prior vague -- may have been bent
+                    # by (a bad detection in the frame that started it left
+                    # the next frame 6-7 cm off).  It stays out of the forward
+                    # smoother.
+                    state = _forward_in_time(back.state, p.row.t)
+                    markers = [_marker(label) for label in back.labels]
+                    est = tracker._estimate(state, markers, back.rms_px, back.test)
+                    p.row.estimate = replace(est, extra=dict(est.extra, smooth_lag=lag, smoother="backward"))
                 done += 1
         self.confirmed.clear()
         return done
 
 
-def verified_backward(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"]) -> bool:
+@dataclass
+class BackwardUpdate:
+    """The backward track's update with a verified frame's markers."""
+
+    state: "FilterState"  # at the frame, in reversed time (velocity negated)
+    labels: list[str]
+    rms_px: float
+    test: Any
+
+
+def verified_backward(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"],
+                      forward: "FilterState | None" = None) -> bool:
     """Whether a track run backward in time over ``later`` (the frames after
-    ``row``, in time order) predicts every marker of ``row`` within
-    ``CONFIRM_SPREAD`` pixel sigmas and agrees with all of them.
+    ``row``, in time order) verifies ``row``: see :func:`backward_update`."""
+    return backward_update(tracker, row, later, forward) is not None
+
+
+def backward_update(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"],
+                    forward: "FilterState | None" = None) -> BackwardUpdate | None:
+    """The update of a track run backward in time over ``later`` (the frames
+    after ``row``, in time order) with ``row``'s markers, if it predicts
+    every one of them within ``CONFIRM_SPREAD`` pixel sigmas and agrees with
+    all of them -- and, given the forward track's prediction at ``row``
+    (``forward``), predicts the same pose within their joint uncertainty;
+    else None.  The markers alone do not
+    show a forward track bent by a bad detection in the frame that started
+    it: three markers fit it exactly, the filter takes the wrong pose with
+    the covariance of a good one, and the frame after, verified on its own
+    markers, was reported 6-7 cm off (tests/test_track_hindsight.py).
 
     ``tracker``: the :class:`~mutloc.track.filtering.PairTracker` (its rig,
     noise, options and spread measure).  The backward track starts from the
@@ -122,17 +169,48 @@ def verified_backward(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"]
             continue
         f.predict(-r.t)
         if lost_reason(f.state, tracker.options):
-            return False
+            return None
         f.update(problem)
     problem = _problem(tracker, row)
     if f.state is None or problem is None:
-        return False
+        return None
     state = f.predict(-row.t)
-    markers = [label.rsplit(" saw ", 1)[-1] for label in problem.labels]
+    markers = [_marker(label) for label in problem.labels]
     if max(tracker.spread_px(state, m) for m in markers) > CONFIRM_SPREAD * tracker.pixel_sigma:
-        return False
+        return None
+    if forward is not None and not _same_pose(state, forward, tracker.confidence):
+        return None
     upd = f.update(problem)
-    return bool(upd.accepted and len(upd.used) == len(markers))
+    if not (upd.accepted and len(upd.used) == len(markers)):
+        return None
+    return BackwardUpdate(upd.state, list(problem.labels), float(upd.rms_px), upd.test)
+
+
+def _marker(label: str) -> str:
+    return label.rsplit(" saw ", 1)[-1]
+
+
+def _forward_in_time(state: "FilterState", t: float) -> "FilterState":
+    """A backward filter's state (time and velocity reversed) in forward time."""
+    flip = np.r_[np.ones(6), -np.ones(6)]
+    cov = state.covariance * np.outer(flip, flip)
+    gain = None if state.gain_covariance is None else state.gain_covariance * np.outer(flip, flip)
+    return replace(state, time=t, velocity=-state.velocity, covariance=cov, gain_covariance=gain)
+
+
+def _same_pose(a: "FilterState", b: "FilterState", confidence: float) -> bool:
+    """Whether two independent estimates of one pose agree: the Mahalanobis
+    distance of their difference, under the sum of their covariances,
+    within the chi-square quantile with 6 degrees of freedom."""
+    if confidence >= 1.0:
+        return True
+    e = np.r_[so3_log(a.pose.R @ b.pose.R.T), a.pose.t - b.pose.t]
+    S = a.pose_covariance + b.pose_covariance
+    try:
+        m = float(e @ np.linalg.solve(0.5 * (S + S.T), e))
+    except np.linalg.LinAlgError:
+        return False
+    return m <= chi2_quantile(confidence, 6)
 
 
 def _problem(tracker: Any, row: "TrackRow") -> Any:
