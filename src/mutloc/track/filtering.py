@@ -387,7 +387,8 @@ class PairTracker:
                 first.reason = "started the track on " + ", ".join(sorted(self._tentative))
                 first.estimate = self._estimate(self.filter.state, list(est.markers_used),
                                                 est.reprojection_rms_px, est.consistency)
-                self._tentative_frames.add(len(self.history), row, first, self.filter.state, self.filter.state)
+                self._tentative_frames.add(len(self.history), row, first, self.filter.state, self.filter.state,
+                                           start=True)
             if trial is not row:
                 row.status, row.estimate, row.reason = trial.status, trial.estimate, trial.reason
         if why and (started or tentative or keep_failure):

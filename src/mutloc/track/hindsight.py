@@ -6,19 +6,19 @@ confirms them yet.  The filter runs through them all the same, and when a
 later frame confirms the track (see :mod:`mutloc.track.filtering`), the
 tentative frames within the smoother's lag before it -- whose reports come
 that late anyway -- are reported as the confirmed track does (``solved``
-with three or more markers, ``partial``, ``predicted``), going back from
-the confirming frame as long as each three-marker frame is *verified by the
-frames after it*: a track run backward in time over the ``smooth_lag``
-frames after it, from the last of them that fixes the pose on its own, must
-predict all of its markers within ``CONFIRM_SPREAD`` pixel sigmas and agree
-with them, and predict the pose the forward track predicted within their
-joint uncertainty.  A verified frame reports the backward track's pose
-(updated with its markers); the others join the smoothed segment.  The forward track
-cannot vouch for them: while it was tentative its prior was vague, and one
-bad detection in a three-marker frame bends it without a trace.  The frame
-that started the track is checked the same way (the backward track does
-not depend on it); until then its pose is its own untested three-marker
-fit.  Without smoothing (``smooth_lag`` 0, a robot acting on
+with three or more markers, ``partial``, ``predicted``) and join the
+smoothed segment, going back from the confirming frame as long as each
+three-marker frame is *verified by the frames after it*: a track run
+backward in time over the ``smooth_lag`` frames after it, from the last of
+them that fixes the pose on its own, must predict all of its markers within
+``CONFIRM_SPREAD`` pixel sigmas and agree with them, and predict the pose
+the forward track predicted within their joint uncertainty.  The forward
+track cannot vouch for them: while it was tentative its prior was vague,
+and one bad detection in a three-marker frame bends it without a trace.
+The frame that started the track -- its pose its own untested three-marker
+fit -- is checked the same way: the forward track through the others grew
+from it, so unless it is verified, they report the backward track's pose
+(those not verified themselves keep their statuses).  Without smoothing (``smooth_lag`` 0, a robot acting on
 each frame as it comes) no status changes afterwards.
 """
 
@@ -52,6 +52,7 @@ class _Pending:
     reason: str
     prior: "FilterState"
     post: "FilterState"
+    start: bool = False  # the frame that started the tentative track
 
 
 class TentativeFrames:
@@ -60,26 +61,29 @@ class TentativeFrames:
 
     def __init__(self) -> None:
         self._pending: list[_Pending] = []
-        #: Per confirmation: (its time, the tentative frames within the lag before it).
-        self.confirmed: list[tuple[float, list[_Pending]]] = []
+        #: Per confirmation: (its time, the tentative frames within the lag
+        #: before it, the frame that started the track).
+        self.confirmed: list[tuple[float, list[_Pending], _Pending | None]] = []
 
     def clear(self) -> None:
         """The tentative track ended (dropped, restarted or lost)."""
         self._pending.clear()
 
     def add(self, index: int, row: "TrackRow", trial: "TrackRow", prior: "FilterState",
-            post: "FilterState") -> None:
+            post: "FilterState", start: bool = False) -> None:
         """Frame ``row`` (history entry ``index``) ran through the tentative
-        track: ``trial`` holds the status, estimate and reason a confirmed
-        track would have given it, ``prior``/``post`` the filter's states."""
-        self._pending.append(_Pending(index, row, trial.status, trial.estimate, trial.reason, prior, post))
+        track (``start``: started it): ``trial`` holds the status, estimate
+        and reason a confirmed track would have given it, ``prior``/``post``
+        the filter's states."""
+        self._pending.append(_Pending(index, row, trial.status, trial.estimate, trial.reason, prior, post, start))
 
     def confirm(self, index: int, lag: int, t: float) -> None:
         """The frame at history entry ``index`` (time ``t``) confirmed the
         track: keep its tentative frames within ``lag`` entries before it."""
         near = [p for p in self._pending if index - p.index <= lag and p.estimate is not None]
+        start = next((p for p in self._pending if p.start), None)
         if near:
-            self.confirmed.append((t, near))
+            self.confirmed.append((t, near, start))
         self.clear()
 
     def report(self, tracker: Any, history: list, stepped: Sequence["TrackRow"], lag: int) -> int:
@@ -88,29 +92,36 @@ class TentativeFrames:
         verified by the ``lag`` frames after it (``stepped``: every row
         the tracker filtered, aligned with ``history``).  Returns how many."""
         done = 0
-        for t, frames in self.confirmed:
+        for t, frames, start in self.confirmed:
+            # The forward track through the tentative frames grew from the
+            # starting frame's untested three-marker fit.  Unless the frames
+            # after it verify that frame, a bad detection there may have bent
+            # it -- the next frame, verified on its own markers, was reported
+            # 6-7 cm off (tests/test_track_hindsight.py) -- so the frames
+            # verified then report the backward track's pose instead, and
+            # the others keep their per-frame statuses.
+            rooted = start is not None and verified_backward(
+                tracker, start.row, stepped[start.index + 1:start.index + 1 + lag], start.prior)
             for p in reversed(frames):
                 back = None
                 if p.status == FrameStatus.SOLVED:
                     back = backward_update(tracker, p.row, stepped[p.index + 1:p.index + 1 + lag], p.prior)
                     if back is None:
                         break
+                elif not rooted:
+                    continue
                 note = f"confirmed in hindsight by the frame at t = {t:.3f} s and the frames after it"
                 p.row.status, p.row.estimate = p.status, p.estimate
                 p.row.reason = f"{note}; {p.reason}" if p.reason else note
-                if back is None:
+                if rooted:
                     history[p.index] = (p.prior, p.post, p.row)
                 else:
-                    # The pose of the backward track that verified the frame,
-                    # updated with its markers: smoothed by the frames after
-                    # it and independent of those before, which the forward
-                    # track -- tentative, its prior vague -- may have been bent
-                    # by (a bad detection in the frame that started it left
-                    # the next frame 6-7 cm off).  It stays out of the forward
-                    # smoother.
+                    # The backward track, updated with the frame's markers:
+                    # smoothed by the frames after it, independent of those
+                    # before; it stays out of the forward smoother.
                     state = _forward_in_time(back.state, p.row.t)
-                    markers = [_marker(label) for label in back.labels]
-                    est = tracker._estimate(state, markers, back.rms_px, back.test)
+                    est = tracker._estimate(state, [_marker(label) for label in back.labels], back.rms_px,
+                                            back.test)
                     p.row.estimate = replace(est, extra=dict(est.extra, smooth_lag=lag, smoother="backward"))
                 done += 1
         self.confirmed.clear()
@@ -136,16 +147,12 @@ def verified_backward(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"]
 
 def backward_update(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"],
                     forward: "FilterState | None" = None) -> BackwardUpdate | None:
-    """The update of a track run backward in time over ``later`` (the frames
-    after ``row``, in time order) with ``row``'s markers, if it predicts
-    every one of them within ``CONFIRM_SPREAD`` pixel sigmas and agrees with
-    all of them -- and, given the forward track's prediction at ``row``
+    """The update with ``row``'s markers of a track run backward in time over
+    ``later`` (the frames after ``row``, in time order), if it predicts every
+    one of them within ``CONFIRM_SPREAD`` pixel sigmas and agrees with all of
+    them -- and, given the forward track's prediction at ``row``
     (``forward``), predicts the same pose within their joint uncertainty;
-    else None.  The markers alone do not
-    show a forward track bent by a bad detection in the frame that started
-    it: three markers fit it exactly, the filter takes the wrong pose with
-    the covariance of a good one, and the frame after, verified on its own
-    markers, was reported 6-7 cm off (tests/test_track_hindsight.py).
+    else None.
 
     ``tracker``: the :class:`~mutloc.track.filtering.PairTracker` (its rig,
     noise, options and spread measure).  The backward track starts from the
@@ -196,6 +203,8 @@ def _forward_in_time(state: "FilterState", t: float) -> "FilterState":
     cov = state.covariance * np.outer(flip, flip)
     gain = None if state.gain_covariance is None else state.gain_covariance * np.outer(flip, flip)
     return replace(state, time=t, velocity=-state.velocity, covariance=cov, gain_covariance=gain)
+
+
 
 
 def _same_pose(a: "FilterState", b: "FilterState", confidence: float) -> bool:
