@@ -8,9 +8,11 @@ renderer's true light pixels and states."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
-from mutloc.detect.blink import BlinkTracker, measure
+from mutloc.detect.blink import BlinkTracker, association, measure
 from mutloc.detect.blink.params import BlinkParams
 from mutloc.sim.tracking import panning_lights
 from mutloc.sim.tracking import light_identity
@@ -40,9 +42,11 @@ def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monke
     The loss came from a bright neighbour dragging the light's centroid,
     which the measurement now leaves out (``measure.NEIGHBOUR_SHARE``, see
     tests/test_blink_neighbour.py): with it the light is not lost at all, and
-    the loss inheritance repairs is reproduced by measuring as before."""
+    the loss inheritance repairs is reproduced by measuring as before
+    (neither that nor ``association.SWITCH_REACHES``, which also keeps it)."""
     assert _identity(fast_pan, BlinkParams()).failures == []
     monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
+    monkeypatch.setattr(association, "SWITCH_REACHES", math.inf)
     with_ = _identity(fast_pan, BlinkParams(inherit_identity=True))
     without = _identity(fast_pan, BlinkParams(inherit_identity=False))
     assert with_.wrong <= without.wrong <= 1

@@ -24,6 +24,16 @@ COLOUR_JUMP_PX = 12.0
 # another object from now on: its history restarts (see _restart).
 RESTART_REACHES = 2.0
 
+# A light just switched on is measured at most this many search reaches
+# from its region of change; a spot further off is something else.
+SWITCH_REACHES = 2.0
+
+# An identified light's centre measured in its own colour (see
+# MeasureStage._own_colour_centre) further than this (px) from the usual
+# measurement replaces it: the usual one was dragged by background of
+# another colour.
+OWN_COLOUR_DISAGREE_PX = 3.0
+
 __all__ = ["AssociationStage"]
 
 
@@ -142,6 +152,14 @@ class AssociationStage:
                     tr.is_on = False
                     return None
                 uv, rms = circle[0], tr.spread
+        if event_on and math.hypot(*(uv - centre)) > SWITCH_REACHES * r:
+            # Just switched on, the region of change locates the light; a
+            # spot measured well beyond it is something else bright that the
+            # centroid window grew onto.  (Trust seed 3, q's view: a light
+            # just named while off took a lit wall 42 px beyond the region,
+            # rms 30 px, for itself, and lost its name.)
+            tr.is_on = False
+            return None
         if tr.by_colour and math.hypot(*(uv - centre)) > COLOUR_JUMP_PX:
             tr.is_on = False
             return None
@@ -171,6 +189,16 @@ class AssociationStage:
         else:
             tr.clip_radius = math.nan
             tr.measured_area = self._spot_area(cur, uv, peak, self._spot(tr.spread))
+        if tr.marker is not None:
+            own = self._own_colour_centre(tr.marker, centre, r, self._spot(tr.spread))
+            if own is not None and math.hypot(*(own[0] - uv)) > OWN_COLOUR_DISAGREE_PX \
+                    and own[1] <= 1.5 * tr.spread and self._own_colour_at(tr.marker, uv) < 0.5 * own[2]:
+                # Background as bright as the light in the brightest channel
+                # but of another colour (a magenta poster beside a red light:
+                # 255 in red for both) dragged the measurement off the light,
+                # onto pixels not of its colour; in the light's own colour
+                # only the light is bright (a compact spot).
+                uv = own[0]
         return uv
 
     @staticmethod

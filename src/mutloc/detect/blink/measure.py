@@ -178,6 +178,62 @@ class MeasureStage:
             return 0.0
         return float(np.abs(peak - np.median(ring, axis=0)).max())
 
+    def _own_colour(self, name: str, x0: int, x1: int, y0: int, y1: int) -> np.ndarray | None:
+        """Rows ``y0:y1``, columns ``x0:x1`` of the current frame's brightness
+        in light ``name``'s own colour: the least of its own channels less the
+        largest of the others (a red light: red less the larger of green and
+        blue).  None for a light with no channel of its own (white) or a grey
+        image."""
+        img = self._colour
+        own = self._own_channels[self.marker_names.index(name)]
+        if img is None or img.ndim < 3 or img.shape[2] < 3 or own.all():
+            return None
+        patch = img[y0:y1, x0:x1].astype(np.int16)
+        lo = patch[:, :, own].min(axis=2)
+        hi = patch[:, :, ~own].max(axis=2)
+        return np.clip(lo - hi, 0, 255).astype(np.uint8)
+
+    def _own_colour_centre(self, name: str, centre: np.ndarray, reach: int,
+                           spot: int) -> tuple[np.ndarray, float, float] | None:
+        """Centroid, RMS radius and peak, in light ``name``'s own colour
+        (:meth:`_own_colour`), of the brightest spot within ``reach`` of
+        ``centre``; None if there is no such colour, no spot or the spot is
+        larger than a light."""
+        if self._colour is None:
+            return None
+        h, w = self._colour.shape[:2]
+        cx, cy = round(float(centre[0])), round(float(centre[1]))
+        # Room for the centroid window to grow (see _centroid).
+        half = reach + max(spot, math.ceil(3.0 * self.max_blob_std)) + 2
+        bx0, bx1, by0, by1 = max(0, cx - half), min(w, cx + half + 1), max(0, cy - half), min(h, cy + half + 1)
+        img = self._own_colour(name, bx0, bx1, by0, by1)
+        if img is None:
+            return None
+        x0, x1 = max(bx0, cx - reach) - bx0, min(bx1, cx + reach + 1) - bx0
+        y0, y1 = max(by0, cy - reach) - by0, min(by1, cy + reach + 1) - by0
+        if x0 >= x1 or y0 >= y1:
+            return None
+        patch = img[y0:y1, x0:x1]
+        k = int(np.argmax(patch))
+        py, px = divmod(k, x1 - x0)
+        peak = float(patch[py, px])
+        if peak < self.diff_threshold:
+            return None
+        found = self._centroid(img, x0 + px, y0 + py, peak, spot)
+        if found is None or found[1] > self.max_blob_std:
+            return None
+        return found[0] + np.array([bx0, by0], float), found[1], peak
+
+    def _own_colour_at(self, name: str, uv: np.ndarray) -> float:
+        """The current frame's brightness in light ``name``'s own colour at
+        the pixel nearest ``uv`` (0 outside the image)."""
+        h, w = self._colour.shape[:2]
+        u, v = round(float(uv[0])), round(float(uv[1]))
+        if not (0 <= u < w and 0 <= v < h):
+            return 0.0
+        img = self._own_colour(name, u, u + 1, v, v + 1)
+        return 0.0 if img is None else float(img[0, 0])
+
     @staticmethod
     def _halo_radius(clip_radius: float) -> int:
         """Half-size of the window over which the halo of a light whose

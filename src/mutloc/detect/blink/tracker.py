@@ -208,6 +208,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self.marker_names = names
         self.freqs = np.array(freqs)
         self._lit_colours = np.array(colours)
+        # Per light, its own channels (see MeasureStage._own_colour).
+        self._own_channels = self._lit_colours >= 0.5
 
         order = np.argsort(self.freqs)
         sorted_f = self.freqs[order]
