@@ -37,7 +37,8 @@ def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monke
     """With inheritance every lit frame of both lights after the first second
     is named within 3 px, with no wrong label added (the sequence has one
     without inheritance, at a frame before the loss); without it M4 goes unnamed in
-    at least 3 lit frames (measured: 4, frames 32-37).
+    at least 2 lit frames (measured: 2, frames 32-33; 4 before the lights'
+    own-colour histories named it sooner).
 
     The loss came from a bright neighbour dragging the light's centroid,
     which the measurement now leaves out (``measure.NEIGHBOUR_SHARE``, see
@@ -53,4 +54,4 @@ def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monke
     assert with_.total >= 12  # lit frames of both lights in frames 30-44 (16)
     assert with_.failures == [], with_.failures
     missed_m4 = [f for f in without.failures if f[1] == "M4" and f[2] == "missing"]
-    assert len(missed_m4) >= 3, without.failures
+    assert len(missed_m4) >= 2, without.failures

@@ -83,7 +83,7 @@ class AssociationStage:
         h, w = cur.shape
         x0, x1, y0, y1 = max(0, cx - r), min(w, cx + r + 1), max(0, cy - r), min(h, cy + r + 1)
         if x0 >= x1 or y0 >= y1:  # predicted out of the image
-            tr.hist.append(tr.hist[-1] if tr.hist else 0.0)
+            tr.push(tr.hist[-1] if tr.hist else 0.0, [d[-1] if d else 0.0 for d in tr.hist_own])
             tr.is_on = False
             return None
         patch = cur[y0:y1, x0:x1]
@@ -91,9 +91,10 @@ class AssociationStage:
         py, px = divmod(k, x1 - x0)
         peak = float(patch[py, px])
         peak_prev = float(prev[y0:y1, x0:x1].max())
-        if backfill:
-            tr.hist.append(peak_prev)  # the previous frame is known too
-        tr.hist.append(peak)
+        if backfill:  # the previous frame is known too
+            tr.push(peak_prev, [float(f[y0:y1, x0:x1].max()) for f in self._own_prev] if self._own_prev
+                    else [0.0] * len(tr.hist_own))
+        tr.push(peak, [float(f[y0:y1, x0:x1].max()) for f in self._own_now])
         if event_on is not None:
             tr.last_polarity_on = event_on
         # A genuine switch changes the window's peak itself; a light merely
@@ -218,9 +219,10 @@ class AssociationStage:
     def _restart(tr: Track, frame: int, t: float) -> None:
         """The track's spot is far from where it looked: another object, so
         what it saw before is not this one's history."""
-        last = tr.hist[-1]
-        tr.hist.clear()
-        tr.hist.append(last)
+        for d in [tr.hist, *tr.hist_own]:
+            last = d[-1]
+            d.clear()
+            d.append(last)
         tr.events.clear()
         tr.events.append(True)
         tr.samples.clear()
@@ -235,6 +237,8 @@ class AssociationStage:
         tr.is_on = False
         if tr.hist and not math.isnan(tr.lo):
             tr.hist[-1] = tr.lo
+            for d in tr.hist_own:
+                d[-1] = min(d)
 
     def _commit(self, tr: Track, uv: np.ndarray, jump: float, t: float, frame: int) -> None:
         """The track's light is on at ``uv`` (image coordinates): update its motion."""

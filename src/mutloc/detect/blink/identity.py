@@ -49,6 +49,26 @@ class IdentityStage:
         self._basis_cache[key] = q
         return q
 
+    @staticmethod
+    def _spectrum(hists: list, basis: np.ndarray, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per history (each ``n`` samples): the fraction of its variance at
+        each marker's frequency and half a bin below and above ``(k, 3, m)``,
+        and the sinusoid amplitude at each marker's frequency ``(k, m)``."""
+        h = np.array(hists, dtype=float)
+        h -= h.mean(axis=1, keepdims=True)
+        total = np.einsum("ij,ij->i", h, h)
+        c = h @ basis
+        e = (c[:, 0::2] ** 2 + c[:, 1::2] ** 2).reshape(len(h), 3, m)
+        # Sinusoid amplitude at the frequency (energy = n a^2 / 2): a light
+        # switching by diff_threshold has a fundamental of (2/pi) of that.
+        return e / np.maximum(total, 1e-9)[:, None, None], np.sqrt(2.0 * e[:, 0] / n)
+
+    def _peak_ok(self, ratio: np.ndarray, amp: np.ndarray) -> np.ndarray:
+        """Whether a history's score (``ratio``: at, below, above) and
+        amplitude pass the identification tests (see :meth:`_identify`)."""
+        at, below, above = ratio[:, 0], ratio[:, 1], ratio[:, 2]
+        return (at >= below) & (at >= above) & (amp >= 0.3 * self.diff_threshold) & (at >= self.min_score)
+
     def _identify(self) -> None:
         """Score every track against every marker frequency; assign (Hungarian)."""
         tracks = self._tracks
@@ -70,16 +90,24 @@ class IdentityStage:
             if self.min_history <= len(tr.hist) <= len(times_all):
                 groups.setdefault(len(tr.hist), []).append(i)
         for n, members in groups.items():
-            h = np.array([tracks[i].hist for i in members], dtype=float)
-            h -= h.mean(axis=1, keepdims=True)
-            total = np.einsum("ij,ij->i", h, h)
-            c = h @ self._basis(times_all[-n:])
-            e = (c[:, 0::2] ** 2 + c[:, 1::2] ** 2).reshape(len(members), 3, m)
-            ratio = e / np.maximum(total, 1e-9)[:, None, None]
+            basis = self._basis(times_all[-n:])
+            ratio, amp = self._spectrum([tracks[i].hist for i in members], basis, n, m)
+            # A coloured light over bright background of another colour
+            # barely changes the brightest channel's peak when it switches
+            # (a blue light on a pale wall: 25 grey levels, too faint to be
+            # named), and does in its own colour: where that is louder, its
+            # own colour's history scores it where that passes the tests below
+            # and the brightest channel's does not, or scores higher.
+            for g in range(len(self._own_groups)):
+                cols = [j for j in range(m) if self._own_group[j] == g]
+                ratio_g, amp_g = self._spectrum([list(tracks[i].hist_own[g])[-n:] for i in members], basis, n, m)
+                for j in cols:
+                    main_ok = self._peak_ok(ratio[:, :, j], amp[:, j])
+                    own_ok = self._peak_ok(ratio_g[:, :, j], amp_g[:, j])
+                    use = own_ok & (~main_ok | (ratio_g[:, 0, j] > ratio[:, 0, j]))
+                    ratio[use, :, j] = ratio_g[use, :, j]
+                    amp[use, j] = amp_g[use, j]
             at, below, above = ratio[:, 0], ratio[:, 1], ratio[:, 2]
-            # Sinusoid amplitude at the frequency (energy = n a^2 / 2): a light
-            # switching by diff_threshold has a fundamental of (2/pi) of that.
-            amp = np.sqrt(2.0 * e[:, 0] / n)
             loud = amp >= 0.3 * self.diff_threshold
             ok = (at >= below) & (at >= above) & loud & (at >= self.min_score)
             # Hysteresis here too: a light moving over changing background

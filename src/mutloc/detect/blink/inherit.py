@@ -28,11 +28,17 @@ _CORR = 0.6
 class InheritStage:
     """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
 
-    def _blink_agrees(self, tr: Track, blink: tuple[float, float, float, float]) -> bool:
-        """Whether ``tr``'s brightness history, read as on / off, matches
-        ``blink`` wherever the fit is sure, with at least one sure "on" and one
-        sure "off" sample seen."""
-        h = np.asarray(tr.hist, float)
+    def _blink_agrees(self, tr: Track, blink: tuple[float, float, float, float], name: str) -> bool:
+        """Whether ``tr``'s brightness history -- or its history in light
+        ``name``'s own colour -- read as on / off, matches ``blink`` wherever
+        the fit is sure, with at least one sure "on" and one sure "off"
+        sample seen."""
+        g = self._own_group[self.marker_names.index(name)]
+        hists = [tr.hist] + ([tr.hist_own[g]] if g >= 0 and tr.hist_own else [])
+        return any(self._history_agrees(h, blink) for h in hists)
+
+    def _history_agrees(self, hist, blink: tuple[float, float, float, float]) -> bool:
+        h = np.asarray(hist, float)
         if len(h) < 4:
             return False
         times = np.asarray(self._times, float)[-len(h):]
@@ -88,7 +94,7 @@ class InheritStage:
             info = self._holders.get(name)
             if (name in held or info is None or tr.last_on_pos is None
                     or frame - tr.last_seen_frame() > self._marker_dark_frames[self.marker_names.index(name)]
-                    or not self._blink_agrees(tr, info[1])):
+                    or not self._blink_agrees(tr, info[1], name)):
                 tr.inherited = None
                 tr.no_inherit = True
                 continue
@@ -111,7 +117,7 @@ class InheritStage:
                 d = float(np.hypot(*(tr.pos - pred)))
                 if d > gate:
                     d = self._where_lost(tr, lost)
-                if d < best_d and self._blink_agrees(tr, blink):
+                if d < best_d and self._blink_agrees(tr, blink, name):
                     best, best_d = tr, d
             if best is not None:
                 best.marker, best.score, best.blink, best.inherited = name, score, blink, name

@@ -178,20 +178,34 @@ class MeasureStage:
             return 0.0
         return float(np.abs(peak - np.median(ring, axis=0)).max())
 
-    def _own_colour(self, name: str, x0: int, x1: int, y0: int, y1: int) -> np.ndarray | None:
-        """Rows ``y0:y1``, columns ``x0:x1`` of the current frame's brightness
-        in light ``name``'s own colour: the least of its own channels less the
+    def _own_frames(self, img: np.ndarray) -> list[np.ndarray]:
+        """The frame's brightness in each of the lights' colours
+        (``_own_groups``): the least of the colour's own channels less the
         largest of the others (a red light: red less the larger of green and
-        blue).  None for a light with no channel of its own (white) or a grey
-        image."""
-        img = self._colour
-        own = self._own_channels[self.marker_names.index(name)]
-        if img is None or img.ndim < 3 or img.shape[2] < 3 or own.all():
+        blue).  Empty for a grey image."""
+        if img.ndim < 3 or img.shape[2] < 3:
+            return []
+        chans = cv2.split(img)
+        out = []
+        for own in self._own_groups:
+            idx, oth = np.flatnonzero(own), np.flatnonzero(~own)
+            lo = chans[int(idx[0])]
+            for i in idx[1:]:
+                lo = cv2.min(lo, chans[int(i)])
+            hi = chans[int(oth[0])]
+            for i in oth[1:]:
+                hi = cv2.max(hi, chans[int(i)])
+            out.append(cv2.subtract(lo, hi))
+        return out
+
+    def _own_colour(self, name: str, x0: int, x1: int, y0: int, y1: int) -> np.ndarray | None:
+        """Rows ``y0:y1``, columns ``x0:x1`` of the current frame in light
+        ``name``'s own colour (:meth:`_own_frames`); None for a white light
+        or a grey image."""
+        g = self._own_group[self.marker_names.index(name)]
+        if g < 0 or not self._own_now:
             return None
-        patch = img[y0:y1, x0:x1].astype(np.int16)
-        lo = patch[:, :, own].min(axis=2)
-        hi = patch[:, :, ~own].max(axis=2)
-        return np.clip(lo - hi, 0, 255).astype(np.uint8)
+        return self._own_now[g][y0:y1, x0:x1]
 
     def _own_colour_centre(self, name: str, centre: np.ndarray, reach: int,
                            spot: int) -> tuple[np.ndarray, float, float] | None:

@@ -78,6 +78,13 @@ class BlinkParams:
     #: brightest channel but empties the others.  0 disables it.
     colour_contrast: float = 40.0
     colour_match: float = 0.25
+    #: Lights of a colour (``color`` not white) are also sampled in their
+    #: own colour -- the least of their own channels less the largest of the
+    #: others -- to name them (a blue light over a pale wall barely changes
+    #: the brightest channel when it switches) and to measure them where
+    #: background of another colour drags the usual centre.  False: the
+    #: brightest channel only.
+    own_colour: bool = True
     #: A track born when its light switches off starts with a velocity,
     #: measured in the two frames before (where the light was lit; see
     #: :mod:`mutloc.detect.blink.birth`).  False: none until it is seen on.

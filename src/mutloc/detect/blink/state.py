@@ -65,6 +65,21 @@ class Track:
     inherited: str | None = None  # a name taken over from a lost track (see inherit.py)
     no_inherit: bool = False  # an inherited name was revoked: never inherit again
     unconfirmed: bool = False  # named while coasting, not reported yet (see identity.py)
+    # Per colour of the markers (see BlinkTracker._own_groups), the peak
+    # brightness near the light in that colour, in step with ``hist``.
+    hist_own: list = field(default_factory=list)
+
+    def push(self, peak: float, own: list[float]) -> None:
+        """This frame's samples: the peak brightness and, per colour, the peak in that colour."""
+        self.hist.append(peak)
+        for d, v in zip(self.hist_own, own):
+            d.append(v)
+
+    def pop(self) -> None:
+        """Take back this frame's samples."""
+        self.hist.pop()
+        for d in self.hist_own:
+            d.pop()
 
     def expect_on(self, t: float) -> float:
         """How surely the identified light is on at ``t``: the fitted

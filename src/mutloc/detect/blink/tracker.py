@@ -53,7 +53,11 @@ confidence tracking".  :class:`BlinkTracker` does that and adds identity:
    track must have seen about as many switches as the frequency implies, and
    must not have been dark for longer than the light ever is.  Tracks are
    assigned to markers by the Hungarian method on the scores (one track per
-   marker), with a small bonus that keeps an established identity.  An
+   marker), with a small bonus that keeps an established identity.  A
+   light of a colour is also sampled in that colour (the least of its own
+   channels less the largest of the others): a blue light over a pale wall
+   barely moves the brightest channel's peak, but its own colour's history
+   blinks loudly and names it (``BlinkParams.own_colour``).  An
    identified light's blink is then known in phase too (its history fitted
    at its frequency): inside its "off" half a bright spot at it is something
    else, and when it is due on after an off period its gate is doubled (a
@@ -208,8 +212,21 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self.marker_names = names
         self.freqs = np.array(freqs)
         self._lit_colours = np.array(colours)
-        # Per light, its own channels (see MeasureStage._own_colour).
+        # Per light, its own channels (see MeasureStage._own_colour), and the
+        # distinct colours among the lights that have one (white has none):
+        # light j's colour is _own_groups[_own_group[j]] (-1: white).
         self._own_channels = self._lit_colours >= 0.5
+        self._own_groups: list[np.ndarray] = []
+        self._own_group: list[int] = []
+        for own in self._own_channels:
+            if own.all() or not p.own_colour:
+                self._own_group.append(-1)
+                continue
+            k = next((g for g, o in enumerate(self._own_groups) if np.array_equal(o, own)), None)
+            if k is None:
+                self._own_groups.append(own)
+                k = len(self._own_groups) - 1
+            self._own_group.append(k)
 
         order = np.argsort(self.freqs)
         sorted_f = self.freqs[order]
@@ -326,6 +343,9 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self._prev2: np.ndarray | None = None  # the frame before that (see BirthStage)
         self._prev_shift = np.zeros(2)  # camera shift from the frame before to the previous one
         self._colour: np.ndarray | None = None  # the current frame, (H, W, channels) uint8
+        # The current and previous frames in each of the lights' colours (see _own_frames).
+        self._own_now: list[np.ndarray] = []
+        self._own_prev: list[np.ndarray] = []
         self._prev_colour: np.ndarray | None = None  # the previous one, as it was (not aligned)
         self._prev_t = math.nan
         self._frame = 0
@@ -396,6 +416,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         """
         self._prev_colour = self._colour
         cur, self._colour = self._to_brightness(image)
+        self._own_prev, self._own_now = self._own_now, self._own_frames(self._colour)
         if t is None:
             t = self._frame / self.fps
         else:
@@ -513,7 +534,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
                 # No lit spot at the candidate (a change beside the light; 3 m seed 1 of
                 # bench/blink_identity.py, frame 30): look where the light is predicted.
                 # (For unidentified tracks too: wrong labels, tests/test_blink_colour.py.)
-                tr.hist.pop()
+                tr.pop()
                 uv = self._observe(tr, cur, prev, tr.pos + off, event)
                 recentred = False
             tr.conf = min(1.0, tr.conf + self.boost) if supported[j] else tr.conf * self.decay
@@ -541,6 +562,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
             tr = Track(id=self._next_id, pos=c - off, conf=self.boost, born_frame=frame, born_t=t,
                         spread=float(spread[r]),
                         hist=deque(maxlen=self.window), samples=deque(),
+                        hist_own=[deque(maxlen=self.window) for _ in self._own_groups],
                         events=deque([True], maxlen=self.window),
                         last_polarity_on=bool(lit_now[r]))
             self._next_id += 1
