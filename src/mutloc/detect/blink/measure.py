@@ -198,14 +198,11 @@ class MeasureStage:
             out.append(cv2.subtract(lo, hi))
         return out
 
-    def _own_colour(self, name: str, x0: int, x1: int, y0: int, y1: int) -> np.ndarray | None:
-        """Rows ``y0:y1``, columns ``x0:x1`` of the current frame in light
-        ``name``'s own colour (:meth:`_own_frames`); None for a white light
-        or a grey image."""
+    def _own_colour(self, name: str) -> np.ndarray | None:
+        """The current frame in light ``name``'s own colour
+        (:meth:`_own_frames`); None for a white light or a grey image."""
         g = self._own_group[self.marker_names.index(name)]
-        if g < 0 or not self._own_now:
-            return None
-        return self._own_now[g][y0:y1, x0:x1]
+        return self._own_now[g] if g >= 0 and self._own_now else None
 
     def _own_colour_centre(self, name: str, centre: np.ndarray, reach: int,
                            spot: int) -> tuple[np.ndarray, float, float] | None:
@@ -213,18 +210,12 @@ class MeasureStage:
         (:meth:`_own_colour`), of the brightest spot within ``reach`` of
         ``centre``; None if there is no such colour, no spot or the spot is
         larger than a light."""
-        if self._colour is None:
-            return None
-        h, w = self._colour.shape[:2]
-        cx, cy = round(float(centre[0])), round(float(centre[1]))
-        # Room for the centroid window to grow (see _centroid).
-        half = reach + max(spot, math.ceil(3.0 * self.max_blob_std)) + 2
-        bx0, bx1, by0, by1 = max(0, cx - half), min(w, cx + half + 1), max(0, cy - half), min(h, cy + half + 1)
-        img = self._own_colour(name, bx0, bx1, by0, by1)
+        img = self._own_colour(name)
         if img is None:
             return None
-        x0, x1 = max(bx0, cx - reach) - bx0, min(bx1, cx + reach + 1) - bx0
-        y0, y1 = max(by0, cy - reach) - by0, min(by1, cy + reach + 1) - by0
+        h, w = img.shape
+        cx, cy = round(float(centre[0])), round(float(centre[1]))
+        x0, x1, y0, y1 = max(0, cx - reach), min(w, cx + reach + 1), max(0, cy - reach), min(h, cy + reach + 1)
         if x0 >= x1 or y0 >= y1:
             return None
         patch = img[y0:y1, x0:x1]
@@ -236,17 +227,17 @@ class MeasureStage:
         found = self._centroid(img, x0 + px, y0 + py, peak, spot)
         if found is None or found[1] > self.max_blob_std:
             return None
-        return found[0] + np.array([bx0, by0], float), found[1], peak
+        return found[0], found[1], peak
 
     def _own_colour_at(self, name: str, uv: np.ndarray) -> float:
         """The current frame's brightness in light ``name``'s own colour at
-        the pixel nearest ``uv`` (0 outside the image)."""
-        h, w = self._colour.shape[:2]
-        u, v = round(float(uv[0])), round(float(uv[1]))
-        if not (0 <= u < w and 0 <= v < h):
+        the pixel nearest ``uv`` (0 outside the image or without a colour)."""
+        img = self._own_colour(name)
+        if img is None:
             return 0.0
-        img = self._own_colour(name, u, u + 1, v, v + 1)
-        return 0.0 if img is None else float(img[0, 0])
+        u, v = round(float(uv[0])), round(float(uv[1]))
+        h, w = img.shape
+        return float(img[v, u]) if 0 <= u < w and 0 <= v < h else 0.0
 
     @staticmethod
     def _halo_radius(clip_radius: float) -> int:
