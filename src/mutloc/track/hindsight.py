@@ -104,7 +104,7 @@ class TentativeFrames:
                 tracker, start.row, stepped[start.index + 1:start.index + 1 + lag], start.prior)
             for p in reversed(frames):
                 back = None
-                if p.status == FrameStatus.SOLVED:
+                if p.status == FrameStatus.SOLVED and not (rooted and p is start):  # start: checked above
                     back = backward_update(tracker, p.row, stepped[p.index + 1:p.index + 1 + lag], p.prior)
                     if back is None:
                         break

@@ -64,8 +64,10 @@ class IdentityStage:
         return e / np.maximum(total, 1e-9)[:, None, None], np.sqrt(2.0 * e[:, 0] / n)
 
     def _peak_ok(self, ratio: np.ndarray, amp: np.ndarray) -> np.ndarray:
-        """Whether a history's score (``ratio``: at, below, above) and
-        amplitude pass the identification tests (see :meth:`_identify`)."""
+        """Whether histories' scores (``ratio[:, 0/1/2]``: at the frequency,
+        half a bin below, above) and amplitudes pass the identification
+        tests: a local maximum in frequency, loud enough, at least
+        ``min_score``."""
         at, below, above = ratio[:, 0], ratio[:, 1], ratio[:, 2]
         return (at >= below) & (at >= above) & (amp >= 0.3 * self.diff_threshold) & (at >= self.min_score)
 
@@ -95,9 +97,9 @@ class IdentityStage:
             # A coloured light over bright background of another colour
             # barely changes the brightest channel's peak when it switches
             # (a blue light on a pale wall: 25 grey levels, too faint to be
-            # named), and does in its own colour: where that is louder, its
-            # own colour's history scores it where that passes the tests below
-            # and the brightest channel's does not, or scores higher.
+            # named), and does in its own colour: its own colour's history
+            # scores it where that passes the tests and the brightest
+            # channel's does not, or scores higher.
             for g in range(len(self._own_groups)):
                 cols = [j for j in range(m) if self._own_group[j] == g]
                 ratio_g, amp_g = self._spectrum([list(tracks[i].hist_own[g])[-n:] for i in members], basis, n, m)
@@ -108,8 +110,7 @@ class IdentityStage:
                     ratio[use, :, j] = ratio_g[use, :, j]
                     amp[use, j] = amp_g[use, j]
             at, below, above = ratio[:, 0], ratio[:, 1], ratio[:, 2]
-            loud = amp >= 0.3 * self.diff_threshold
-            ok = (at >= below) & (at >= above) & loud & (at >= self.min_score)
+            ok = self._peak_ok(ratio, amp)
             # Hysteresis here too: a light moving over changing background
             # (brightness that is not quite periodic) can make a neighbour's
             # score edge past its own for a frame, and a light over background

@@ -212,13 +212,12 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self.marker_names = names
         self.freqs = np.array(freqs)
         self._lit_colours = np.array(colours)
-        # Per light, its own channels (see MeasureStage._own_colour), and the
-        # distinct colours among the lights that have one (white has none):
-        # light j's colour is _own_groups[_own_group[j]] (-1: white).
-        self._own_channels = self._lit_colours >= 0.5
+        # The distinct colours among the lights that have one (white has
+        # none), as masks of their own channels (see MeasureStage._own_frames):
+        # light j's colour is _own_groups[_own_group[j]] (-1: none).
         self._own_groups: list[np.ndarray] = []
         self._own_group: list[int] = []
-        for own in self._own_channels:
+        for own in self._lit_colours >= 0.5:
             if own.all() or not p.own_colour:
                 self._own_group.append(-1)
                 continue
