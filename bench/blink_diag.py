@@ -42,9 +42,9 @@ def why(bt: BlinkTracker, name: str, uv: np.ndarray, t: float) -> list[str]:
     times = np.array(bt._times)
     k = bt.marker_names.index(name)
     out = []
-    near = sorted(bt._tracks, key=lambda tr: np.hypot(*(tr.predict(t, bt._horizon) + bt._offset - uv)))[:2]
+    near = sorted(bt._tracks, key=lambda tr: np.hypot(*(tr.predict(t, bt._horizon, bt._offset) + bt._offset - uv)))[:2]
     for tr in near:
-        d = float(np.hypot(*(tr.predict(t, bt._horizon) + bt._offset - uv)))
+        d = float(np.hypot(*(tr.predict(t, bt._horizon, bt._offset) + bt._offset - uv)))
         if d > 15.0:
             continue
         h = np.asarray(tr.hist, float)

@@ -58,8 +58,11 @@ def coasting_stray():
 def test_a_stray_named_while_coasting_is_not_reported(coasting_stray):
     rig, data = coasting_stray
     truth = data[2]
-    without = _run(rig, "p", data, BlinkParams(confirm_lit=False))
-    with_ = _run(rig, "p", data, BlinkParams())
+    # In the brightness channel, where the stray arises (in its own colour's
+    # image the light has no such stray): and by default too.
+    assert _worst_report(_run(rig, "p", data, BlinkParams()), truth) < 10.0
+    without = _run(rig, "p", data, BlinkParams(by_colour=False, confirm_lit=False))
+    with_ = _run(rig, "p", data, BlinkParams(by_colour=False))
     # The failure exists: a report hundreds of px off (measured 470 px).
     assert _worst_report(without, truth) > 100.0
     # With the check every report lies near its own light (the lights

@@ -46,10 +46,13 @@ def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monke
     the loss inheritance repairs is reproduced by measuring as before
     (neither that nor ``association.SWITCH_REACHES``, which also keeps it)."""
     assert _identity(fast_pan, BlinkParams()).failures == []
+    assert _identity(fast_pan, BlinkParams(by_colour=False)).failures == []
+    # In the brightness channel (tracked in their colours' own images the
+    # lights are not lost even so):
     monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
     monkeypatch.setattr(association, "SWITCH_REACHES", math.inf)
-    with_ = _identity(fast_pan, BlinkParams(inherit_identity=True))
-    without = _identity(fast_pan, BlinkParams(inherit_identity=False))
+    with_ = _identity(fast_pan, BlinkParams(by_colour=False, inherit_identity=True))
+    without = _identity(fast_pan, BlinkParams(by_colour=False, inherit_identity=False))
     assert with_.wrong <= without.wrong <= 1
     assert with_.total >= 12  # lit frames of both lights in frames 30-44 (16)
     assert with_.failures == [], with_.failures

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mutloc.core.rig import Marker
-from mutloc.detect.blink import BlinkTracker, GlobalMotion
+from mutloc.detect.blink import GlobalMotion
+from mutloc.detect.blink.tracker import LightTracker
 from mutloc.detect.blink.halo import SRGB_LUT
 from mutloc.detect.blink.state import Track
 
@@ -39,13 +40,39 @@ def test_track_motion_model_predicts_constant_acceleration():
     tr = Track(id=0, pos=np.zeros(2), conf=1.0, born_frame=0, born_t=0.0, hist=deque(), events=deque(),
                samples=deque(), vel=np.array([10.0, -4.0]), acc=np.array([2.0, 0.0]),
                last_on_pos=np.array([100.0, 50.0]), last_on_t=1.0)
-    np.testing.assert_allclose(tr.predict(1.5, horizon=1.0), [100 + 5 + 0.25, 50 - 2])
-    np.testing.assert_allclose(tr.predict(9.0, horizon=1.0), [100 + 10 + 1.0, 50 - 4])  # never far
+    off = np.array([7.0, 3.0])  # a stabilised model ignores the camera
+    np.testing.assert_allclose(tr.predict(1.5, 1.0, off), [100 + 5 + 0.25, 50 - 2])
+    np.testing.assert_allclose(tr.predict(9.0, 1.0, off), [100 + 10 + 1.0, 50 - 4])  # never far
+    # An image-frame model predicts in the image, returned in stabilised coordinates.
+    tr.stabilised, tr.last_on_offset = False, np.array([5.0, 0.0])
+    tr.vel_img, tr.acc_img = tr.vel, tr.acc
+    np.testing.assert_allclose(tr.predict(1.5, 1.0, off) + off, [105 + 5 + 0.25, 50 - 2])
+
+
+@pytest.mark.parametrize("camera_follows", [False, True])
+def test_motion_model_predicts_in_the_frame_where_the_light_moves_smoothly(camera_follows):
+    """A light blinking (4 frames on, 4 off) at constant velocity while the
+    camera shakes: over the scene (smooth in stabilised coordinates) or
+    followed by the camera (smooth in the image).  After a few off periods
+    the model predicts in the smooth frame, exactly."""
+    rng = np.random.default_rng(3)
+    tr = _tracker()
+    offsets = np.cumsum(rng.normal(0.0, 3.0, (41, 2)), axis=0)  # cumulative camera shift, px
+    smooth = lambda k: np.array([300.0, 200.0]) + np.array([2.0, -0.7]) * k  # noqa: E731
+    track = Track(id=0, pos=np.zeros(2), conf=1.0, born_frame=0, born_t=0.0, hist=deque(), events=deque(),
+                  samples=deque())
+    for k in range(36):
+        if k % 8 < 4:
+            tr._offset = offsets[k]
+            tr._commit(track, smooth(k) if camera_follows else smooth(k) + offsets[k], 0.0, k / FPS, k)
+    assert track.stabilised is not camera_follows
+    expect = smooth(40) if camera_follows else smooth(40) + offsets[40]
+    np.testing.assert_allclose(track.predict(40 / FPS, 1.0, offsets[40]) + offsets[40], expect, atol=1e-6)
 
 
 def _tracker(hz=(2.0, 3.0)):
     lights = {f"L{i}": Marker(f"L{i}", "q", np.array([0.1 * i, 0.0, 0.0]), blink_hz=h) for i, h in enumerate(hz)}
-    return BlinkTracker(lights, FPS)
+    return LightTracker(lights, FPS)
 
 
 def test_identity_basis_is_orthonormal_and_zero_mean():

@@ -44,14 +44,12 @@ def _lit_truth(world, rig, t):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed, frame, by_four", [
-    # Seed 0: a track started on three lights at frame 24; frame 30's new
-    # light (p's view) was predicted with a ~180 px spread, so frame 30 could
-    # not confirm it; frame 31 does.
-    (0, 30, False),
-    # Seed 2: a track started on three lights at frame 30 (q's M3 named late);
-    # frame 31 sees the same three; frame 32 has all four, solved on its own
-    # and agreeing with the track: it confirms the track instead of replacing it.
-    (2, 31, True),
+    # Seed 3: a track started on three lights at frame 24 (M2, M3, M4);
+    # frame 30 has three lit lights, among them p's M1, new to the track,
+    # which cannot confirm it there; frame 31 does.  (Before the lights were
+    # tracked in their own colours' images, seed 0 showed the case at frame
+    # 30 and seed 2 the four-light confirmation below, at frame 31.)
+    (3, 30, False),
 ])
 def test_confirmed_tentative_track_reports_its_frames_in_hindsight(seed, frame, by_four):
     # The frames within the smoother's lag after it verify it (run backward).
@@ -169,3 +167,30 @@ def test_a_bad_detection_in_the_frame_that_started_a_track_leaves_no_wrong_solve
         if r.status == "solved":
             e = r.estimate.pose
             assert e.translation_error(truth[i]) <= 0.05 and e.rotation_error_deg(truth[i]) <= 2.0, (i, r.reason)
+
+
+def test_four_lights_solved_on_their_own_confirm_the_tentative_track():
+    """A perfect detector whose lights are named only from 1 s on (seed 2's
+    world): frames 30 and 31 see three lights (a tentative track starts),
+    frame 32 all four -- solved on its own and agreeing with the track, it
+    confirms the track instead of replacing it, and frames 30-31 are
+    reported in hindsight, within 5 cm and 2 degrees of the truth."""
+    from mutloc.sim.tracking import correct_detections
+    from mutloc.track.tracker import track_log
+
+    rig = standard_rig("lights")
+    world = moving_world(rig, distance=2.0, seed=2)
+    rng = np.random.default_rng(2)
+    frames = []
+    for i in range(40):
+        obs = correct_detections(world, i / FPS, rng)
+        frames.append((i / FPS, obs if i >= 30 else obs.take([])))
+    traj = track_log(rig, frames, progress=False)
+    assert [len(traj.rows[i].observations) for i in (30, 31, 32)] == [3, 3, 4]
+    assert "M1, M2, M3, M4 agree" in traj.rows[32].reason, traj.rows[32].reason
+    for i in (30, 31):
+        assert traj.rows[i].status == "solved" and "confirmed in hindsight" in traj.rows[i].reason, traj.rows[i]
+    for i, r in enumerate(traj.rows):
+        if r.status == "solved":
+            T = relative_pose(world, "p", "q", i / FPS)
+            assert r.estimate.pose.translation_error(T) <= 0.05 and r.estimate.pose.rotation_error_deg(T) <= 2.0, i

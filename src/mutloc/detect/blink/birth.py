@@ -28,7 +28,7 @@ __all__ = ["BirthStage"]
 
 
 class BirthStage:
-    """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
+    """Methods of :class:`~mutloc.detect.blink.tracker.LightTracker` for this stage (it holds the state)."""
 
     def _lit_spot_near(self, img: np.ndarray, uv: np.ndarray, r: int,
                        spread: float) -> tuple[np.ndarray, float] | None:
@@ -89,7 +89,9 @@ class BirthStage:
         t1, t2 = self._times[-2], self._times[-3]
         # One sample: the velocity predicts, while the gate stays as wide as
         # for a track without a motion model (two frames' velocity is rough).
-        tr.samples = deque([(t1, pos1)])
+        tr.samples = deque([(t1, pos1, off1)])
         tr.last_on_pos = pos1
+        tr.last_on_offset = off1
         tr.last_on_t = t1
         tr.vel = (pos1 - (uv2 - off2)) / (t1 - t2)
+        tr.vel_img = (uv1 - uv2) / (t1 - t2)

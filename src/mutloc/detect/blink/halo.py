@@ -22,7 +22,7 @@ SRGB_LUT = np.array(
 # A pixel at or above this (uint8) is taken as clipped.
 CLIP_LEVEL = 250
 # Levels of the halo contours, as fractions of the headroom above the
-# background (see BlinkTracker._halo_centre), and the lowest level in linear
+# background (see LightTracker._halo_centre), and the lowest level in linear
 # light (well above the noise of a difference of two frames).
 HALO_LEVELS = (0.1, 0.2, 0.35, 0.5, 0.7)
 HALO_MIN_LEVEL = 0.04

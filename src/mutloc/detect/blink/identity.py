@@ -16,7 +16,7 @@ __all__ = ["IdentityStage"]
 
 
 class IdentityStage:
-    """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
+    """Methods of :class:`~mutloc.detect.blink.tracker.LightTracker` for this stage (it holds the state)."""
 
     def _basis(self, times: np.ndarray) -> np.ndarray:
         """Orthonormal bases ``(n, 2 * 3F)`` of the zero-mean cos/sin pairs at
@@ -187,7 +187,9 @@ class IdentityStage:
             if tr is None or tr.last_on_pos is None or tr.unconfirmed:
                 res.missing.append(name)
                 continue
-            uv = tr.predict(t, self._horizon) + self._offset
+            uv = tr.predict(t, self._horizon, self._offset) + self._offset
+            if tr.is_on:
+                uv = uv + tr.report_shift
             if not self._inside(uv, shape):
                 res.missing.append(name)
                 continue

@@ -26,7 +26,7 @@ _CORR = 0.6
 
 
 class InheritStage:
-    """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
+    """Methods of :class:`~mutloc.detect.blink.tracker.LightTracker` for this stage (it holds the state)."""
 
     def _blink_agrees(self, tr: Track, blink: tuple[float, float, float, float], name: str) -> bool:
         """Whether ``tr``'s brightness history -- or its history in light
@@ -66,11 +66,11 @@ class InheritStage:
         if lost.last_on_pos is None:
             return np.inf
         best = np.inf
-        for ts, ps in tr.samples:
+        for ts, ps, _ in tr.samples:
             dt = abs(ts - lost.last_on_t)
             if dt <= 0.15:
                 d = float(np.hypot(*(ps - lost.last_on_pos)))
-                if d <= 2.0 * self.gate_px + float(np.hypot(*lost.vel)) * dt:
+                if d <= 2.0 * self.gate_px + lost.speed() * dt:
                     best = min(best, d)
         return best
 
@@ -107,7 +107,7 @@ class InheritStage:
             if info is None or frame - info[3] > _MEMORY_FRAMES:
                 continue
             lost, blink, score, _ = info
-            pred = lost.predict(t, self._horizon)
+            pred = lost.predict(t, self._horizon, self._offset)
             gate = self._gate(lost, t)
             best, best_d = None, np.inf
             for tr in tracks:

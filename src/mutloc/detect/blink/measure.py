@@ -12,7 +12,22 @@ import numpy as np
 from .halo import CLIP_LEVEL, HALO_LEVELS, HALO_MIN_LEVEL, MAX_PLATES, SRGB_LUT, halo_kernel
 from .state import Plate, Track
 
-__all__ = ["MeasureStage"]
+__all__ = ["MeasureStage", "own_colour_image"]
+
+
+def own_colour_image(channels: list[np.ndarray], own: np.ndarray) -> np.ndarray:
+    """An image's brightness in one colour: the least of the colour's own
+    channels (``own``, a mask over ``channels``) less the largest of the
+    others (a red light: red less the larger of green and blue).  Pale or
+    grey things, bright in every channel, are dark in it."""
+    idx, oth = np.flatnonzero(own), np.flatnonzero(~own)
+    lo = channels[int(idx[0])]
+    for i in idx[1:]:
+        lo = cv2.min(lo, channels[int(i)])
+    hi = channels[int(oth[0])]
+    for i in oth[1:]:
+        hi = cv2.max(hi, channels[int(i)])
+    return cv2.subtract(lo, hi)
 
 # Triples of points sampled along a plateau's outline, as fractions of its
 # length (see MeasureStage._plateau_circle).
@@ -31,7 +46,7 @@ NEIGHBOUR_SHARE = 0.25
 
 
 class MeasureStage:
-    """Methods of :class:`~mutloc.detect.blink.BlinkTracker` for this stage (it holds the state)."""
+    """Methods of :class:`~mutloc.detect.blink.tracker.LightTracker` for this stage (it holds the state)."""
 
     def _blobs(self, cur: np.ndarray, prev: np.ndarray,
                exposed: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -186,25 +201,20 @@ class MeasureStage:
         if img.ndim < 3 or img.shape[2] < 3:
             return []
         chans = cv2.split(img)
-        out = []
-        for own in self._own_groups:
-            idx, oth = np.flatnonzero(own), np.flatnonzero(~own)
-            lo = chans[int(idx[0])]
-            for i in idx[1:]:
-                lo = cv2.min(lo, chans[int(i)])
-            hi = chans[int(oth[0])]
-            for i in oth[1:]:
-                hi = cv2.max(hi, chans[int(i)])
-            out.append(cv2.subtract(lo, hi))
-        return out
+        return [own_colour_image(chans, own) for own in self._own_groups]
 
-    def _own_colour(self, name: str) -> np.ndarray | None:
+    def _own_colour(self, name: str | None) -> np.ndarray | None:
         """The current frame in light ``name``'s own colour
-        (:meth:`_own_frames`); None for a white light or a grey image."""
+        (:meth:`_own_frames`; the tracker's own channel if it tracks one
+        colour's lights); None for a white light or a grey image."""
+        if self._meas is not None:
+            return self._cur
+        if name is None:
+            return None
         g = self._own_group[self.marker_names.index(name)]
         return self._own_now[g] if g >= 0 and self._own_now else None
 
-    def _own_colour_centre(self, name: str, centre: np.ndarray, reach: int,
+    def _own_colour_centre(self, name: str | None, centre: np.ndarray, reach: int,
                            spot: int) -> tuple[np.ndarray, float, float] | None:
         """Centroid, RMS radius and peak, in light ``name``'s own colour
         (:meth:`_own_colour`), of the brightest spot within ``reach`` of
@@ -255,7 +265,8 @@ class MeasureStage:
         """
         if not math.isfinite(tr.clip_radius) or self._colour is None:
             return
-        # Room for the light to move before it is on again.
+        # Room for the light to move over the background (motion-compensated
+        # speed: the plate is aligned by the camera offset) before it is on again.
         half = self._halo_radius(tr.clip_radius) + math.ceil(6.0 + 4.0 * float(np.hypot(*tr.vel)) / self.fps)
         centre = tr.pos + self._offset
         cx, cy = round(float(centre[0])), round(float(centre[1]))

@@ -78,7 +78,14 @@ class BlinkParams:
     #: brightest channel but empties the others.  0 disables it.
     colour_contrast: float = 40.0
     colour_match: float = 0.25
-    #: Lights of a colour (``color`` not white) are also sampled in their
+    #: Lights of each colour (``color`` not white) are tracked in that
+    #: colour's own image -- the least of its own channels less the largest
+    #: of the others -- one channel per colour, white lights in the
+    #: brightness channel (see :mod:`mutloc.detect.blink.channels`): pale and
+    #: grey things, and lights of other colours, are dark there.  A grey
+    #: stream has one channel.  False: every light in the brightness channel.
+    by_colour: bool = True
+    #: With ``by_colour`` False: lights of a colour are also sampled in their
     #: own colour -- the least of their own channels less the largest of the
     #: others -- to name them (a blue light over a pale wall barely changes
     #: the brightest channel when it switches) and to measure them where

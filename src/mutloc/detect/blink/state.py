@@ -14,7 +14,7 @@ __all__ = ["Plate", "Track"]
 @dataclass
 class Plate:
     """The neighbourhood of a light while it was off: the background its halo
-    is measured against when it is on (see BlinkTracker._halo_centre)."""
+    is measured against when it is on (see LightTracker._halo_centre)."""
 
     lin: np.ndarray  # float32 (h, w, channels), linear light
     x0: int  # image column of lin[:, 0] then
@@ -37,13 +37,23 @@ class Track:
     born_t: float
     hist: deque  # peak brightness near the light, one sample per frame
     events: deque  # per frame: did the differential see this light switch?
-    samples: deque  # (t, pos) of recent "on" centres, for the motion model
+    samples: deque  # (t, pos, camera offset then) of recent "on" centres, for the motion model
+    # The motion model, fitted in both frames: motion-compensated coordinates
+    # (vel, acc: the light moves smoothly over the scene) and image
+    # coordinates (vel_img, acc_img: the camera follows the light, so
+    # compensating adds the camera's jerks to its motion).
     vel: np.ndarray = field(default_factory=lambda: np.zeros(2))  # px / s
     acc: np.ndarray = field(default_factory=lambda: np.zeros(2))  # px / s^2
+    vel_img: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    acc_img: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    stabilised: bool = True  # which of the two predicts (see AssociationStage._commit)
+    miss: np.ndarray | None = None  # running prediction error (px) of the two, after off periods
+    misses: int = 0  # off periods counted in ``miss``
     hi: float = math.nan  # learned peak brightness when on
     lo: float = math.nan  # learned peak brightness when off
     is_on: bool = False
     last_on_pos: np.ndarray | None = None
+    last_on_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))  # camera offset then
     last_on_t: float = math.nan
     last_on_frame: int = -1
     last_polarity_on: bool = True
@@ -53,6 +63,7 @@ class Track:
     score: float = 0.0
     scores: dict[str, float] = field(default_factory=dict)
     measured_spread: float = 1.5  # RMS radius of the spot found this frame (px)
+    report_shift: np.ndarray = field(default_factory=lambda: np.zeros(2))  # this frame's finer centre less the tracked one
     dark: bool = False  # this frame: clearly off (a background plate may be taken)
     clip_radius: float = math.nan  # radius (px) of the clipped core when last on
     measured_area: float = math.nan  # apparent area (px^2) of the spot found this frame
@@ -65,7 +76,7 @@ class Track:
     inherited: str | None = None  # a name taken over from a lost track (see inherit.py)
     no_inherit: bool = False  # an inherited name was revoked: never inherit again
     unconfirmed: bool = False  # named while coasting, not reported yet (see identity.py)
-    # Per colour of the markers (see BlinkTracker._own_groups), the peak
+    # Per colour of the markers (see LightTracker._own_groups), the peak
     # brightness near the light in that colour, in step with ``hist``.
     hist_own: list = field(default_factory=list)
 
@@ -94,12 +105,25 @@ class Track:
         w = 2.0 * math.pi * f * (t - t0)
         return (a * math.cos(w) + b * math.sin(w)) / amp
 
-    def predict(self, t: float, horizon: float) -> np.ndarray:
-        """Position at time ``t`` from the motion model (stabilised coordinates)."""
+    def predict(self, t: float, horizon: float, offset: np.ndarray) -> np.ndarray:
+        """Position at time ``t`` from the motion model, in stabilised
+        coordinates; ``offset`` is the camera offset at ``t``."""
+        return self.predict_in(t, horizon, self.stabilised, offset)
+
+    def speed(self) -> float:
+        """The light's speed (px / s) in the frame its motion model predicts in."""
+        return float(np.hypot(*(self.vel if self.stabilised else self.vel_img)))
+
+    def predict_in(self, t: float, horizon: float, stabilised: bool, offset: np.ndarray) -> np.ndarray:
+        """:meth:`predict` by the model of one frame (``stabilised``: the
+        motion-compensated one, else the image's)."""
         if self.last_on_pos is None:
             return self.pos
         dt = min(t - self.last_on_t, horizon)  # never extrapolate a curve far
-        return self.last_on_pos + self.vel * dt + 0.5 * self.acc * dt * dt
+        if stabilised:
+            return self.last_on_pos + self.vel * dt + 0.5 * self.acc * dt * dt
+        step = self.vel_img * dt + 0.5 * self.acc_img * dt * dt
+        return self.last_on_pos + self.last_on_offset + step - offset
 
     def last_seen_frame(self) -> int:
         return self.last_on_frame if self.last_on_frame >= 0 else self.born_frame

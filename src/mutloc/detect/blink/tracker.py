@@ -2,7 +2,7 @@
 
 The paper (Section IV) detects its blinking lights with "a simple thresholding
 strategy on the time differential of images ... coupled with decaying
-confidence tracking".  :class:`BlinkTracker` does that and adds identity:
+confidence tracking".  :class:`LightTracker` does that and adds identity:
 
 1. **Time differential.**  Each frame is reduced to one brightness channel
    (the HSV value ``max(B, G, R)`` by default, so a saturated red LED is as
@@ -36,7 +36,7 @@ confidence tracking".  :class:`BlinkTracker` does that and adds identity:
    a pixel beside a poster's edge), while the glow is radially symmetric.
    The background is taken from frames in which the light was off (a few
    "plates" per track), subtracted, and circles are fitted to where the glow
-   crosses a few levels (:meth:`BlinkTracker._halo_centre`).  Positions are kept in
+   crosses a few levels (:meth:`LightTracker._halo_centre`).  Positions are kept in
    camera-motion-compensated coordinates, where robots move smoothly: the
    prediction is a quadratic fitted to the last ``fit_window_s`` of "on"
    centres.
@@ -96,11 +96,13 @@ from .motion import GlobalMotion
 from .params import BlinkParams
 from .state import Track
 
-__all__ = ["BlinkTracker"]
+__all__ = ["LightTracker"]
 
 
-class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, InheritStage):
-    """Streaming detector of blinking-light markers, told apart by ``blink_hz``.
+class LightTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, InheritStage):
+    """Streaming detector of blinking-light markers, told apart by ``blink_hz``,
+    in one brightness channel (:class:`~mutloc.detect.blink.BlinkTracker`
+    runs one per colour of light).
 
     Call :meth:`update` once per frame; it returns a
     :class:`~mutloc.detect.base.DetectionResult` with a detection for every
@@ -342,6 +344,8 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         self._prev2: np.ndarray | None = None  # the frame before that (see BirthStage)
         self._prev_shift = np.zeros(2)  # camera shift from the frame before to the previous one
         self._colour: np.ndarray | None = None  # the current frame, (H, W, channels) uint8
+        self._cur: np.ndarray | None = None  # the current frame's channel (see _advance)
+        self._meas: np.ndarray | None = None  # its brightness, if the channel is a colour's
         # The current and previous frames in each of the lights' colours (see _own_frames).
         self._own_now: list[np.ndarray] = []
         self._own_prev: list[np.ndarray] = []
@@ -413,9 +417,13 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         as :func:`~mutloc.detect.base.as_bgr` accepts).  ``t``: its time in
         seconds, strictly increasing; default ``frame_index / fps``.
         """
-        self._prev_colour = self._colour
-        cur, self._colour = self._to_brightness(image)
-        self._own_prev, self._own_now = self._own_now, self._own_frames(self._colour)
+        cur, colour = self._to_brightness(image)
+        t = self._check_frame(cur, t)
+        shift = self._motion.update(cur) if self.stabilize else np.zeros(2)
+        return self._advance(cur, colour, t, shift)
+
+    def _check_frame(self, cur: np.ndarray, t: float | None) -> float:
+        """The frame's time (validated); the frame's size checked against the stream's."""
         if t is None:
             t = self._frame / self.fps
         else:
@@ -434,13 +442,26 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
                 )
             if not t > self._prev_t:
                 raise InputError(f"BlinkTracker.update: time {t} does not increase (previous {self._prev_t})")
+        elif self.camera is not None and self.camera.size is not None \
+                and tuple(self.camera.size) != (cur.shape[1], cur.shape[0]):
+            raise InputError(f"BlinkTracker.update: image size {cur.shape[::-1]} is not the camera's "
+                             f"{tuple(self.camera.size)}")
+        return t
+
+    def _advance(self, cur: np.ndarray, colour: np.ndarray, t: float, shift: np.ndarray,
+                 measure: np.ndarray | None = None) -> DetectionResult:
+        """One frame (checked by :meth:`_check_frame`): brightness ``cur``,
+        the image as (H, W, channels) ``colour``, the camera's ``shift`` since
+        the previous frame.  ``measure``: where ``cur`` is one colour's own
+        image (:mod:`~mutloc.detect.blink.channels`), the brightness image in
+        which lit lights are measured (their glow and clipped cores are
+        modelled in brightness, not in a difference of channels)."""
+        self._cur, self._meas = cur, measure
+        self._prev_colour, self._colour = self._colour, colour
+        self._own_prev, self._own_now = self._own_now, self._own_frames(colour)
+        prev = self._prev
         if prev is None:
-            if self.camera is not None and self.camera.size is not None \
-                    and tuple(self.camera.size) != (cur.shape[1], cur.shape[0]):
-                raise InputError(f"BlinkTracker.update: image size {cur.shape[::-1]} is not the camera's "
-                                 f"{tuple(self.camera.size)}")
             self._set_scale(min(cur.shape))
-        shift = self._motion.update(cur) if self.stabilize else np.zeros(2)
         self._times.append(t)
         if prev is not None:
             self._prev_shift, self.last_shift = self.last_shift, shift
@@ -472,7 +493,7 @@ class BlinkTracker(MeasureStage, AssociationStage, IdentityStage, BirthStage, In
         tracks = self._tracks
         off = self._offset
         for tr in tracks:
-            tr.pos = tr.predict(t, self._horizon)
+            tr.pos = tr.predict(t, self._horizon, off)
 
         # --- candidates -> tracks (global nearest neighbour, gated) ---
         # Pairs are taken in order of distance, each candidate and each track
