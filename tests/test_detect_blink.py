@@ -585,3 +585,33 @@ def test_rendered_lights_at_1_2m_accuracy(cond, limit) -> None:
     assert len(errs) >= 25
     assert np.median(errs) <= limit
     assert np.percentile(errs, 90) <= 0.5
+
+
+def test_lights_are_tracked_per_colour_and_a_grey_stream_in_one_channel() -> None:
+    """A red light at 2 Hz and a green one at 3 Hz on a grey background:
+    each is named by its own colour's tracker in a colour stream, both by the
+    single brightness channel in a grey stream; a stream cannot switch."""
+    from mutloc.detect.blink.channels import colour_groups
+
+    red = Marker("R", "q", np.array([0.1, 0.0, 0.0]), color=(255, 0, 0), blink_hz=2.0)
+    green = Marker("G", "q", np.array([-0.1, 0.0, 0.0]), color=(0, 255, 0), blink_hz=3.0)
+    white = marker("W", 5.0)
+    groups = colour_groups({"R": red, "G": green, "W": white, "T": marker("T", None)})
+    assert sorted(sorted(ms) for _, ms in groups) == [["G"], ["R"], ["W"]]
+    assert [own.tolist() for own, ms in groups if "R" in ms] == [[False, False, True]]  # BGR: red's own channel
+    assert [own for own, ms in groups if "W" in ms] == [None]  # white: the brightness channel
+
+    uv = {"R": (100.3, 60.6), "G": (220.7, 70.2)}
+    reds, greens = simple_frames(60, 2.0, uv["R"]), simple_frames(60, 3.0, uv["G"])
+    colour = [cv2.merge([np.full_like(r, 40), g, r]) for r, g in zip(reds, greens)]
+    grey = [np.maximum(r, g) for r, g in zip(reds, greens)]
+    for frames in (colour, grey):
+        tr = BlinkTracker({"R": red, "G": green}, FPS)
+        for k, img in enumerate(frames):
+            res = tr.update(img, k / FPS)
+        for name in ("R", "G"):
+            assert np.linalg.norm(res.detections[name].uv - np.array(uv[name])) < 0.5, (name, res)
+        channels = {tuple(s["channel"]) if s["channel"] else None for s in tr.track_states()}
+        assert channels == ({(False, False, True), (False, True, False)} if frames is colour else {None})
+    with pytest.raises(InputError, match="colour and grey"):
+        tr.update(colour[0], 100.0)

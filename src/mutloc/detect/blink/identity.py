@@ -101,6 +101,8 @@ class IdentityStage:
             # scores it where that passes the tests and the brightest
             # channel's does not, or scores higher.
             for g in range(len(self._own_groups)):
+                if any(len(tracks[i].hist_own[g]) < n for i in members):
+                    continue  # a grey stream: no colours sampled
                 cols = [j for j in range(m) if self._own_group[j] == g]
                 ratio_g, amp_g = self._spectrum([list(tracks[i].hist_own[g])[-n:] for i in members], basis, n, m)
                 for j in cols:
