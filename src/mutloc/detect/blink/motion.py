@@ -26,15 +26,17 @@ class GlobalMotion:
     Dropping the compensation for those frames alone makes a steady pan look
     like jerks to the lights' motion model (measured: a light predicted 60 px
     off after an off period, trust seed 36 of ``bench/trust_sequences.py``).
+    ``accept``: see :meth:`update`.
     """
 
     def __init__(self, levels: tuple[int, ...] = (4, 3, 2), iterations: int = 3, max_shift: float = 60.0,
-                 clip: float = 25.0, hold: float = 0.8) -> None:
+                 clip: float = 25.0, hold: float = 0.8, accept: float = 0.8) -> None:
         self.levels = tuple(sorted(levels, reverse=True))  # coarse to fine
         self.iterations = int(iterations)
         self.max_shift = float(max_shift)
         self.clip = float(clip)
         self.hold = float(hold)
+        self.accept = float(accept)
         self.reset()
 
     def reset(self) -> None:
@@ -121,16 +123,20 @@ class GlobalMotion:
             if not ok:
                 break
         if ok and np.hypot(*d) * 2**prev_level > 0.1:
-            # Accept a shift only if aligning explains the change: it halves
-            # the mismatch, or (small shifts, where the mismatch is mostly
-            # noise) reduces it by at least half what the texture predicts
-            # (d^T H d per pixel).  In a scene without texture the only
-            # structure is the blinking lights, and their switching must not
-            # be taken for camera motion.
+            # Accept a shift only if aligning explains the change: it cuts
+            # the mismatch to ``accept`` of what it was, or (small shifts,
+            # where the mismatch is mostly noise) by at least half what the
+            # texture predicts (d^T H d per pixel).  In a scene without
+            # texture the only structure is the blinking lights, and their
+            # switching must not be taken for camera motion.  (Half, as
+            # before 2026-11-27, refused a camera moving sideways -- floor
+            # and wall move differently, aligning cuts the mismatch to 0.75
+            # -- for its first 23 frames, then took it: the lights' motion
+            # model saw the jump as an acceleration, trust seed 36.)
             tmpl, cur, h_px = templates[prev_level][0], pyr[prev_level], templates[prev_level][4]
             c0 = self._cost(self._residual(cur, tmpl, np.zeros(2)))
             c1 = self._cost(self._residual(cur, tmpl, d))
-            ok = c1 <= 0.5 * c0 or c0 - c1 >= 0.5 * float(d @ h_px @ d)
+            ok = c1 <= self.accept * c0 or c0 - c1 >= 0.5 * float(d @ h_px @ d)
         self._last = d * (2 ** prev_level) if ok else self.hold * self._last
         return self._last.copy()
 
