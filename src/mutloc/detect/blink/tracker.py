@@ -109,31 +109,9 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
     in one brightness channel (:class:`~mutloc.detect.blink.BlinkTracker`
     runs one per colour of light).
 
-    Call :meth:`update` once per frame; it returns a
-    :class:`~mutloc.detect.base.DetectionResult` with a detection for every
-    marker confidently tracked and identified, and the others in ``missing``.
-
-    Parameters
-    ----------
-    markers:
-        The markers to look for, ``{name: Marker}`` (e.g. ``rig.robot("q").markers``:
-        what one camera can see).  Markers without ``blink_hz`` are ignored; at
-        least one must have it, and no two may blink at frequencies the window
-        cannot resolve.
-    fps:
-        Nominal frame rate; frame ``k`` is at ``k / fps`` seconds unless
-        :meth:`update` is given the time.  Every ``blink_hz`` must be below
-        ``fps / 2`` (Nyquist).
-    params:
-        The tuning, :class:`~mutloc.detect.blink.params.BlinkParams` (each value
-        documented there); default ``BlinkParams()``.
-    camera:
-        The camera's model (:class:`~mutloc.core.camera.Camera`), optional.
-        With it, a light whose marker has a ``radius`` (rig key, metres: a
-        diffusing sphere) is reported at the projection of its centre, not at
-        the centre of its image: a sphere images as an ellipse whose centre
-        lies outward of that projection (see :mod:`mutloc.core.sphere`; the
-        angular radius comes from the lit spot's apparent area).
+    :meth:`update` takes a frame, as the public tracker's does; the
+    parameters are the public tracker's (``markers``, ``fps``, ``params``,
+    ``camera``), which documents them.
     """
 
     def __init__(
