@@ -198,7 +198,7 @@ class MeasureStage:
         (``_own_groups``): the least of the colour's own channels less the
         largest of the others (a red light: red less the larger of green and
         blue).  Empty for a grey image."""
-        if img.ndim < 3 or img.shape[2] < 3:
+        if not self._own_groups or img.ndim < 3 or img.shape[2] < 3:
             return []
         chans = cv2.split(img)
         return [own_colour_image(chans, own) for own in self._own_groups]
