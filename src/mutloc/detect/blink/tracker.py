@@ -39,7 +39,12 @@ confidence tracking".  :class:`LightTracker` does that and adds identity:
    crosses a few levels (:meth:`LightTracker._halo_centre`).  Positions are kept in
    camera-motion-compensated coordinates, where robots move smoothly: the
    prediction is a quadratic fitted to the last ``fit_window_s`` of "on"
-   centres.
+   centres -- fitted in image coordinates too, which predict instead once
+   they have predicted the light's switching on clearly better (a camera
+   following the light; ``AssociationStage._commit``).  In a colour's own
+   image (:mod:`~mutloc.detect.blink.channels`) a track without a motion
+   model, lit at most ``YOUNG_FRAMES`` ago, may also continue from where it
+   was in the image (a light fast against the camera's pan).
 3. **Identity from frequency.**  Each track keeps the last ``window_s``
    seconds of its peak brightness.  For every marker's ``blink_hz`` the history
    is fitted (least squares, DC + cosine + sine at that frequency: the
