@@ -458,6 +458,8 @@ def test_input_errors() -> None:
         BlinkTracker({"A": marker("A", 2.0), "B": marker("B", 2.2)}, FPS, params=BlinkParams(window_s=1.0))
     with pytest.raises(InputError, match="cannot tell them apart"):  # two robots, same lights
         BlinkTracker({"A": marker("A", 2.0), "B": marker("B", 3.0), "C": marker("C", 2.0, "r")}, FPS)
+    with pytest.raises(InputError, match="min_lit_fraction"):
+        BlinkTracker({"A": marker("A", 2.0)}, FPS, params=BlinkParams(min_lit_fraction=1.5))
     # The default window grows to resolve close frequencies.
     assert BlinkTracker({"A": marker("A", 2.0), "B": marker("B", 2.5)}, FPS).window_s == pytest.approx(2.0)
     tr = BlinkTracker({"A": marker("A", 2.0)}, FPS)

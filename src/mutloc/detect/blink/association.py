@@ -48,6 +48,14 @@ IMAGE_FRAME_AFTER = 3  # off periods
 # measured in brightness where the two are at most this far apart (px).
 REFINE_AGREE_PX = 1.5
 
+# A track without a motion model whose light was lit at most this many
+# frames ago may continue from where it was in the image (see _pair_costs).
+YOUNG_FRAMES = 2
+
+# Added (px) to the cost of a candidate-track pair that the lights' physics
+# makes unlikely (see _pair_costs).
+UNLIKELY_PX = 40.0
+
 __all__ = ["AssociationStage"]
 
 
@@ -72,6 +80,63 @@ class AssociationStage:
             # here, and a fast one may have strayed from the prediction.
             gate *= 2.0
         return min(self.max_gate_px, gate)
+
+    def _pair_costs(self, cents: np.ndarray, lit: np.ndarray, t: float,
+                    frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each candidate (``cents``, image coordinates; ``lit``: a
+        switch on) and each track: the distance (px) to where the track's
+        light is looked for, the cost of pairing them, and the tracks' gates."""
+        tracks = self._tracks
+        off = self._offset
+        pred = np.array([tr.pos for tr in tracks]) + off
+        dist = np.linalg.norm(cents[:, None, :] - pred[None, :, :], axis=2)
+        young: list[int] = []
+        if self._meas is not None:
+            # A track without a motion model yet may be a light the camera
+            # follows (or one moving against the camera's pan, faster in
+            # motion-compensated coordinates than in the image: 2-3 m, 12-28
+            # px a frame, a new track at every blink and never a name).  In
+            # a colour's own image, where little else is bright, it may also
+            # continue from where it was in the image (bench/blink_identity.py,
+            # 3 m: 0.943 -> 0.993 on the tuning seeds; in the brightness
+            # channel strays took names).
+            young = [j for j, tr in enumerate(tracks) if len(tr.samples) < 2 and tr.last_on_pos is not None
+                     and frame - tr.last_on_frame <= YOUNG_FRAMES]
+            if young:
+                still = np.array([tracks[j].last_on_pos + tracks[j].last_on_offset for j in young])
+                dist[:, young] = np.minimum(dist[:, young],
+                                            np.linalg.norm(cents[:, None, :] - still[None, :, :], axis=2))
+        gates = np.array([self._gate(tr, t) for tr in tracks])
+        inside = dist <= gates[None, :]
+        # An identified track is known to be a light; an unidentified one may
+        # be a stray, so it must be clearly closer to win a candidate.
+        cost = dist + np.array([0.0 if tr.marker is not None else self.gate_px for tr in tracks])[None, :]
+        # A light off in the last frame cannot switch off now: a change to
+        # dark near it is something else -- the trail of its coloured body,
+        # lit or not, moving against the pan (3 m seed 7: taken for the
+        # light's own event when the light switched on 15 px away, and a new
+        # track born there).  A switch on in its gate is preferred; the
+        # change to dark may still support it.  So for a young light lit in
+        # the last frame and again in its gate: it moved there, and the
+        # change to dark where it was is its trail (2 m seed 7: a new track
+        # every frame for a second).
+        was_off = np.array([tr.last_on_pos is not None and frame - tr.last_on_frame > 1 for tr in tracks])
+        for j in young:
+            was_off[j] |= frame - tracks[j].last_on_frame == 1
+        prefer_on = was_off & np.any(lit[:, None] & inside, axis=0)
+        cost[np.ix_(~lit, prefer_on)] += UNLIKELY_PX
+        # A switch on inside the gate of an identified light whose blink says
+        # "on" is that light, not an unidentified track without a motion
+        # model: a change to dark left where it was born, that the light
+        # happened to pass (2 m seed 2: the name then reported at a
+        # prediction 17-35 px behind), or the light's coloured body moving
+        # while the light is off (1.5 m seed 2).
+        due = np.array([tr.marker is not None and tr.expect_on(t) > 0.0 for tr in tracks])
+        unmodelled = np.array([tr.marker is None and len(tr.samples) < 2 for tr in tracks])
+        if due.any() and unmodelled.any():
+            wanted = lit & np.any(inside & due[None, :], axis=1)
+            cost[np.ix_(wanted, unmodelled)] += UNLIKELY_PX
+        return dist, cost, gates
 
     @staticmethod
     def _inside(uv: np.ndarray, shape: tuple[int, ...]) -> bool:
@@ -263,6 +328,7 @@ class AssociationStage:
             d.clear()
             d.append(last)
         tr.events.clear()
+        tr.lit_frames.clear()
         tr.events.append(True)
         tr.samples.clear()
         tr.hi = tr.lo = math.nan
@@ -308,6 +374,7 @@ class AssociationStage:
         tr.last_on_offset = self._offset.copy()
         tr.last_on_t = t
         tr.last_on_frame = frame
+        tr.lit_frames.append(frame)
         tr.samples.append((t, pos, tr.last_on_offset))
         while tr.samples and tr.samples[0][0] < t - self.fit_window_s:
             tr.samples.popleft()

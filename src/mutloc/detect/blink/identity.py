@@ -127,6 +127,12 @@ class IdentityStage:
             ev = np.array([sum(list(tracks[i].events)[-n:]) for i in members], float)
             span = np.array([min(n, len(tracks[i].events)) for i in members], float) / self.fps
             enough_events = ev[:, None] >= 0.5 * 2.0 * self.freqs[None, :] * span[:, None]
+            # ... and was seen lit in part of them: a stray at the image's
+            # edge, lit once where the pan uncovered a bright patch for five
+            # frames, has a single bump in its history, which fits a slow
+            # blink (clutter seed 24, p's view: named M1, reported 480 px off).
+            lit = np.array([tracks[i].lit_since(frame - n) for i in members], float)
+            enough_events &= (lit >= self.min_lit_fraction * n)[:, None]
             ok_here = np.where(held[members], ok_kept, ok) & enough_events
             for row, i in enumerate(members):
                 tracks[i].scores = {name: float(s) for name, s in zip(self.marker_names, at[row])}

@@ -31,6 +31,10 @@ class BlinkParams:
     window_s: float | None = None
     #: History (s) a track needs before it may be given an identity (None: 0.7 window_s).
     min_history_s: float | None = None
+    #: A track is named only if its light was taken to be lit in at least this
+    #: fraction of the history scored (a light blinking half the time is lit
+    #: in about half; a stray lit once is not a light).  0 disables it.
+    min_lit_fraction: float = 0.25
     #: Minimum fraction of a track's brightness variance explained at a
     #: marker's frequency for the track to be that marker.
     min_score: float = 0.45

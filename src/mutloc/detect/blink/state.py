@@ -79,6 +79,8 @@ class Track:
     # Per colour of the markers (see LightTracker._own_groups), the peak
     # brightness near the light in that colour, in step with ``hist``.
     hist_own: list = field(default_factory=list)
+    # Frames (the last ``window`` of them) in which the light was taken to be lit.
+    lit_frames: deque = field(default_factory=deque)
 
     def push(self, peak: float, own: list[float]) -> None:
         """This frame's samples: the peak brightness and, per colour, the peak in that colour."""
@@ -124,6 +126,10 @@ class Track:
             return self.last_on_pos + self.vel * dt + 0.5 * self.acc * dt * dt
         step = self.vel_img * dt + 0.5 * self.acc_img * dt * dt
         return self.last_on_pos + self.last_on_offset + step - offset
+
+    def lit_since(self, frame: int) -> int:
+        """How many frames after ``frame`` the light was taken to be lit in."""
+        return sum(1 for f in self.lit_frames if f > frame)
 
     def last_seen_frame(self) -> int:
         return self.last_on_frame if self.last_on_frame >= 0 else self.born_frame

@@ -21,7 +21,11 @@ confidence tracking".  :class:`LightTracker` does that and adds identity:
    the edge of a moving robot body continues through the ring).
 2. **Decaying-confidence tracking.**  Candidates are associated with tracks by
    distance to each track's predicted position (global nearest neighbour,
-   gated; the gate widens the longer a light has been off).  A track's
+   gated; the gate widens the longer a light has been off).  A light off
+   cannot switch off, so a track whose light was off prefers a switch on in
+   its gate; a switch on in the gate of an identified light due on is that
+   light's before it is a track's without a motion model
+   (``AssociationStage._pair_costs``).  A track's
    confidence is boosted in every frame with a supporting candidate and
    multiplied by ``decay`` in frames without, so it survives the frames in
    which its light does not change (a light only produces a differential when
@@ -104,9 +108,9 @@ from .state import Track
 
 __all__ = ["LightTracker"]
 
-# See _step: a track without a motion model whose light was lit at most this
-# many frames ago may continue from where it was in the image.
-YOUNG_FRAMES = 2
+# See _step: when two tracks found the same lit spot, an unidentified one
+# without a motion model claims it as if this much (px) further away.
+UNMODELLED_CLAIM_PX = 40.0
 
 
 class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, BirthStage, InheritStage):
@@ -253,6 +257,7 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
         boost = number("boost", boost, 0.0, 1.0)
         self.diff_threshold = int(number("diff_threshold", diff_threshold, 1, 254, lo_open=False))
         min_score = number("min_score", min_score, 0.0, 1.0, lo_open=False)
+        self.min_lit_fraction = number("min_lit_fraction", p.min_lit_fraction, 0.0, 1.0, lo_open=False)
         for name, value in (("search_radius", search_radius), ("spot_radius", spot_radius),
                             ("gate_px", gate_px), ("max_gate_px", max_gate_px),
                             ("fit_window_s", fit_window_s)):
@@ -457,28 +462,7 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
         supported = np.zeros(nt, bool)
         newborn = np.ones(nb, bool)
         if nb and nt:
-            pred = np.array([tr.pos for tr in tracks]) + off
-            dist = np.linalg.norm(cents[:, None, :] - pred[None, :, :], axis=2)
-            if self._meas is not None:
-                # A track without a motion model yet may be a light the camera
-                # follows (or one moving against the camera's pan, faster in
-                # motion-compensated coordinates than in the image: 2-3 m,
-                # 12-28 px a frame, a new track at every blink and never a
-                # name).  In a colour's own image, where little else is
-                # bright, it may also continue from where it was in the image
-                # (bench/blink_identity.py, 3 m: 0.943 -> 0.993 on the tuning
-                # seeds; in the brightness channel strays took names).
-                young = [j for j, tr in enumerate(tracks) if len(tr.samples) < 2 and tr.last_on_pos is not None
-                         and frame - tr.last_on_frame <= YOUNG_FRAMES]
-                if young:
-                    still = np.array([tracks[j].last_on_pos + tracks[j].last_on_offset for j in young])
-                    dist[:, young] = np.minimum(dist[:, young],
-                                                np.linalg.norm(cents[:, None, :] - still[None, :, :], axis=2))
-            gates = np.array([self._gate(tr, t) for tr in tracks])
-            # An identified track is known to be a light; an unidentified one
-            # may be a stray, so it must be clearly closer to win a candidate.
-            penalty = np.array([0.0 if tr.marker is not None else self.gate_px for tr in tracks])
-            cost = dist + penalty[None, :]
+            dist, cost, gates = self._pair_costs(cents, lit_now.astype(bool), t, frame)
             nearest = np.argmin(cost, axis=1)
             reach = np.array([self._reach(tr.spread) for tr in tracks], float)
             absorb = dist[np.arange(nb), nearest] <= reach[nearest] + 3.0
@@ -547,7 +531,7 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
                         spread=float(spread[r]),
                         hist=deque(maxlen=self.window), samples=deque(),
                         hist_own=[deque(maxlen=self.window) for _ in self._own_groups],
-                        events=deque([True], maxlen=self.window),
+                        events=deque([True], maxlen=self.window), lit_frames=deque(maxlen=self.window),
                         last_polarity_on=bool(lit_now[r]))
             self._next_id += 1
             if self.birth_motion and not lit_now[r]:
@@ -563,12 +547,16 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
         # association; the other's light is taken to be off.  Between
         # unidentified tracks that both predicted it well (within a few px)
         # the older wins: a stray track born beside a light must not take
-        # over the light's history by a fraction of a pixel. ---
+        # over the light's history by a fraction of a pixel.  A track
+        # without a motion model predicted nothing: it yields to one with
+        # (1.5 m seed 2: one born on the light's body while the light was
+        # off took the light from its identified track 17 px behind). ---
         def claim_order(o: tuple[float, int, np.ndarray]) -> tuple[float, int]:
             tr = tracks[o[1]]
             if tr.marker is not None:
                 return o[0], tr.born_frame
-            return self.gate_px + max(o[0], 3.0), tr.born_frame
+            lag = self.gate_px if len(tr.samples) >= 2 else UNMODELLED_CLAIM_PX
+            return lag + max(o[0], 3.0), tr.born_frame
 
         observed.sort(key=claim_order)
         claimed: list[np.ndarray] = []
