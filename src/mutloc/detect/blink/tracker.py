@@ -60,7 +60,8 @@ confidence tracking".  :class:`LightTracker` does that and adds identity:
    be a local maximum in frequency (above the score half a resolution bin
    either side), which rejects flicker between the markers' frequencies; the
    track must have seen about as many switches as the frequency implies, and
-   must not have been dark for longer than the light ever is.  Tracks are
+   must not have been dark for longer than the light ever is, and must have
+   been seen lit in ``min_lit_fraction`` of the history.  Tracks are
    assigned to markers by the Hungarian method on the scores (one track per
    marker), with a small bonus that keeps an established identity.  A
    light of a colour is also sampled in that colour (the least of its own
