@@ -17,13 +17,16 @@ changes sit where they were born until the light passes them.
    the name was reported at a prediction 17-35 px behind).
 3. When two tracks find the same lit spot, one without a motion model yields
    (1.5 m seed 2: a track born on the light's body while the light was off).
+4. A light lit in the last frame is not recentred on a change beside it.
+5. A light's body is not taken for the lit light on the last frame of an
+   off half (``BlinkParams.expect_off``).
 """
 
 from __future__ import annotations
 
 import pytest
 
-from mutloc.detect.blink import BlinkTracker, association
+from mutloc.detect.blink import BlinkParams, BlinkTracker, association
 from mutloc.detect.blink import tracker as light_tracker
 from mutloc.sim.tracking import light_identity, panning_lights
 
@@ -59,3 +62,46 @@ def test_each_rule_keeps_the_light(case, monkeypatch):
     monkeypatch.setattr(module, name, off)
     without = _identity(data)
     assert sum(1 for f in without.failures if f[1] == "M3") >= lost, without.failures
+
+
+@pytest.mark.slow
+def test_a_lit_light_is_not_recentred_on_a_change_beside_it(monkeypatch):
+    """Trust sequence seed 63, p's view of q's blue 2 Hz M1: while the light
+    stays lit, a change to bright 6-7 px beside it (an edge moving past) was
+    taken for its switching on, the light measured there (its glow merging
+    with pale background in brightness), and over the 7-frame off period
+    the motion fitted to that ran 36 px off: M1 lost for good.  A light lit in
+    the last frame, with a motion model, is looked for at its prediction."""
+    from mutloc.sim.tracking import light_view, varied_world
+    from mutloc.sim.world import standard_rig
+
+    rig, world = varied_world(standard_rig("lights"), 63, distance=2.0)
+    markers = rig.robot("q").markers
+    frames, truth, lit = light_view(world, "p", list(markers), 60, FPS, 63)
+
+    def identity():
+        tr = BlinkTracker(markers, FPS, camera=rig.robot("p").camera)
+        return light_identity([tr.update(img, k / FPS) for k, img in enumerate(frames)], truth, lit, FPS)
+
+    r = identity()
+    assert r.total >= 25 and r.failures == [] and r.wrong == 0, r.failures
+    monkeypatch.setattr(light_tracker, "LIT_KEEPS_PREDICTION", False)
+    without = identity()
+    assert sum(1 for f in without.failures if f[1] == "M1") >= 5, without.failures
+
+
+@pytest.mark.slow
+def test_a_red_light_off_is_not_taken_for_lit_on_its_last_off_frame():
+    """2 m seed 7 (bench/blink_identity.py): p's red M3 at 5 Hz is off three
+    frames of six, the first and last at exactly -0.5 of its fitted blink;
+    its body, red in its own colour's image whether lit or not, was taken for
+    the lit light 12.6 px off at the last one (a wrong label) with the veto
+    at -0.5; at -0.45 every off frame is vetoed and no lit frame."""
+    data = panning_lights(2.0, 7, 80, FPS, vary=True)
+    assert BlinkParams().expect_off == 0.45
+    r = _identity(data)
+    assert r.wrong == 0 and r.failures == [], r.failures
+    rig, markers, frames, truth, lit = data
+    tr = BlinkTracker(markers, FPS, camera=rig.robot("q").camera, params=BlinkParams(expect_off=0.5))
+    without = light_identity([tr.update(img, k / FPS) for k, img in enumerate(frames)], truth, lit, FPS)
+    assert without.wrong >= 1
