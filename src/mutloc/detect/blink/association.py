@@ -85,7 +85,8 @@ class AssociationStage:
                     frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each candidate (``cents``, image coordinates; ``lit``: a
         switch on) and each track: the distance (px) to where the track's
-        light is looked for, the cost of pairing them, and the tracks' gates."""
+        light is looked for, the cost of pairing them, and whether the
+        candidate lies inside the track's gate."""
         tracks = self._tracks
         off = self._offset
         pred = np.array([tr.pos for tr in tracks]) + off
@@ -136,7 +137,7 @@ class AssociationStage:
         if due.any() and unmodelled.any():
             wanted = lit & np.any(inside & due[None, :], axis=1)
             cost[np.ix_(wanted, unmodelled)] += UNLIKELY_PX
-        return dist, cost, gates
+        return dist, cost, inside
 
     @staticmethod
     def _inside(uv: np.ndarray, shape: tuple[int, ...]) -> bool:

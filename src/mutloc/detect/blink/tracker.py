@@ -468,11 +468,11 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
         supported = np.zeros(nt, bool)
         newborn = np.ones(nb, bool)
         if nb and nt:
-            dist, cost, gates = self._pair_costs(cents, lit_now.astype(bool), t, frame)
+            dist, cost, inside = self._pair_costs(cents, lit_now.astype(bool), t, frame)
             nearest = np.argmin(cost, axis=1)
             reach = np.array([self._reach(tr.spread) for tr in tracks], float)
             absorb = dist[np.arange(nb), nearest] <= reach[nearest] + 3.0
-            rows, cols = np.nonzero(dist <= gates[None, :])
+            rows, cols = np.nonzero(inside)
             taken = np.zeros(nt, bool)
             for k in np.argsort(cost[rows, cols], kind="stable"):
                 r, c = int(rows[k]), int(cols[k])
