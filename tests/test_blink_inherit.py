@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from mutloc.detect.blink import BlinkTracker, association, measure
+from mutloc.detect.blink import BlinkTracker, association, inherit, measure
 from mutloc.detect.blink.params import BlinkParams
 from mutloc.sim.tracking import panning_lights
 from mutloc.sim.tracking import light_identity
@@ -44,13 +44,16 @@ def test_lost_light_is_renamed_at_once_by_the_track_that_took_it(fast_pan, monke
     which the measurement now leaves out (``measure.NEIGHBOUR_SHARE``, see
     tests/test_blink_neighbour.py): with it the light is not lost at all, and
     the loss inheritance repairs is reproduced by measuring as before
-    (neither that nor ``association.SWITCH_REACHES``, which also keeps it)."""
+    (neither that nor ``association.SWITCH_REACHES``, which also keeps it, nor
+    the hand-over of a lost light's spot from a newcomer to the unnamed track
+    that lost it, ``inherit.HAND_OVER_GATES``, which keeps it too)."""
     assert _identity(fast_pan, BlinkParams()).failures == []
     assert _identity(fast_pan, BlinkParams(by_colour=False)).failures == []
     # In the brightness channel (tracked in their colours' own images the
     # lights are not lost even so):
     monkeypatch.setattr(measure, "NEIGHBOUR_SHARE", 1.0)
     monkeypatch.setattr(association, "SWITCH_REACHES", math.inf)
+    monkeypatch.setattr(inherit, "HAND_OVER_GATES", 0.0)
     with_ = _identity(fast_pan, BlinkParams(by_colour=False, inherit_identity=True))
     without = _identity(fast_pan, BlinkParams(by_colour=False, inherit_identity=False))
     assert with_.wrong <= without.wrong <= 1

@@ -9,16 +9,22 @@ changes sit where they were born until the light passes them.
 
 1. A light off cannot switch off: a track whose light was off (or a young one
    lit in the last frame) prefers a switch on in its gate to a change to dark.
-   Without that, 2 m seed 7's red light started a new track at every frame
-   for a second and was named only 0.6 s late.
+   Without that (and without rule 4), 2 m seed 7's red light started a new
+   track at every frame for a second and was named only 0.6 s late.
 2. A switch on in the gate of an identified light whose blink says "on" is
    that light's before it is an unidentified track's without a motion model
    (2 m seed 2: a change to dark left where it was born took the light;
    the name was reported at a prediction 17-35 px behind).
 3. When two tracks find the same lit spot, one without a motion model yields
    (1.5 m seed 2: a track born on the light's body while the light was off).
-4. A light lit in the last frame is not recentred on a change beside it.
-5. A light's body is not taken for the lit light on the last frame of an
+4. A light's spot taken by a track never lit before (born on a change to
+   dark beside the light's path) goes to the unidentified track that lost
+   the light there, if that one's motion predicted it within 1.5 gates
+   (1.5 m seed 21: the light reversing at the end of its path switched on
+   15.6 px from the prediction, just outside the 15 px gate; the newcomer,
+   its history sampled where the light was not, was named 0.8 s late).
+5. A light lit in the last frame is not recentred on a change beside it.
+6. A light's body is not taken for the lit light on the last frame of an
    off half (``BlinkParams.expect_off``).
 """
 
@@ -26,7 +32,7 @@ from __future__ import annotations
 
 import pytest
 
-from mutloc.detect.blink import BlinkParams, BlinkTracker, association
+from mutloc.detect.blink import BlinkParams, BlinkTracker, association, inherit
 from mutloc.detect.blink import tracker as light_tracker
 from mutloc.sim.tracking import light_identity, panning_lights
 
@@ -39,27 +45,34 @@ def _identity(data):
     return light_identity([tr.update(img, k / FPS) for k, img in enumerate(frames)], truth, lit, FPS)
 
 
-# (distance m, seed, frames, lit frames counted at least, the rule's constant
-# and the value that turns it off, lit frames of M3 lost without it at least)
+# (distance m, seed, frames, lit frames counted at least, the rules'
+# constants and the values that turn them off, lit frames of M3 lost
+# without them at least)
 CASES = {
-    # 1: the change to dark where the light was is its trail
-    "light_against_the_pan": (2.0, 7, 50, 15, (association, "UNLIKELY_PX", 0.0), 5),
+    # 1: the change to dark where the light was is its trail (since rule 4,
+    # which hands the light back from the tracks born on the trail, either
+    # rule alone keeps it)
+    "light_against_the_pan": (2.0, 7, 50, 15, [(association, "UNLIKELY_PX", 0.0),
+                                               (inherit, "HAND_OVER_GATES", 0.0)], 5),
     # 2: an identified light due on takes its switch from a track without motion
-    "light_due_on": (2.0, 2, 90, 50, (association, "UNLIKELY_PX", 0.0), 3),
+    "light_due_on": (2.0, 2, 90, 50, [(association, "UNLIKELY_PX", 0.0)], 3),
     # 3: a track without motion yields a spot it shares (claimed as any
     # unidentified track would be: its distance plus gate_px)
-    "shared_spot": (1.5, 2, 80, 45, (light_tracker, "UNMODELLED_CLAIM_PX", 6.0), 3),
+    "shared_spot": (1.5, 2, 80, 45, [(light_tracker, "UNMODELLED_CLAIM_PX", 6.0)], 3),
+    # 4: a lost light's spot taken by a newcomer is handed back
+    "lost_light_handed_over": (1.5, 21, 44, 12, [(inherit, "HAND_OVER_GATES", 0.0)], 5),
 }
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_each_rule_keeps_the_light(case, monkeypatch):
-    distance, seed, n, counted, (module, name, off), lost = CASES[case]
+    distance, seed, n, counted, ablations, lost = CASES[case]
     data = panning_lights(distance, seed, n, FPS, vary=True)
     r = _identity(data)
     assert r.total >= counted and r.failures == [] and r.wrong == 0, r.failures
-    monkeypatch.setattr(module, name, off)
+    for module, name, off in ablations:
+        monkeypatch.setattr(module, name, off)
     without = _identity(data)
     assert sum(1 for f in without.failures if f[1] == "M3") >= lost, without.failures
 

@@ -574,6 +574,9 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
             lag = self.gate_px if len(tr.samples) >= 2 else UNMODELLED_CLAIM_PX
             return lag + max(o[0], 3.0), tr.born_frame
 
+        # A spot a newcomer took where a lost light's track predicted it goes
+        # to that track (inherit.py).
+        observed = self._hand_over(observed, t)
         observed.sort(key=claim_order)
         claimed: list[np.ndarray] = []
         for jump, j, uv in observed:
