@@ -41,6 +41,21 @@ def test_bad_lines_name_file_and_line(tmp_path, line, words):
         assert w in str(info.value)
 
 
+@pytest.mark.parametrize("text", ["", "\n\n  \n"])
+def test_a_log_without_frames_is_refused(tmp_path, capsys, text):
+    """An empty trajectory would look like a track that saw nothing."""
+    f = tmp_path / "log.jsonl"
+    f.write_text(text)
+    with pytest.raises(FileFormatError, match="log.jsonl: no frames"):
+        list(read_observation_log(f))
+    save_rig(standard_rig("balls"), tmp_path / "rig.yaml")
+    code = main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(f),
+                 "--out", str(tmp_path / "out"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and "no frames" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_track_writes_a_log_and_tracks_from_it(tmp_path, capsys):
     import cv2
 
