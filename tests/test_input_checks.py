@@ -99,3 +99,26 @@ def test_tag_centre_and_corners_count_once():
     assert not set(used) & set(tags), used
     assert {n.split("#")[0] for n in used} == set(tags)
     assert len(used) == 4 * len(tags)
+
+
+def test_track_output_paths_are_checked_before_the_work(tmp_path, capsys):
+    """``--out`` that is a file (or lies under one) and ``--annotate`` on a
+    log (no images to draw on) are refused in one line, before tracking."""
+    from mutloc.io import save_rig
+    from mutloc.sim.world import standard_rig
+
+    save_rig(standard_rig("balls"), tmp_path / "rig.yaml")
+    log = tmp_path / "log.jsonl"
+    log.write_text('{"time": 0.0, "observations": {}}\n')
+    base = ["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(log), "--no-progress"]
+    for out, words in ((tmp_path / "rig.yaml", "is not a folder"),
+                       (tmp_path / "rig.yaml" / "sub", "is not a folder")):
+        assert main(base + ["--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1, err
+    assert main(base + ["--out", str(tmp_path / "o"), "--annotate", str(tmp_path / "o" / "a")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--annotate" in err and "--stream" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+    assert main(base + ["--out", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o" / "trajectory.csv").exists()

@@ -61,9 +61,9 @@ def run(args: argparse.Namespace) -> int:
     """Track and write the trajectory."""
     from pathlib import Path
 
-    from ..io import load_rig
+    from ..io import load_rig, output_folder
     from ..core.filter import MotionNoise
-    from ..errors import FileFormatError, RigError
+    from ..errors import FileFormatError, InputError, RigError
     from ..io.logs import iter_observation_log
     from ..track.filtering import FilterOptions
     from ..track.sources import open_streams, rig_with_bag_cameras
@@ -72,8 +72,10 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.bag, args.mcap):
         if path and Path(path).expanduser().exists():
             raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
+    if args.observations and args.annotate:
+        raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
     rig = load_rig(args.rig)
-    out = Path(args.out)
+    out = output_folder(args.out, create=False)  # checked before the work, created by the writers
     if args.frames == "base" and not team_mode(rig, args):
         for robot in rig.default_pair(args.source, args.target):
             if rig.robot(robot).base_from_camera is None:

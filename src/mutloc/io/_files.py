@@ -33,7 +33,20 @@ __all__ = [
     "one_line",
     "key_name",
     "to_builtin",
+    "output_folder",
 ]
+
+
+def output_folder(path: PathLike, create: bool = True) -> Path:
+    """``path`` as a folder to write into (created if missing and
+    ``create``); a one-line error if it, or a folder above it, is a file."""
+    p = Path(path).expanduser()
+    for d in (p, *p.parents):
+        if d.exists() and not d.is_dir():
+            raise FileFormatError(f"{d}: exists and is not a folder (writing into {p})")
+    if create:
+        p.mkdir(parents=True, exist_ok=True)
+    return p
 
 
 def is_path(source: Any) -> bool:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.pose import Pose
 from ..errors import FileFormatError
-from ._files import PathLike
+from ._files import PathLike, output_folder
 
 __all__ = ["TUM_SUFFIX", "write_tum", "read_tum", "CSV_COLUMNS", "write_trajectory_csv", "read_trajectory_csv"]
 
@@ -31,7 +31,7 @@ CSV_COLUMNS = ("t", "status", "tx", "ty", "tz", "qx", "qy", "qz", "qw",
 
 def _parent(path: PathLike) -> Path:
     p = Path(path).expanduser()
-    p.parent.mkdir(parents=True, exist_ok=True)
+    output_folder(p.parent)
     return p
 
 
