@@ -72,8 +72,6 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.bag, args.mcap):
         if path and Path(path).expanduser().exists():
             raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
-    if args.observations and args.annotate:
-        raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
     rig = load_rig(args.rig)
     out = output_folder(args.out, create=False)  # checked before the work, created by the writers
     if args.frames == "base" and not team_mode(rig, args):
@@ -88,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
     if team:
         return _run_team(args, rig, options, out)
     if args.observations:
+        if args.annotate:
+            raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
         traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
                          pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
                          filter=options, rerun=args.rerun)
