@@ -41,7 +41,6 @@ def iter_observation_log(path: PathLike) -> Iterator[tuple[float, ObservationSet
         raise FileFormatError(f"{p}: cannot read file: {exc.strerror or exc}") from None
     with f:
         last = -math.inf
-        frames = 0
         for k, raw in enumerate(iter(lambda: f.readline(_MAX_LINE + 1), b""), 1):
             where = f"{p}:{k}"
             if len(raw) > _MAX_LINE:
@@ -61,14 +60,13 @@ def iter_observation_log(path: PathLike) -> Iterator[tuple[float, ObservationSet
             if t < last:
                 raise FileFormatError(f"{where}: time {t} goes back (previous line {last})")
             last = float(t)
-            frames += 1
             try:
                 yield float(t), ObservationSet.from_dict(entry["observations"], time=float(t),
                                                          where=f"{where}: observations")
             except MutlocError as exc:
                 raise ObservationError(str(exc)) from None
-        if not frames:
-            # An empty trajectory would look like a tracked one that saw nothing.
+        if last == -math.inf:
+            # No frame read.  An empty trajectory would look like a tracked one that saw nothing.
             raise FileFormatError(f"{p}: no frames (an observation log holds one JSON object per line)")
 
 
