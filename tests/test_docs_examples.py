@@ -1,0 +1,194 @@
+"""The example files of the manual (docs/examples/, shown in docs/formats.md)
+load with the library and give the poses they claim.
+
+Ground truth: ``truth.json``, ``log_truth.tum`` and ``team_truth.json`` are
+the poses the renderer placed the robots at (``mutloc simulate``), and the
+observation files are the projections seen in those scenes; the pose files
+(``result.json``, ``trajectory.*``, ``team_result.json``) are what mutloc
+printed for them.  A change that breaks an example -- a renamed key, a
+format the reader no longer accepts, an output that no longer matches the
+command -- fails here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mutloc
+from mutloc.core.rig import MarkerKind
+from mutloc.io.logs import iter_observation_log
+from mutloc.io.trajectory import CSV_COLUMNS, read_trajectory_csv, read_tum
+from mutloc.track.tracker import track_log
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
+
+# Every file under docs/examples and the test that reads it.
+TESTED = {
+    "rig.yaml": "test_pair_example",
+    "observations.json": "test_pair_example",
+    "truth.json": "test_pair_example",
+    "result.json": "test_pair_example",
+    "rig_camera_files.yaml": "test_camera_files",
+    "cameras/p_camera_info.yaml": "test_camera_files",
+    "cameras/q_opencv.xml": "test_camera_files",
+    "rig_marker_kinds.yaml": "test_marker_kinds",
+    "log.jsonl": "test_log_example",
+    "log_truth.tum": "test_log_example",
+    "trajectory.csv": "test_log_example",
+    "trajectory.tum": "test_log_example",
+    "team_rig.yaml": "test_team_example",
+    "team_observations.json": "test_team_example",
+    "team_truth.json": "test_team_example",
+    "team_result.json": "test_team_example",
+    "experiment_noise_results.json": "test_experiment_results",
+}
+
+
+def ex(name: str) -> Path:
+    return EXAMPLES / name
+
+
+def pose_errors(R, t, R_gt, t_gt) -> tuple[float, float]:
+    """(translation error in metres, rotation error in degrees), the SPEC's measures."""
+    return mutloc.translation_error(t, t_gt), mutloc.rotation_error_deg(np.asarray(R), np.asarray(R_gt))
+
+
+def test_every_example_is_tested():
+    on_disk = {str(p.relative_to(EXAMPLES)) for p in EXAMPLES.rglob("*") if p.is_file()}
+    assert on_disk == set(TESTED), "an example file without a test (or a test of a missing file)"
+
+
+def test_pair_example():
+    rig = mutloc.load_rig(ex("rig.yaml"))
+    assert list(rig.robots) == ["p", "q"]
+    assert {m.kind for r in rig.robots.values() for m in r.markers.values()} == {MarkerKind.BALL}
+    obs = mutloc.load_observations(ex("observations.json"))
+    est = mutloc.localize(rig, obs)
+    truth = json.loads(ex("truth.json").read_text())
+    assert (est.source, est.target) == (truth["from"], truth["to"])
+    assert est.status == "solved"
+    dt, dr = pose_errors(est.R, est.t, truth["R"], truth["t"])
+    assert dt < 1e-3 and dr < 0.05, (dt, dr)
+
+    # result.json is what `mutloc localize` prints for these files
+    shown = json.loads(ex("result.json").read_text())
+    now = json.loads(json.dumps(est.to_dict(), default=lambda a: np.asarray(a).tolist()))
+    spec_keys = {"from", "to", "R", "t", "quaternion_xyzw", "reprojection_rms_px", "covariance", "pixel_sigma",
+                 "markers_used"}
+    assert spec_keys <= set(shown) and set(shown) <= set(now)
+    assert (shown["from"], shown["to"]) == (truth["from"], truth["to"])
+    np.testing.assert_allclose(shown["R"], now["R"], atol=1e-6)
+    np.testing.assert_allclose(shown["t"], now["t"], atol=1e-6)
+    np.testing.assert_allclose(shown["covariance"], now["covariance"], rtol=1e-3, atol=1e-12)
+    assert sorted(shown["markers_used"]) == sorted(now["markers_used"]) == ["M1", "M2", "M3", "M4"]
+    assert shown["status"] == "solved" and shown["consistency"]["passed"]
+
+
+def test_camera_files():
+    inline = mutloc.load_rig(ex("rig.yaml"))
+    from_files = mutloc.load_rig(ex("rig_camera_files.yaml"))
+    for name in ("p", "q"):
+        a, b = inline.robot(name).camera, from_files.robot(name).camera
+        np.testing.assert_array_equal(a.K, b.K)
+        assert a.size == b.size == (960, 540)
+        assert not np.any(b.dist)
+    a = mutloc.localize(inline, mutloc.load_observations(ex("observations.json")))
+    b = mutloc.localize(from_files, mutloc.load_observations(ex("observations.json")))
+    np.testing.assert_allclose(a.t, b.t, atol=1e-12)
+
+
+def test_marker_kinds():
+    rig = mutloc.load_rig(ex("rig_marker_kinds.yaml"))
+    kinds = {m.name: m.kind for r in rig.robots.values() for m in r.markers.values()}
+    assert kinds == {"L1": MarkerKind.LIGHT, "L2": MarkerKind.LIGHT, "T0": MarkerKind.TAG,
+                     "C1": MarkerKind.CYLINDER, "X1": MarkerKind.POINT}
+    # L2 is given in p's base frame: stored in the camera frame, x_cam = R^T (x_base - t)
+    R = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
+    t = np.array([0.1, 0.0, 0.4])
+    np.testing.assert_allclose(rig.marker("L2").position, R.T @ (np.array([0.07, -0.15, 0.45]) - t), atol=1e-12)
+    np.testing.assert_allclose(rig.robot("p").base_from_camera.R, R, atol=1e-12)
+    assert rig.marker("X1").extra["x_note"].startswith("keys starting with x_")
+    assert rig.marker("T0").tag["family"] == "tag36h11" and rig.marker("T0").tag["size"] == 0.1
+
+
+def test_log_example():
+    rig = mutloc.load_rig(ex("rig.yaml"))
+    frames = list(iter_observation_log(ex("log.jsonl")))
+    times = [t for t, _ in frames]
+    assert len(frames) == 10 and times == sorted(times)
+    assert frames[6][1].observers == ["p"]     # one camera's record
+    traj = track_log(rig, frames, progress=False)
+    statuses = [r.status.value for r in traj.rows]
+    assert statuses == ["solved"] * 6 + ["partial"] + ["solved"] * 3
+
+    truth_t, truth = read_tum(ex("log_truth.tum"))
+    np.testing.assert_allclose(truth_t, times)
+    for row, R_gt, t_gt in zip(traj.rows, truth.R, truth.t):
+        dt, dr = pose_errors(row.estimate.R, row.estimate.t, R_gt, t_gt)
+        assert dt < 0.01 and dr < 0.5, (row.t, dt, dr)
+
+    # trajectory.csv / .tum are what `mutloc track --observations log.jsonl` writes
+    rows = read_trajectory_csv(ex("trajectory.csv"))
+    header = ex("trajectory.csv").read_text().splitlines()[0].split(",")
+    assert tuple(header[: len(CSV_COLUMNS)]) == CSV_COLUMNS
+    assert [r["status"] for r in rows] == statuses
+    tum_t, tum = read_tum(ex("trajectory.tum"))
+    np.testing.assert_allclose(tum_t, [r["t"] for r in rows])
+    for shown, row, R_tum, t_tum in zip(rows, traj.rows, tum.R, tum.t):
+        np.testing.assert_allclose(shown["pose"].t, t_tum, atol=1e-9)
+        dt, dr = pose_errors(shown["pose"].R, shown["pose"].t, row.estimate.R, row.estimate.t)
+        assert dt < 2e-3 and dr < 0.1, (row.t, dt, dr)
+        sigma = np.sqrt(np.diag(row.estimate.covariance))
+        np.testing.assert_allclose(shown["sigma"], sigma, rtol=0.2)
+
+
+def test_team_example():
+    rig = mutloc.load_rig(ex("team_rig.yaml"))
+    team = mutloc.localize_team(rig, mutloc.load_observations(ex("team_observations.json")))
+    truth = json.loads(ex("team_truth.json").read_text())
+    assert team.reference == truth["reference"] == "r0"
+    assert sorted(team.robots) == sorted(truth["robots"]) and team.unlocalized == []
+    for name, gt in truth["robots"].items():
+        dt, dr = pose_errors(team.poses[name].R, team.poses[name].t, gt["R"], gt["t"])
+        assert dt < 1e-3 and dr < 0.05, (name, dt, dr)
+    shown = json.loads(ex("team_result.json").read_text())
+    assert {"reference", "robots", "unlocalized", "reprojection_rms_px", "pixel_sigma",
+            "observations_used"} <= set(shown)
+    for name, entry in shown["robots"].items():
+        assert {"R", "t", "quaternion_xyzw", "covariance"} <= set(entry)
+        np.testing.assert_allclose(entry["t"], team.poses[name].t, atol=1e-4)
+        assert np.array(entry["covariance"]).shape == (6, 6)
+    assert shown["observations_used"] == team.observations_used == 16
+
+
+def test_experiment_results():
+    res = json.loads(ex("experiment_noise_results.json").read_text())
+    assert res["experiment"] == "noise" and isinstance(res["seed"], int)
+    n = len(res["sigma_px"])
+    assert n >= 1
+
+    def check(methods):
+        assert set(methods) >= {"best_root", "refined", "crlb"}
+        for m in methods.values():
+            for key in ("median_translation_m", "median_rotation_deg"):
+                assert len(m[key]) == n and all(math.isfinite(v) and v >= 0 for v in m[key])
+
+    check(res["methods"])
+    assert res["by_distance_m"]
+    for entry in res["by_distance_m"].values():
+        check(entry["methods"])
+
+
+@pytest.mark.parametrize("name", ["observations.json", "team_observations.json"])
+def test_observation_examples_name_rig_markers(name):
+    # every observed marker belongs to another robot of the matching rig
+    rig = mutloc.load_rig(ex("team_rig.yaml" if name.startswith("team") else "rig.yaml"))
+    data = json.loads(ex(name).read_text())
+    for observer, seen in data.items():
+        for marker in seen:
+            assert rig.owner(marker) != observer
