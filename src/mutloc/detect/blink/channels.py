@@ -9,7 +9,7 @@ colour of light gets its own :class:`~mutloc.detect.blink.tracker.LightTracker`
 on its own image, white lights one on the brightness channel, and all share
 one estimate of the camera's motion (made on the brightness channel, where
 the scene has its texture).  Measured on the varied-motion benches
-(``bench/trust_sequences.py``, docs/lights.md): frames that correct detections
+(``bench/trust_sequences.py``, docs/benchmarks.md): frames that correct detections
 solve, solved on fresh seeds 30-39, from 69 % with every light in the
 brightness channel to 95 % and more.
 """
