@@ -112,7 +112,7 @@ def test_marker_kinds():
     t = np.array([0.1, 0.0, 0.4])
     np.testing.assert_allclose(rig.marker("L2").position, R.T @ (np.array([0.07, -0.15, 0.45]) - t), atol=1e-12)
     np.testing.assert_allclose(rig.robot("p").base_from_camera.R, R, atol=1e-12)
-    assert rig.marker("X1").extra["x_note"].startswith("keys starting with x_")
+    assert rig.marker("X1").extra["x_note"].startswith("keys starting with x_ are yours")
     assert rig.marker("T0").tag["family"] == "tag36h11" and rig.marker("T0").tag["size"] == 0.1
 
 

@@ -1,8 +1,8 @@
 """mutloc: relative 6-DOF pose of two robots from reciprocal fiducial observations.
 
 Implements and extends Dhiman, Ryde & Corso, "Mutual Localization" (IROS 2013).
-Frames, pose direction and file formats follow the project's SPEC: a result
-``T_qp = (R, t)`` maps ``x_q = R @ x_p + t``.
+Frames, pose direction and file formats are those of the manual's Formats
+page (docs/formats.md): a result ``T_qp = (R, t)`` maps ``x_q = R @ x_p + t``.
 
 Names load on first use, so ``import mutloc`` (and ``mutloc --help``) does not
 pull in Numba, SciPy or OpenCV.
