@@ -2,8 +2,8 @@
 load with the library and give the poses they claim.
 
 Ground truth: ``truth.json``, ``log_truth.tum`` and ``team_truth.json`` are
-the poses the renderer placed the robots at (``mutloc simulate``), and the
-observation files are the projections seen in those scenes; the pose files
+the poses ``mutloc simulate`` placed the robots at, and the observation
+files are the projections (or detections) seen in those scenes; the pose files
 (``result.json``, ``trajectory.*``, ``team_result.json``) are what mutloc
 printed for them.  A change that breaks an example -- a renamed key, a
 format the reader no longer accepts, an output that no longer matches the
