@@ -7,7 +7,8 @@ files are the projections (or detections) seen in those scenes; the pose files
 (``result.json``, ``trajectory.*``, ``team_result.json``) are what mutloc
 printed for them.  A change that breaks an example -- a renamed key, a
 format the reader no longer accepts, an output that no longer matches the
-command -- fails here.
+command -- fails here.  docs/formats.md names the command that wrote each
+output file: run it again when a deliberate change moves the output.
 """
 
 from __future__ import annotations
