@@ -1,4 +1,4 @@
-"""``mutloc track``: a trajectory from two synchronized image streams."""
+"""``mutloc track``: a trajectory from image streams (each frame at its own time) or an observation log."""
 
 from __future__ import annotations
 
@@ -14,8 +14,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p = subparsers.add_parser(
         "track", parents=[RIG, PAIR, TEAM, NOISE, PROGRESS],
         help="relative pose over time from two videos, image folders, a ROS bag or an observation log",
-        description="Pair two image streams by timestamp, detect the markers in each pair and localize "
-        "(or localize every frame of an observation log); writes the trajectory as TUM and CSV (every "
+        description="Detect the markers in every camera frame and fuse each at its own timestamp (frames of the "
+        "robots within --tolerance make one record; cameras need not be synchronized), "
+        "or localize every record of an observation log; writes the trajectory as TUM and CSV (every "
         "frame with its status and reason). With more than two robots (and no --source/--target) or "
         "--reference: one stream per robot, each frame localized jointly, and one trajectory_NAME.csv/.tum "
         "per robot in the reference's frame.",
@@ -32,7 +33,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="take this robot's calibration from a camera_info topic of the bag")
     p.add_argument("--fps", type=positive_float, help="frame rate when the stream has no timestamps")
     p.add_argument("--tolerance", type=positive_float, default=0.005, metavar="S",
-                   help="largest time difference of a pair of frames (default 0.005 s)")
+                   help="frames of the robots closer in time than this are one record (default 0.005 s); every other "
+                        "frame is fused at its own time (cameras need not be synchronized)")
     p.add_argument("--out", required=True, metavar="DIR", help="writes DIR/trajectory.tum and DIR/trajectory.csv")
     p.add_argument("--annotate", metavar="VIDEO", help="also write a side-by-side annotated video (mp4)")
     p.add_argument("--bag", metavar="DIR", help="also write the poses with covariance as a ROS 2 bag (a new folder): "

@@ -18,8 +18,8 @@ camera's ``K`` and distortion, so one or two markers update the state as well
 as ten.  The update is gated: the innovation's Mahalanobis distance (the
 posterior cost ``e' P^-1 e + |r|^2 / sigma^2``) against the chi-square
 quantile with ``2n`` degrees of freedom at ``confidence``.  A frame that fails
-is retried without each single observation; when exactly one such subset
-passes, that observation is dropped, else the frame is rejected and the
+is retried without each single observation (with three or more); when
+exactly one such subset passes, that observation is dropped, else the frame is rejected and the
 state stays the prediction.  Frames with fewer than three observations are
 linearised once, at the prediction (iterating would relinearise along the
 directions they cannot fix and make the track overconfident).
@@ -52,7 +52,7 @@ from .pose import Pose
 from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, normal_equations, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
-           "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM"]
+           "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose"]
 
 #: Error-state dimension: rotation, translation, angular and linear velocity.
 STATE_DIM = 12
@@ -455,6 +455,16 @@ class ConstantVelocityFilter:
                                  (self.pixel_sigma / self.gain_sigma) ** 2)
         return self.state
 
+    def start(self, state: FilterState) -> FilterState:
+        """Start the track from a full state (pose, velocity and their 12x12
+        covariance under ``pixel_sigma``, e.g. :func:`fit_moving_pose`'s)."""
+        scale = (self.gain_sigma / self.pixel_sigma) ** 2
+        P = np.array(state.covariance, dtype=float)
+        self.state = FilterState(float(state.time), Pose(state.pose.R.copy(), state.pose.t.copy()),
+                                 np.array(state.velocity, dtype=float), P, None if scale == 1.0 else P * scale,
+                                 1.0 / scale)
+        return self.state
+
     def predict(self, time: float) -> FilterState:
         """Move the state to ``time`` (no earlier than the state's) by the motion model."""
         s = self._require()
@@ -487,7 +497,10 @@ class ConstantVelocityFilter:
             self._accept(state, ls, n)
             return FilterUpdate(True, state, test, all_rows, np.empty(0, np.int64), res, iterations=iters)
         passing = []
-        if n >= 2:
+        # One observation left is no evidence that the others were wrong: two
+        # pixels fit almost any broad prediction (measured: a single camera's
+        # two markers, one dropped a frame, led a track metres away).
+        if n >= 3:
             for k in range(n):
                 keep = np.delete(all_rows, k)
                 alt = self._try(problem, keep)
@@ -673,3 +686,115 @@ def rts_smooth(priors: list[FilterState], posteriors: list[FilterState],
         pose = Pose(so3_exp(e[:3]) @ post.pose.R, post.pose.t + e[3:6])
         out[k] = FilterState(post.time, pose, post.velocity + e[6:], 0.5 * (P + P.T), Pg, post.noise_scale)
     return out
+
+
+@dataclass(frozen=True)
+class MovingFit:
+    """A pose and its velocity fitted to observations taken at several
+    times (:func:`fit_moving_pose`): ``state`` at the reference time with
+    its 12x12 covariance (under ``sigma``), the least-squares ``test`` with
+    ``2n - 12`` degrees of freedom, each row's residual (px) at its own
+    time, and ``times`` the span of the records used."""
+
+    state: FilterState
+    test: Consistency
+    residuals_px: np.ndarray
+    iterations: int
+
+
+def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float, pose: Pose, *,
+                    sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 15,
+                    velocity: np.ndarray | None = None) -> MovingFit | None:
+    """The pose at ``time`` and its constant velocity (the filter's motion
+    model: ``R(t_i) = exp(w (t_i - time)) R``, ``t(t_i) = t + v (t_i - time)``)
+    that best explain ``problems[i]``'s pixel observations taken at
+    ``times[i]`` -- observations of several cameras, each at its own capture
+    time, bridged by the motion.  Gauss-Newton from ``pose`` (and
+    ``velocity``, default at rest) on the pixel residuals of every row at its
+    own time, with the filter's error-state transition as the chain rule.
+
+    Returns None when a marker falls behind its camera or the normal
+    equations are singular (the observations do not fix pose and velocity).
+    The test has ``2n - 12`` degrees of freedom; with fewer than one it
+    cannot be tested (``passed`` None).
+    """
+    from .geometry import so3_exp
+
+    if len(problems) != len(times):
+        raise InputError("fit_moving_pose: one time per problem")
+    sigma = positive_number(sigma, "sigma")
+    groups = []
+    for prob, ti in zip(problems, times):
+        side, pts, meas, Kp, dp, Kq, dq = ConstantVelocityFilter._arrays(prob)
+        groups.append((float(ti) - float(time), side, pts, meas, Kp, dp, Kq, dq))
+    n = sum(len(g[1]) for g in groups)
+    R = np.array(pose.R, dtype=float)
+    t = np.array(pose.t, dtype=float)
+    vel = np.zeros(6) if velocity is None else np.array(velocity, dtype=float)
+    ws = np.empty(WS_SIZE)
+    F = np.empty((STATE_DIM, STATE_DIM))
+
+    def linearize(R, t, vel, want):
+        H = np.zeros((STATE_DIM, STATE_DIM))
+        g = np.zeros(STATE_DIM)
+        res = np.empty(n)
+        cost = 0.0
+        k = 0
+        Ri, ti = np.empty((3, 3)), np.empty(3)
+        for dt, side, pts, meas, Kp, dp, Kq, dq in groups:
+            m = len(side)
+            so3_exp_left(vel[:3] * dt, R, Ri)
+            ti[:] = t + vel[3:] * dt
+            r = np.empty(2 * m)
+            J = np.empty((2 * m, 6))
+            if not residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, Ri, ti, r, J, want,
+                             ws):
+                return None
+            res[k:k + m] = np.hypot(r[0::2], r[1::2])
+            k += m
+            cost += float(r @ r)
+            if want:
+                cv_transition(vel, dt, F)
+                Jx = J @ F[:6, :]
+                H += Jx.T @ Jx
+                g += Jx.T @ r
+        return cost, H, g, res
+
+    lin = linearize(R, t, vel, True)
+    if lin is None:
+        return None
+    iters = 0
+    lam = 1e-6
+    for iters in range(1, max_iter + 1):
+        cost, H, g, _ = lin
+        D = np.diag(np.diag(H)) + 1e-12 * np.eye(STATE_DIM)
+        try:
+            dx = -np.linalg.solve(H + lam * D, g)
+        except np.linalg.LinAlgError:
+            return None
+        Rn = so3_exp(dx[:3]) @ R
+        tn, vn = t + dx[3:6], vel + dx[6:]
+        trial = linearize(Rn, tn, vn, True)
+        if trial is not None and trial[0] <= cost:
+            R, t, vel, lin = Rn, tn, vn, trial
+            lam = max(lam / 10.0, 1e-9)
+            if np.max(np.abs(dx)) < 1e-10 or cost - trial[0] < 1e-12 * max(cost, 1.0):
+                break
+        else:
+            lam *= 10.0
+            if lam > 1e6:
+                break
+    cost, H, _, res = lin
+    try:
+        P = np.linalg.inv(H) * sigma**2
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(P)) or np.min(np.linalg.eigvalsh(0.5 * (P + P.T))) <= 0.0:
+        return None
+    dof = 2 * n - STATE_DIM
+    chi2 = cost / sigma**2
+    thr = chi2_quantile(confidence, dof) if dof >= 1 and confidence < 1.0 else math.inf
+    test = Consistency(float(chi2), dof, confidence, thr)
+    state = FilterState(float(time), Pose(R, t), vel, 0.5 * (P + P.T))
+    return MovingFit(state, test, res, iters)
+

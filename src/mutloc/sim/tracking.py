@@ -19,7 +19,7 @@ from ..core.rig import Rig
 if TYPE_CHECKING:
     from .world import World
 
-__all__ = ["ObservationSequence", "observation_sequence", "correct_detections", "LightIdentity",
+__all__ = ["ObservationSequence", "observation_sequence", "CameraRecords", "camera_records", "correct_detections", "LightIdentity",
            "light_identity", "light_view", "panning_lights", "varied_world"]
 
 
@@ -238,3 +238,62 @@ def light_identity(results: Sequence, truth: Sequence[dict], lit: Sequence[dict]
             else:
                 failures.append((k, name, f"off by {d[name]:.1f} px"))
     return LightIdentity(good, total, wrong, failures)
+
+
+@dataclass
+class CameraRecords:
+    """Observation-log records of free-running cameras: ``frames[i]``
+    holds what the cameras capturing at ``times[i]`` saw (one camera's
+    observations, or several where their frames coincide), ``truth[i]`` the
+    true ``T_qp`` (or, with ``poses``, every robot's pose) at that time."""
+
+    times: np.ndarray
+    frames: list[ObservationSet]
+    truth: Pose
+    cameras: list[tuple[str, ...]]
+
+
+def camera_records(rig: Rig, path: Callable[[float], Pose] | None = None, *, duration: float = 4.0,
+                   rates: dict[str, float] | None = None, offsets: dict[str, float] | None = None,
+                   pixel_sigma: float = 1.0, seed: int = 0, source: str | None = None,
+                   target: str | None = None) -> CameraRecords:
+    """Records of two cameras, each capturing at its own ``rates[robot]``
+    (frames/s, default 30) from ``offsets[robot]`` seconds (default 0) along
+    ``path`` (``T_qp(t)``, default :func:`mutloc.sim.render.default_path`):
+    every marker in front of the observing camera and inside its image,
+    projected at the frame's own time with Gaussian noise ``pixel_sigma``.
+    Frames of both cameras at the same instant make one record (a
+    synchronized log); otherwise each record holds one camera's frame."""
+    from .render import default_path
+
+    source, target = rig.default_pair(source, target)
+    path = path if path is not None else default_path(2.0, 8.0, 0.3)
+    rates = {source: 30.0, target: 30.0, **(rates or {})}
+    offsets = {source: 0.0, target: 0.0, **(offsets or {})}
+    rng = np.random.default_rng(seed)
+    stamps: dict[float, list[str]] = {}
+    for r in (source, target):
+        k = np.arange(int(np.floor((duration - offsets[r]) * rates[r] - 1e-9)) + 1)
+        for t in np.round(offsets[r] + k / rates[r], 9):
+            stamps.setdefault(float(t), []).append(r)
+    times = np.array(sorted(stamps))
+    robots = {r: rig.robot(r) for r in (source, target)}
+    frames, truth, cams = [], [], []
+    for t in times:
+        T = path(float(t))
+        observer, marker, uv = [], [], []
+        for obs_name in sorted(stamps[float(t)], key=(source, target).index):
+            other, to_obs = (target, T.inverse()) if obs_name == source else (source, T)
+            cam = robots[obs_name].camera
+            names = list(robots[other].markers)
+            X = to_obs.apply(robots[other].marker_positions(names))
+            for name, x, p in zip(names, X, cam.project(X)):
+                if x[2] <= 0 or not np.all(np.isfinite(p)) or (cam.size is not None and not cam.in_image(p)):
+                    continue
+                observer.append(obs_name)
+                marker.append(name)
+                uv.append(p + rng.normal(scale=pixel_sigma, size=2))
+        frames.append(ObservationSet(observer, marker, np.array(uv).reshape(-1, 2), float(t)))
+        truth.append(T)
+        cams.append(tuple(stamps[float(t)]))
+    return CameraRecords(times, frames, Pose.concatenate(truth), cams)

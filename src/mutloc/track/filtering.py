@@ -30,11 +30,31 @@ dropped, and a frame of four or more markers decides for itself: solved,
 it confirms the track where it agrees with it as above, else starts a new
 one; not solved, the tentative track goes (it may share the frame's bad
 detection and so agree with it).
+
+Cameras need not be synchronized: a record may hold one camera's
+observations at its own capture time, and the filter takes it there.  A
+track may also start from the records of the last ``start_window``
+seconds together -- their pose and velocity fitted with every observation
+at its own time (:func:`mutloc.core.filter.fit_moving_pose`), tested with
+``2n - 12`` degrees of freedom -- where they hold four or more distinct
+observations.  Rejections are also counted per camera: a camera whose
+records the track keeps rejecting while the other camera's records (which
+cannot expose it) carry it restarts the track, or drops it.
+
+A frame of exactly three markers taken by a track that the record before
+it did not confirm (four or more markers) cannot expose one bad detection
+among them: a partial frame may have left the track loose in the direction
+the bad marker pulls.  Within the smoother's lag such a frame can still be
+undone: when a frame solved on its own then contradicts the track, the
+track goes back to before the unverified frame, which is reported
+``rejected`` (with that track's prediction), and the frames since are
+filtered again.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -43,7 +63,8 @@ import numpy as np
 from ..api import Estimate, localize
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.estimate import PairProblem
-from ..core.filter import ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise, rts_gains, rts_smooth
+from ..core.filter import (ConstantVelocityFilter, FilterState, FilterUpdate, MotionNoise, fit_moving_pose, rts_gains,
+                           rts_smooth)
 from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.pose import Pose
 from ..core.rig import Rig
@@ -68,6 +89,11 @@ FILTERS = ("cv", "none")
 #: at 30 fps): the inputs are recorded, and on the issue's sequences this
 #: fixed-lag smoother halves the causal filter's error (README "Filtered tracking").
 DEFAULT_SMOOTH_LAG = 10
+#: Seconds of records a track may start from together (see FilterOptions).
+DEFAULT_START_WINDOW = 0.15
+#: Degrees of freedom a start from several records must leave for its test:
+#: a wrong detection among them must be able to show.
+MIN_START_DOF = 4
 
 
 @dataclass(frozen=True)
@@ -84,7 +110,11 @@ class FilterOptions:
     default: ``DEFAULT_SMOOTH_LAG`` with the filter, 0 without);
     ``measure_noise``: the gain uses the detections' measured noise when it
     is clearly below ``pixel_sigma`` (see
-    :attr:`~mutloc.core.filter.ConstantVelocityFilter.gain_sigma`).
+    :attr:`~mutloc.core.filter.ConstantVelocityFilter.gain_sigma`);
+    ``start_window`` (s): a track may also start from the records of the
+    last ``start_window`` seconds together -- cameras that are not
+    synchronized, each record one camera's frame -- their pose and velocity
+    fitted with every observation at its own time (0: only from one record).
     """
 
     kind: str = "cv"
@@ -94,6 +124,7 @@ class FilterOptions:
     lost_sigma_r_deg: float = 20.0
     smooth_lag: int | None = None
     measure_noise: bool = True
+    start_window: float = DEFAULT_START_WINDOW
 
     def __post_init__(self) -> None:
         if self.kind not in FILTERS:
@@ -106,6 +137,8 @@ class FilterOptions:
             raise InputError(f"smooth_lag must be an integer >= 0 (frames), got {self.smooth_lag!r}")
         if self.smooth_lag and self.kind != "cv":
             raise InputError("smoothing (--smooth-lag) needs the filter (--filter cv)")
+        if not (isinstance(self.start_window, (int, float)) and 0.0 <= self.start_window < math.inf):
+            raise InputError(f"start_window must be a number of seconds >= 0, got {self.start_window!r}")
         positive_number(self.lost_sigma_t, "lost_sigma_t")
         positive_number(self.lost_sigma_r_deg, "lost_sigma_r_deg")
 
@@ -174,6 +207,15 @@ class PairTracker:
         self.filter = ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence,
                                              measure_noise=self.options.measure_noise)
         self.rejections = 0
+        #: Per observer: its records rejected since one of them was last accepted.
+        self._contradicted: dict[str, int] = {}
+        #: Whether the track's last record was an update by four or more markers
+        #: (or a start): a track that can verify a frame of three markers.
+        self._supported = False
+        #: Frames of three markers the track took without being able to verify
+        #: them, and how to undo them (see ``_judge_support``).
+        self._pending: _Pending | None = None
+        self._replaying = False
         self._restarted = False
         #: While the track is tentative: the markers of the three-marker frame that started it.
         self._tentative: frozenset[str] | None = None
@@ -185,6 +227,9 @@ class PairTracker:
             [] if self.options.smooth_lag > 0 and self.filtering else None
         #: Every row filtered, aligned with ``history`` (for the hindsight checks).
         self._stepped: list[Any] = []
+        #: The last ``start_window`` seconds of rows with named, measured
+        #: observations: ``(time, row)`` -- what a start from several records may use.
+        self._recent: deque[tuple[float, Any]] = deque()
 
     @property
     def filtering(self) -> bool:
@@ -200,14 +245,28 @@ class PairTracker:
             return
         if self.filter.state is not None and row.t < self.filter.state.time:
             raise InputError(f"frame at {row.t} s comes before the previous one ({self.filter.state.time} s)")
+        try:
+            self._step(row)
+        except _Unconfirmed:
+            self._roll_back(row)
+            _clear(row)
+            self._step(row)  # the track no longer holds the undone frames: this cannot undo any
+
+
+    def _step(self, row: "TrackRow") -> None:
         if self.history is not None:
             self._stepped.append(row)
+        if self._pending is not None:
+            self._pending.rows.append(row)
+            if len(self._pending.rows) > self.options.smooth_lag:
+                self._pending = None  # beyond the lag its report is out: taken as it stands
+        self._remember(row)
         lost = ""
         if self.filter.state is not None:
             state = self.filter.predict(row.t)
             lost = self._lost(state)
             if lost:
-                self.filter.state = None
+                self.filter.state, self._pending = None, None
         if self.filter.state is None:
             self._restart(row, lost)
             self._record(None)
@@ -274,6 +333,7 @@ class PairTracker:
             row.reason = " ".join(str(exc).split())
             return
         if len(pair.rows) == 0:
+            self._supported = False
             row.status = FrameStatus.PREDICTED
             row.reason = "no markers seen" if pair.count == 0 else \
                 f"{pair.count} markers of unknown identity (the filter needs named markers)"
@@ -281,19 +341,42 @@ class PairTracker:
             return
         problem = self.problem(pair)
         upd = self.filter.update(problem)
+        observers = set(pair.parent.observer[k] for k in pair.rows.tolist())
         if upd.accepted:
             self.rejections = 0
+            for o in observers:
+                self._contradicted[o] = 0
             self._accepted(row, problem, upd)
+            if self._tentative is None:  # (a tentative track's trial frames are judged by _confirm)
+                self._judge_support(row, state, len(upd.used))
             return
+        self._supported = False
+        if self._pending is not None and self._pending.frames and self._measured(row) > MIN_OBSERVATIONS:
+            alone = _copy_row(row)
+            solve_row(alone, self.rig, self.source, self.target, self.pixel_sigma, self.confidence)
+            if alone.status == FrameStatus.SOLVED:
+                # A frame that holds on its own contradicts a track made by frames nothing confirmed.
+                self._pending.blame = row.t
+                raise _Unconfirmed()
         self.rejections += 1
-        if self.rejections >= self.options.reinit_after:
-            restarted = self._restart(row, f"{self.rejections} frames in a row inconsistent with the track",
-                                      keep_failure=False)
+        for o in observers:
+            self._contradicted[o] = self._contradicted.get(o, 0) + 1
+        worst, streak = max(self._contradicted.items(), key=lambda kv: kv[1])
+        if streak >= self.options.reinit_after:
+            why = (f"{self.rejections} frames in a row inconsistent with the track" if self.rejections == streak else
+                   f"{worst}'s last {streak} records inconsistent with the track")
+            restarted = self._restart(row, why, keep_failure=False)
             if restarted:
                 return
         row.status = FrameStatus.REJECTED
         row.reason = upd.reason
         row.estimate = self._estimate(upd.state, [], upd.rms_px, upd.test)
+        if streak >= 2 * self.options.reinit_after and streak > self.rejections:
+            # One camera keeps contradicting a track that the other camera's
+            # records alone carry (they cannot expose it): drop the track.
+            self.filter.state = None
+            row.estimate = None
+            row.reason = f"track dropped: {worst}'s last {streak} records inconsistent with it; {row.reason}"
 
     # -- internals ------------------------------------------------------------
 
@@ -373,10 +456,23 @@ class PairTracker:
         tentative = (not started and trial.status == FrameStatus.UNVERIFIED and trial.estimate is not None
                      and self._measured(trial) >= MIN_OBSERVATIONS)
         self._tentative = frozenset(trial.estimate.markers_used) if tentative else None
+        if not (started or tentative):
+            bridged = self._bridged_start(row)
+            if bridged is not None:
+                self.rejections = 0
+                self._contradicted.clear()
+                self._pending, self._supported = None, True
+                self._restarted = True
+                row.status, row.estimate, row.reason = bridged.status, bridged.estimate, bridged.reason
+                if why:
+                    row.reason = f"track restarted: {why}; {row.reason}"
+                return True
         if started or tentative:
             est = trial.estimate
             self.filter.reset(row.t, est.pose, est.covariance)
             self.rejections = 0
+            self._contradicted.clear()
+            self._pending, self._supported = None, started
             self._restarted = True
             if tentative and self.history is not None:
                 # The starting frame is a tentative frame like those after
@@ -395,6 +491,125 @@ class PairTracker:
             note = f"track {'restarted' if started else 'restarted tentatively' if tentative else 'lost'}: {why}"
             row.reason = f"{note}; {row.reason}" if row.reason else note
         return started or tentative
+
+    def _judge_support(self, row: "TrackRow", prior: FilterState, used: int) -> None:
+        """After an accepted update: four or more markers confirm the track
+        (and every frame it took unverified); exactly three on a track not
+        itself confirmed by the last record are taken, but remembered with
+        the state before them, so that a frame solved on its own within the
+        smoother's lag (whose reports come that late anyway) that
+        contradicts the track can undo them (see ``_roll_back``).  Without
+        smoothing nothing is reported again."""
+        if used > MIN_OBSERVATIONS:
+            self._pending, self._supported = None, True
+            return
+        if used == MIN_OBSERVATIONS and not self._supported and self.options.smooth_lag and not self._replaying:
+            if self._pending is None:
+                f = self.filter
+                self._pending = _Pending(prior, deque(f._noise_window), list(f._noise_sum), dict(self._contradicted),
+                                         len(self.history) if self.history is not None else 0,
+                                         len(self._stepped) - 1 if self.history is not None else 0, [row])
+            self._pending.frames.add(id(row))
+        self._supported = False
+
+    def _roll_back(self, row: "TrackRow") -> None:
+        """Undo the track since its first unverified three-marker frame (the
+        frame ``row``, solved on its own, contradicts it): those frames are
+        reported ``rejected`` with the track's prediction without them, the
+        other frames since are filtered again, then ``row`` goes again."""
+        pend = self._pending
+        assert pend is not None
+        self._pending = None
+        f = self.filter
+        f.state, f._noise_window, f._noise_sum = pend.prior, deque(pend.noise_window), list(pend.noise_sum)
+        self._contradicted = dict(pend.contradicted)
+        self.rejections, self._supported = 0, False
+        if self.history is not None:
+            del self.history[pend.history_len:]
+            del self._stepped[pend.stepped_len:]
+        for r in pend.rows:
+            if r is row:
+                break
+            if id(r) in pend.frames:
+                if self.history is not None:
+                    self._stepped.append(r)
+                state = f.predict(r.t)
+                note = (f"not confirmed: the frame at {pend.blame:.3f} s, solved on its own, contradicts the track "
+                        "this frame of three markers made")
+                _clear(r)
+                r.status, r.reason = FrameStatus.REJECTED, note
+                r.estimate = self._estimate(state, [], 0.0, None)
+                self._record((state, state, r))
+            else:
+                _clear(r)
+                self._replaying = True  # frames filtered again make nothing to undo
+                try:
+                    self._step(r)
+                finally:
+                    self._replaying = False
+
+    def _remember(self, row: "TrackRow") -> None:
+        """Keep the row among the recent records a start may bridge."""
+        window = self.options.start_window
+        if window <= 0.0 or any(r is row for _, r in self._recent):  # (filtered again after an undo)
+            return
+        self._recent.append((row.t, row))
+        while self._recent and self._recent[0][0] < row.t - window:
+            self._recent.popleft()
+
+    def _bridged_start(self, row: "TrackRow") -> "TrackRow | None":
+        """Start the track from the recent records together (cameras at
+        their own times): the pose at ``row.t`` and the velocity fitted to
+        every measured observation at its own time (the motion model
+        bridges them).  It starts only where the records hold four or more
+        distinct observations (each fixing the pose without the motion), the
+        fit leaves ``MIN_START_DOF`` degrees of freedom and passes its
+        chi-square test, and its uncertainty is within the track's limits.
+        Returns the row as reported (status ``solved``), or None."""
+        records = [r for _, r in self._recent]
+        if len(records) < 2 or records[-1] is not row:
+            return None
+        problems, times, latest = [], [], {}
+        for r in records:
+            try:
+                pair = r.observations.pair(self.rig, self.source, self.target)
+            except MutlocError:
+                continue
+            if len(pair.rows) == 0:
+                continue
+            problems.append(self.problem(pair))
+            times.append(r.t)
+            obs = pair.parent
+            for k in pair.rows.tolist():
+                latest[(obs.observer[k], obs.marker[k])] = (r.t, obs.observer[k], obs.marker[k], obs.uv[k])
+        n = sum(len(p.side) for p in problems)
+        if len(latest) <= MIN_OBSERVATIONS or len(times) < 2 or 2 * n - 12 < MIN_START_DOF:
+            return None
+        # A first pose from the latest observation of each marker as if simultaneous (untested) ...
+        from ..core.observations import ObservationSet
+
+        rows = list(latest.values())
+        union = ObservationSet([o for _, o, _, _ in rows], [m for _, _, m, _ in rows],
+                               np.array([uv for *_, uv in rows]), row.t)
+        try:
+            first = localize(self.rig, union, self.source, self.target, pixel_sigma=self.pixel_sigma,
+                             confidence=1.0)
+        except MutlocError:
+            return None
+        # ... then pose and velocity from every observation at its own time.
+        fit = fit_moving_pose(problems, times, row.t, first.pose, sigma=self.pixel_sigma,
+                              confidence=self.confidence)
+        if fit is None or not fit.test.passed or lost_reason(fit.state, self.options):
+            return None
+        state = self.filter.start(fit.state)
+        out = _copy_row(row)
+        out.status = FrameStatus.SOLVED
+        markers = sorted({m for _, _, m, _ in rows})
+        span = 1000.0 * (times[-1] - times[0])
+        out.reason = (f"track started from {len(times)} records over {span:.0f} ms ({n} observations of "
+                      f"{len(latest)} markers; pose and velocity fitted at each record's time)")
+        out.estimate = self._estimate(state, markers, float(np.sqrt(np.mean(fit.residuals_px**2))), fit.test)
+        return out
 
     def spread_px(self, state: FilterState, marker: str) -> float:
         """1-sigma (px, largest axis) of where ``state`` predicts ``marker``
@@ -476,6 +691,31 @@ def lost_reason(state: FilterState, options: FilterOptions) -> str:
         return (f"predicted sigma {st:.2f} m / {sr:.1f} deg beyond {o.lost_sigma_t:g} m / "
                 f"{o.lost_sigma_r_deg:g} deg")
     return ""
+
+
+class _Unconfirmed(Exception):
+    """Internal: the current frame contradicts frames the track took unverified."""
+
+
+@dataclass
+class _Pending:
+    """Frames of three markers taken by a track that could not verify them,
+    with what undoing them restores: the prediction at the first, the
+    filter's noise measurements, and the history's length then."""
+
+    prior: FilterState
+    noise_window: deque
+    noise_sum: list
+    contradicted: dict
+    history_len: int
+    stepped_len: int
+    rows: list
+    frames: set = field(default_factory=set)
+    blame: float = math.nan
+
+
+def _clear(row: "TrackRow") -> None:
+    row.status, row.reason, row.estimate = FrameStatus.SOLVED, "", None
 
 
 def _marker_of(label: str) -> str:

@@ -1,7 +1,9 @@
 """``mutloc track``: two image streams in, a trajectory of T_qp out.
 
-Streams are paired by timestamp within a tolerance.  Every frame gets a
-status; a frame with too few markers, a corrupt image or no partner is
+Every camera frame is fused at its own capture time: frames of the two
+cameras within a tolerance of each other make one record, any other frame
+is a record of its own camera (cameras need not be synchronized).  Every
+record gets a status; a record with too few markers or a corrupt image is
 reported as such and never guessed.  What was computed is kept whatever
 happens later in the files.
 """
@@ -256,29 +258,36 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     viz = _rerun_writer(rerun, source, target)
     rows: list[TrackRow] = []
     checked = False
+    last: dict[str, np.ndarray] = {}  # each robot's latest image (the annotated video shows both)
     pairs = pair_streams(iter(streams[source]), iter(streams[target]), tolerance)
     bar = tqdm(pairs, total=total, unit="frame", disable=not progress, desc="track")
     try:
         for fs, ft in bar:
-            for robot, fr in ((source, fs), (target, ft)):
-                if fr is not None:
-                    dets[robot].feed(fr)
-            t = float(np.mean([f.t for f in (fs, ft) if f is not None]))
+            present = {r: f for r, f in ((source, fs), (target, ft)) if f is not None}
+            for robot, fr in present.items():
+                dets[robot].feed(fr)
+            # Frames within the tolerance are one record; any other frame is a record of its own camera,
+            # fused at its own time (cameras need not be synchronized).
+            t = float(np.mean([f.t for f in present.values()]))
             row = TrackRow(t, fs.t if fs else None, ft.t if ft else None, FrameStatus.SOLVED)
-            if fs is None or ft is None:
-                row.status = FrameStatus.UNPAIRED
-                row.reason = f"no {source if fs is None else target} frame within {tolerance} s"
-            elif fs.image is None or ft.image is None:
+            images = {r: f.image for r, f in present.items() if f.image is not None}
+            last.update(images)
+            if len(images) < len(present):
+                # An unreadable image is reported as such, never guessed around (the other
+                # camera's frame of the record is not fused either).
                 row.status = FrameStatus.CORRUPT
-                row.reason = fs.status if fs.image is None else ft.status
+                row.reason = "; ".join(f.status for f in present.values() if f.image is None)
             else:
-                if not checked:
-                    check_streams(rig, source, target, fs.image, ft.image)
+                if not checked and len(last) == 2:
+                    check_streams(rig, source, target, last[source], last[target])
                     checked = True
-                row.detections = {source: dets[source].detect(fs), target: dets[target].detect(ft)}
-                # Partly hidden balls measured again where a verified pose puts them (see .second_look).
-                row.detections, notes = look_again(rig, {source: fs.image, target: ft.image}, row.detections,
-                                                   source, target, pixel_sigma=pixel_sigma, confidence=confidence)
+                row.detections = {r: dets[r].detect(present[r]) for r in images}
+                if len(images) == 2:
+                    # Partly hidden balls measured again where a verified pose puts them (see .second_look).
+                    row.detections, notes = look_again(rig, images, row.detections, source, target,
+                                                       pixel_sigma=pixel_sigma, confidence=confidence)
+                else:
+                    notes = []
                 row.observations = observations_of(row.detections, row.t)
                 if log is not None:
                     log.write(row.t, row.observations)
@@ -287,13 +296,10 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                     row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
             rows.append(row)
             if viz is not None:
-                images = {r: (f.image, row.detections[r].detections) for r, f in ((source, fs), (target, ft))
-                          if f is not None and f.image is not None and r in row.detections}
-                _rerun_row(viz, row, {r: (img, {n: d.uv for n, d in dets.items()})
-                                      for r, (img, dets) in images.items()})
-            if writer is not None and fs is not None and ft is not None and fs.image is not None \
-                    and ft.image is not None:
-                writer.write(fs.image, ft.image, row, source, target)
+                _rerun_row(viz, row, {r: (img, {n: d.uv for n, d in row.detections[r].detections.items()})
+                                      for r, img in images.items() if r in row.detections})
+            if writer is not None and images and len(last) == 2:
+                writer.write(last[source], last[target], row, source, target)
     finally:
         bar.close()
         if writer is not None:
