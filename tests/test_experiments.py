@@ -61,15 +61,18 @@ def test_localization_reproduces_the_papers_direction(quick_all):
     res = json.loads((out / "localization" / "results.json").read_text())
     mutual, tag = res["methods"]["mutual"], res["methods"]["tag"]
     assert mutual["solved"] == mutual["positions"] >= 3
-    # Rendered, detected, solved: millimetres and hundredths of a degree.
-    assert mutual["median_translation_m"] < 0.005 and mutual["median_rotation_deg"] < 0.1
+    # Rendered, detected, solved: hundredths of a millimetre and thousandths of a degree
+    # (measured with seed 1: 0.048 mm, 0.0049 deg over 4 positions).
+    assert mutual["median_translation_m"] < 2e-4 and mutual["median_rotation_deg"] < 0.02
     # The acceptance: at least ten-fold better than the one-sided tag.
     assert tag["solved"] >= 3
     assert tag["median_translation_m"] >= 10 * mutual["median_translation_m"]
     assert res["translation_improvement"]["tag"] == pytest.approx(
         tag["median_translation_m"] / mutual["median_translation_m"])
-    # Dugas' closed form on the same detections is exact up to detection noise.
-    assert res["methods"]["dugas"]["median_translation_m"] < 0.01
+    # Dugas' closed form on the same detections is exact up to detection noise (measured 0.048 mm).
+    dugas = res["methods"]["dugas"]
+    assert dugas["solved"] == dugas["positions"] == mutual["positions"]
+    assert dugas["median_translation_m"] < 2e-4
 
 
 def test_reconstruction_points_lie_on_the_true_surface(quick_all):
