@@ -21,6 +21,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
 
 bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e ".[test,bench]"  # GTSAM, the peer of bench_team.py
 	$(BIN)/python bench/bench_solvers.py
 	$(BIN)/python bench/bench_detectors.py
 	$(BIN)/python bench/bench_cli.py
@@ -28,6 +29,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_filter.py
 	$(BIN)/python bench/bench_team.py
 	$(BIN)/python bench/bench_calibrate.py
+	@echo "figures written to bench/results/"
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info
