@@ -7,7 +7,8 @@ black cells as vector rectangles, so the square whose corners are the tag's
 corners measures the rig's ``size``.  A banded cylinder is the sheet that
 wraps it: ``2 pi radius`` wide, ``height`` tall, ``len(code)`` equal bands,
 ``code[0]`` at the top, bit 1 black; a grey glue flap on its right (a strip
-wider than the page is cut into pieces, each with its flap).  Each item has
+wider than the page runs down it, top band at the left; one longer than the
+page is tall is cut into pieces, each with its flap).  Each item has
 its name under it and each page a 10 cm bar to check that the printer kept the
 scale.  Balls, lights and plain points are not printable.
 """
