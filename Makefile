@@ -30,6 +30,7 @@ docs: $(DOCS_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e ".[test,bench]"  # GTSAM, the peer of bench_team.py
 	$(BIN)/python bench/bench_solvers.py
 	$(BIN)/python bench/bench_detectors.py
 	$(BIN)/python bench/bench_cli.py
@@ -37,6 +38,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_filter.py
 	$(BIN)/python bench/bench_team.py
 	$(BIN)/python bench/bench_calibrate.py
+	@echo "figures written to bench/results/"
 
 clean:
 	rm -rf $(VENV) build site src/*.egg-info

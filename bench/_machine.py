@@ -37,3 +37,12 @@ def machine() -> dict:
         "opencv": cv2.__version__,
         "mutloc": mutloc.__version__,
     }
+
+
+#: Where the benchmarks write their figures (one JSON per benchmark).
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def result_file(name: str) -> str:
+    """``bench/results/<name>``: the default ``--out`` of a benchmark."""
+    return str(RESULTS / name)

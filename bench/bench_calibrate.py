@@ -8,7 +8,7 @@ scale held by a stiff residual) on the same problem from the same start.
 
     python bench/bench_calibrate.py [--runs 5] [--frames 40 1000]
 
-Writes bench/calibrate_results.json.  Targets (issue 14): 40 frames <= 1 s,
+Writes bench/results/calibrate_results.json.  Targets (issue 14): 40 frames <= 1 s,
 1,000 frames <= 10 s.
 """
 
@@ -28,7 +28,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 import mutloc.calibration as mc  # noqa: E402
 from mutloc.core import calibration as cc  # noqa: E402
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, nargs="+", default=[40, 1000])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-scipy", dest="scipy", action="store_false")
-    ap.add_argument("--out", default=str(Path(__file__).with_name("calibrate_results.json")))
+    ap.add_argument("--out", default=result_file("calibrate_results.json"))
     args = ap.parse_args(argv)
     rng = np.random.default_rng(args.seed)
     truth = ball_rig(2)

@@ -5,7 +5,7 @@ next to ``python -c pass`` measured in the same run.
 
     python bench/bench_cli.py [--runs 15]
 
-Writes bench/cli_results.json.  Help must not load Numba, SciPy or OpenCV
+Writes bench/results/cli_results.json.  Help must not load Numba, SciPy or OpenCV
 (tests/test_cli_trust.py checks which modules load; this measures the time).
 """
 
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 
 def wall(cmd: list[str], runs: int) -> float:
@@ -36,7 +36,7 @@ def wall(cmd: list[str], runs: int) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=15)
-    ap.add_argument("--out", default=str(Path(__file__).with_name("cli_results.json")))
+    ap.add_argument("--out", default=result_file("cli_results.json"))
     args = ap.parse_args(argv)
     exe = shutil.which("mutloc") or str(Path(sys.executable).with_name("mutloc"))
     cmds = {"python -c pass": [sys.executable, "-c", "pass"],

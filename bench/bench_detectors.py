@@ -19,7 +19,7 @@ All frames are rendered before any timing.  FPS is the median over repeats
 of (frames / wall-clock seconds); the CPU-time figure (``time.process_time``)
 is printed beside it since it is less sensitive to a busy machine.  Errors
 are against :func:`mutloc.sim.render.project_markers` (exact projection of
-the marker centres).  Prints a table and writes bench/detectors_results.json.
+the marker centres).  Prints a table and writes bench/results/detectors_results.json.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from mutloc.track.sources import Frame  # noqa: E402
 from mutloc.track.tracker import track  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames and repeats")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", default=str(Path(__file__).with_name("detectors_results.json")))
+    ap.add_argument("--out", default=result_file("detectors_results.json"))
     args = ap.parse_args(argv)
     n_still, rep_still = (3, 5) if args.quick else (6, 15)
     n_seq, rep_seq = (36, 3) if args.quick else (60, 5)

@@ -42,7 +42,7 @@ estimates with their marginal covariances; mutloc per frame is
 ``PairTracker.step`` plus its fixed-lag smoothing (``finish``) spread over
 the frames.
 
-Writes bench/filter_gtsam_results.json.
+Writes bench/results/filter_gtsam_results.json.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 from bench_filter import NOISE, SIGMA, figures, sequence, track_estimates, translation_errors  # noqa: E402
 
 from mutloc.core.consistency import DEFAULT_CONFIDENCE  # noqa: E402
@@ -436,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="pixel factors' loss, each a GTSAM run: huber:K, cauchy:K (K in sigmas) or none")
     ap.add_argument("--iterations", type=int, default=1, help="iSAM2 updates per frame (1; more relinearise again)")
     ap.add_argument("--relinearize", type=float, default=1e-3, help="iSAM2 relinearisation threshold (1e-3)")
-    ap.add_argument("--out", default=str(Path(__file__).with_name("filter_gtsam_results.json")))
+    ap.add_argument("--out", default=result_file("filter_gtsam_results.json"))
     args = ap.parse_args(argv)
     if gtsam is None or not hasattr(gtsam, "IncrementalFixedLagSmoother"):
         print("needs gtsam >= 4.3 (gtsam.IncrementalFixedLagSmoother): pip install 'mutloc[bench]'", file=sys.stderr)

@@ -28,7 +28,7 @@ occluded.  Corner error: for the peers the nearest true corner (their corner
 order differs), for mutloc its own corner k against true corner k; over the
 fully visible tags found by the detector.  False: ids reported that are not in
 the image.  FPS: frames / wall-clock second, median of repeats over all scenes
-(CPU seconds beside it).  Writes bench/tags_results.json.
+(CPU seconds beside it).  Writes bench/results/tags_results.json.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from mutloc.detect.tags import detect_tags  # noqa: E402
 from mutloc.sim.tag_scenes import scene_camera, tag_scene  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -137,7 +137,7 @@ def evaluate(scenes, name: str, repeat: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "tags_results.json"))
+    ap.add_argument("--out", default=result_file("tags_results.json"))
     args = ap.parse_args()
     n_scenes = {SIZES[0]: 3 if args.quick else 8, SIZES[1]: 1 if args.quick else 3}
     repeat = 3 if args.quick else 7

@@ -15,7 +15,7 @@ same frames in the same run as the peer.
   f = 530 px, seed 2) tracked from the three image folders with
   ``--pixel-sigma 0.3``; errors per robot against truth_NAME.tum.
 
-Writes bench/team_track_results.json.
+Writes bench/results/team_track_results.json.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 from mutloc import localize_team  # noqa: E402
 from mutloc.cli.main import main  # noqa: E402
@@ -124,7 +124,7 @@ def run() -> None:
         print(f"seed {seed}:", json.dumps(res["synthetic"][str(seed)]))
     res["rendered"] = rendered(args.render_frames)
     print("rendered:", json.dumps(res["rendered"]))
-    path = Path(__file__).resolve().parent / "team_track_results.json"
+    path = Path(result_file("team_track_results.json"))
     path.write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {path}")
 

@@ -17,7 +17,7 @@ Each seed draws its own room, motion phases and blink phases
 (:func:`mutloc.sim.tracking.varied_world`); ``--fixed-motion`` changes only
 the room (how the figures before 2026-11-25 were measured).
 
-Writes bench/blink_identity_results.json (``--out``).
+Writes bench/results/blink_identity_results.json (``--out``).
 """
 
 from __future__ import annotations
@@ -87,9 +87,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-camera", action="store_true", help="track without the camera model")
     ap.add_argument("--fixed-motion", action="store_true",
                     help="same motion and blink phases for every seed (only the room changes)")
-    ap.add_argument("--out", default=str(Path(__file__).with_name("blink_identity_results.json")))
+    from _machine import machine, result_file
+
+    ap.add_argument("--out", default=result_file("blink_identity_results.json"))
     args = ap.parse_args(argv)
-    from _machine import machine
 
     size = tuple(int(s) for s in args.size.split("x"))
     cache = Path(args.cache) if args.cache else None

@@ -22,7 +22,7 @@ blink-identity figure), for balls and tags every frame.
     python bench/trust_sequences.py [--seeds 10] [--frames 60] [--fps 30] [--kinds balls,lights,tags]
                                    [--seed-list 2,5,6] [--cache DIR] [--fixed-motion]
 
-Writes bench/trust_results.json.
+Writes bench/results/trust_results.json.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from mutloc.track.sources import Frame, Stream
 from mutloc.track.tracker import track, track_log
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 
 def rendered(world, kind: str, seed: int, n: int, fps: float, cache: Path | None,
@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=None, help="folder caching the rendered frames")
     ap.add_argument("--fixed-motion", action="store_true",
                     help="same motion and blink phases for every seed (only the room changes)")
-    ap.add_argument("--out", default=str(Path(__file__).with_name("trust_results.json")))
+    ap.add_argument("--out", default=result_file("trust_results.json"))
     args = ap.parse_args(argv)
     cache = Path(args.cache) if args.cache else None
     seeds = [int(s) for s in args.seed_list.split(",")] if args.seed_list else list(range(args.seeds))

@@ -474,6 +474,7 @@ def test_mutual_localization_from_two_tags(seed: int, D: float) -> None:
     print(f"\n[mutual D={D:.2f} m] translation error {1000 * t_err:.2f} mm, rotation error {r_err:.3f} deg, "
           f"reprojection rms {est.reprojection_rms_px:.3f} px (OpenCV subpix corners: {1000 * t_sub:.2f} mm, "
           f"{r_sub:.3f} deg)")
-    assert t_err < 0.01
-    assert r_err < 0.5
-    assert est.reprojection_rms_px < 0.3
+    # Measured (D = 1.5, 2.25, 3 m): 0.55, 1.28, 1.49 mm; 0.004, 0.009, 0.007 deg; rms 0.011, 0.011, 0.016 px.
+    assert t_err < 0.002 * D
+    assert r_err < 0.03
+    assert est.reprojection_rms_px < 0.05

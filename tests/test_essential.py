@@ -127,28 +127,57 @@ def test_residuals_zero_at_truth() -> None:
     assert res[0] < 1e-20 and res[1] > 1e-6
 
 
-# Median / 90th percentile of the translation error (m) of the top-ranked
-# candidate, 1 mrad bearing noise, cameras 1-3 m apart; measured values in
-# the comments (seeded, 150 cases).  With five observations E fits the noise
-# exactly and the tail is long (the caller refines); 5-0 is the weakest: the
-# markers all sit around one centre, which pins E down poorly.
+def _ml_pose(side, points, bearings, R0, t0):
+    """The maximum-likelihood pose near the truth (R0, t0): SciPy's least squares
+    on the ray residuals b x b_predicted, started at the truth -- a reference
+    independent of the code under test (the best any estimate can do on these rays)."""
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    def predicted(x):
+        R = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+        in_p = (points - x[3:]) @ R
+        in_q = points @ R.T + x[3:]
+        v = np.where((side == 0)[:, None], in_p, in_q)
+        return R, x[3:], v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    sol = least_squares(lambda x: np.cross(predicted(x)[2], bearings).ravel(), np.r_[np.zeros(3), t0],
+                        method="lm", xtol=1e-12, ftol=1e-12)
+    return predicted(sol.x)[:2]
+
+
+# The top-ranked candidate against the maximum-likelihood pose on the same
+# rays (1 mrad bearing noise, cameras 1-3 m apart, 150 seeded cases): limits
+# on median / 90th percentile of its translation error as multiples of the
+# ML pose's.  Measured (ratio of medians, of 90th percentiles; candidate's
+# median and p90 in metres):
+#   3-2: 3.1, 4.4 (0.019, 0.109)   2-3: 3.0, 4.6 (0.017, 0.107)
+#   5-0: 3.3, 10.9 (0.062, 0.599)  3-3: 1.5, 1.4 (0.008, 0.030)
+#   4-4: 1.2, 1.0 (0.005, 0.014)
+# With five observations E fits the noise exactly and the tail is long (the
+# caller refines); 5-0 is the weakest: the markers all sit around one centre,
+# which pins E down poorly.  With eight the linear estimate is near optimal.
 NOISY_LIMITS = {
-    (3, 2): (0.03, 0.20),  # measured 0.019, 0.109
-    (2, 3): (0.03, 0.20),  # measured 0.017, 0.107
-    (5, 0): (0.10, 1.00),  # measured 0.062, 0.599
-    (3, 3): (0.015, 0.05),  # measured 0.008, 0.030
-    (4, 4): (0.01, 0.03),  # measured 0.005, 0.014
+    (3, 2): (5.0, 8.0),
+    (2, 3): (5.0, 8.0),
+    (5, 0): (5.0, 20.0),
+    (3, 3): (2.5, 2.5),
+    (4, 4): (2.0, 2.0),
 }
 
 
 @pytest.mark.parametrize("split", list(NOISY_LIMITS), ids=lambda s: f"{s[0]}-{s[1]}")
 def test_noisy_best_candidate_near_truth(split: tuple[int, int]) -> None:
     rng = np.random.default_rng(2000 + 10 * split[0] + split[1])
-    errs = []
+    errs, ml_errs = [], []
     for _ in range(150):
         side, points, bearings, R, t = _geometry(rng, *split, dmin=1.0, dmax=3.0)
-        Rs, ts = essential_candidates(side, points, _perturb(rng, bearings, 1e-3))
+        noisy = _perturb(rng, bearings, 1e-3)
+        Rs, ts = essential_candidates(side, points, noisy)
         errs.append(np.linalg.norm(ts[0] - t) if len(ts) else np.inf)
-    med_lim, p90_lim = NOISY_LIMITS[split]
+        ml_errs.append(np.linalg.norm(_ml_pose(side, points, noisy, R, t)[1] - t))
+    med_k, p90_k = NOISY_LIMITS[split]
     med, p90 = np.median(errs), np.percentile(errs, 90)
-    assert med < med_lim and p90 < p90_lim, f"median {med:.4f} m, p90 {p90:.4f} m"
+    ml_med, ml_p90 = np.median(ml_errs), np.percentile(ml_errs, 90)
+    assert med < med_k * ml_med and p90 < p90_k * ml_p90, (
+        f"median {med:.4f} m, p90 {p90:.4f} m; maximum likelihood: {ml_med:.4f} m, {ml_p90:.4f} m")

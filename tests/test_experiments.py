@@ -61,15 +61,18 @@ def test_localization_reproduces_the_papers_direction(quick_all):
     res = json.loads((out / "localization" / "results.json").read_text())
     mutual, tag = res["methods"]["mutual"], res["methods"]["tag"]
     assert mutual["solved"] == mutual["positions"] >= 3
-    # Rendered, detected, solved: millimetres and hundredths of a degree.
-    assert mutual["median_translation_m"] < 0.005 and mutual["median_rotation_deg"] < 0.1
+    # Rendered, detected, solved: hundredths of a millimetre and thousandths of a degree
+    # (measured with seed 1: 0.048 mm, 0.0049 deg over 4 positions).
+    assert mutual["median_translation_m"] < 2e-4 and mutual["median_rotation_deg"] < 0.02
     # The acceptance: at least ten-fold better than the one-sided tag.
     assert tag["solved"] >= 3
     assert tag["median_translation_m"] >= 10 * mutual["median_translation_m"]
     assert res["translation_improvement"]["tag"] == pytest.approx(
         tag["median_translation_m"] / mutual["median_translation_m"])
-    # Dugas' closed form on the same detections is exact up to detection noise.
-    assert res["methods"]["dugas"]["median_translation_m"] < 0.01
+    # Dugas' closed form on the same detections is exact up to detection noise (measured 0.048 mm).
+    dugas = res["methods"]["dugas"]
+    assert dugas["solved"] == dugas["positions"] == mutual["positions"]
+    assert dugas["median_translation_m"] < 2e-4
 
 
 def test_reconstruction_points_lie_on_the_true_surface(quick_all):
@@ -78,7 +81,7 @@ def test_reconstruction_points_lie_on_the_true_surface(quick_all):
     mut = res["methods"]["mutual"]
     assert mut["poses_solved"] == res["setup"]["poses"]
     assert mut["points"] > 20
-    assert mut["mean_nn_distance_m"] < 0.05
+    assert mut["mean_nn_distance_m"] < 0.025  # measured 7.3 mm (285 points, 3 poses)
     pts, cols = read_ply(out / "reconstruction" / "mutual.ply")
     assert len(pts) == mut["points"] and cols is not None
     # Independently recompute the metric from the PLY and the room.
@@ -93,9 +96,9 @@ def test_reconstruction_points_lie_on_the_true_surface(quick_all):
                                                "p": WorldRobot(rig.robot("p"), T)}, room=room), pts)
                 for T in T_wp], axis=0)
     assert float(np.mean(d)) == pytest.approx(mut["mean_nn_distance_m"], abs=2e-3)
-    ego = res["methods"]["egomotion"]
-    if ego["points"]:
-        assert math.isfinite(ego["mean_nn_distance_m"])
+    ego = res["methods"]["egomotion"]  # measured: 2 of 3 poses, 62 points
+    assert ego["poses_solved"] >= 1 and ego["points"] > 0
+    assert math.isfinite(ego["mean_nn_distance_m"])
 
 
 def test_bundler_baseline_runs_inside_both_experiments(quick_all):
@@ -107,7 +110,7 @@ def test_bundler_baseline_runs_inside_both_experiments(quick_all):
     assert b["robot_frames"] == 2 * setup["visible_positions"]
     assert b["walkaround_views"] == setup["walkaround_views"] == QUICK["walkaround_views"]
     assert b["images"] == b["robot_frames"] + b["walkaround_views"]
-    assert 0 <= b["solved"] <= b["positions"] and b["registered_images"] <= b["images"]
+    assert 1 <= b["solved"] <= b["positions"] and b["registered_images"] <= b["images"]  # measured 4 of 4
     with open(out / "localization" / "positions.csv") as f:
         rows = list(csv.DictReader(f))
     for r in rows:  # a visible position is solved or says why not

@@ -281,8 +281,8 @@ def test_rendered_tag_team_localize_images_and_track(tag_team_sim, tmp_path, cap
                  *[a for im in images for a in ("--image", im)]]) == 0
     d = json.loads(capsys.readouterr().out)
     assert set(d["robots"]) == {"r1", "r2"}
-    for r, entry in d["robots"].items():
-        assert np.linalg.norm(np.array(entry["t"]) - truth["frames"][0]["robots"][r]["t"]) < 0.03
+    for r, entry in d["robots"].items():  # measured 0.20 mm (r1), 0.27 mm (r2)
+        assert np.linalg.norm(np.array(entry["t"]) - truth["frames"][0]["robots"][r]["t"]) < 0.001
     out = tmp_path / "track"
     assert main(["track", "--rig", str(sim / "rig.yaml"), *[a for i in range(3) for a in
                  ("--stream", f"r{i}={sim / f'r{i}'}")], "--pixel-sigma", "0.3", "--out", str(out),
@@ -295,8 +295,10 @@ def test_rendered_tag_team_localize_images_and_track(tag_team_sim, tmp_path, cap
         assert all(row["status"] == "solved" for row in rows), [row["status"] for row in rows]
         err = [np.linalg.norm(row["pose"].t - true_poses[k].t) for k, row in enumerate(rows)]
         rot = [row["pose"].rotation_error_deg(true_poses[k]) for k, row in enumerate(rows)]
-        assert np.median(err) < 0.01 and max(err) < 0.03, err
-        assert np.median(rot) < 0.5, rot
+        # Measured: median 0.73 mm (r1), 1.42 mm (r2); the worst frame (frame 1 of both) 13.5 and 13.8 mm;
+        # median rotation error 0.008 and 0.029 deg.
+        assert np.median(err) < 0.005 and max(err) < 0.03, err
+        assert np.median(rot) < 0.1, rot
     # the log it wrote tracks to the same trajectories
     out2 = tmp_path / "track2"
     assert main(["track", "--rig", str(sim / "rig.yaml"), "--observations", str(out / "log.jsonl"),

@@ -39,7 +39,7 @@ Accuracy on exact supersampled renders of shaded balls (3 cm, 1-3 m,
 f = 800 px, 960x540, textured background; ``tests/test_detect_balls.py``):
 median error about 0.02 px clean and 0.1 px with noise, blur and JPEG.
 Speed: over 100 frames/s of CPU time for four markers on one core
-(``python bench/ball_tools.py`` measures it).
+(``python bench/bench_detectors.py`` measures it).
 
 Pixels follow the SPEC: ``(0, 0)`` is the centre of the top-left pixel.
 """
