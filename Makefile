@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_cli.py
 	$(BIN)/python bench/bench_tags.py
 	$(BIN)/python bench/bench_filter.py
+	$(BIN)/python bench/bench_unsync.py
 	$(BIN)/python bench/bench_team.py
 	$(BIN)/python bench/bench_calibrate.py
 	@echo "figures written to bench/results/"

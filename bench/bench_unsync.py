@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _machine import machine  # noqa: E402
+from _machine import machine, result_file  # noqa: E402
 
 from mutloc.core.filter import MotionNoise  # noqa: E402
 from mutloc.core.geometry import so3_exp  # noqa: E402
@@ -115,7 +115,7 @@ def main() -> None:
             print(f"{name:5s} {cam:20s} median {100 * s['median_translation_m']:.3f} cm ({s['ratio_to_sync']:.2f}x "
                   f"sync)  NEES/3 {s['median_nees']:.2f}  poses {s['rows_with_pose']}  >5 sigma {s['over_5_sigma']}")
         out["scenes"][name] = summary
-    path = Path(__file__).parent / "results" / "unsync.json"
+    path = Path(result_file("unsync.json"))
     path.write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {path}")
 

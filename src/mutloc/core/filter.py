@@ -704,7 +704,7 @@ class MovingFit:
 
 def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float, pose: Pose, *,
                     sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 15,
-                    velocity: np.ndarray | None = None) -> MovingFit | None:
+                    velocity: np.ndarray | None = None, noise: MotionNoise | None = None) -> MovingFit | None:
     """The pose at ``time`` and its constant velocity (the filter's motion
     model: ``R(t_i) = exp(w (t_i - time)) R``, ``t(t_i) = t + v (t_i - time)``)
     that best explain ``problems[i]``'s pixel observations taken at
@@ -712,6 +712,13 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
     time, bridged by the motion.  Gauss-Newton from ``pose`` (and
     ``velocity``, default at rest) on the pixel residuals of every row at its
     own time, with the filter's error-state transition as the chain rule.
+
+    ``noise``: the motion model's acceleration noise; a record ``dt``
+    seconds from ``time`` then also carries the pose's drift from constant
+    velocity over ``dt`` (``q dt^3 / 3`` per axis), projected into its
+    pixels, so that the fit neither trusts far records as if the motion were
+    exactly constant nor fails its test for that (None: exact constant
+    velocity).
 
     Returns None when a marker falls behind its camera or the normal
     equations are singular (the observations do not fix pose and velocity).
@@ -752,6 +759,15 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
                 return None
             res[k:k + m] = np.hypot(r[0::2], r[1::2])
             k += m
+            if noise is not None:
+                if not want:
+                    residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, Ri, ti, r, J, True,
+                              ws)
+                d3 = abs(dt) ** 3 / 3.0
+                Q = np.diag([noise.angular**2 * d3] * 3 + [noise.linear**2 * d3] * 3)
+                W = np.linalg.cholesky(np.eye(2 * m) + (J @ Q @ J.T) / sigma**2)
+                r = np.linalg.solve(W, r)
+                J = np.linalg.solve(W, J)
             cost += float(r @ r)
             if want:
                 cv_transition(vel, dt, F)

@@ -561,8 +561,9 @@ class PairTracker:
         """Start the track from the recent records together (cameras at
         their own times): the pose at ``row.t`` and the velocity fitted to
         every measured observation at its own time (the motion model
-        bridges them).  It starts only where the records hold four or more
-        distinct observations (each fixing the pose without the motion), the
+        bridges them).  Only records of one camera each are bridged (a record
+        of both judges itself).  It starts only where the records hold four
+        or more distinct observations (each fixing the pose without the motion), the
         fit leaves ``MIN_START_DOF`` degrees of freedom and passes its
         chi-square test, and its uncertainty is within the track's limits.
         Returns the row as reported (status ``solved``), or None."""
@@ -577,6 +578,11 @@ class PairTracker:
                 continue
             if len(pair.rows) == 0:
                 continue
+            if len(set(pair.side.tolist())) > 1:
+                # A record of both cameras judges itself (a solve, or a tentative
+                # track that later frames must confirm): only records of one
+                # camera each -- cameras not synchronized -- are bridged.
+                return None
             problems.append(self.problem(pair))
             times.append(r.t)
             obs = pair.parent
@@ -598,7 +604,7 @@ class PairTracker:
             return None
         # ... then pose and velocity from every observation at its own time.
         fit = fit_moving_pose(problems, times, row.t, first.pose, sigma=self.pixel_sigma,
-                              confidence=self.confidence)
+                              confidence=self.confidence, noise=self.options.noise)
         if fit is None or not fit.test.passed or lost_reason(fit.state, self.options):
             return None
         state = self.filter.start(fit.state)
