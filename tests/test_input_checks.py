@@ -122,3 +122,61 @@ def test_track_output_paths_are_checked_before_the_work(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
     assert main(base + ["--out", str(tmp_path / "o")]) == 0
     assert (tmp_path / "o" / "trajectory.csv").exists()
+
+
+def _seen(rig, distance=2.0):
+    """Exact pixels of each robot's view of the other's markers, p facing q."""
+    from mutloc.sim.synthetic import facing_pose
+
+    T = facing_pose(distance)  # x_q = T x_p
+    out = {}
+    for robot, other, pose in (("p", "q", T.inverse()), ("q", "p", T)):
+        cam = rig.robot(robot).camera
+        out[robot] = {n: cam.project((pose.R @ m.position + pose.t)[None])[0].tolist()
+                      for n, m in rig.robot(other).markers.items()}
+    return out
+
+
+@pytest.mark.parametrize("sized", [True, False])
+def test_normalised_coordinates_or_image_fractions_are_not_pixels(sized, tmp_path, capsys):
+    """Observations in normalised coordinates or image fractions are a unit
+    mistake (as millimetres in a rig): refused in one line, not a pose
+    kilometres away; real pixels of a camera of unknown image size still work."""
+    import json
+
+    import numpy as np
+
+    spec = _rig()
+    if not sized:
+        for robot in spec["robots"].values():
+            robot["camera"] = {k: v for k, v in CAM.items() if k != "size"}
+    rig = mutloc.load_rig(spec)
+    pixels = _seen(rig)
+    est = mutloc.localize(rig, pixels)
+    assert est.status == "solved" and abs(np.linalg.norm(est.t) - 2.0) < 1e-6
+    K = np.array(CAM["K"], float)
+    mistakes = {"fractions": lambda uv: (np.array(uv) / np.array(CAM["size"])).tolist(),
+                "normalised": lambda uv: ((np.array(uv) - K[:2, 2]) / K[0, 0]).tolist()}
+    for name, f in mistakes.items():
+        wrong = {r: {n: f(uv) for n, uv in d.items()} for r, d in pixels.items()}
+        with pytest.raises(ObservationError, match="not pixels") as info:
+            mutloc.localize(rig, wrong)
+        assert "'p'" in str(info.value), name
+    (tmp_path / "rig.json").write_text(json.dumps(spec))
+    (tmp_path / "obs.json").write_text(json.dumps(wrong))
+    code = main(["localize", "--rig", str(tmp_path / "rig.json"), "--observations", str(tmp_path / "obs.json")])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and "not pixels" in err and len(err.splitlines()) == 1, err
+
+
+def test_a_camera_in_normalised_units_takes_normalised_observations():
+    """A camera whose principal point is at (0, 0) (K for normalised
+    coordinates) is consistent with observations near zero: not refused."""
+    import numpy as np
+
+    spec = _rig()
+    for robot in spec["robots"].values():
+        robot["camera"] = {"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+    rig = mutloc.load_rig(spec)
+    est = mutloc.localize(rig, _seen(rig))
+    assert abs(np.linalg.norm(est.t) - 2.0) < 1e-6
