@@ -180,3 +180,19 @@ def test_a_camera_in_normalised_units_takes_normalised_observations():
     rig = mutloc.load_rig(spec)
     est = mutloc.localize(rig, _seen(rig))
     assert abs(np.linalg.norm(est.t) - 2.0) < 1e-6
+
+
+def test_unknown_marker_suggests_the_nearest_name(tmp_path, capsys):
+    import json
+
+    obs = {"p": {"m1": [500.0, 250.0], "M2": [400.0, 250.0]}, "q": {"M3": [500.0, 250.0], "M4": [400.0, 250.0]}}
+    with pytest.raises(ObservationError, match="unknown marker 'm1': did you mean 'M1'\\?"):
+        mutloc.localize(_rig(), obs)
+    obs["p"] = {"Z9": [500.0, 250.0], "M2": [400.0, 250.0]}
+    with pytest.raises(ObservationError, match="unknown marker 'Z9' \\(the rig's markers: M1, M2, M3, M4\\)"):
+        mutloc.localize(_rig(), obs)
+    (tmp_path / "rig.json").write_text(json.dumps(_rig()))
+    (tmp_path / "obs.json").write_text(json.dumps({**obs, "p": {"M11": [500.0, 250.0], "M2": [400.0, 250.0]}}))
+    assert main(["localize", "--rig", str(tmp_path / "rig.json"), "--observations", str(tmp_path / "obs.json")]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "did you mean 'M1'?" in err and len(err.splitlines()) == 1, err
