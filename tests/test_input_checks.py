@@ -196,3 +196,33 @@ def test_unknown_marker_suggests_the_nearest_name(tmp_path, capsys):
     assert main(["localize", "--rig", str(tmp_path / "rig.json"), "--observations", str(tmp_path / "obs.json")]) != 0
     err = capsys.readouterr().err.strip()
     assert "did you mean 'M1'?" in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.skipif(not __import__("os").path.isdir("/proc/self"), reason="needs Linux's /proc (nothing can be "
+                    "created there, even by root)")
+def test_every_track_output_is_checked_before_the_work(tmp_path, capsys):
+    """--out, --bag, --mcap, --rerun, --observations-out where nothing can be
+    written, --bag/--mcap that exist, a file where a folder is wanted and
+    one path for two outputs: one line each, exit 2, before anything is
+    written (the trajectory of a run that then fails is not left behind)."""
+    from mutloc.io import save_rig
+    from mutloc.sim.world import standard_rig
+
+    save_rig(standard_rig("balls"), tmp_path / "rig.yaml")
+    log = tmp_path / "log.jsonl"
+    log.write_text('{"time": 0.0, "observations": {}}\n')
+    out = tmp_path / "o"
+    base = ["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(log), "--no-progress"]
+    cases = [(["--out", "/proc/mutloc-o"], "cannot be written (--out)")]
+    for option, name in (("--rerun", "x.rrd"), ("--mcap", "x.mcap"), ("--observations-out", "x.jsonl"),
+                         ("--bag", "bag")):
+        cases.append(([option, f"/proc/mutloc-{name}"], f"cannot be written ({option})"))
+    cases += [(["--mcap", str(log)], "already exists (--mcap)"), (["--bag", str(tmp_path)], "already exists (--bag)"),
+              (["--rerun", str(tmp_path)], "is a folder, not a file (--rerun)"),
+              (["--rerun", str(tmp_path / "a"), "--mcap", str(tmp_path / "a")], "--mcap and --rerun name the same")]
+    for extra, words in cases:
+        args = base + (extra if extra[0] == "--out" else ["--out", str(out)] + extra)
+        assert main(args) == 2, extra
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1, err
+        assert not out.exists(), extra

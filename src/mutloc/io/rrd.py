@@ -30,7 +30,7 @@ import numpy as np
 
 from ..core.pose import Pose
 from ..errors import FileFormatError
-from ._files import PathLike
+from ._files import PathLike, one_line, writable_path
 
 __all__ = ["RerunWriter", "SIGMA_SCALE"]
 
@@ -45,13 +45,14 @@ class RerunWriter:
         import rerun as rr
 
         self.rr = rr
-        self.path = Path(path).expanduser()
-        if self.path.is_dir():
-            raise FileFormatError(f"{self.path}: is a folder (--rerun takes a .rrd file)")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = writable_path(path, "the Rerun recording")
         self.source, self.target = source, target
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(self.path))
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.rec.save(str(self.path))
+        except (OSError, RuntimeError) as exc:
+            raise FileFormatError(f"{self.path}: cannot be written: {one_line(exc)}") from None
         self.positions: dict[str, list[np.ndarray]] = {}
         self.rec.log("world", rr.ViewCoordinates.RDF, static=True)
         self.rec.log(f"world/{target}", rr.TransformAxes3D(0.2), static=True)
