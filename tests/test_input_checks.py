@@ -226,3 +226,36 @@ def test_every_track_output_is_checked_before_the_work(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert words in err and len(err.splitlines()) == 1, err
         assert not out.exists(), extra
+
+
+def test_localize_images_refuses_one_image_twice_swapped_images_and_lights(tmp_path, capsys):
+    """As ``track`` refuses such streams (the same check): one camera's image
+    given for both robots, or the two images swapped, would find a robot's
+    own markers in its own view; lights need a sequence."""
+    import cv2
+    import numpy as np
+
+    from mutloc.errors import InputError
+    from mutloc.io import save_rig
+    from mutloc.sim.render import render, two_robot_world
+    from mutloc.sim.synthetic import facing_pose
+    from mutloc.sim.world import standard_rig
+
+    rig = standard_rig("balls")
+    world = two_robot_world(rig, facing_pose(2.0), seed=1)
+    img = {r: render(world, r, 0.0, seed=1) for r in ("p", "q")}
+    assert mutloc.localize_images(rig, img, allow_unverified=True).estimate.status == "solved"
+    with pytest.raises(InputError, match="same images"):
+        mutloc.localize_images(rig, {"p": img["p"], "q": img["p"]}, allow_unverified=True)
+    with pytest.raises(InputError, match="look swapped"):
+        mutloc.localize_images(rig, {"p": img["q"], "q": img["p"]}, allow_unverified=True)
+    save_rig(rig, tmp_path / "rig.yaml")
+    cv2.imwrite(str(tmp_path / "p.png"), img["p"])
+    assert main(["localize-images", "--rig", str(tmp_path / "rig.yaml"), "--image", f"p={tmp_path / 'p.png'}",
+                 "--image", f"q={tmp_path / 'p.png'}", "--allow-unverified"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "same images" in err and "--image" in err and len(err.splitlines()) == 1, err
+    lights = standard_rig("lights")
+    blank = np.zeros((540, 960, 3), np.uint8)
+    with pytest.raises(InputError, match="blinking lights.*sequence.*mutloc track"):
+        mutloc.localize_images(lights, {"p": blank, "q": blank})
