@@ -138,6 +138,7 @@ def _write(traj, out, args, rig) -> None:
     if args.bag or args.mcap:
         traj.write_ros(bag=args.bag, mcap=args.mcap)
         wrote += [p for p in (args.bag, args.mcap) if p]
+    wrote += [p for p in (args.rerun, args.annotate, args.observations_out) if p]
     print(f"{traj.summary()}; wrote {', '.join(wrote)}")
 
 
