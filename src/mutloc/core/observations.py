@@ -359,6 +359,7 @@ class ObservationSet:
         seen: set[tuple[str, str]] = set()
         duplicates = False
         mine: tuple[list[int], list[int]] = ([], [])
+        uv = self.uv.tolist()
         for i, (o, m) in enumerate(zip(self.observer, self.marker)):
             if o == source:
                 s = 0
@@ -388,7 +389,7 @@ class ObservationSet:
             prow.append(entry[1])
             rows.append(i)
         for s in (0, 1):
-            _check_pixels(self, mine[s], table.K[s], table.sizes[s])
+            _check_pixels(self, mine[s], table.K[s], table.sizes[s], [uv[i] for i in mine[s]])
         if duplicates and not np.all(np.isnan(self.time)) and len(self.times) > 1:
             raise ObservationError("observations of several times: localize one frame at a time (at_time)")
         if duplicates:
@@ -397,31 +398,33 @@ class ObservationSet:
                                 np.array(rows, dtype=np.int64), anonymous, table)
 
 
-def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size: tuple[int, int] | None) -> None:
+def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size: tuple[int, int] | None,
+                  pts: list[list[float]] | None = None) -> None:
     """ObservationError unless the rows ``rows`` (one camera's observations,
     of intrinsics ``K`` and image ``size``) look like raw pixels: each within
     half an image of the image (noise may push a detection just past the
     border; only a pixel far outside -- wrong camera, swapped u/v, wrong
     units -- is wrong), and not all near (0, 0) (:data:`NOT_PIXELS_PX`).
-    An image of unknown size is checked for the second only."""
+    An image of unknown size is checked for the second only.  ``pts``: the
+    rows' pixels as lists, if the caller has them."""
     if not len(rows):
         return
-    uv = obs.uv[rows]
-    o = obs.observer[rows[0]]
-    if size is not None:
-        w, h = size
-        inside = (uv[:, 0] >= -0.5 * w) & (uv[:, 0] <= 1.5 * w) & (uv[:, 1] >= -0.5 * h) & (uv[:, 1] <= 1.5 * h)
-        if not inside.all():
-            k = int(np.flatnonzero(~inside)[0])
-            m = obs.marker[rows[k]]
+    # A few rows per frame, checked for every frame a tracker sees: plain floats are faster than array ops.
+    if pts is None:
+        pts = obs.uv[rows].tolist()
+    near = len(pts) >= 2
+    for k, (u, v) in enumerate(pts):
+        if size is not None and not (-0.5 * size[0] <= u <= 1.5 * size[0] and -0.5 * size[1] <= v <= 1.5 * size[1]):
+            o, m = obs.observer[rows[k]], obs.marker[rows[k]]
             where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
-            raise ObservationError(f"{where}: pixel ({uv[k, 0]:.2f}, {uv[k, 1]:.2f}) is outside the {w}x{h} image "
+            raise ObservationError(f"{where}: pixel ({u:.2f}, {v:.2f}) is outside the {size[0]}x{size[1]} image "
                                    "(observations are raw pixels)")
-    if (len(uv) >= 2 and float(np.abs(uv).max()) <= NOT_PIXELS_PX
-            and math.hypot(float(K[0, 2]), float(K[1, 2])) > 4 * NOT_PIXELS_PX):
-        raise ObservationError(f"observations[{o!r}]: all {len(uv)} pixels are within {NOT_PIXELS_PX:g} px of "
-                               "(0, 0): not pixels (normalised coordinates or image fractions given?); "
-                               "observations are raw pixels")
+        if near and not (abs(u) <= NOT_PIXELS_PX and abs(v) <= NOT_PIXELS_PX):
+            near = False
+    if near and math.hypot(float(K[0, 2]), float(K[1, 2])) > 4 * NOT_PIXELS_PX:
+        raise ObservationError(f"observations[{obs.observer[rows[0]]!r}]: all {len(pts)} pixels are within "
+                               f"{NOT_PIXELS_PX:g} px of (0, 0): not pixels (normalised coordinates or image "
+                               "fractions given?); observations are raw pixels")
 
 
 def _with_parent(pair: "PairObservations", parent: ObservationSet | None) -> "PairObservations":
