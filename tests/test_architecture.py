@@ -87,3 +87,22 @@ def test_core_imports_no_io_and_nothing_around_it():
 def test_detector_files_stay_small(path):
     n = len(path.read_text(encoding="utf-8").splitlines())
     assert n <= 650, f"{path.relative_to(ROOT)} has {n} lines: split it into stages"
+
+
+@pytest.mark.parametrize("first", ["attribute", "subpackage"])
+def test_mutloc_track_is_the_subpackage_whatever_is_imported_first(first):
+    """``mutloc.track`` is the subpackage before and after ``import
+    mutloc.track``; the tracker is ``mutloc.track_streams`` (run in a fresh
+    interpreter: the order of imports is what is tested)."""
+    import subprocess
+    import sys
+
+    steps = {"attribute": "import mutloc\nfirst = mutloc.track\nfn = mutloc.track_streams\nimport mutloc.track\n",
+             "subpackage": "import mutloc.track\nimport mutloc\nfirst = mutloc.track\nfn = mutloc.track_streams\n"}
+    code = steps[first] + (
+        "import types\nimport mutloc.track.tracker as tracker\n"
+        "assert isinstance(first, types.ModuleType) and first is mutloc.track, first\n"
+        "assert fn is tracker.track and mutloc.track_log is tracker.track_log\n"
+        "from mutloc import track\nassert track is mutloc.track\nprint('ok')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-800:]

@@ -373,3 +373,46 @@ def test_python_dash_m(tmp_path):
     assert r.returncode == 2 and r.stdout == ""
     assert len(r.stderr.splitlines()) == 1 and r.stderr.startswith("mutloc: error: ")
     assert "rig.yaml" in r.stderr and "robots" in r.stderr
+
+
+def test_compiling_kernels_is_announced_once_on_a_cold_cache_only(tmp_path):
+    """The first use of a kernel compiles in silence for up to a minute: on a
+    cold cache (and stderr a terminal) one line says so; a warm cache, or
+    stderr that is not a terminal, gets nothing.  A tiny kernel of the
+    test's own stands for mutloc's (the notice listens to every compilation
+    in the process), in either import order."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    script = tmp_path / "kernel.py"
+    script.write_text("import sys\nif sys.argv[1] == 'numba-first':\n    import numba\nimport mutloc\nimport numba\n\n"
+                      "@numba.njit(cache=True)\ndef f(x):\n    return x + 1\n\nprint(f(1))\n")
+
+    def run(order: str, tty: bool = True) -> str:
+        env = {**os.environ, "MUTLOC_CACHE_DIR": str(tmp_path / f"cache-{order}")}
+        env.pop("NUMBA_CACHE_DIR", None)
+        master, slave = pty.openpty() if tty else (None, subprocess.PIPE)
+        out = subprocess.run([sys.executable, str(script), order], stdout=subprocess.PIPE, stderr=slave, env=env,
+                             timeout=120)
+        if not tty:
+            return out.stderr.decode()
+        os.close(slave)
+        err = b""
+        try:
+            while chunk := os.read(master, 4096):
+                err += chunk
+        except OSError:  # the terminal's other end is closed
+            pass
+        os.close(master)
+        assert out.returncode == 0 and out.stdout.strip() == b"2", err
+        return err.decode()
+
+    for order in ("mutloc-first", "numba-first"):
+        cold = run(order)
+        assert cold.count("compiling numerical kernels once (cached in") == 1, cold
+        assert str(tmp_path / f"cache-{order}") in cold
+    assert run("mutloc-first") == ""  # warm
+    (tmp_path / "cache-mutloc-first").rename(tmp_path / "kept")
+    assert "compiling" not in run("mutloc-first", tty=False)  # cold, but not a terminal

@@ -71,16 +71,27 @@ def test_rerun_from_a_log(tmp_path):
 
 
 def test_rerun_from_images_has_the_images_and_labelled_detections(tmp_path):
+    """... the images as JPEG: the file is a fraction of the raw frames'
+    size, and each image decodes to the frame that was tracked."""
+    import cv2
+
     from mutloc.track.tracker import track
     from test_pipeline import _sequence
 
     rig, frames, truth = _sequence("balls", 2, 10.0, seed=3)
     rrd = tmp_path / "img.rrd"
     traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=10.0, progress=False, rerun=rrd)
+    raw = sum(f.image.nbytes for fs in frames.values() for f in fs)
+    assert rrd.stat().st_size < raw / 4, (rrd.stat().st_size, raw)
     data = _read(rrd)
     for robot, seen in (("p", {"M1", "M2"}), ("q", {"M3", "M4"})):
         imgs = data[f"/images/{robot}"]
         assert len(imgs) == 2
+        for rec, frame in zip(imgs, frames[robot]):
+            assert rec["EncodedImage:media_type"] == ["image/jpeg"]
+            back = cv2.imdecode(np.frombuffer(bytes(rec["EncodedImage:blob"][0]), np.uint8), cv2.IMREAD_COLOR)
+            assert back.shape == frame.image.shape
+            assert np.abs(back.astype(int) - frame.image).mean() < 3.0
         dets = data[f"/images/{robot}/detections"]
         assert len(dets) == 2
         for d, row in zip(dets, traj.rows):
@@ -89,3 +100,4 @@ def test_rerun_from_images_has_the_images_and_labelled_detections(tmp_path):
             for name, uv in zip(d["Points2D:labels"], d["Points2D:positions"]):
                 np.testing.assert_allclose(uv, det[name].uv, atol=1e-3)
     assert len(data["/world/p"]) == 2
+

@@ -69,6 +69,7 @@ def test_simulate_team_then_localize(tmp_path, capsys):
     out = tmp_path / "team"
     rc, stdout, err = _run(["simulate", "--robots", "4", "--out", str(out), "--no-images", "--seed", "3"], capsys)
     assert rc == 0, err
+    assert "rendering" not in err  # nothing is rendered: no rendering bar
     assert {p.name for p in out.iterdir()} == {"rig.yaml", "observations.json", "truth.json"}
     truth = json.loads((out / "truth.json").read_text())
     assert truth["reference"] == "r0" and set(truth["robots"]) == {"r1", "r2", "r3"}

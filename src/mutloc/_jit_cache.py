@@ -6,15 +6,22 @@ version of a callee in another file is silently reused.  Keying the cache
 folder on a hash of mutloc's own sources makes every change of the package
 start from a clean cache, and keeps compiled code out of site-packages.
 Imported by ``mutloc/__init__`` before any kernel is defined.
+
+The first use of each kernel after a change compiles it, for up to a minute
+in all: when that happens (a cold cache) and stderr is a terminal, one line
+says so (:func:`announce_compiling`); a warm cache compiles nothing and says
+nothing.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.machinery
 import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 
 def _source_hash() -> str:
@@ -60,4 +67,64 @@ def configure() -> str | None:
     return None
 
 
+def _notice_on_compile(numba: Any, folder: str | None) -> None:
+    """Register with Numba's events: the first compilation (a kernel not in
+    the cache) writes one line to stderr, if stderr is a terminal."""
+    from numba.core import event
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, ev: Any) -> None:
+            if Notice.said:
+                return
+            Notice.said = True
+            stream = sys.stderr
+            if stream is not None and getattr(stream, "isatty", lambda: False)():
+                where = f" (cached in {folder})" if folder else ""
+                stream.write(f"mutloc: compiling numerical kernels once{where}; this can take a minute\n")
+                stream.flush()
+
+        def on_end(self, ev: Any) -> None:
+            pass
+
+    event.register("numba:compile", Notice())
+
+
+class _AfterNumbaImport:
+    """A ``sys.meta_path`` finder that lets Numba load as usual, then calls
+    :func:`_notice_on_compile` (Numba is not imported before it is needed)."""
+
+    def __init__(self, folder: str | None) -> None:
+        self.folder = folder
+
+    def find_spec(self, name: str, path: Any = None, target: Any = None) -> Any:
+        if name != "numba":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.machinery.PathFinder.find_spec(name, path)
+        loader = getattr(spec, "loader", None)
+        if loader is None or not hasattr(loader, "exec_module"):
+            return spec
+        run = loader.exec_module
+        folder = self.folder
+
+        def exec_module(module: Any) -> None:
+            run(module)
+            _notice_on_compile(module, folder)
+
+        loader.exec_module = exec_module
+        return spec
+
+
+def announce_compiling(folder: str | None) -> None:
+    """Say so on stderr when Numba compiles a kernel (once per process)."""
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        _notice_on_compile(numba, folder)
+    elif not any(isinstance(f, _AfterNumbaImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterNumbaImport(folder))
+
+
 CACHE_DIR = configure()
+announce_compiling(CACHE_DIR)

@@ -319,9 +319,11 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     if passed is False:
         raise InconsistentObservationsError(_inconsistency_message(est, pair, rows, sol, pixel_sigma), est)
     if passed is None and not allow_unverified:
+        k = len(est.candidates)
+        fit = "a pose fits them exactly" if k == 1 else f"{k} poses fit them exactly"
         raise UnverifiedError(
             f"only {n} marker observations between {source!r} and {target!r} ({', '.join(names)}): "
-            f"{len(est.candidates)} poses fit them exactly and nothing can verify the one chosen; accept the risk "
+            f"{fit} and nothing can verify {'it' if k == 1 else 'the one chosen'}; accept the risk "
             "with --allow-unverified (allow_unverified=True) or observe a fourth marker", est)
     return est
 

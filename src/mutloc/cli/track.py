@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ._common import NOISE, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map, robot_value, team_mode
 
@@ -61,21 +62,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Track and write the trajectory."""
-    from pathlib import Path
-
-    from ..io import load_rig, output_folder
+    from ..io import load_rig
     from ..core.filter import MotionNoise
-    from ..errors import FileFormatError, InputError, RigError
+    from ..errors import InputError, RigError
     from ..io.logs import iter_observation_log
     from ..track.filtering import FilterOptions
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.tracker import track, track_log
 
-    for path in (args.bag, args.mcap):
-        if path and Path(path).expanduser().exists():
-            raise FileFormatError(f"{path}: already exists (--bag and --mcap write to a new path)")
+    out = check_outputs(args)  # before the work; folders are created by the writers
     rig = load_rig(args.rig)
-    out = output_folder(args.out, create=False)  # checked before the work, created by the writers
     if args.frames == "base" and not team_mode(rig, args):
         for robot in rig.default_pair(args.source, args.target):
             if rig.robot(robot).base_from_camera is None:
@@ -110,6 +106,31 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_outputs(args: argparse.Namespace) -> Path:
+    """Every output path checked before the work, one line for the first
+    wrong one (a file where a folder is wanted or the reverse, --bag/--mcap
+    that exist, a place nothing can be written to, one path given for two
+    outputs); returns --out."""
+    from ..errors import InputError
+    from ..io import writable_path
+
+    seen: dict = {}
+    out = None
+    for option, path, folder, new in (("--out", args.out, True, False), ("--bag", args.bag, True, True),
+                                      ("--mcap", args.mcap, False, True), ("--rerun", args.rerun, False, False),
+                                      ("--annotate", args.annotate, False, False),
+                                      ("--observations-out", args.observations_out, False, False)):
+        if path is None:
+            continue
+        p = writable_path(path, option, folder=folder, new=new)
+        key = p.resolve()
+        if key in seen:
+            raise InputError(f"{seen[key]} and {option} name the same path {path}")
+        seen[key] = option
+        out = p if option == "--out" else out
+    return out
+
+
 def _write(traj, out, args, rig) -> None:
     if args.frames == "base":
         traj = traj.in_base_frames(rig)
@@ -119,6 +140,7 @@ def _write(traj, out, args, rig) -> None:
     if args.bag or args.mcap:
         traj.write_ros(bag=args.bag, mcap=args.mcap)
         wrote += [p for p in (args.bag, args.mcap) if p]
+    wrote += [p for p in (args.rerun, args.annotate, args.observations_out) if p]
     print(f"{traj.summary()}; wrote {', '.join(wrote)}")
 
 

@@ -31,6 +31,12 @@ __all__ = ["Observation", "ObservationSet", "PairObservations", "MIN_OBSERVATION
 #: A relative pose has six degrees of freedom and each marker gives two.
 MIN_OBSERVATIONS = 3
 
+#: Two or more observations of one camera all within this many pixels of
+#: (0, 0) are not pixels: normalised coordinates or image fractions (a unit
+#: mistake, as millimetres in a rig), unless the camera's principal point
+#: is there too (a camera given in normalised units).
+NOT_PIXELS_PX = 2.0
+
 
 @dataclass(frozen=True)
 class Observation:
@@ -298,7 +304,9 @@ class ObservationSet:
     def check(self, rig: Any) -> "ObservationSet":
         """Raise ObservationError (naming observer and marker) for an unknown
         robot or marker, a robot seeing its own marker, or a pixel far outside
-        the observer's image; returns ``self``."""
+        the observer's image, or pixels that are not pixels (see
+        :func:`_check_pixels`); returns ``self``."""
+        rows: dict[str, list[int]] = {}
         for i in range(len(self)):
             o, m = self.observer[i], self.marker[i]
             where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
@@ -308,14 +316,10 @@ class ObservationSet:
                 owner = rig.owner(m)
                 if owner == o:
                     raise ObservationError(f"{where}: robot {o!r} cannot observe its own marker {m!r}")
-            size = rig.robots[o].camera.size
-            if size is not None:
-                # Noise may push a detection just past the border; only a pixel
-                # far outside (wrong camera, swapped u/v, wrong units) is wrong.
-                w, h = size
-                u, v = self.uv[i]
-                if not (-0.5 * w <= u <= 1.5 * w and -0.5 * h <= v <= 1.5 * h):
-                    raise ObservationError(f"{where}: pixel ({u:.2f}, {v:.2f}) is outside the {w}x{h} image")
+            rows.setdefault(o, []).append(i)
+        for o, idx in rows.items():
+            camera = rig.robots[o].camera
+            _check_pixels(self, idx, camera.K, camera.size)
         return self
 
     def pair(self, rig: Any, source: str, target: str) -> "PairObservations":
@@ -354,6 +358,7 @@ class ObservationSet:
         anonymous: dict[int, list[int]] = {}
         seen: set[tuple[str, str]] = set()
         duplicates = False
+        mine: tuple[list[int], list[int]] = ([], [])
         uv = self.uv.tolist()
         for i, (o, m) in enumerate(zip(self.observer, self.marker)):
             if o == source:
@@ -367,15 +372,7 @@ class ObservationSet:
                     raise ObservationError(f"observations[{o!r}][{m!r}]: robot {o!r} cannot observe its own "
                                            f"marker {m!r}")
                 continue
-            size = table.sizes[s]
-            if size is not None:
-                # Noise may push a detection just past the border; only a pixel
-                # far outside (wrong camera, swapped u/v, wrong units) is wrong.
-                w, h = size
-                u, v = uv[i]
-                if not (-0.5 * w <= u <= 1.5 * w and -0.5 * h <= v <= 1.5 * h):
-                    where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
-                    raise ObservationError(f"{where}: pixel ({u:.2f}, {v:.2f}) is outside the {w}x{h} image")
+            mine[s].append(i)
             if m is None:
                 anonymous.setdefault(s, []).append(i)
                 continue
@@ -391,12 +388,43 @@ class ObservationSet:
             side.append(s)
             prow.append(entry[1])
             rows.append(i)
+        for s in (0, 1):
+            _check_pixels(self, mine[s], table.K[s], table.sizes[s], [uv[i] for i in mine[s]])
         if duplicates and not np.all(np.isnan(self.time)) and len(self.times) > 1:
             raise ObservationError("observations of several times: localize one frame at a time (at_time)")
         if duplicates:
             return self.best().pair(rig, source, target)
         return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
                                 np.array(rows, dtype=np.int64), anonymous, table)
+
+
+def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size: tuple[int, int] | None,
+                  pts: list[list[float]] | None = None) -> None:
+    """ObservationError unless the rows ``rows`` (one camera's observations,
+    of intrinsics ``K`` and image ``size``) look like raw pixels: each within
+    half an image of the image (noise may push a detection just past the
+    border; only a pixel far outside -- wrong camera, swapped u/v, wrong
+    units -- is wrong), and not all near (0, 0) (:data:`NOT_PIXELS_PX`).
+    An image of unknown size is checked for the second only.  ``pts``: the
+    rows' pixels as lists, if the caller has them."""
+    if not len(rows):
+        return
+    # A few rows per frame, checked for every frame a tracker sees: plain floats are faster than array ops.
+    if pts is None:
+        pts = obs.uv[rows].tolist()
+    near = len(pts) >= 2
+    for k, (u, v) in enumerate(pts):
+        if size is not None and not (-0.5 * size[0] <= u <= 1.5 * size[0] and -0.5 * size[1] <= v <= 1.5 * size[1]):
+            o, m = obs.observer[rows[k]], obs.marker[rows[k]]
+            where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
+            raise ObservationError(f"{where}: pixel ({u:.2f}, {v:.2f}) is outside the {size[0]}x{size[1]} image "
+                                   "(observations are raw pixels)")
+        if near and not (abs(u) <= NOT_PIXELS_PX and abs(v) <= NOT_PIXELS_PX):
+            near = False
+    if near and math.hypot(float(K[0, 2]), float(K[1, 2])) > 4 * NOT_PIXELS_PX:
+        raise ObservationError(f"observations[{obs.observer[rows[0]]!r}]: all {len(pts)} pixels are within "
+                               f"{NOT_PIXELS_PX:g} px of (0, 0): not pixels (normalised coordinates or image "
+                               "fractions given?); observations are raw pixels")
 
 
 def _with_parent(pair: "PairObservations", parent: ObservationSet | None) -> "PairObservations":

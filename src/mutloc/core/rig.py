@@ -5,6 +5,7 @@ Pure data and validation; reading rig files lives in :mod:`mutloc.io.rig`.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Mapping
@@ -165,7 +166,12 @@ class Rig:
         try:
             return self._owner[marker]
         except KeyError:
-            raise UnknownMarkerError(f"unknown marker {marker!r}") from None
+            names = sorted(self._owner)
+            lower = {n.lower(): n for n in reversed(names)}
+            near = difflib.get_close_matches(str(marker).lower(), list(lower), n=1)
+            hint = (f": did you mean {lower[near[0]]!r}?" if near else
+                    f" (the rig's markers: {', '.join(names[:8])}{', ...' if len(names) > 8 else ''})")
+            raise UnknownMarkerError(f"unknown marker {marker!r}{hint}") from None
 
     def marker(self, name: str) -> Marker:
         return self.robots[self.owner(name)].markers[name]

@@ -11,6 +11,7 @@ import json
 import math
 import os
 import re
+import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
@@ -34,18 +35,52 @@ __all__ = [
     "key_name",
     "to_builtin",
     "output_folder",
+    "writable_path",
 ]
 
 
-def output_folder(path: PathLike, create: bool = True) -> Path:
+def output_folder(path: PathLike, create: bool = True, what: str = "") -> Path:
     """``path`` as a folder to write into (created if missing and
-    ``create``); a one-line error if it, or a folder above it, is a file."""
-    p = Path(path).expanduser()
-    for d in (p, *p.parents):
-        if d.exists() and not d.is_dir():
-            raise FileFormatError(f"{d}: exists and is not a folder (writing into {p})")
+    ``create``); a one-line error if it, or a folder above it, is a file, or
+    nothing can be written there (``what``: the option, for the message)."""
+    p = writable_path(path, what, folder=True)
     if create:
         p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def writable_path(path: PathLike, what: str = "", *, folder: bool = False, new: bool = False) -> Path:
+    """``path`` checked for writing before any work: FileFormatError in one
+    line (naming ``what``, e.g. the option) if a folder above it is a file,
+    it is a folder and a file is wanted (or the reverse), it exists and
+    ``new`` is asked, or the place refuses a file (read-only, ``/proc``, no
+    permission: tried with a probe file, removed at once).  Nothing is
+    created: missing folders are made by the writer."""
+    p = Path(path).expanduser()
+    label = f" ({what})" if what else ""
+    tail = f" ({what} {p})" if what else f" (writing {p})"
+    for d in p.parents:
+        if d.exists() and not d.is_dir():
+            raise FileFormatError(f"{d}: exists and is not a folder{tail}")
+    if p.exists() or p.is_symlink():
+        if new:
+            raise FileFormatError(f"{p}: already exists{label}: give a new path")
+        if folder and not p.is_dir():
+            raise FileFormatError(f"{p}: exists and is not a folder{tail}")
+        if not folder and p.is_dir():
+            raise FileFormatError(f"{p}: is a folder, not a file{label}")
+    place = p if p.exists() else next(d for d in p.parents if d.exists())
+    try:
+        if p.is_file():
+            with open(p, "ab"):
+                pass
+        else:
+            fd, probe = tempfile.mkstemp(prefix=".mutloc-probe-", dir=place)
+            os.close(fd)
+            os.unlink(probe)
+    except OSError as exc:
+        where = "" if place == p else f"nothing can be created in {place}: "
+        raise FileFormatError(f"{p}: cannot be written{label}: {where}{exc.strerror or exc}") from None
     return p
 
 

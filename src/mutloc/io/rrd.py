@@ -14,8 +14,9 @@ Entities (time line ``time``, seconds):
 - a team (``source`` None): per robot ``world/ROBOT``,
   ``world/ROBOT_uncertainty``, ``world/trajectory_ROBOT`` and ``status/ROBOT``;
 - ``images/ROBOT`` and ``images/ROBOT/detections`` -- when tracking from
-  images: each camera's image and the detected markers, labelled with their
-  names (``Points2D``).
+  images: each camera's image (JPEG, quality :data:`JPEG_QUALITY`:
+  ``EncodedImage``; raw frames would take 1.5 MB each at 960x540) and the
+  detected markers, labelled with their names (``Points2D``).
 
 Read it back with ``rerun.chunk.RrdReader(path)``, or open it in the viewer
 (``rerun FILE.rrd``).
@@ -30,12 +31,15 @@ import numpy as np
 
 from ..core.pose import Pose
 from ..errors import FileFormatError
-from ._files import PathLike
+from ._files import PathLike, one_line, writable_path
 
-__all__ = ["RerunWriter", "SIGMA_SCALE"]
+__all__ = ["RerunWriter", "SIGMA_SCALE", "JPEG_QUALITY"]
 
 #: Ellipsoid half-axes in standard deviations.
 SIGMA_SCALE = 3.0
+
+#: JPEG quality of the images in a recording.
+JPEG_QUALITY = 85
 
 
 class RerunWriter:
@@ -45,13 +49,14 @@ class RerunWriter:
         import rerun as rr
 
         self.rr = rr
-        self.path = Path(path).expanduser()
-        if self.path.is_dir():
-            raise FileFormatError(f"{self.path}: is a folder (--rerun takes a .rrd file)")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = writable_path(path, "the Rerun recording")
         self.source, self.target = source, target
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(self.path))
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.rec.save(str(self.path))
+        except (OSError, RuntimeError) as exc:
+            raise FileFormatError(f"{self.path}: cannot be written: {one_line(exc)}") from None
         self.positions: dict[str, list[np.ndarray]] = {}
         self.rec.log("world", rr.ViewCoordinates.RDF, static=True)
         self.rec.log(f"world/{target}", rr.TransformAxes3D(0.2), static=True)
@@ -83,10 +88,19 @@ class RerunWriter:
                         rr.Ellipsoids3D(centers=[pose.t], half_sizes=[SIGMA_SCALE * np.sqrt(np.maximum(w, 0.0))],
                                         quaternions=[q], labels=[f"{status}"]))
         for robot, (image, detections) in (images or {}).items():
-            rec.log(f"images/{robot}", rr.Image(image, color_model="BGR" if image.ndim == 3 else "L"))
+            rec.log(f"images/{robot}", self._jpeg(image))
             names = list(detections)
             pts = np.array([detections[n] for n in names], float).reshape(-1, 2)
             rec.log(f"images/{robot}/detections", rr.Points2D(pts, labels=names, radii=6.0, show_labels=True))
+
+    def _jpeg(self, image: np.ndarray) -> Any:
+        """A BGR (or grey) image as a JPEG ``EncodedImage``."""
+        import cv2
+
+        ok, data = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if not ok:
+            return self.rr.Image(image, color_model="BGR" if image.ndim == 3 else "L")
+        return self.rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
     def close(self) -> None:
         """Write the whole trajectory and close the file."""

@@ -183,7 +183,7 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
             (out_dir / n).mkdir(exist_ok=True)
     truth_frames = []
     poses: list[dict[str, Pose]] = []
-    bar = tqdm(range(frames), desc="rendering", unit="frame", disable=not progress)
+    bar = tqdm(range(frames), desc="rendering", unit="frame", disable=not (progress and images))
     for i in bar:
         t = i / fps if sequence else 0.0
         obs, hidden = {}, {}

@@ -78,6 +78,30 @@ def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str
     return result
 
 
+def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image_t: np.ndarray, *,
+                  what: str = "streams", option: str = "--stream/--topic") -> dict[str, DetectionResult]:
+    """InputError when the first pair of images says the inputs are wrong:
+    the same images for both robots (one camera's video or image given
+    twice), or each robot's images showing its own markers and not the
+    other's (swapped).  ``what`` and ``option`` name the inputs in the
+    message (``"images"``, ``"--image"`` for one image per robot).  Returns
+    what each robot's image shows of the other's markers (its detections)."""
+    if image_s.shape == image_t.shape and np.array_equal(image_s, image_t):
+        raise InputError(f"the {what} of {source!r} and {target!r} show the same images: one camera's "
+                         f"{'video' if what == 'streams' else 'image'} given for both robots? (check {option})")
+    found = {}
+    seen = {}
+    for robot, image in ((source, image_s), (target, image_t)):
+        other = target if robot == source else source
+        own = detect_markers(rig, robot, image, targets=[robot])
+        seen[robot] = detect_markers(rig, robot, image, targets=[other])
+        found[robot] = (len(own.detections), len(seen[robot].detections))
+    if all(own >= 2 and own > theirs for own, theirs in found.values()):
+        raise InputError(f"the {what} look swapped: those of {source!r} show {source!r}'s own markers and those of "
+                         f"{target!r} {target!r}'s (check {option})")
+    return seen
+
+
 def _add_tag_corners(found: DetectionResult, tags: Mapping[str, Marker]) -> None:
     """An oriented tag's corners are markers of their own (NAME#0..3) and
     replace its centre: the centre is computed from the corners, so keeping
@@ -104,6 +128,16 @@ def expanded_rig(rig: Rig) -> Rig:
 
         rig = expand_cylinder_bands(rig)
     return rig
+
+
+def _refuse_lights(rig: Rig, source: str, target: str) -> None:
+    """InputError when a robot of the pair carries only blinking lights:
+    found by their blink, they need a sequence of images, not one."""
+    for robot in (source, target):
+        kinds = {m.kind for m in rig.robot(robot).markers.values() if m.kind in DETECTED_KINDS}
+        if kinds == {MarkerKind.LIGHT}:
+            raise InputError(f"robot {robot!r} carries blinking lights (blink_hz): they are found by their blink, "
+                             "in a sequence of images, not in one (use mutloc track)")
 
 
 def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target: str | None,
@@ -133,14 +167,10 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
     """Detect the markers in one image per robot (arrays or file paths) and
     localize ``source`` in ``target``'s frame (``options`` as :func:`mutloc.localize`)."""
     rig, source, target = prepare_pair(rig, images, source, target, "image")
-    detections: dict[str, DetectionResult] = {}
-    loaded: dict[str, np.ndarray] = {}
-    for observer, other in ((source, target), (target, source)):
-        img = images[observer]
-        if isinstance(img, (str, Path)):
-            img = read_image(img)
-        loaded[observer] = img
-        detections[observer] = detect_markers(rig, observer, img, targets=[other])
+    _refuse_lights(rig, source, target)
+    loaded = {r: read_image(images[r]) if isinstance(images[r], (str, Path)) else images[r] for r in (source, target)}
+    detections = check_streams(rig, source, target, as_bgr(loaded[source], f"image of robot {source!r}"),
+                               as_bgr(loaded[target], f"image of robot {target!r}"), what="images", option="--image")
     est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
     # Partly hidden balls are measured again where the pose puts them (only
     # when a ball is partly hidden or missing; see .second_look).

@@ -28,7 +28,7 @@ from ..io.logs import ObservationLogWriter
 from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
 from .filtering import FilterOptions, PairTracker
-from .frames import detect_markers, expanded_rig, observations_of, prepare_pair
+from .frames import check_streams, detect_markers, expanded_rig, observations_of, prepare_pair
 from .second_look import look_again
 from .sources import Frame
 from .status import FrameStatus
@@ -359,21 +359,3 @@ def _rerun_row(viz: Any, row: TrackRow, images: Mapping[str, Any] | None = None)
 
 def _options(filter: str | FilterOptions) -> FilterOptions:
     return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter)
-
-
-def check_streams(rig: Rig, source: str, target: str, image_s: np.ndarray, image_t: np.ndarray) -> None:
-    """InputError when the first pair of images says the streams are wrong:
-    the same images for both robots (one video given twice), or each robot's
-    images showing its own markers and not the other's (streams swapped)."""
-    if image_s.shape == image_t.shape and np.array_equal(image_s, image_t):
-        raise InputError(f"the streams of {source!r} and {target!r} show the same images: one camera's video "
-                         "given for both robots?")
-    found = {}
-    for robot, image in ((source, image_s), (target, image_t)):
-        other = target if robot == source else source
-        own = detect_markers(rig, robot, image, targets=[robot])
-        theirs = detect_markers(rig, robot, image, targets=[other])
-        found[robot] = (len(own.detections), len(theirs.detections))
-    if all(own >= 2 and own > theirs for own, theirs in found.values()):
-        raise InputError(f"the streams look swapped: {source!r}'s images show {source!r}'s own markers and "
-                         f"{target!r}'s show {target!r}'s (check --stream/--topic)")
