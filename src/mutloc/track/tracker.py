@@ -24,6 +24,7 @@ from ..core.pose import Pose, sandwich_covariance
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult
 from ..errors import InputError
+from ..io import writable_path
 from ..io.logs import ObservationLogWriter
 from ..io.trajectory import write_trajectory_csv, write_tum
 from .annotate import Annotator
@@ -321,6 +322,8 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
     ObservationSets stamped with their time); ``filter`` and ``rerun`` as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
     source, target = rig.default_pair(source, target)
+    if rerun is not None:
+        writable_path(rerun, "rerun")  # before the work, not after it
     tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
                           options=_options(filter))
     rows: list[TrackRow] = []
