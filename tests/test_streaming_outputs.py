@@ -54,7 +54,7 @@ out = Path(sys.argv[1])
 try:
     with TrajectoryCsvWriter(out / "trajectory.csv", EXTRA) as csv_w, TumWriter(out / "trajectory.tum", "p in q") as tum, \\
             ObservationLogWriter(out / "log.jsonl") as log, Ros2BagWriter(out / "bag", [("p", "q")]) as bag, \\
-            McapPoseWriter(out / "traj.mcap", [("p", "q")]) as mcap, RerunWriter(out / "track.rrd", "p", "q") as rrd:
+            Ros2BagWriter(out / "bag_mcap", [("p", "q")], storage="mcap") as bag_mcap, McapPoseWriter(out / "traj.mcap", [("p", "q")]) as mcap, RerunWriter(out / "track.rrd", "p", "q") as rrd:
         print("ready", flush=True)
         for i in range(N_ROWS):
             r = expected_row(i)
@@ -62,6 +62,7 @@ try:
             tum.write(r["t"], r["pose"])
             log.write(r["t"], r["observations"])
             bag.write(r["t"], r["pose"], r["covariance"])
+            bag_mcap.write(r["t"], r["pose"], r["covariance"])
             mcap.write(r["t"], r["pose"], r["covariance"])
             rrd.write(r["t"], r["status"], r["reason"], r["pose"], r["covariance"])
             print(i, flush=True)
@@ -103,7 +104,7 @@ def _run_and_stop(out, sig, k):
     return reported + 1
 
 
-def _same_pose(pose, row, atol=1e-9):
+def _same_pose(pose, row, atol=1e-8):  # text files: 9 decimals
     np.testing.assert_allclose(pose.t, row["pose"].t, atol=atol)
     np.testing.assert_allclose(pose.R, row["pose"].R, atol=atol)
 
@@ -157,14 +158,15 @@ def _check_files(out, k, clean):
                                         ts.transform.translation.z], want["pose"].t, atol=1e-12)
         return len(pose_msgs)
 
-    with Reader(out / "bag") as reader:
-        msgs = [(c.topic, t, store.deserialize_cdr(raw, c.msgtype)) for c, t, raw in reader.messages()]
-        meta_count = reader.message_count
-    counts["bag"] = check_ros(msgs, "bag")
-    if clean:  # metadata.yaml is final; after a kill it may lag (refreshed every second)
-        assert meta_count == len(msgs)
-    else:
-        assert meta_count <= len(msgs)
+    for bag in ("bag", "bag_mcap"):
+        with Reader(out / bag) as reader:
+            msgs = [(c.topic, t, store.deserialize_cdr(raw, c.msgtype)) for c, t, raw in reader.messages()]
+            meta_count = reader.message_count
+        counts[bag] = check_ros(msgs, bag)
+        if clean:  # metadata.yaml is final; after a kill it may lag (refreshed every second)
+            assert meta_count == len(msgs)
+        else:
+            assert meta_count <= len(msgs)
 
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -199,7 +201,7 @@ def _check_files(out, k, clean):
 
     n_posed_k = sum(r["pose"] is not None for r in rows[:k])
     for name, n in counts.items():
-        need = n_posed_k if name in ("tum", "bag", "mcap") else k
+        need = n_posed_k if name in ("tum", "bag", "bag_mcap", "mcap") else k
         assert n >= need, (name, n, need, counts)
         assert n <= N_ROWS
     return counts
@@ -216,7 +218,8 @@ def test_stopped_run_leaves_every_file_readable(tmp_path, sig):
     if sig == signal.SIGINT:  # closed cleanly: every file holds the same rows
         n = counts["csv"]
         n_posed = sum(expected_row(i)["pose"] is not None for i in range(n))
-        assert counts == {"csv": n, "tum": n_posed, "log": n, "bag": n_posed, "mcap": n_posed, "rrd": n}, counts
+        assert counts == {"csv": n, "tum": n_posed, "log": n, "bag": n_posed, "bag_mcap": n_posed, "mcap": n_posed,
+                          "rrd": n}, counts
     assert not list(tmp_path.glob(".*.part"))
 
 
@@ -298,12 +301,13 @@ def test_text_file_appears_with_its_header(tmp_path):
     assert sorted(x.name for x in tmp_path.iterdir()) == ["a.tum", "t.csv"]
 
 
-def test_ros_writers_are_readable_while_open(tmp_path):
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_ros_writers_are_readable_while_open(tmp_path, storage):
     from mcap.reader import make_reader
     from rosbags.rosbag2 import Reader
 
     rows = [r for r in (expected_row(i) for i in range(5)) if r["pose"] is not None]
-    with Ros2BagWriter(tmp_path / "bag", [("p", "q")]) as bag, McapPoseWriter(tmp_path / "a.mcap", [("p", "q")]) as m:
+    with Ros2BagWriter(tmp_path / "bag", [("p", "q")], storage=storage) as bag, McapPoseWriter(tmp_path / "a.mcap", [("p", "q")]) as m:
         for n, r in enumerate(rows, 1):
             bag.write(r["t"], r["pose"], r["covariance"], track="p")
             m.write(r["t"], r["pose"], r["covariance"])
@@ -315,3 +319,9 @@ def test_ros_writers_are_readable_while_open(tmp_path):
         assert bag.rows == m.rows == len(rows)
     with Reader(tmp_path / "a.mcap") as reader:
         assert {c.topic: c.msgtype for c in reader.connections}["/mutloc/p_in_q"] == POSE_TYPE
+    with Reader(tmp_path / "bag") as reader:
+        assert reader.message_count == 2 * len(rows) and len(reader.connections) == 2
+        assert {x.name for x in (tmp_path / "bag").iterdir()} == {"metadata.yaml",
+                                                                 "bag.mcap" if storage == "mcap" else "bag.db3"}
+    with pytest.raises(ValueError, match="bag storage"):
+        Ros2BagWriter(tmp_path / "bag2", [("p", "q")], storage="zip")

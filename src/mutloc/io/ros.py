@@ -33,7 +33,7 @@ from ._files import PathLike
 from .streaming import RollingFile, StreamWriter, deferred_interrupt
 
 __all__ = ["ros_covariance", "spec_covariance", "pose_topic", "write_ros2_bag", "write_mcap", "POSE_TYPE", "TF_TYPE",
-           "TF_TOPIC", "Ros2BagWriter", "McapPoseWriter"]
+           "TF_TOPIC", "Ros2BagWriter", "McapPoseWriter", "BAG_STORAGES"]
 
 POSE_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
@@ -148,30 +148,95 @@ class _PoseWriter(StreamWriter):
         raise NotImplementedError
 
 
-class Ros2BagWriter(_PoseWriter):
-    """Streams a rosbag2 folder (version 8, SQLite storage, rosbags' writer):
-    each :meth:`write` is one committed transaction; ``metadata.yaml`` is
-    written at open, refreshed at most every ``metadata_every`` seconds and
-    at :meth:`close` (see :mod:`mutloc.io.streaming`)."""
+class _McapStorage:
+    """rosbags' storage-writer interface (``Writer.STORAGE_PLUGINS``) for a
+    rosbag2 MCAP file that is a complete MCAP after each :meth:`commit`
+    (unchunked, :class:`~mutloc.io.streaming.RollingFile`); the records are
+    those of rosbags' own MCAP storage: schemas, channels with their
+    ``offered_qos_profiles``, messages, and the ``rosbag2`` metadata record
+    at close."""
 
-    def __init__(self, path: PathLike, names: Names, *, metadata_every: float = 1.0) -> None:
-        from rosbags.rosbag2 import Writer
+    def __init__(self, path: Path, compression: Any) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.path = path / f"{path.name}.mcap"
+        self._file = RollingFile.mcap(self.path)
+        self._w = Writer(self._file, use_chunking=False, compression=CompressionType.NONE)
+        self._w.start(profile="ros2", library="mutloc")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[int, int] = {}
+
+    def add_msgtype(self, connection: Any) -> None:
+        from rosbags.interfaces import MessageDefinitionFormat
+
+        fmt = "ros2msg" if connection.msgdef.format == MessageDefinitionFormat.MSG else "ros2idl"
+        self._schemas[connection.msgtype] = self._w.register_schema(name=connection.msgtype, encoding=fmt,
+                                                                    data=connection.msgdef.data.encode())
+
+    def add_connection(self, connection: Any, offered_qos_profiles: str) -> None:
+        self._channels[connection.id] = self._w.register_channel(
+            topic=connection.topic, message_encoding=connection.ext.serialization_format,
+            schema_id=self._schemas[connection.msgtype], metadata={"offered_qos_profiles": offered_qos_profiles})
+
+    def write(self, connection: Any, timestamp: int, data: bytes) -> None:
+        self._w.add_message(self._channels[connection.id], log_time=timestamp, publish_time=timestamp, data=bytes(data))
+
+    def commit(self) -> None:
+        self._file.commit()
+
+    def close(self, version: int, metadata: str) -> None:
+        self._w.add_metadata("rosbag2", {"serialized_metadata": metadata})
+        self._w.finish()
+        self._file.finish()
+
+    def abort(self) -> None:
+        self._file.abandon()
+
+
+#: The rosbag2 storages :class:`Ros2BagWriter` writes.
+BAG_STORAGES = ("sqlite3", "mcap")
+
+
+class Ros2BagWriter(_PoseWriter):
+    """Streams a rosbag2 folder (version 8, rosbags' writer), each
+    :meth:`write` made durable before it returns; ``metadata.yaml`` is written
+    at open, refreshed at most every ``metadata_every`` seconds and at
+    :meth:`close` (see :mod:`mutloc.io.streaming`).
+
+    ``storage``: ``"sqlite3"`` (ROS 2 Humble's default; one committed
+    transaction per pose) or ``"mcap"`` (Iron and later's default; one
+    unchunked MCAP file, complete after each pose)."""
+
+    def __init__(self, path: PathLike, names: Names, *, storage: str = "sqlite3",
+                 metadata_every: float = 1.0) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        if storage not in BAG_STORAGES:
+            raise ValueError(f"bag storage {storage!r}: expected one of {', '.join(BAG_STORAGES)}")
+
+        class _Writer(Writer):
+            STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: _McapStorage}
 
         super().__init__(names)
         p = _fresh(path, "ROS 2 bag folder")
         self.paths = (p,)
+        self.storage = storage
         self.metadata_every = float(metadata_every)
-        self._w = Writer(p, version=8)
+        self._w = _Writer(p, version=8, storage_plugin=StoragePlugin[storage.upper()])
         self._w.open()
         try:
-            self._db = self._w.storage.conn  # type: ignore[union-attr]
-            self._db.commit()
-            # Durable against a killed process (the OS has every committed page); no fsync per row.
-            self._db.execute("PRAGMA synchronous=OFF")
+            if storage == "sqlite3":
+                db = self._w.storage.conn  # type: ignore[union-attr]
+                db.commit()
+                # Durable against a killed process (the OS has every committed page); no fsync per row.
+                db.execute("PRAGMA synchronous=OFF")
+                self._commit = db.commit
+            else:
+                self._commit = self._w.storage.commit  # type: ignore[union-attr]
             self._pose_conns = [self._w.add_connection(pose_topic(s, t), POSE_TYPE, typestore=self._store)
                                 for s, t in self.names]
             self._tf_conn = self._w.add_connection(TF_TOPIC, TF_TYPE, typestore=self._store)
-            self._db.commit()
+            self._commit()
             self._refresh()
         except BaseException:
             self._w.close()
@@ -180,13 +245,13 @@ class Ros2BagWriter(_PoseWriter):
     def _put(self, k: int, ns: int, pose: bytes, tf: bytes) -> None:
         self._w.write(self._pose_conns[k], ns, pose)
         self._w.write(self._tf_conn, ns, tf)
-        self._db.commit()
+        self._commit()
         if time.monotonic() - self._refreshed >= self.metadata_every:
             self._refresh()
 
     def _refresh(self) -> None:
         """Write ``metadata.yaml`` as of now: rosbags' ``Writer.close`` with
-        its storage set aside (only its path is read), the database left open."""
+        its storage set aside (only its path is read), the storage left open."""
 
         class _Open:
             def __init__(self, path: Path) -> None:
@@ -214,17 +279,12 @@ class McapPoseWriter(_PoseWriter):
     :class:`mutloc.io.streaming.RollingFile`)."""
 
     def __init__(self, path: PathLike, names: Names) -> None:
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import DataEnd, Footer
-        from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
+        from mcap.writer import CompressionType, Writer
 
         super().__init__(names)
         p = _fresh(path, "MCAP file")
         self.paths = (p,)
-        b = RecordBuilder()
-        DataEnd(0).write(b)
-        Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
-        self._file = RollingFile(p, bytes(b.end()) + MCAP0_MAGIC)
+        self._file = RollingFile.mcap(p)
         try:
             w = self._w = Writer(self._file, use_chunking=False, compression=CompressionType.NONE)
             w.start(profile="ros2", library="mutloc")
@@ -275,11 +335,13 @@ def _write_tracks(writer: _PoseWriter, tracks: Sequence[Track]) -> None:
 
 def write_ros2_bag(path: PathLike, times: Sequence[float] | None = None, poses: Pose | None = None,
                    covariances: Sequence[np.ndarray] | None = None, source: str | None = None,
-                   target: str | None = None, *, tracks: Sequence[Track] | None = None) -> None:
-    """A rosbag2 folder (SQLite storage) with the pose and ``/tf`` topics
-    (``tracks``: several robots' tracks, one pose topic each, one ``/tf``)."""
+                   target: str | None = None, *, tracks: Sequence[Track] | None = None,
+                   storage: str = "sqlite3") -> None:
+    """A rosbag2 folder (SQLite storage, or ``storage="mcap"``) with the pose
+    and ``/tf`` topics (``tracks``: several robots' tracks, one pose topic
+    each, one ``/tf``)."""
     tracks = _all_tracks(times, poses, covariances, source, target, tracks)
-    _write_tracks(Ros2BagWriter(path, [(tr[3], tr[4]) for tr in tracks]), tracks)
+    _write_tracks(Ros2BagWriter(path, [(tr[3], tr[4]) for tr in tracks], storage=storage), tracks)
 
 
 def write_mcap(path: PathLike, times: Sequence[float] | None = None, poses: Pose | None = None,

@@ -172,6 +172,19 @@ class RollingFile:
         self._pending = bytearray()
         self._committed = 0  # bytes of the file before its trailer
 
+    @classmethod
+    def mcap(cls, path: Path) -> "RollingFile":
+        """For an MCAP file: the trailer is a ``DataEnd`` record, a footer
+        without summary and the closing magic."""
+        from mcap.data_stream import RecordBuilder
+        from mcap.records import DataEnd, Footer
+        from mcap.writer import MCAP0_MAGIC
+
+        b = RecordBuilder()
+        DataEnd(0).write(b)
+        Footer(summary_start=0, summary_offset_start=0, summary_crc=0).write(b)
+        return cls(path, bytes(b.end()) + MCAP0_MAGIC)
+
     # The file-like interface mcap's Writer uses.
     def write(self, data: bytes) -> int:
         self._pending += data
