@@ -1,8 +1,8 @@
 #!/usr/bin/env python
 """Per-row cost of the streaming, crash-safe writers of mutloc.io against
 batch peers that write the same content once at the end (what ``track`` did
-before: buffered text files, one SQLite transaction, a chunked zstd MCAP, a
-Rerun stream flushed only at close).
+before: buffered text files, one SQLite transaction, rosbags' chunked MCAP
+storage, a chunked zstd MCAP, a Rerun stream flushed only at close).
 
     python bench/bench_streaming.py            # 2000 rows
     python bench/bench_streaming.py --rows 500
@@ -77,6 +77,12 @@ def stream_bag(d, rs):
             w.write(r["t"], r["pose"], r["covariance"])
 
 
+def stream_bag_mcap(d, rs):
+    with Ros2BagWriter(d / "bag", [("p", "q")], storage="mcap") as w:
+        for r in rs:
+            w.write(r["t"], r["pose"], r["covariance"])
+
+
 def stream_mcap(d, rs):
     with McapPoseWriter(d / "t.mcap", [("p", "q")]) as w:
         for r in rs:
@@ -136,12 +142,12 @@ def _serialised(rs):
         yield store, ns, bytes(store.serialize_cdr(pm, POSE_TYPE)), bytes(store.serialize_cdr(tf, TF_TYPE))
 
 
-def batch_bag(d, rs):
-    from rosbags.rosbag2 import Writer
+def batch_bag(d, rs, storage="sqlite3"):
+    from rosbags.rosbag2 import StoragePlugin, Writer
 
     from mutloc.io.ros import POSE_TYPE, TF_TYPE
 
-    with Writer(d / "bag", version=8) as w:
+    with Writer(d / "bag", version=8, storage_plugin=StoragePlugin[storage.upper()]) as w:
         cp = ct = None
         for store, ns, pm, tf in _serialised(rs):
             if cp is None:
@@ -149,6 +155,10 @@ def batch_bag(d, rs):
                 ct = w.add_connection("/tf", TF_TYPE, typestore=store)
             w.write(cp, ns, pm)
             w.write(ct, ns, tf)
+
+
+def batch_bag_mcap(d, rs):
+    batch_bag(d, rs, "mcap")
 
 
 def batch_mcap(d, rs):
@@ -182,7 +192,7 @@ def batch_rrd(d, rs):
 
 
 CASES = {name: (globals()[f"stream_{name}"], globals()[f"batch_{name}"])
-         for name in ("csv", "tum", "log", "bag", "mcap", "rrd")}
+         for name in ("csv", "tum", "log", "bag", "bag_mcap", "mcap", "rrd")}
 
 
 def timed(fn, rs, repeat):
@@ -209,11 +219,11 @@ def main() -> None:
     for fn in (stream_rrd, stream_bag):  # warm-up: imports, type stores
         timed(fn, rs[:10], 1)
     results = {}
-    print(f"{'writer':6} {'streaming wall/cpu us/row':>28} {'batch wall/cpu us/row':>24}")
+    print(f"{'writer':8} {'streaming wall/cpu us/row':>28} {'batch wall/cpu us/row':>24}")
     for name, (stream, batch) in CASES.items():
         s, b = timed(stream, rs, args.repeat), timed(batch, rs, args.repeat)
         results[name] = {"streaming": s, "batch": b}
-        print(f"{name:6} {s['wall_us_per_row']:16.1f} / {s['cpu_us_per_row']:7.1f} "
+        print(f"{name:8} {s['wall_us_per_row']:16.1f} / {s['cpu_us_per_row']:7.1f} "
               f"{b['wall_us_per_row']:14.1f} / {b['cpu_us_per_row']:7.1f}")
     out = Path(__file__).resolve().parent / "streaming_results.json"
     out.write_text(json.dumps({"rows": args.rows, "repeat": args.repeat, "results": results,

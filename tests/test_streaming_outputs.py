@@ -18,7 +18,7 @@ import pytest
 from mutloc.core.geometry import so3_exp
 from mutloc.core.observations import ObservationSet
 from mutloc.core.pose import Pose
-from mutloc.errors import FileFormatError
+from mutloc.errors import FileFormatError, InputError
 from mutloc.io.logs import iter_observation_log
 from mutloc.io.ros import POSE_TYPE, TF_TOPIC, McapPoseWriter, Ros2BagWriter
 from mutloc.io.trajectory import (TrajectoryCsvWriter, TumWriter, read_trajectory_csv, read_tum,
@@ -323,5 +323,5 @@ def test_ros_writers_are_readable_while_open(tmp_path, storage):
         assert reader.message_count == 2 * len(rows) and len(reader.connections) == 2
         assert {x.name for x in (tmp_path / "bag").iterdir()} == {"metadata.yaml",
                                                                  "bag.mcap" if storage == "mcap" else "bag.db3"}
-    with pytest.raises(ValueError, match="bag storage"):
+    with pytest.raises(InputError, match="bag storage"):
         Ros2BagWriter(tmp_path / "bag2", [("p", "q")], storage="zip")

@@ -28,7 +28,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.pose import Pose
-from ..errors import FileFormatError
+from ..errors import FileFormatError, InputError
 from ._files import PathLike
 from .streaming import RollingFile, StreamWriter, deferred_interrupt
 
@@ -118,7 +118,7 @@ class _PoseWriter(StreamWriter):
     def __init__(self, names: Names) -> None:
         self.names = [(str(s), str(t)) for s, t in names]
         if not self.names:
-            raise ValueError("no track to write (names: one (source, target) per track)")
+            raise InputError("no track to write (names: one (source, target) per track)")
         self._store = _store()
         self._messages = _Messages(self._store)
 
@@ -127,7 +127,7 @@ class _PoseWriter(StreamWriter):
             for k, (s, _) in enumerate(self.names):
                 if s == track:
                     return k
-            raise ValueError(f"no track of robot {track!r} (tracks: {[s for s, _ in self.names]})")
+            raise InputError(f"no track of robot {track!r} (tracks: {[s for s, _ in self.names]})")
         return int(track)
 
     def write(self, t: float, pose: Pose | None, covariance: np.ndarray | None = None,
@@ -212,7 +212,7 @@ class Ros2BagWriter(_PoseWriter):
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         if storage not in BAG_STORAGES:
-            raise ValueError(f"bag storage {storage!r}: expected one of {', '.join(BAG_STORAGES)}")
+            raise InputError(f"bag storage {storage!r}: expected one of {', '.join(BAG_STORAGES)}")
 
         class _Writer(Writer):
             STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: _McapStorage}
