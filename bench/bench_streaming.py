@@ -2,14 +2,15 @@
 """Per-row cost of the streaming, crash-safe writers of mutloc.io against
 batch peers that write the same content once at the end (what ``track`` did
 before: buffered text files, one SQLite transaction, rosbags' chunked MCAP
-storage, a chunked zstd MCAP, a Rerun stream flushed only at close).
+storage, a chunked zstd MCAP, a Rerun stream flushed only at close, OpenCV's mp4v VideoWriter).
 
     python bench/bench_streaming.py            # 2000 rows
     python bench/bench_streaming.py --rows 500
 
 Prints microseconds per row (wall clock and CPU time of the process, median
 of --repeat runs) and writes bench/streaming_results.json.  The rows are
-precomputed; the ROS writers' figures include serialising the two messages.
+precomputed; the ROS writers' figures include serialising the two messages;
+the video is 640x480 frames (at most 300).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from mutloc.io.logs import ObservationLogWriter
 from mutloc.io.ros import McapPoseWriter, Ros2BagWriter
 from mutloc.io.rrd import RerunWriter
 from mutloc.io.trajectory import CSV_COLUMNS, TrajectoryCsvWriter, TumWriter
+from mutloc.io.video import VideoWriter
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine  # noqa: E402
@@ -93,6 +95,21 @@ def stream_rrd(d, rs):
     with RerunWriter(d / "t.rrd", "p", "q") as w:
         for r in rs:
             w.write(r["t"], r["status"], r["reason"], r["pose"], r["covariance"])
+
+
+def _frames(rs):
+    """One 640x480 frame per row (a moving gradient: something to encode)."""
+    x = np.arange(640, dtype=np.uint8)[None, :, None]
+    return [np.broadcast_to(x + np.uint8(i % 256), (480, 640, 3)).copy() for i in range(len(rs))]
+
+
+FRAMES: list = []
+
+
+def stream_video(d, rs):
+    with VideoWriter(d / "v.mp4", fps=30) as w:
+        for f in FRAMES[:len(rs)]:
+            w.write(f)
 
 
 # ---------------------------------------------------------------- batch peers (write everything at the end)
@@ -191,8 +208,17 @@ def batch_rrd(d, rs):
     w.close()
 
 
+def batch_video(d, rs):
+    import cv2
+
+    vw = cv2.VideoWriter(str(d / "v.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (640, 480))
+    for f in FRAMES[:len(rs)]:
+        vw.write(f)
+    vw.release()
+
+
 CASES = {name: (globals()[f"stream_{name}"], globals()[f"batch_{name}"])
-         for name in ("csv", "tum", "log", "bag", "bag_mcap", "mcap", "rrd")}
+         for name in ("csv", "tum", "log", "bag", "bag_mcap", "mcap", "rrd", "video")}
 
 
 def timed(fn, rs, repeat):
@@ -216,12 +242,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     rs = rows(args.rows)
+    FRAMES[:] = _frames(rs[:300])  # the video: at most 300 frames (ten seconds)
     for fn in (stream_rrd, stream_bag):  # warm-up: imports, type stores
         timed(fn, rs[:10], 1)
     results = {}
     print(f"{'writer':8} {'streaming wall/cpu us/row':>28} {'batch wall/cpu us/row':>24}")
     for name, (stream, batch) in CASES.items():
-        s, b = timed(stream, rs, args.repeat), timed(batch, rs, args.repeat)
+        data = rs[:len(FRAMES)] if name == "video" else rs
+        s, b = timed(stream, data, args.repeat), timed(batch, data, args.repeat)
         results[name] = {"streaming": s, "batch": b}
         print(f"{name:8} {s['wall_us_per_row']:16.1f} / {s['cpu_us_per_row']:7.1f} "
               f"{b['wall_us_per_row']:14.1f} / {b['cpu_us_per_row']:7.1f}")

@@ -1,5 +1,5 @@
 """Streaming outputs survive a killed run: a child process writes rows to
-every writer of mutloc.io (CSV, TUM, observation log, rosbag2, MCAP, Rerun),
+every writer of mutloc.io (CSV, TUM, observation log, rosbag2, MCAP, Rerun, MP4),
 reports each row on stdout once written, and is killed (SIGKILL) or
 interrupted (SIGINT) mid-run; every file must then parse and hold at least
 the rows reported, each identical to what was written.  Plus the readers'
@@ -40,21 +40,28 @@ def expected_row(i):
             "observations": obs}
 
 
+def expected_frame(i):
+    """Frame ``i`` of the child's video: one grey level per frame."""
+    return np.full((48, 64, 3), (7 * i) % 256, np.uint8)
+
+
 CHILD = f"""
 import sys, time
 sys.path.insert(0, {os.path.dirname(__file__)!r})
 from pathlib import Path
-from test_streaming_outputs import expected_row, EXTRA, N_ROWS
+from test_streaming_outputs import expected_row, expected_frame, EXTRA, N_ROWS
 from mutloc.io.trajectory import TrajectoryCsvWriter, TumWriter
 from mutloc.io.logs import ObservationLogWriter
 from mutloc.io.ros import Ros2BagWriter, McapPoseWriter
 from mutloc.io.rrd import RerunWriter
+from mutloc.io.video import VideoWriter
 
 out = Path(sys.argv[1])
 try:
     with TrajectoryCsvWriter(out / "trajectory.csv", EXTRA) as csv_w, TumWriter(out / "trajectory.tum", "p in q") as tum, \\
             ObservationLogWriter(out / "log.jsonl") as log, Ros2BagWriter(out / "bag", [("p", "q")]) as bag, \\
-            Ros2BagWriter(out / "bag_mcap", [("p", "q")], storage="mcap") as bag_mcap, McapPoseWriter(out / "traj.mcap", [("p", "q")]) as mcap, RerunWriter(out / "track.rrd", "p", "q") as rrd:
+            Ros2BagWriter(out / "bag_mcap", [("p", "q")], storage="mcap") as bag_mcap, McapPoseWriter(out / "traj.mcap", [("p", "q")]) as mcap, RerunWriter(out / "track.rrd", "p", "q") as rrd, \\
+            VideoWriter(out / "annotated.mp4", fps=20) as video:
         print("ready", flush=True)
         for i in range(N_ROWS):
             r = expected_row(i)
@@ -65,6 +72,7 @@ try:
             bag_mcap.write(r["t"], r["pose"], r["covariance"])
             mcap.write(r["t"], r["pose"], r["covariance"])
             rrd.write(r["t"], r["status"], r["reason"], r["pose"], r["covariance"])
+            video.write(expected_frame(i))
             print(i, flush=True)
             time.sleep(0.01)
 except KeyboardInterrupt:
@@ -199,9 +207,21 @@ def _check_files(out, k, clean):
         assert text == [f"{want['status']}: {want['reason']}" if want["reason"] else want["status"]]
     assert bool(strips) == clean  # the trajectory's line strip is written at close
 
+    import cv2
+
+    cap = cv2.VideoCapture(str(out / "annotated.mp4"))
+    frames = []
+    while (got := cap.read())[0]:
+        frames.append(got[1])
+    cap.release()
+    counts["video"] = len(frames)
+    for i, img in enumerate(frames):
+        assert img.shape == (48, 64, 3) and abs(img.mean() - expected_frame(i).mean()) < 3, i
+
     n_posed_k = sum(r["pose"] is not None for r in rows[:k])
     for name, n in counts.items():
-        need = n_posed_k if name in ("tum", "bag", "bag_mcap", "mcap") else k
+        # A video fragment is closed when the next frame comes: a killed run's video lacks its last frame.
+        need = n_posed_k if name in ("tum", "bag", "bag_mcap", "mcap") else k - 1 if name == "video" and not clean else k
         assert n >= need, (name, n, need, counts)
         assert n <= N_ROWS
     return counts
@@ -219,7 +239,7 @@ def test_stopped_run_leaves_every_file_readable(tmp_path, sig):
         n = counts["csv"]
         n_posed = sum(expected_row(i)["pose"] is not None for i in range(n))
         assert counts == {"csv": n, "tum": n_posed, "log": n, "bag": n_posed, "bag_mcap": n_posed, "mcap": n_posed,
-                          "rrd": n}, counts
+                          "rrd": n, "video": n}, counts
     assert not list(tmp_path.glob(".*.part"))
 
 

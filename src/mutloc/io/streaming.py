@@ -4,7 +4,8 @@ Every writer of a track's outputs (:class:`~mutloc.io.trajectory.TumWriter`,
 :class:`~mutloc.io.trajectory.TrajectoryCsvWriter`,
 :class:`~mutloc.io.logs.ObservationLogWriter`,
 :class:`~mutloc.io.ros.McapPoseWriter`, :class:`~mutloc.io.ros.Ros2BagWriter`,
-:class:`~mutloc.io.rrd.RerunWriter`) is a :class:`StreamWriter`:
+:class:`~mutloc.io.rrd.RerunWriter`, :class:`~mutloc.io.video.VideoWriter`)
+is a :class:`StreamWriter`:
 
 - the constructor creates the file (header included: a text file appears
   whole, with its header, by an atomic rename);
@@ -26,11 +27,13 @@ What "a row" is, and what a kill can leave, per format:
 - MCAP: unchunked, and after each row the file ends with a ``DataEnd`` and a
   footer without summary (see :class:`RollingFile`), so a killed file is a
   complete MCAP; ``close`` writes the summary;
-- rosbag2 (SQLite storage): one transaction per row, committed before
-  ``write`` returns; ``metadata.yaml`` is written at open and refreshed at
-  most every second (its counts may lag; the messages are all in the
-  database);
-- Rerun: the recording stream is flushed to the file after each frame.
+- rosbag2: SQLite storage, one transaction per row, committed before
+  ``write`` returns, or MCAP storage kept complete as above;
+  ``metadata.yaml`` is written at open and refreshed at most every second
+  (its counts may lag; the messages are all in the storage file);
+- Rerun: the recording stream is flushed to the file after each frame;
+- MP4 video: one fragment per frame, flushed; the last frame's fragment is
+  closed when the next frame comes (or at ``close``).
 """
 
 from __future__ import annotations
