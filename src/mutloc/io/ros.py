@@ -128,6 +128,8 @@ class _PoseWriter(StreamWriter):
                 if s == track:
                     return k
             raise InputError(f"no track of robot {track!r} (tracks: {[s for s, _ in self.names]})")
+        if not 0 <= int(track) < len(self.names):
+            raise InputError(f"no track {track} ({len(self.names)} tracks)")
         return int(track)
 
     def write(self, t: float, pose: Pose | None, covariance: np.ndarray | None = None,
