@@ -3,7 +3,9 @@
 
 ``mutloc track --observations-out`` writes them, ``mutloc track
 --observations`` and marker calibration read them.  Reading is streamed
-(a log can be long) and every problem names the file and the line.
+(a log can be long) and every problem names the file and the line.  The log
+is written as the frames come (:class:`ObservationLogWriter`); the log of a
+killed run is read up to its last complete line.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Iterable, Iterator
 from ..core.observations import ObservationSet
 from ..errors import FileFormatError, MutlocError, ObservationError
 from ._files import PathLike
+from .streaming import LineFile, StreamWriter
 
 __all__ = ["read_observation_log", "iter_observation_log", "write_observation_log", "ObservationLogWriter"]
 
@@ -51,6 +54,8 @@ def iter_observation_log(path: PathLike) -> Iterator[tuple[float, ObservationSet
             try:
                 entry = json.loads(text)
             except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                if not raw.endswith(b"\n"):
+                    break  # the last line, without its end: a write cut by a killed run
                 raise FileFormatError(f"{where}: not JSON ({exc})") from None
             if not isinstance(entry, dict) or set(entry) - {"time", "observations"} or "observations" not in entry:
                 raise FileFormatError(f"{where}: expected {{\"time\": seconds, \"observations\": {{...}}}}")
@@ -70,28 +75,26 @@ def iter_observation_log(path: PathLike) -> Iterator[tuple[float, ObservationSet
             raise FileFormatError(f"{p}: no frames (an observation log holds one JSON object per line)")
 
 
-class ObservationLogWriter:
-    """Appends one frame per line; use as a context manager."""
+class ObservationLogWriter(StreamWriter):
+    """Appends one frame per line, each handed to the OS as it is written
+    (see :mod:`mutloc.io.streaming`); use as a context manager."""
 
     def __init__(self, path: PathLike):
-        self.path = Path(path).expanduser()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "w", encoding="utf-8")
+        self._file = LineFile(path)
+        self.path = self._file.path
+        self.paths = (self.path,)
 
-    def write(self, time: float, observations: ObservationSet) -> None:
+    def write(self, time: float, observations: ObservationSet) -> bool:
+        """One frame: its time and what every observer saw."""
         line = {"time": float(time), "observations": {o: ({m: list(uv) for m, uv in e.items()}
                                                           if isinstance(e, dict) else [list(uv) for uv in e])
                                                       for o, e in observations.to_dict().items()}}
-        self._f.write(json.dumps(line, separators=(",", ":")) + "\n")
+        self._file.write(json.dumps(line, separators=(",", ":")) + "\n")
+        self.rows += 1
+        return True
 
-    def close(self) -> None:
-        self._f.close()
-
-    def __enter__(self) -> "ObservationLogWriter":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _close(self) -> None:
+        self._file.close()
 
 
 def write_observation_log(path: PathLike, frames: Iterable[ObservationSet]) -> None:

@@ -32,6 +32,7 @@ import numpy as np
 from ..core.pose import Pose
 from ..errors import FileFormatError
 from ._files import PathLike, one_line, writable_path
+from .streaming import StreamWriter
 
 __all__ = ["RerunWriter", "SIGMA_SCALE", "JPEG_QUALITY"]
 
@@ -42,14 +43,18 @@ SIGMA_SCALE = 3.0
 JPEG_QUALITY = 85
 
 
-class RerunWriter:
-    """Streams one track into an ``.rrd`` file; use as a context manager."""
+class RerunWriter(StreamWriter):
+    """Streams one track into an ``.rrd`` file, flushed to the file after
+    each frame (see :mod:`mutloc.io.streaming`: the recording of a killed run
+    opens with every frame written, without the ``world/trajectory`` line
+    strips, which :meth:`close` writes); use as a context manager."""
 
     def __init__(self, path: PathLike, source: str | None, target: str, application_id: str = "mutloc") -> None:
         import rerun as rr
 
         self.rr = rr
         self.path = writable_path(path, "the Rerun recording")
+        self.paths = (self.path,)
         self.source, self.target = source, target
         self.rec = rr.RecordingStream(application_id)
         try:
@@ -60,6 +65,7 @@ class RerunWriter:
         self.positions: dict[str, list[np.ndarray]] = {}
         self.rec.log("world", rr.ViewCoordinates.RDF, static=True)
         self.rec.log(f"world/{target}", rr.TransformAxes3D(0.2), static=True)
+        self.rec.flush()
 
     def frame(self, t: float, status: str, reason: str = "", pose: Pose | None = None,
               covariance: np.ndarray | None = None,
@@ -92,6 +98,8 @@ class RerunWriter:
             names = list(detections)
             pts = np.array([detections[n] for n in names], float).reshape(-1, 2)
             rec.log(f"images/{robot}/detections", rr.Points2D(pts, labels=names, radii=6.0, show_labels=True))
+        rec.flush()
+        self.rows += 1
 
     def _jpeg(self, image: np.ndarray) -> Any:
         """A BGR (or grey) image as a JPEG ``EncodedImage``."""
@@ -102,16 +110,18 @@ class RerunWriter:
             return self.rr.Image(image, color_model="BGR" if image.ndim == 3 else "L")
         return self.rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
-    def close(self) -> None:
+    def write(self, t: float, status: str, reason: str = "", pose: Pose | None = None,
+              covariance: np.ndarray | None = None,
+              images: Mapping[str, tuple[np.ndarray, Mapping[str, Any]]] | None = None,
+              robot: str | None = None) -> bool:
+        """:meth:`frame` under the common writer interface."""
+        self.frame(t, status, reason, pose, covariance, images, robot)
+        return True
+
+    def _close(self) -> None:
         """Write the whole trajectory and close the file."""
         for name, pos in self.positions.items():
             path = "world/trajectory" if name == self.source else f"world/trajectory_{name}"
             self.rec.log(path, self.rr.LineStrips3D([np.array(pos)]), static=True)
         self.rec.flush()
         self.rec.disconnect()
-
-    def __enter__(self) -> "RerunWriter":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

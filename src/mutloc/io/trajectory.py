@@ -6,22 +6,30 @@ read) and ``trajectory.csv`` (SPEC "Filtered tracking": every frame with its
 status, pose and the six standard deviations of its covariance).  A single
 pose as JSON is :meth:`mutloc.Pose.to_dict` (written with
 :func:`mutloc.io.write_json`).
+
+Both are written as they go (:class:`TumWriter`, :class:`TrajectoryCsvWriter`,
+see :mod:`mutloc.io.streaming`): a file of a killed run ends after its last
+complete line.  The readers accept such a file; a last line without its end
+of line (a write cut by the kill) is dropped if it does not parse.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from ..core.pose import Pose
 from ..errors import FileFormatError
-from ._files import PathLike, output_folder
+from ._files import PathLike
+from .streaming import LineFile, StreamWriter
 
-__all__ = ["TUM_SUFFIX", "write_tum", "read_tum", "CSV_COLUMNS", "write_trajectory_csv", "read_trajectory_csv"]
+__all__ = ["TUM_SUFFIX", "write_tum", "read_tum", "CSV_COLUMNS", "write_trajectory_csv", "read_trajectory_csv",
+           "TumWriter", "TrajectoryCsvWriter"]
 
 TUM_SUFFIX = ".tum"
 #: The SPEC's leading columns of ``trajectory.csv``, in order.
@@ -29,10 +37,25 @@ CSV_COLUMNS = ("t", "status", "tx", "ty", "tz", "qx", "qy", "qz", "qw",
                "sigma_rx", "sigma_ry", "sigma_rz", "sigma_tx", "sigma_ty", "sigma_tz")
 
 
-def _parent(path: PathLike) -> Path:
-    p = Path(path).expanduser()
-    output_folder(p.parent)
-    return p
+class TumWriter(StreamWriter):
+    """Streams a TUM trajectory: the ``comment`` lines (``# ...``) at open,
+    then one line ``t tx ty tz qx qy qz qw`` per :meth:`write`."""
+
+    def __init__(self, path: PathLike, comment: str | None = None) -> None:
+        head = "" if comment is None else "".join(f"# {c}\n" for c in comment.splitlines())
+        self._file = LineFile(path, head)
+        self.paths = (self._file.path,)
+
+    def write(self, t: float, pose: Pose | None) -> bool:
+        """The pose at time ``t``; a missing or non-finite one is skipped (False)."""
+        if pose is None or not (pose.isfinite() and math.isfinite(float(t))):
+            return False
+        self._file.write(" ".join(f"{x:.9f}" for x in (float(t), *pose.t, *pose.quaternion_xyzw)) + "\n")
+        self.rows += 1
+        return True
+
+    def _close(self) -> None:
+        self._file.close()
 
 
 def write_tum(path: PathLike, times: Sequence[float], poses: Pose, comment: str | None = None) -> None:
@@ -43,33 +66,54 @@ def write_tum(path: PathLike, times: Sequence[float], poses: Pose, comment: str 
         poses = Pose(poses.R[None], poses.t[None])
     if len(poses) != len(times):
         raise ValueError(f"{len(times)} times for {len(poses)} poses")
-    ok = poses.isfinite() & np.isfinite(times)
-    q = poses[ok].quaternion_xyzw if np.any(ok) else np.empty((0, 4))
-    lines = [] if comment is None else [f"# {c}" for c in comment.splitlines()]
-    for ti, t, qi in zip(times[ok], poses.t[ok], q):
-        lines.append(" ".join(f"{x:.9f}" for x in (ti, *t, *qi)))
-    _parent(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with TumWriter(path, comment) as w:
+        for t, pose in zip(times, poses):
+            w.write(t, pose)
+
+
+def _read(p: Path) -> str:
+    try:
+        return p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise FileFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise FileFormatError(f"{p}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+
+
+def _cut(text: str) -> tuple[str, str]:
+    """``text`` split into its complete lines and an unterminated last line
+    (empty if the text ends with an end of line)."""
+    if text.endswith(("\n", "\r")) or not text:
+        return text, ""
+    i = max(text.rfind("\n"), text.rfind("\r")) + 1
+    return text[:i], text[i:]
+
+
+def _tum_row(line: str, where: str) -> list[float] | None:
+    line = line.strip()
+    if not line or line.startswith("#"):
+        return None
+    try:
+        vals = [float(x) for x in line.replace(",", " ").split()]
+    except ValueError:
+        raise FileFormatError(f"{where}: not 8 numbers (t tx ty tz qx qy qz qw)") from None
+    if len(vals) != 8 or not all(math.isfinite(v) for v in vals):
+        raise FileFormatError(f"{where}: not 8 finite numbers (t tx ty tz qx qy qz qw)")
+    return vals
 
 
 def read_tum(path: PathLike) -> tuple[np.ndarray, Pose]:
     """``(times, poses)`` of a TUM file; FileFormatError naming the line if it is malformed."""
     p = Path(path).expanduser()
+    body, tail = _cut(_read(p))
+    lines = body.splitlines()
+    rows = [r for k, line in enumerate(lines, 1) if (r := _tum_row(line, f"{p}:{k}")) is not None]
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    rows = []
-    for k, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        try:
-            vals = [float(x) for x in line.replace(",", " ").split()]
-        except ValueError:
-            raise FileFormatError(f"{p}:{k}: not 8 numbers (t tx ty tz qx qy qz qw)") from None
-        if len(vals) != 8 or not all(math.isfinite(v) for v in vals):
-            raise FileFormatError(f"{p}:{k}: not 8 finite numbers (t tx ty tz qx qy qz qw)")
-        rows.append(vals)
+        last = _tum_row(tail, f"{p}:{len(lines) + 1}")
+    except FileFormatError:
+        last = None  # a line cut by a kill
+    if last is not None:
+        rows.append(last)
     a = np.array(rows, dtype=float).reshape(-1, 8)
     if len(a) == 0:
         return np.empty(0), Pose(np.empty((0, 3, 3)), np.empty((0, 3)))
@@ -83,32 +127,82 @@ def _fmt(x: Any, digits: int = 9) -> str:
     return f"{x:.{digits}f}" if math.isfinite(x) else ""
 
 
-def write_trajectory_csv(path: PathLike, rows: Iterable[dict[str, Any]], extra: Sequence[str] = ()) -> None:
-    """Write ``trajectory.csv``: per row the SPEC columns, then ``extra``.
+class TrajectoryCsvWriter(StreamWriter):
+    """Streams ``trajectory.csv``: the header (the SPEC columns, then
+    ``extra``) at open, then one line per :meth:`write`."""
 
-    Each row is a dict with ``t``, ``status``, optionally ``pose`` (a single
-    :class:`Pose`) and ``covariance`` (6x6, SPEC order), and the ``extra``
-    keys; a row without a pose has empty pose and sigma columns.
-    """
-    with open(_parent(path), "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow([*CSV_COLUMNS, *extra])
+    def __init__(self, path: PathLike, extra: Sequence[str] = ()) -> None:
+        self.extra = tuple(extra)
+        self._buf = io.StringIO()
+        self._csv = csv.writer(self._buf)
+        self._file = LineFile(path, self._line([*CSV_COLUMNS, *self.extra]))
+        self.paths = (self._file.path,)
+
+    def _line(self, fields: Sequence[str]) -> str:
+        self._buf.seek(0)
+        self._buf.truncate()
+        self._csv.writerow(fields)
+        return self._buf.getvalue()
+
+    def write(self, row: Mapping[str, Any]) -> bool:
+        """One row: a mapping with ``t``, ``status``, optionally ``pose`` (a
+        single :class:`Pose`) and ``covariance`` (6x6, SPEC order), and the
+        ``extra`` keys; a row without a pose has empty pose and sigma columns."""
+        out = [_fmt(row["t"]), str(row["status"])]
+        pose = row.get("pose")
+        if pose is not None:
+            out += [_fmt(x) for x in pose.t] + [_fmt(x) for x in pose.quaternion_xyzw]
+        else:
+            out += [""] * 7
+        cov = row.get("covariance")
+        if cov is not None:
+            out += [_fmt(math.sqrt(max(float(v), 0.0))) for v in np.diag(np.asarray(cov, float))]
+        else:
+            out += [""] * 6
+        for key in self.extra:
+            v = row.get(key)
+            out.append(_fmt(v, 4) if isinstance(v, (float, np.floating)) else ("" if v is None else str(v)))
+        self._file.write(self._line(out))
+        self.rows += 1
+        return True
+
+    def _close(self) -> None:
+        self._file.close()
+
+
+def write_trajectory_csv(path: PathLike, rows: Iterable[Mapping[str, Any]], extra: Sequence[str] = ()) -> None:
+    """Write ``trajectory.csv``: per row the SPEC columns, then ``extra``
+    (each row as :meth:`TrajectoryCsvWriter.write` takes it)."""
+    with TrajectoryCsvWriter(path, extra) as w:
         for r in rows:
-            out = [_fmt(r["t"]), str(r["status"])]
-            pose = r.get("pose")
-            if pose is not None:
-                out += [_fmt(x) for x in pose.t] + [_fmt(x) for x in pose.quaternion_xyzw]
+            w.write(r)
+
+
+def _csv_rows(p: Path, text: str, first_line: int, fieldnames: Sequence[str] | None) -> tuple[list, Sequence[str]]:
+    reader = csv.DictReader(io.StringIO(text, newline=""), fieldnames=fieldnames)
+    if fieldnames is None:
+        missing = [c for c in CSV_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise FileFormatError(f"{p}: not a trajectory.csv (missing columns {missing})")
+    out = []
+    for k, r in enumerate(reader, first_line):
+        n = len(reader.fieldnames or ())
+        if None in r or None in r.values():
+            raise FileFormatError(f"{p}:{k}: {n} columns expected (as the header), got another number")
+        try:
+            row: dict[str, Any] = {"t": float(r["t"]), "status": r["status"]}
+            if r["tx"]:
+                row["pose"] = Pose.from_quaternion_xyzw([float(r[c]) for c in ("qx", "qy", "qz", "qw")],
+                                                        [float(r[c]) for c in ("tx", "ty", "tz")])
             else:
-                out += [""] * 7
-            cov = r.get("covariance")
-            if cov is not None:
-                out += [_fmt(math.sqrt(max(float(v), 0.0))) for v in np.diag(np.asarray(cov, float))]
-            else:
-                out += [""] * 6
-            for key in extra:
-                v = r.get(key)
-                out.append(_fmt(v, 4) if isinstance(v, (float, np.floating)) else ("" if v is None else str(v)))
-            w.writerow(out)
+                row["pose"] = None
+            sig = [r[c] for c in CSV_COLUMNS[9:]]
+            row["sigma"] = np.array([float(x) for x in sig]) if all(sig) else None
+        except ValueError:
+            raise FileFormatError(f"{p}:{k}: a number column is not a number") from None
+        row.update({c: v for c, v in r.items() if c not in CSV_COLUMNS})
+        out.append(row)
+    return out, reader.fieldnames or ()
 
 
 def read_trajectory_csv(path: PathLike) -> list[dict[str, Any]]:
@@ -116,28 +210,13 @@ def read_trajectory_csv(path: PathLike) -> list[dict[str, Any]]:
     ``pose`` (Pose or None), ``sigma`` ((6,) array or None), and every other
     column as text."""
     p = Path(path).expanduser()
-    try:
-        f = open(p, newline="", encoding="utf-8")
-    except OSError as exc:
-        raise FileFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    with f:
-        reader = csv.DictReader(f)
-        missing = [c for c in CSV_COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise FileFormatError(f"{p}: not a trajectory.csv (missing columns {missing})")
-        out = []
-        for k, r in enumerate(reader, 2):
-            try:
-                row: dict[str, Any] = {"t": float(r["t"]), "status": r["status"]}
-                if r["tx"]:
-                    row["pose"] = Pose.from_quaternion_xyzw([float(r[c]) for c in ("qx", "qy", "qz", "qw")],
-                                                            [float(r[c]) for c in ("tx", "ty", "tz")])
-                else:
-                    row["pose"] = None
-                sig = [r[c] for c in CSV_COLUMNS[9:]]
-                row["sigma"] = np.array([float(x) for x in sig]) if all(sig) else None
-            except ValueError:
-                raise FileFormatError(f"{p}:{k}: a number column is not a number") from None
-            row.update({c: v for c, v in r.items() if c not in CSV_COLUMNS})
-            out.append(row)
-    return out
+    body, tail = _cut(_read(p))
+    if not body:  # no complete line: the header alone, or nothing
+        body, tail = tail, ""
+    rows, names = _csv_rows(p, body, 2, None)
+    if tail.strip():
+        try:
+            rows += _csv_rows(p, tail, len(rows) + 2, names)[0]
+        except FileFormatError:
+            pass  # a line cut by a kill
+    return rows
