@@ -216,6 +216,10 @@ class PairTracker:
         #: them, and how to undo them (see ``_judge_support``).
         self._pending: _Pending | None = None
         self._replaying = False
+        #: Rows of ``history`` whose reports are final (see ``finalize``), and
+        #: the smoother's gains computed for the rows not yet final.
+        self._final = 0
+        self._gain_cache: dict[int, np.ndarray] = {}
         self._restarted = False
         #: While the track is tentative: the markers of the three-marker frame that started it.
         self._tentative: frozenset[str] | None = None
@@ -285,42 +289,65 @@ class PairTracker:
         if self.history is not None:
             self.history.append(entry)
 
-    def segments(self) -> list[tuple[int, int]]:
-        """``(first, end)`` frame ranges of ``history`` in which the track ran
-        without a restart or loss (what a smoother may span)."""
-        out, k, hist = [], 0, self.history or []
-        while k < len(hist):
-            if hist[k] is None:
-                k += 1
-                continue
-            j = k
-            while j < len(hist) and hist[j] is not None:
-                j += 1
-            out.append((k, j))
-            k = j
-        return out
-
     def finish(self) -> None:
-        """With ``smooth_lag``: replace each filtered row's pose and covariance
-        by the fixed-lag smoothed ones (the frame and the ``smooth_lag``
-        frames after it in the same uninterrupted track) -- what a fixed-lag
-        smoother would report ``smooth_lag`` frames late."""
+        """The input ended: every row's report is final (:meth:`finalize` to the end)."""
+        self.finalize(end=True)
+
+    def finalize(self, end: bool = False) -> int:
+        """Make final the reports of the rows that nothing to come can change,
+        in input order, and return how many of the rows filtered so far are
+        final (all of them without smoothing).
+
+        With ``smooth_lag``: each filtered row's pose and covariance become
+        the fixed-lag smoothed ones (the frame and the ``smooth_lag`` frames
+        after it in the same uninterrupted track) -- what a fixed-lag smoother
+        reports ``smooth_lag`` frames late.  A row is final once ``smooth_lag
+        + 1`` frames came after it, no confirmation of a tentative track may
+        still report it again (see :mod:`.hindsight`), and no undo may still
+        change the frames its smoothing spans; ``end``: the input ended, every
+        row is final."""
         lag = self.options.smooth_lag
-        if not lag or not self.history:
-            return
         hist = self.history
-        self._tentative_frames.report(self, hist, self._stepped, lag)
-        for k, j in self.segments():
-            priors, posts = [h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]]
-            gains = rts_gains(priors, posts)
-            for i in range(j - k):
-                state = rts_smooth(priors[i:i + lag + 1], posts[i:i + lag + 1], gains[i:i + lag])[0]
-                row = hist[k + i][2]
-                if row.estimate is not None:
-                    row.estimate = replace(row.estimate, pose=state.pose, covariance=state.pose_covariance.copy(),
-                                           candidates=Pose.concatenate([state.pose]),
-                                           extra=dict(row.estimate.extra, smooth_lag=lag,
-                                                      velocity=state.velocity.tolist()))
+        if hist is None:
+            return 0
+        n = len(hist)
+        limit = n if end else n - lag - 1
+        ripe = None if end else n - lag
+        self._tentative_frames.report(self, hist, self._stepped, lag, before=ripe)
+        if not end:
+            limit = min(limit, self._tentative_frames.first_unreported())
+            if self._pending is not None:
+                limit = min(limit, self._pending.history_len - lag)
+        for k in range(self._final, limit):
+            entry = hist[k]
+            if entry is None or entry[2].estimate is None:
+                continue
+            window = [entry]
+            for h in hist[k + 1:k + lag + 1]:
+                if h is None:
+                    break
+                window.append(h)
+            priors, posts = [h[0] for h in window], [h[1] for h in window]
+            state = rts_smooth(priors, posts, self._gains(k, priors, posts))[0]
+            row = entry[2]
+            row.estimate = replace(row.estimate, pose=state.pose, covariance=state.pose_covariance.copy(),
+                                   candidates=Pose.concatenate([state.pose]),
+                                   extra=dict(row.estimate.extra, smooth_lag=lag, velocity=state.velocity.tolist()))
+        self._final = max(self._final, limit)
+        for k in [k for k in self._gain_cache if k < self._final]:
+            del self._gain_cache[k]
+        return self._final
+
+    def _gains(self, k: int, priors: list[FilterState], posts: list[FilterState]) -> list[np.ndarray]:
+        """The smoother's gains between history entries ``k + i`` and ``k + i + 1``
+        (each computed once: consecutive rows' windows share them)."""
+        out = []
+        for i in range(len(posts) - 1):
+            g = self._gain_cache.get(k + i)
+            if g is None:
+                g = self._gain_cache[k + i] = rts_gains(priors[i:i + 2], posts[i:i + 2])[0]
+            out.append(g)
+        return out
 
     def _filtered_step(self, row: "TrackRow", state: FilterState) -> None:
         try:

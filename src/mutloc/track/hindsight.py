@@ -24,6 +24,7 @@ each frame as it comes) no status changes afterwards.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -62,8 +63,8 @@ class TentativeFrames:
     def __init__(self) -> None:
         self._pending: list[_Pending] = []
         #: Per confirmation: (its time, the tentative frames within the lag
-        #: before it, the frame that started the track).
-        self.confirmed: list[tuple[float, list[_Pending], _Pending | None]] = []
+        #: before it, the frame that started the track, its history entry).
+        self.confirmed: list[tuple[float, list[_Pending], _Pending | None, int]] = []
 
     def clear(self) -> None:
         """The tentative track ended (dropped, restarted or lost)."""
@@ -83,16 +84,26 @@ class TentativeFrames:
         near = [p for p in self._pending if index - p.index <= lag and p.estimate is not None]
         start = next((p for p in self._pending if p.start), None)
         if near:
-            self.confirmed.append((t, near, start))
+            self.confirmed.append((t, near, start, index))
         self.clear()
 
-    def report(self, tracker: Any, history: list, stepped: Sequence["TrackRow"], lag: int) -> int:
+    def first_unreported(self) -> float:
+        """The first history entry that a confirmation not yet reported may
+        report again (inf if none)."""
+        return min((p.index for _, frames, _, _ in self.confirmed for p in frames), default=math.inf)
+
+    def report(self, tracker: Any, history: list, stepped: Sequence["TrackRow"], lag: int,
+               before: int | None = None) -> int:
         """Report the kept frames as the confirmed track does, going back
         from each confirming frame while every three-marker frame is
         verified by the ``lag`` frames after it (``stepped``: every row
-        the tracker filtered, aligned with ``history``).  Returns how many."""
+        the tracker filtered, aligned with ``history``); ``before``: only the
+        confirmations at history entries before it (their frames' ``lag``
+        frames after them have come).  Returns how many."""
         done = 0
-        for t, frames, start in self.confirmed:
+        ripe = [c for c in self.confirmed if before is None or c[3] < before]
+        self.confirmed = [c for c in self.confirmed if c not in ripe]
+        for t, frames, start, _ in ripe:
             # The forward track through the tentative frames grew from the
             # starting frame's untested three-marker fit.  Unless the frames
             # after it verify that frame, a bad detection there may have bent
@@ -124,7 +135,6 @@ class TentativeFrames:
                                             back.test)
                     p.row.estimate = replace(est, extra=dict(est.extra, smooth_lag=lag, smoother="backward"))
                 done += 1
-        self.confirmed.clear()
         return done
 
 
