@@ -229,7 +229,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     rejected: list[dict[str, Any]] = []
     while True:
         sub = problem.take(keep)
-        sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma)
+        sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma, confidence=confidence)
         if len(sol.order) == 0:
             seen = sorted({names[i] for i in np.r_[problem.cam, problem.own].tolist()})
             raise TooFewObservationsError(
