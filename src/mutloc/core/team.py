@@ -866,7 +866,9 @@ def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarra
     ``initial`` = (Rs, ts, localized) skips :func:`initial_poses` (a warm
     start, e.g. the previous frame's solution).  From a cold start, an
     optimum whose residual fails the chi-square test at ``confidence``
-    (noise ``sigma`` px) may be a local one: the team is solved again from
+    (noise ``sigma`` px) may be a local one, and robots left unlocalized
+    though three or more observations tie them to the others may have
+    failed on a wrong start of another robot: the team is solved again from
     other starts (:func:`_restarts`: the other exact poses of each placement
     on three observations, then spanning trees from other roots) and the
     best kept -- the most robots localized, then the least cost.  Raises
@@ -884,12 +886,23 @@ def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarra
         sol = _solve_from(problem, reference, *initial_poses(problem, reference, sigma=sigma, record=record), max_iter)
     except NoSolutionError as e:
         sol, error = None, e
-    if sol is not None and _fits(sol, sigma, confidence):
+    good = sol is not None and _fits(sol, sigma, confidence) and _complete(problem, sol.localized)
+    # a placement on three observations took one of several exact poses; when
+    # later observations can tell them apart (redundancy), try the others too
+    ambiguous = bool(record) and sol is not None and 2 * sol.n_obs > 6 * len(sol.order)
+    if good and not ambiguous:
         return sol
-    best = _restarts(problem, reference, sol, record, sigma, confidence, max_iter)
+    best = _restarts(problem, reference, sol, record, sigma, confidence, max_iter, good)
     if best is None:
         raise error
     return best
+
+
+def _complete(problem: TeamProblem, localized: np.ndarray) -> bool:
+    """False when the robots left unlocalized share three or more
+    observations with the localized ones (a placement failed, perhaps on a
+    wrong exact pose of an earlier one)."""
+    return int(np.count_nonzero(localized[problem.cam] != localized[problem.own])) < MIN_TIES
 
 
 def _fits(sol: TeamSolution, sigma: float, confidence: float) -> bool:
@@ -902,7 +915,7 @@ def _fits(sol: TeamSolution, sigma: float, confidence: float) -> bool:
 
 
 def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, record: list[int], sigma: float,
-              confidence: float, max_iter: int) -> TeamSolution | None:
+              confidence: float, max_iter: int, good: bool = False) -> TeamSolution | None:
     """The team solved from other starts, the best kept (see :func:`solve_team`):
 
     1. each placement on exactly three observations (``record``) takes
@@ -911,7 +924,10 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
     2. the placement grown from every other robot as the root (another
        spanning tree), re-expressed in the reference's frame.
 
-    At most :data:`MAX_RESTARTS` solves; stops at the first that fits."""
+    At most :data:`MAX_RESTARTS` solves; stops at the first that fits,
+    except when the first solution ``good`` already did: then 1. looks for
+    a lower optimum among all the exact poses (the maximum-likelihood one)
+    unless one fits exactly, and 2. is skipped."""
     best = sol
     budget = [MAX_RESTARTS]
 
@@ -919,7 +935,12 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
         if best is None:
             return True
         nb, ns = int(best.localized.sum()), int(s.localized.sum())
-        return ns > nb or (ns == nb and s.cost < best.cost)
+        return ns > nb or (ns == nb and s.cost < best.cost * (1.0 - 1e-9) - 1e-15)
+
+    def done(s: TeamSolution) -> bool:
+        if not (_fits(s, sigma, confidence) and _complete(problem, s.localized)):
+            return False
+        return not good or s.cost <= 1e-12 * sigma**2 * max(s.n_obs, 1)
 
     def attempt(start) -> TeamSolution | None:
         budget[0] -= 1
@@ -943,12 +964,14 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
                 s = attempt(start)
                 if s is not None and better(s):
                     best, step = s, (key, k)
-                    if _fits(s, sigma, confidence):
+                    if done(s):
                         return s
         if step is None:
             break
         chosen[step[0]] = step[1]
         keys.remove(step[0])
+    if good or (best is not None and _fits(best, sigma, confidence) and _complete(problem, best.localized)):
+        return best
     C = problem.counts()
     degree = C.sum(axis=0) + C.sum(axis=1)
     for root in np.argsort(-degree, kind="stable").tolist():
@@ -964,7 +987,7 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
         s = attempt((Rs, ts, placed))
         if s is not None and better(s):
             best = s
-            if _fits(s, sigma, confidence):
+            if _fits(s, sigma, confidence) and _complete(problem, s.localized):
                 return s
     return best
 
