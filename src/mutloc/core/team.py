@@ -21,8 +21,18 @@ and one placed camera ``c`` -- ``c``'s views of ``r``'s markers, plus every
 view ``r`` has of markers of any placed robot, those markers expressed in
 ``c``'s frame (the pair solver takes any known points).  That needs three
 such observations; observations of ``r`` by other placed cameras choose
-among the minimal solutions and refine the start.  See :func:`initial_poses`
-for what is well posed.
+among the minimal solutions and refine the start.  When that stalls, a
+robot tied by observations spread over several placed cameras, or a group
+of robots tied to the placed ones only together, is solved among itself and
+placed as one rigid body by the generalized minimal solver
+(:mod:`mutloc.core.generalized`: the placed robots as one multi-camera rig,
+rays both ways).  See :func:`initial_poses` for what is well posed.
+
+A cold start's optimum that fails its chi-square test, or leaves robots
+unlocalized that three observations tie to the others, may come from a
+wrong exact pose of a placement on three observations: :func:`solve_team`
+then starts again from the other exact poses and other spanning trees and
+keeps the best (:func:`_restarts`).
 """
 
 from __future__ import annotations
