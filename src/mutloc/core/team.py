@@ -501,7 +501,9 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     # the ties within their noise
     bR = np.empty((3, 3))
     bt = np.empty(3)
-    for pool in range(2):
+    # of three observations every candidate is exact and the solver's pick
+    # means nothing: score them all on the ties
+    for pool in range(1 if n == 3 else 0, 2):
         best = np.inf
         for q in range(1 if pool == 0 else nd):
             if pool == 0:
@@ -620,11 +622,17 @@ def _attach(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.nda
     rows = np.flatnonzero(both[cam] & both[own] & (inm[cam] | inm[own]))
     var = np.full(N, -1, dtype=np.int64)
     var[members] = np.arange(len(members))
-    cost, _, _ = _lm(problem.take(rows), var, Rtry, ttry, max_iter)
-    if np.isfinite(cost):
-        Rs[members], ts[members] = Rtry[members], ttry[members]
-    else:
-        Rs[members], ts[members] = bR, bt
+    cost, _, H = _lm(problem.take(rows), var, Rtry, ttry, max_iter)
+    if not np.isfinite(cost):
+        Rtry[members], ttry[members] = bR, bt
+        cost, _, H = _lm(problem.take(rows), var, Rtry, ttry, 0)
+    try:
+        # the group's pose must be isolated (say, a robot seen at only two
+        # of its markers, from any number of cameras, is free to turn)
+        checked_factor(H)
+    except DegenerateGeometryError:
+        return False
+    Rs[members], ts[members] = Rtry[members], ttry[members]
     placed[members] = True
     return True
 
@@ -955,8 +963,11 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
     def attempt(start) -> TeamSolution | None:
         budget[0] -= 1
         try:
-            return _solve_from(problem, reference, *start, max_iter)
-        except NoSolutionError:
+            s = _solve_from(problem, reference, *start, max_iter)
+            if s.information.size:
+                checked_factor(s.information)  # more robots, but not all isolated: no better
+            return s
+        except (NoSolutionError, DegenerateGeometryError):
             return None
 
     chosen: dict[int, int] = {}
