@@ -7,7 +7,7 @@ exactly (checked independently of the solver's algebra)."""
 import numpy as np
 import pytest
 
-from mutloc.core.generalized import KIND_U_RAY, KIND_W_RAY, generalized_p3p
+from mutloc.core.generalized import KIND_U_RAY, generalized_p3p
 from mutloc.core.geometry import so3_exp
 
 
