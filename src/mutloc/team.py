@@ -188,8 +188,10 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     isotropic detection noise ``pixel_sigma``.
 
     Robots nothing ties to the reference are listed in ``unlocalized``
-    (never guessed); a robot is tied once three observations link it to
-    robots already tied (see :func:`mutloc.core.team.initial_poses`).
+    (never guessed); a robot -- or a group of robots solved among
+    themselves -- is tied once three observations, by any cameras, link it
+    to robots already tied (see :func:`mutloc.core.team.initial_poses`);
+    held by exactly three, it is listed in ``unverified``.
     ``initial`` (``{robot: T_ref_robot}``, e.g. the previous frame's poses)
     replaces the initialisation from the pair solvers; robots missing from
     it are unlocalized.  The joint residual is tested against its noise
@@ -229,7 +231,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     rejected: list[dict[str, Any]] = []
     while True:
         sub = problem.take(keep)
-        sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma)
+        sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma, confidence=confidence)
         if len(sol.order) == 0:
             seen = sorted({names[i] for i in np.r_[problem.cam, problem.own].tolist()})
             raise TooFewObservationsError(

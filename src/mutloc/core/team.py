@@ -21,8 +21,18 @@ and one placed camera ``c`` -- ``c``'s views of ``r``'s markers, plus every
 view ``r`` has of markers of any placed robot, those markers expressed in
 ``c``'s frame (the pair solver takes any known points).  That needs three
 such observations; observations of ``r`` by other placed cameras choose
-among the minimal solutions and refine the start.  See :func:`initial_poses`
-for what is well posed.
+among the minimal solutions and refine the start.  When that stalls, a
+robot tied by observations spread over several placed cameras, or a group
+of robots tied to the placed ones only together, is solved among itself and
+placed as one rigid body by the generalized minimal solver
+(:mod:`mutloc.core.generalized`: the placed robots as one multi-camera rig,
+rays both ways).  See :func:`initial_poses` for what is well posed.
+
+A cold start's optimum that fails its chi-square test, or leaves robots
+unlocalized that three observations tie to the others, may come from a
+wrong exact pose of a placement on three observations: :func:`solve_team`
+then starts again from the other exact poses and other spanning trees and
+keeps the best (:func:`_restarts`).
 """
 
 from __future__ import annotations
@@ -33,9 +43,10 @@ import numpy as np
 from numba import njit
 
 from ..errors import DegenerateGeometryError, NoSolutionError
-from .camera import project_jac_kernel, project_kernel
-from .consistency import chi2_quantile
+from .camera import project_jac_kernel, project_kernel, undistort_kernel
+from .consistency import DEFAULT_CONFIDENCE, chi2_quantile
 from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
+from .generalized import KIND_U_RAY, KIND_W_RAY, generalized_p3p
 from .refine import MODE_PIXEL, so3_exp_left
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
@@ -490,7 +501,9 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     # the ties within their noise
     bR = np.empty((3, 3))
     bt = np.empty(3)
-    for pool in range(2):
+    # of three observations every candidate is exact and the solver's pick
+    # means nothing: score them all on the ties
+    for pool in range(1 if n == 3 else 0, 2):
         best = np.inf
         for q in range(1 if pool == 0 else nd):
             if pool == 0:
@@ -526,34 +539,109 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     return found
 
 
-def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20) -> tuple[np.ndarray, np.ndarray,
-                                                                                        np.ndarray]:
-    """Start poses ``T_ref_i`` (Rs, ts) and which robots could be placed.
+class _NoSuchChoice(Exception):
+    """A restart asked for a minimal solution that does not exist."""
 
-    Robots are placed greedily, the best-tied first.  A robot ``r`` can be
-    placed once some placed camera ``c`` has, together with ``r``'s own
-    views of markers of placed robots, at least three observations
-    (:data:`MIN_TIES`): that is the pair problem ``(r, c)`` with known points
-    on both sides, which the minimal solvers solve (3 observations, any split:
-    several exact poses, the one fitting ``r``'s other observations best is
-    kept) or over-determine.  So "r sees two of q's markers" ties r to the
-    team when one more observation joins it: r sees a third marker of any
-    placed robot, or some placed robot's camera sees one of r's markers.
-    Observations only of ``r``'s markers by several placed cameras, none of
-    which sees three (a non-central problem no minimal solver here covers),
-    and robots with fewer than three ties are not placed: they are never
-    guessed.  ``sigma`` (pixels) is the noise a start must fit r's ties
-    within before the cheap start is trusted.  Each attempt at a robot is
-    one compiled call (:func:`_place_pass`); only the choice of the next
-    robot is NumPy.
-    """
+
+def _bearing(K: np.ndarray, dist: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
+    b = np.empty(3)
+    return b if undistort_kernel(K, dist, np.ascontiguousarray(uv, dtype=float), b) else None
+
+
+def _attach(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarray, members: np.ndarray,
+            Rl: np.ndarray, tl: np.ndarray, sigma: float, max_iter: int, choice: int | None = None) -> bool:
+    """Place the rigid group ``members`` (poses ``Rl``/``tl`` in a frame U of
+    their own) among the ``placed`` robots by the generalized minimal solver
+    (:func:`mutloc.core.generalized.generalized_p3p`): the group's cameras
+    see placed markers (rays of U), placed cameras see the group's markers
+    (rays of the reference frame), from any number of cameras.  Candidates
+    from a few triples of the ties are scored on all ties, the best refined
+    (LM over the members).  ``choice``: take that minimal solution of the
+    first triple instead (a restart; :class:`_NoSuchChoice` if there is
+    none).  Writes Rs/ts/placed and returns True on success."""
+    from itertools import combinations
+
+    N = problem.n_robots
+    inm = np.zeros(N, dtype=bool)
+    inm[members] = True
+    cam, own = problem.cam, problem.own
+    ties = np.flatnonzero((inm[cam] & placed[own]) | (placed[cam] & inm[own]))
+    if len(ties) < MIN_TIES:
+        return False
+    kinds, origins, dirs, points = [], [], [], []
+    usable = []
+    for j in ties.tolist():
+        a, b = int(cam[j]), int(own[j])
+        bear = _bearing(problem.K[a], problem.dist[a], problem.uv[j])
+        if bear is None:
+            continue
+        usable.append(len(kinds))
+        if inm[a]:  # a camera of the group sees a placed marker
+            kinds.append(KIND_U_RAY)
+            origins.append(tl[a])
+            dirs.append(Rl[a] @ bear)
+            points.append(Rs[b] @ problem.points[j] + ts[b])
+        else:  # a placed camera sees a marker of the group
+            kinds.append(KIND_W_RAY)
+            origins.append(ts[a])
+            dirs.append(Rs[a] @ bear)
+            points.append(Rl[b] @ problem.points[j] + tl[b])
+    if len(usable) < MIN_TIES:
+        return False
+    kinds_a, origins_a, dirs_a, points_a = (np.array(x) for x in (kinds, origins, dirs, points))
+    tie_sub = problem.take(ties)
+    gate = sigma**2 * chi2_quantile(0.999, 2 * len(ties) - 6) if len(ties) > 3 else np.inf
+    Rtry, ttry = Rs.copy(), ts.copy()
+
+    def apply(R, t, Rout, tout):
+        for i in members.tolist():
+            Rout[i] = R @ Rl[i]
+            tout[i] = R @ tl[i] + t
+
+    pick = _spread(np.arange(len(usable), dtype=np.int64), 6)
+    best, bR, bt = np.inf, None, None
+    for tri in combinations(pick.tolist(), 3):
+        idx = list(tri)
+        Rc, tc = generalized_p3p(kinds_a[idx], origins_a[idx], dirs_a[idx], points_a[idx])
+        if choice is not None:
+            if choice >= len(Rc):
+                raise _NoSuchChoice
+            Rc, tc = Rc[choice:choice + 1], tc[choice:choice + 1]
+        for R, t in zip(Rc, tc):
+            apply(R, t, Rtry, ttry)
+            cost = team_cost(tie_sub.cam, tie_sub.own, tie_sub.points, tie_sub.uv, tie_sub.K, tie_sub.dist, Rtry, ttry)
+            if cost < best:
+                best, bR, bt = cost, Rtry[members].copy(), ttry[members].copy()
+        if best <= gate or choice is not None:
+            break
+    if bR is None or not np.isfinite(best):
+        return False
+    Rtry[members], ttry[members] = bR, bt
+    # refine the members on every observation they share with the placed robots or among themselves
+    both = placed | inm
+    rows = np.flatnonzero(both[cam] & both[own] & (inm[cam] | inm[own]))
+    var = np.full(N, -1, dtype=np.int64)
+    var[members] = np.arange(len(members))
+    cost, _, H = _lm(problem.take(rows), var, Rtry, ttry, max_iter)
+    if not np.isfinite(cost):
+        Rtry[members], ttry[members] = bR, bt
+        cost, _, H = _lm(problem.take(rows), var, Rtry, ttry, 0)
+    try:
+        # the group's pose must be isolated (say, a robot seen at only two
+        # of its markers, from any number of cameras, is free to turn)
+        checked_factor(H)
+    except DegenerateGeometryError:
+        return False
+    Rs[members], ts[members] = Rtry[members], ttry[members]
+    placed[members] = True
+    return True
+
+
+def _grow(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarray, sigma: float, max_iter: int,
+          choices: dict[int, int], record: list[int] | None) -> None:
+    """Prim's placement (:func:`initial_poses`), robot by robot, from the pair solver."""
     N = problem.n_robots
     C = problem.counts()
-    placed = np.zeros(N, dtype=bool)
-    placed[reference] = True
-    Rs = np.zeros((N, 3, 3))
-    ts = np.zeros((N, 3))
-    Rs[:] = np.eye(3)
     cam, own = problem.cam, problem.own
     failed_at = np.full(N, -1)
     out_R, out_t = np.empty((3, 3)), np.empty(3)
@@ -577,6 +665,15 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
         sees = np.flatnonzero(r_sees)
         seen = np.flatnonzero((cam == c) & (own == r))
         ties = np.flatnonzero(r_sees | ((own == r) & placed[cam]))
+        if len(ties) == MIN_TIES:
+            # several exact poses: a restart may ask for another one
+            if record is not None:
+                record.append(r)
+            if r in choices:
+                if not _attach(problem, Rs, ts, placed, np.array([r]), np.tile(np.eye(3), (N, 1, 1)),
+                               np.zeros((N, 3)), sigma, max_iter, choices[r]):
+                    failed_at[r] = placed.sum()
+                continue
         # a few observations each way make the candidates (cheap); every
         # candidate is scored on all of r's ties (this also picks among the
         # exact poses of three observations) and the best refined on them;
@@ -608,6 +705,105 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
             continue
         Rs[r], ts[r] = out_R, out_t
         placed[r] = True
+
+
+def _components(C: np.ndarray, among: np.ndarray) -> list[np.ndarray]:
+    """Connected components of the robots ``among`` by their observations of each other."""
+    A = (C + C.T) > 0
+    left = set(np.flatnonzero(among).tolist())
+    comps = []
+    while left:
+        stack = [left.pop()]
+        comp = list(stack)
+        while stack:
+            i = stack.pop()
+            for j in np.flatnonzero(A[i] & among).tolist():
+                if j in left:
+                    left.remove(j)
+                    comp.append(j)
+                    stack.append(j)
+        comps.append(np.array(sorted(comp), dtype=np.int64))
+    return comps
+
+
+def _attach_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarray, sigma: float,
+                  max_iter: int, choices: dict[int, int], record: list[int] | None) -> bool:
+    """When Prim's placement stalls: a group of unplaced robots, solved among
+    themselves (:func:`initial_poses` from one of them) and tied to the
+    placed ones by three or more observations spread over several robots,
+    placed as one rigid body (:func:`_attach`).  True if one was placed."""
+    C = problem.counts()
+    unplaced = ~placed
+    ties = C[:, placed].sum(axis=1) + C[placed, :].sum(axis=0)
+    for comp in _components(C, unplaced & (C.sum(axis=0) + C.sum(axis=1) > 0)):
+        if ties[comp].sum() < MIN_TIES:
+            continue
+        inside = np.zeros(problem.n_robots, dtype=bool)
+        inside[comp] = True
+        sub = problem.take(np.flatnonzero(inside[problem.cam] & inside[problem.own]))
+        # the best-tied first; its group: what the observations among the
+        # component place around it (a robot of a group tried already
+        # would grow the same group)
+        tried = np.zeros(problem.n_robots, dtype=bool)
+        for u in comp[np.argsort(-ties[comp], kind="stable")].tolist():
+            if tried[u]:
+                continue
+            Rl, tl, group = initial_poses(sub, u, sigma=sigma, max_iter=max_iter, choices=choices, record=record)
+            members = np.flatnonzero(group & inside)
+            tried[members] = True
+            n_ties = int(ties[members].sum())
+            if n_ties < MIN_TIES:
+                continue
+            if n_ties == MIN_TIES and record is not None:
+                record.append(u)
+            choice = choices.get(u) if n_ties == MIN_TIES else None
+            if _attach(problem, Rs, ts, placed, members, Rl, tl, sigma, max_iter, choice):
+                return True
+    return False
+
+
+def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20,
+                  choices: dict[int, int] | None = None, record: list[int] | None = None) -> tuple[np.ndarray,
+                                                                                                np.ndarray, np.ndarray]:
+    """Start poses ``T_ref_i`` (Rs, ts) and which robots could be placed.
+
+    Robots are placed greedily, the best-tied first.  A robot ``r`` can be
+    placed once some placed camera ``c`` has, together with ``r``'s own
+    views of markers of placed robots, at least three observations
+    (:data:`MIN_TIES`): that is the pair problem ``(r, c)`` with known points
+    on both sides, which the minimal solvers solve (3 observations, any split:
+    several exact poses, the one fitting ``r``'s other observations best is
+    kept) or over-determine.  So "r sees two of q's markers" ties r to the
+    team when one more observation joins it: r sees a third marker of any
+    placed robot, or some placed robot's camera sees one of r's markers.
+
+    When that stalls, robots tied by observations spread over several placed
+    cameras (a non-central problem), and groups of robots tied to the placed
+    ones only together, are solved among themselves and placed as one rigid
+    body by the generalized minimal solver (:func:`_attach_group`); then the
+    robot-by-robot placement resumes.  Robots (and groups) with fewer than
+    three ties are not placed: they are never guessed.  ``sigma`` (pixels)
+    is the noise a start must fit r's ties within before the cheap start is
+    trusted.
+
+    ``record`` (a list) receives every robot placed on exactly three
+    observations (and the first robot of every group attached by three):
+    several poses fit those exactly.  ``choices`` ``{robot: k}`` makes such
+    a placement take the generalized solver's ``k``-th exact pose instead
+    (a restart of :func:`solve_team`; :class:`_NoSuchChoice` when there are
+    not that many).
+    """
+    N = problem.n_robots
+    placed = np.zeros(N, dtype=bool)
+    placed[reference] = True
+    Rs = np.zeros((N, 3, 3))
+    ts = np.zeros((N, 3))
+    Rs[:] = np.eye(3)
+    choices = {} if choices is None else choices
+    while True:
+        _grow(problem, Rs, ts, placed, sigma, max_iter, choices, record)
+        if placed.all() or not _attach_group(problem, Rs, ts, placed, sigma, max_iter, choices, record):
+            break
     return Rs, ts, placed
 
 
@@ -676,22 +872,150 @@ def _rcm(problem: TeamProblem, order: np.ndarray) -> np.ndarray:
     return _rcm_kernel(a[ok], b[ok], k)
 
 
+#: Restarts :func:`solve_team` tries at most before it reports the best optimum it found.
+MAX_RESTARTS = 40
+
+
 def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarray, np.ndarray, np.ndarray]
-               | None = None, max_iter: int = 50, sigma: float = 1.0) -> TeamSolution:
+               | None = None, max_iter: int = 50, sigma: float = 1.0,
+               confidence: float = DEFAULT_CONFIDENCE) -> TeamSolution:
     """The joint maximum-likelihood poses of every robot tied to ``reference``.
 
     ``initial`` = (Rs, ts, localized) skips :func:`initial_poses` (a warm
-    start, e.g. the previous frame's solution).  Raises NoSolutionError if
-    no robot can be tied to the reference or the optimum puts a marker
-    behind a camera, DegenerateGeometryError if some pose is not isolated.
+    start, e.g. the previous frame's solution).  From a cold start, an
+    optimum whose residual fails the chi-square test at ``confidence``
+    (noise ``sigma`` px) may be a local one, and robots left unlocalized
+    though three or more observations tie them to the others may have
+    failed on a wrong start of another robot: the team is solved again from
+    other starts (:func:`_restarts`: the other exact poses of each placement
+    on three observations, then spanning trees from other roots) and the
+    best kept -- the most robots localized, then the least cost.  Raises
+    NoSolutionError if the optimum puts a marker behind a camera,
+    DegenerateGeometryError if some pose is not isolated.
     """
-    if initial is None:
-        Rs, ts, localized = initial_poses(problem, reference, sigma=sigma)
-    else:
+    if initial is not None:
         Rs, ts, localized = (np.array(a, dtype=float if i < 2 else bool) for i, a in enumerate(initial))
         localized = localized.copy()
         localized[reference] = True
         Rs[reference], ts[reference] = np.eye(3), np.zeros(3)
+        return _solve_from(problem, reference, Rs, ts, localized, max_iter)
+    record: list[int] = []
+    try:
+        sol = _solve_from(problem, reference, *initial_poses(problem, reference, sigma=sigma, record=record), max_iter)
+    except NoSolutionError as e:
+        sol, error = None, e
+    good = sol is not None and _fits(sol, sigma, confidence) and _complete(problem, sol.localized)
+    # a placement on three observations took one of several exact poses; when
+    # later observations can tell them apart (redundancy), try the others too
+    ambiguous = bool(record) and sol is not None and 2 * sol.n_obs > 6 * len(sol.order)
+    if good and not ambiguous:
+        return sol
+    best = _restarts(problem, reference, sol, record, sigma, confidence, max_iter, good)
+    if best is None:
+        raise error
+    return best
+
+
+def _complete(problem: TeamProblem, localized: np.ndarray) -> bool:
+    """False when the robots left unlocalized share three or more
+    observations with the localized ones (a placement failed, perhaps on a
+    wrong exact pose of an earlier one)."""
+    return int(np.count_nonzero(localized[problem.cam] != localized[problem.own])) < MIN_TIES
+
+
+def _fits(sol: TeamSolution, sigma: float, confidence: float) -> bool:
+    """The optimum's residual within its noise (the chi-square test of
+    mutloc.team; trivially so without redundancy or with the test off)."""
+    dof = 2 * sol.n_obs - 6 * len(sol.order)
+    if dof <= 0 or confidence >= 1.0:
+        return True
+    return sol.cost / sigma**2 <= chi2_quantile(confidence, dof)
+
+
+def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, record: list[int], sigma: float,
+              confidence: float, max_iter: int, good: bool = False) -> TeamSolution | None:
+    """The team solved from other starts, the best kept (see :func:`solve_team`):
+
+    1. each placement on exactly three observations (``record``) takes
+       another of its exact poses, one at a time, then with the best such
+       change kept, the others again (a greedy descent over the choices);
+    2. the placement grown from every other robot as the root (another
+       spanning tree), re-expressed in the reference's frame.
+
+    At most :data:`MAX_RESTARTS` solves; stops at the first that fits,
+    except when the first solution ``good`` already did: then 1. looks for
+    a lower optimum among all the exact poses (the maximum-likelihood one)
+    unless one fits exactly, and 2. is skipped."""
+    best = sol
+    budget = [MAX_RESTARTS]
+
+    def better(s: TeamSolution) -> bool:
+        if best is None:
+            return True
+        nb, ns = int(best.localized.sum()), int(s.localized.sum())
+        return ns > nb or (ns == nb and s.cost < best.cost * (1.0 - 1e-9) - 1e-15)
+
+    def done(s: TeamSolution) -> bool:
+        if not (_fits(s, sigma, confidence) and _complete(problem, s.localized)):
+            return False
+        return not good or s.cost <= 1e-12 * sigma**2 * max(s.n_obs, 1)
+
+    def attempt(start) -> TeamSolution | None:
+        budget[0] -= 1
+        try:
+            s = _solve_from(problem, reference, *start, max_iter)
+            if s.information.size:
+                checked_factor(s.information)  # more robots, but not all isolated: no better
+            return s
+        except (NoSolutionError, DegenerateGeometryError):
+            return None
+
+    chosen: dict[int, int] = {}
+    keys = list(dict.fromkeys(record))
+    while keys and budget[0] > 0:
+        step = None
+        for key in keys:
+            for k in range(8):
+                if budget[0] <= 0:
+                    break
+                try:
+                    start = initial_poses(problem, reference, sigma=sigma, choices={**chosen, key: k})
+                except _NoSuchChoice:
+                    break
+                s = attempt(start)
+                if s is not None and better(s):
+                    best, step = s, (key, k)
+                    if done(s):
+                        return s
+        if step is None:
+            break
+        chosen[step[0]] = step[1]
+        keys.remove(step[0])
+    if good or (best is not None and _fits(best, sigma, confidence) and _complete(problem, best.localized)):
+        return best
+    C = problem.counts()
+    degree = C.sum(axis=0) + C.sum(axis=1)
+    for root in np.argsort(-degree, kind="stable").tolist():
+        if root == reference or degree[root] == 0 or budget[0] <= 0:
+            continue
+        Rs, ts, placed = initial_poses(problem, root, sigma=sigma)
+        if not placed[reference]:
+            continue
+        # T_ref_i = T_root_ref^-1 T_root_i
+        Rr, tr = Rs[reference].copy(), ts[reference].copy()
+        Rs = np.einsum("ji,njk->nik", Rr, Rs)
+        ts = (ts - tr) @ Rr
+        s = attempt((Rs, ts, placed))
+        if s is not None and better(s):
+            best = s
+            if _fits(s, sigma, confidence) and _complete(problem, s.localized):
+                return s
+    return best
+
+
+def _solve_from(problem: TeamProblem, reference: int, Rs: np.ndarray, ts: np.ndarray, localized: np.ndarray,
+                max_iter: int) -> TeamSolution:
+    """The joint LM from the start (Rs, ts) over the ``localized`` robots."""
     used = np.flatnonzero(localized[problem.cam] & localized[problem.own])
     sub = problem.take(used)
     var = np.full(problem.n_robots, -1, dtype=np.int64)
