@@ -26,7 +26,8 @@ from .core.geometry import so3_log
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import MarkerKind, Rig
-from .errors import InputError, MutlocError, UnknownMarkerError, UnobservableMarkersError, positive_number
+from .errors import (InconsistentObservationsError, InputError, MutlocError, UnknownMarkerError,
+                     UnobservableMarkersError, positive_number)
 
 __all__ = ["calibrate_markers", "CalibrationResult", "MarkerCalibration", "WeakDirection", "parse_scale"]
 
@@ -363,6 +364,13 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
             # pair's own consistency search sets aside wrong detections, not
             # the rig's error
             est = localize(rig, obs, source=b, target=a, pixel_sigma=max(pixel_sigma, START_SIGMA_PX))
+        except InconsistentObservationsError as exc:
+            # no consistent subset (four observations leave none to spare):
+            # the best attempt is the start, the adjustment judges its observations
+            est = exc.estimate
+            if est is None:
+                why = why or f"{a}-{b}: {exc}"
+                continue
         except MutlocError as exc:
             why = why or f"{a}-{b}: {exc}"
             continue
