@@ -432,7 +432,7 @@ def test_experiment_writes_results_report_and_plots(tmp_path):
     from mutloc.experiments import run_calibration
 
     res = run_calibration(tmp_path, seed=1, progress=False, frames=(40,), sigmas=(0.5,), seeds=1, held_out=5,
-                          team_frames=40)
+                          team_frames=40, rendered_frames=0)
     out = tmp_path / "calibration"
     data = json.loads((out / "results.json").read_text())
     assert data["experiment"] == "calibration" and data["seed"] == 1
