@@ -617,3 +617,22 @@ def test_wrong_detections_and_a_garbage_frame_neither_stop_nor_bend_it():
     assert rms(res) < 0.3 * old and rms(res) < 1.5 * rms(clean) + 0.0005, (rms(res), rms(clean), old)
     assert 7 in {s["frame"] for s in res.skipped_frames}
     assert sum(o["frame"] != 7 for o in res.outliers) >= 0.9 * n_bad
+
+
+def test_tag_position_and_rotation_sigmas_cover_the_errors():
+    """position_sigma and rotation_sigma of calibrated tags: normalised
+    squared errors average 0.4-2 per axis over seeds (the rigid-body
+    covariance, centre and rotation, is the right size)."""
+    from mutloc.core.geometry import so3_exp, so3_log
+    from mutloc.sim.calibration import true_rotations
+
+    pos, rot = [], []
+    for seed in range(6):
+        _, truth, measured, seq = _tag_team(20 + seed)
+        res = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.3)
+        tp, tr = true_positions(truth), true_rotations(truth)
+        for n, m in res.markers.items():
+            pos.append(((m.new - tp[n]) / m.sigma) ** 2)
+            rot.append((so3_log(tr[n] @ so3_exp(m.new_rotation).T) / m.rotation_sigma) ** 2)
+    for nees in (np.mean(pos, axis=0), np.mean(rot, axis=0)):
+        assert np.all((nees > 0.4) & (nees < 2.0)), nees

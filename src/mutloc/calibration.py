@@ -185,8 +185,12 @@ class CalibrationResult:
         for n, m in self.markers.items():
             lines.append(f"{n:<10} {m.robot:<8} {f3(m.old):<28} {f3(m.new):<28} {f3(m.change, mm, 1):<24} "
                          f"{f3(m.sigma, mm, 1).replace('+', ''):<20}")
+        for n, m in self.markers.items():
+            if m.rotation_change_deg is not None:
+                lines.append(f"{n:<10} tag rotation changed by {m.rotation_change_deg:.2f} deg, sigma "
+                             + f3(np.degrees(m.rotation_sigma), 1.0, 2).replace("+", "") + " deg")
         for n in self.unobserved:
-            lines.append(f"{n:<10} never observed: position unchanged")
+            lines.append(f"{n:<10} never observed: not calibrated, position unchanged")
         lines.append(f"{self.frames_used} of {self.frames_total} frames, {self.observations_used} observations, "
                      f"reprojection RMS {self.reprojection_rms_px:.2f} px; scale held by "
                      + ", ".join(f"|{a}-{b}| = {d:g} m" for a, b, d in self.scale)
