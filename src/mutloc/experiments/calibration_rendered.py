@@ -107,7 +107,9 @@ def _held_out(rig: Any, log: list, truth_frames: list, held: list[int], names: l
         fr = truth_frames[k]
         obs = log[k]
         listed = fr["observations"]
-        keep = np.array([m in listed.get(o, {}) for o, m in zip(obs.observer, obs.marker)], dtype=bool)
+        # the truth lists centres; a tag's corners (NAME#k) and a cylinder's bands (NAME#bK) go with them
+        keep = np.array([m.split("#")[0] in listed.get(o, {}) for o, m in zip(obs.observer, obs.marker)],
+                        dtype=bool)
         obs = obs.take(keep)
         try:
             if len(names) == 2:
