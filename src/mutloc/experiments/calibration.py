@@ -16,8 +16,13 @@ pixel noise; the predicted sigmas beside them (normalised squared errors);
 true rig (and calibrated with the measured rig as a 1 cm prior); and the
 team case (three robots, and two with roll +-45 deg).
 
+Then, unless ``rendered_frames=0`` (``--quick``), the same end to end on
+rendered images (:mod:`.calibration_rendered`: ``simulate``, ``track
+--observations-out`` with the perturbed rig, ``calibrate-markers``,
+held-out localize; a ball pair, a tag team and a ball team; a few minutes).
+
 Output in ``OUT/calibration/``: ``results.json``, ``report.md``,
-``error_vs_frames.png``, ``error_vs_sigma.png``.
+``error_vs_frames.png``, ``error_vs_sigma.png`` (and ``rendered/``).
 """
 
 from __future__ import annotations
