@@ -2,9 +2,11 @@
 """Speed of marker calibration (``mutloc.calibrate_markers``) on one core:
 40 and 1,000 frames of two robots (1-3.5 m, yaw +-30 deg, roll +-15 deg,
 0.5 px), end to end (every frame localized with the measured rig, then the
-bundle adjustment) and the bundle adjustment alone; beside it, SciPy's
-``least_squares`` (trf, sparse finite-difference Jacobian, Huber loss, the
-scale held by a stiff residual) on the same problem from the same start.
+bundle adjustment) and the bundle adjustment alone (its first fit: every combination held near the
+given rig, which the weakly determined ones then stay near); beside it,
+SciPy's ``least_squares`` (trf, sparse finite-difference Jacobian, Huber
+loss, the scale held by a stiff residual, the prior as residuals) on the
+same problem from the same start.
 
     python bench/bench_calibrate.py [--runs 5] [--frames 40 1000]
 
@@ -78,13 +80,23 @@ def scipy_adjust(problem, M0, R0, t0):
     Rn, tn, Mn = np.empty_like(R0), np.empty_like(t0), np.empty_like(M0)
     (i, j, D), = problem.constraints
 
+    # the prior (the given rig; calibrate_markers' first fit holds every combination near it)
+    W = problem.prior_matrix()
+    if W is None:
+        L = np.zeros((0, M0.size))
+    else:
+        lw, U = np.linalg.eigh(W)
+        L = (np.sqrt(np.clip(lw, 0.0, None)) * U).T[lw > 1e-12 * max(lw.max(), 1e-300)]
+
     def fun(x):
         cc._apply_step(R0, t0, M0, problem.slot_used, x[:npose].reshape(G, 6 * S), x[npose:], Rn, tn, Mn)
         system.cost(problem, Mn, Rn, tn, SIGMA, 1e12, res, wts)
         stiff = 1e4 * (np.linalg.norm(Mn[i] - Mn[j]) - D)  # metres -> 0.1 mm per sigma
-        return np.concatenate([res.ravel() / SIGMA, [stiff]])
+        prior = L @ (Mn - problem.prior).ravel() / SIGMA if len(L) else np.zeros(0)
+        return np.concatenate([res.ravel() / SIGMA, [stiff], prior])
 
-    A = lil_matrix((2 * n + 1, npose + M0.size), dtype=int)
+    A = lil_matrix((2 * n + 1 + len(L), npose + M0.size), dtype=int)
+    A[2 * n + 1:, npose:] = 1
     for k in range(n):
         g, m = problem.group[k], problem.marker[k]
         A[2 * k:2 * k + 2, g * 6 * S:(g + 1) * 6 * S] = 1

@@ -20,12 +20,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .core.calibration import HUBER_K, BundleProblem, adjust, constraint_jacobian, null_space
+from .core.calibration import HUBER_K, BundleProblem, adjust, constraint_jacobian, null_space, start_depths
 from .core.consistency import DEFAULT_CONFIDENCE, chi2_quantile
+from .core.geometry import so3_log
 from .core.observations import ObservationSet
 from .core.pose import Pose
-from .core.rig import Rig
-from .errors import InputError, MutlocError, UnknownMarkerError, UnobservableMarkersError, positive_number
+from .core.rig import MarkerKind, Rig
+from .errors import (InconsistentObservationsError, InputError, MutlocError, UnknownMarkerError,
+                     UnobservableMarkersError, positive_number)
 
 __all__ = ["calibrate_markers", "CalibrationResult", "MarkerCalibration", "WeakDirection", "parse_scale"]
 
@@ -38,10 +40,20 @@ SINGULAR_RATIO = 1e-10
 #: A combination of markers known no better than this (1 sigma, metres, at
 #: the stated pixel noise) is not determined by the log.
 MAX_SIGMA_M = 0.5
+#: Without --prior-sigma, the combinations the log determines worse than
+#: this (1 sigma, metres; two upright robots leave some) are held near the
+#: given rig, taken as good to it along them (a tape measure's centimetre).
+WEAK_PRIOR_SIGMA_M = 0.01
 #: A combination whose sigma is above this many times the median one (and
 #: above :data:`WEAK_MIN_M`) is reported as weakly determined.
 WEAK_RATIO = 4.0
 WEAK_MIN_M = 0.003
+#: Each frame's start is solved with at least this pixel noise (the given
+#: rig is only approximate: its consistency test must not refuse the rig's
+#: error, only wrong detections), and an observation farther than START_GATE_PX
+#: from where the start puts it is a wrong detection, set aside and reported.
+START_SIGMA_PX = 3.0
+START_GATE_PX = 50.0
 # Frames this close in relative pose count as one pose (degree, metre).
 SAME_POSE_DEG = 3.0
 SAME_POSE_M = 0.01
@@ -66,15 +78,34 @@ class MarkerCalibration:
     old: np.ndarray
     new: np.ndarray
     sigma: np.ndarray
+    #: For a tag (calibrated as a rigid body from its corners): its rotation
+    #: vector (radians, robot frame) before and after, and the new one's
+    #: 1-sigma per axis of the robot frame (radians, left perturbation).
+    old_rotation: np.ndarray | None = None
+    new_rotation: np.ndarray | None = None
+    rotation_sigma: np.ndarray | None = None
 
     @property
     def change(self) -> np.ndarray:
         return self.new - self.old
 
+    @property
+    def rotation_change_deg(self) -> float | None:
+        """The angle (degrees) between the old and the new rotation of a tag; None for other markers."""
+        if self.old_rotation is None or self.new_rotation is None:
+            return None
+        from .core.geometry import rotation_error_deg, so3_exp
+
+        return rotation_error_deg(so3_exp(self.new_rotation), so3_exp(self.old_rotation))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"robot": self.robot, "old": self.old.tolist(), "new": self.new.tolist(),
-                "change": self.change.tolist(), "change_m": float(np.linalg.norm(self.change)),
-                "position_sigma": self.sigma.tolist()}
+        d = {"robot": self.robot, "old": self.old.tolist(), "new": self.new.tolist(),
+             "change": self.change.tolist(), "change_m": float(np.linalg.norm(self.change)),
+             "position_sigma": self.sigma.tolist()}
+        if self.new_rotation is not None:
+            d.update(old_rotation=self.old_rotation.tolist(), rotation=self.new_rotation.tolist(),
+                     rotation_change_deg=self.rotation_change_deg, rotation_sigma=self.rotation_sigma.tolist())
+        return d
 
 
 @dataclass
@@ -88,10 +119,14 @@ class WeakDirection:
     description: str
     advice: str
     shifts: dict[str, list[float]]
+    #: Determined by the log worse than the given rig is taken to be
+    #: (``sigma_m``, the log's own, inf when not at all): held near the
+    #: given rig (calibrate_markers' ``weak_sigma``).
+    held: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return {"sigma_m": self.sigma_m, "description": self.description, "advice": self.advice,
-                "shifts": self.shifts}
+        return {"sigma_m": self.sigma_m if math.isfinite(self.sigma_m) else None, "description": self.description,
+                "advice": self.advice, "shifts": self.shifts, "held": self.held}
 
 
 @dataclass
@@ -150,8 +185,12 @@ class CalibrationResult:
         for n, m in self.markers.items():
             lines.append(f"{n:<10} {m.robot:<8} {f3(m.old):<28} {f3(m.new):<28} {f3(m.change, mm, 1):<24} "
                          f"{f3(m.sigma, mm, 1).replace('+', ''):<20}")
+        for n, m in self.markers.items():
+            if m.rotation_change_deg is not None:
+                lines.append(f"{n:<10} tag rotation changed by {m.rotation_change_deg:.2f} deg, sigma "
+                             + f3(np.degrees(m.rotation_sigma), 1.0, 2).replace("+", "") + " deg")
         for n in self.unobserved:
-            lines.append(f"{n:<10} never observed: position unchanged")
+            lines.append(f"{n:<10} never observed: not calibrated, position unchanged")
         lines.append(f"{self.frames_used} of {self.frames_total} frames, {self.observations_used} observations, "
                      f"reprojection RMS {self.reprojection_rms_px:.2f} px; scale held by "
                      + ", ".join(f"|{a}-{b}| = {d:g} m" for a, b, d in self.scale)
@@ -161,8 +200,11 @@ class CalibrationResult:
             lines.append(f"{len(self.outliers)} observations down-weighted as outliers (largest "
                          f"{max(o['residual_px'] for o in self.outliers):.1f} px)")
         for w in self.weak_directions:
-            lines.append(f"weakly determined by the log ({w.sigma_m * mm:.1f} mm, 1 sigma): {w.description}. "
-                         f"{w.advice}")
+            if w.held:
+                lines.append(f"not determined by the log: {w.description}. {w.advice}")
+            else:
+                lines.append(f"weakly determined by the log ({w.sigma_m * mm:.1f} mm, 1 sigma): {w.description}. "
+                             f"{w.advice}")
         if not self.weak_directions:
             lines.append("every marker coordinate is well determined")
         return "\n".join(lines)
@@ -218,6 +260,77 @@ def _read_frames(log_or_frames: Any) -> list[ObservationSet]:
 
 
 # ---------------------------------------------------------------------------
+# the markers as rigid bodies
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class _Model:
+    """The rig's markers as rigid bodies, and the points a log names.
+
+    ``bodies`` are the user's markers (rig order): a tag whose rotation the
+    rig gives is a body with a rotation and its four corners ``NAME#k`` at
+    fixed offsets in its own frame; a banded cylinder a body with its bands
+    ``NAME#bk`` on its axis; any other marker a single point.
+    ``points[name] = (body, offset)`` (offset in the body's frame) for every
+    name the expanded rig (``track``'s) knows, the bodies' own names included.
+    """
+
+    rig: Rig
+    expanded: Rig
+    bodies: list[str]
+    robot: list[str]
+    centre: np.ndarray
+    rotation: np.ndarray
+    rotates: np.ndarray
+    points: dict[str, tuple[int, np.ndarray]]
+
+    def point_positions(self) -> dict[str, np.ndarray]:
+        """Every point in its robot's frame."""
+        return {n: self.centre[b] + self.rotation[b] @ o for n, (b, o) in self.points.items()}
+
+
+def _model(rig: Rig) -> _Model:
+    from .detect.tags import tag_rotation
+    from .track.frames import expanded_rig
+
+    expanded = expanded_rig(rig)
+    bodies, robots, centres, rots, rotates = [], [], [], [], []
+    for r, robot in rig.robots.items():
+        for n, m in robot.markers.items():
+            if (m.extra.get("tag_of") or m.extra.get("cylinder_of")) in robot.markers:
+                continue  # a derived point saved in the rig: its parent is the body
+            R = tag_rotation(m) if m.kind == MarkerKind.TAG else None
+            bodies.append(n)
+            robots.append(r)
+            centres.append(m.position)
+            rots.append(np.eye(3) if R is None else R)
+            rotates.append(R is not None)
+    index = {n: i for i, n in enumerate(bodies)}
+    points: dict[str, tuple[int, np.ndarray]] = {}
+    for robot in expanded.robots.values():
+        for n, m in robot.markers.items():
+            b = index.get(n, index.get(m.extra.get("tag_of") or m.extra.get("cylinder_of") or n))
+            if b is not None:
+                points[n] = (b, rots[b].T @ (m.position - centres[b]))
+    return _Model(rig, expanded, bodies, robots, np.array(centres, float).reshape(-1, 3),
+                  np.array(rots, float).reshape(-1, 3, 3), np.array(rotates, bool), points)
+
+
+def _moved_rig(model: _Model, names: list[str], centres: np.ndarray, rotations: np.ndarray) -> dict[str, Any]:
+    """The user's rig (rig-file form, the user's keys kept) with bodies
+    ``names`` at new centres and, for tags, rotations."""
+    out = model.rig.to_dict()
+    for j, n in enumerate(names):
+        b = model.bodies.index(n)
+        spec = out["robots"][model.robot[b]]["markers"][n]
+        spec["position"] = np.asarray(centres[j], float).tolist()
+        if model.rotates[b]:
+            spec["tag"] = dict(spec["tag"], rotation=so3_log(rotations[j]).tolist())
+    return out
+
+
+# ---------------------------------------------------------------------------
 # initial poses: every frame on its own
 # ---------------------------------------------------------------------------
 
@@ -233,7 +346,10 @@ class _Group:
 def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], pixel_sigma: float
                   ) -> tuple[list[_Group], str | None]:
     """The frame's robots tied together by their observations, each set with
-    its poses relative to its first robot; and why nothing was, if so."""
+    its poses relative to its first robot; and why nothing was, if so.
+    Every pair with enough observations is solved on its own (the pair
+    solver's consistency search sets wrong detections aside), and the pairs
+    are chained, those with the most observations first."""
     counts: dict[tuple[str, str], int] = {}
     for o, m in zip(obs.observer, obs.marker):
         w = rig.owner(m)
@@ -241,15 +357,24 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
         counts[key] = counts.get(key, 0) + 1
     from .api import localize
 
-    edges: dict[str, dict[str, Pose]] = {}
     why = None
-    for (a, b), n in counts.items():
+    edges: dict[str, dict[str, Pose]] = {}
+    for (a, b), n in sorted(counts.items(), key=lambda kv: -kv[1]):
         if n < MIN_PAIR_OBSERVATIONS:
             why = why or f"{a}-{b}: {n} observations (at least {MIN_PAIR_OBSERVATIONS} needed)"
             continue
         try:
-            # confidence 1: the rig is only approximate here; the adjustment judges the fit.
-            est = localize(rig, obs, source=b, target=a, pixel_sigma=pixel_sigma, confidence=1.0)
+            # the rig is only approximate here: a loose noise, so that the
+            # pair's own consistency search sets aside wrong detections, not
+            # the rig's error
+            est = localize(rig, obs, source=b, target=a, pixel_sigma=max(pixel_sigma, START_SIGMA_PX))
+        except InconsistentObservationsError as exc:
+            # no consistent subset (four observations leave none to spare):
+            # the best attempt is the start, the adjustment judges its observations
+            est = exc.estimate
+            if est is None:
+                why = why or f"{a}-{b}: {exc}"
+                continue
         except MutlocError as exc:
             why = why or f"{a}-{b}: {exc}"
             continue
@@ -274,6 +399,21 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
     return groups, (None if groups else (why or "no observations"))
 
 
+def _start_residuals(rig: Rig, positions: dict[str, np.ndarray], grp: _Group, obs: ObservationSet,
+                     rows: list[int]) -> np.ndarray:
+    """Pixel residual lengths of observations ``rows`` of ``obs`` at the
+    group's start; inf where the start puts the marker behind its camera."""
+    out = np.full(len(rows), np.inf)
+    for k, i in enumerate(rows):
+        o, m = obs.observer[i], obs.marker[i]
+        X = (grp.poses[o].inverse() @ grp.poses[rig.owner(m)]).apply(positions[m])
+        if X[2] > 1e-6:
+            uv = rig.robots[o].camera.project(X)
+            if np.all(np.isfinite(uv)):
+                out[k] = float(np.linalg.norm(uv - obs.uv[i]))
+    return out
+
+
 # ---------------------------------------------------------------------------
 # the calibration
 # ---------------------------------------------------------------------------
@@ -281,27 +421,39 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
 
 def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sigma: float = 1.0, *,
                       prior_sigma: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
-                      huber: float = HUBER_K, max_iter: int = 100) -> CalibrationResult:
+                      huber: float = HUBER_K, max_iter: int = 100,
+                      weak_sigma: float | None = WEAK_PRIOR_SIGMA_M) -> CalibrationResult:
     """Re-estimate every observed marker's position from a sequence of mutual
     observations (SPEC "Marker calibration").
 
-    ``log_or_frames``: an observation log's path (JSON Lines) or a sequence
-    of frames (ObservationSets or the SPEC's observation dicts), any number
-    of robots; markers of unknown identity are not used.  ``scale``:
-    distances held fixed (``"A:B=D"`` strings or ``(A, B, D)``; markers A
-    and B of one robot); default the two markers of the rig's first robot
+    ``log_or_frames``: an observation log's path (JSON Lines, e.g. what
+    ``track --observations-out`` writes) or a sequence of frames
+    (ObservationSets or the SPEC's observation dicts), any number of robots;
+    markers of unknown identity are not used.  Every marker kind: a tag
+    whose rotation the rig gives is calibrated as a rigid body (centre and
+    rotation) from its corners ``NAME#0..3``, a banded cylinder as its axis
+    from its bands ``NAME#bK``, a ball as a point.  ``scale``: distances
+    held fixed (``"A:B=D"`` strings or ``(A, B, D)``; markers A and B of one
+    robot, centres); default the two markers of the rig's first robot
     farthest apart, at their given distance.  ``pixel_sigma`` is the
     detection noise behind ``position_sigma``; observations whose residual
     fails the chi-square test (family-wise at ``confidence`` over the log)
     are reported as outliers and left out of a second fit (a Huber loss at
-    ``huber`` sigma bounds their pull in the first).  Raises
-    UnobservableMarkersError when the sequence cannot determine the markers.
+    ``huber`` sigma bounds their pull in the first); frames that cannot be
+    placed are named in ``skipped_frames``.  Raises UnobservableMarkersError
+    when the sequence cannot determine the markers.
 
     ``prior_sigma`` (metres, 1 sigma per axis; default None: the log alone)
     says how well the given positions were measured: they then count as a
     measurement, and the combinations the log determines only weakly stay
     near them instead of drifting (``position_sigma`` includes it; the weak
-    directions and the refusal are judged on the log alone).
+    directions and the refusal are judged on the log alone).  Without it,
+    the combinations the log determines worse than ``weak_sigma`` (two
+    upright robots leave some; default 1 cm, what a tape measure gives) are
+    held near the given rig, taken as good to ``weak_sigma`` along them,
+    and reported as weak with the log's own sigma; ``weak_sigma=None``: the
+    log alone everywhere.  A log that leaves more than half the unknowns
+    undetermined (sigma above :data:`MAX_SIGMA_M`) is refused.
     """
     from .api import load_rig
 
@@ -311,65 +463,115 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     if prior_sigma is not None:
         prior_sigma = positive_number(prior_sigma, "prior_sigma")
     order = list(rig.robots)
+    model = _model(rig)
     frames = _read_frames(log_or_frames)
-    named = _check_scale(rig, parse_scale(scale))
-    data = _collect(rig, frames, order, pixel_sigma)
+    named = _check_scale(model, parse_scale(scale))
+    frames = _checked(model, frames)
+    data = _collect(model, frames, order, pixel_sigma)
 
-    # Unknowns: the observed markers, in rig order.
-    observed = {r[4] for r in data.rows}
-    names = [n for r in order for n in rig.robots[r].markers if n in observed]
-    unobserved = [n for r in order for n in rig.robots[r].markers if n not in observed]
-    mindex = {n: i for i, n in enumerate(names)}
-    named = named or [_default_scale(rig, order, observed)]
+    # Unknowns: the observed markers (bodies), in rig order.
+    observed = {model.points[r[4]][0] for r in data.rows}
+    names = [n for b, n in enumerate(model.bodies) if b in observed]
+    unobserved = [n for b, n in enumerate(model.bodies) if b not in observed]
+    bindex = {n: i for i, n in enumerate(names)}
+    named = named or [_default_scale(model, order, {model.bodies[b] for b in observed})]
     for a, b, _ in named:
         for n in (a, b):
-            if n not in mindex:
+            if n not in bindex:
                 raise UnobservableMarkersError(f"scale {a}:{b}: marker {n!r} is never observed in the log, so its "
                                                "distance cannot hold the scale")
-    constraints = tuple((mindex[a], mindex[b], d) for a, b, d in named)
-    old = np.array([rig.marker(n).position for n in names])
-    prior = (old, (pixel_sigma / prior_sigma) ** 2) if prior_sigma is not None else (None, 0.0)
-    fit = _fit(rig, order, data, mindex, constraints, prior, old, pixel_sigma, huber, max_iter, confidence)
-    adj, groups = fit.adjustment, fit.groups
-
-    _, C = constraint_jacobian(adj.markers, constraints)
+    constraints = tuple((bindex[a], bindex[b], d) for a, b, d in named)
+    body = [model.bodies.index(n) for n in names]
+    old, old_rot = model.centre[body].copy(), model.rotation[body].copy()
+    if prior_sigma is not None:
+        prior = (old, (pixel_sigma / prior_sigma) ** 2, None)
+    elif weak_sigma is not None:
+        # first everything near the given rig (a weakly determined log would
+        # otherwise let the start wander), then only the weak combinations
+        weak_sigma = positive_number(weak_sigma, "weak_sigma")
+        prior = (old, (pixel_sigma / weak_sigma) ** 2, None)
+    else:
+        prior = (None, 0.0, None)
+    args = (model, order, bindex, constraints, pixel_sigma, huber, max_iter, confidence)
+    fit = _fit(data, prior, old, old_rot, *args)
+    if data.skipped or data.gross or fit.outliers:
+        # Frames the given rig could not place, or placed wrongly: every frame
+        # again from the calibrated markers (each on its own, as before).
+        better = _model(load_rig(_moved_rig(model, names, fit.adjustment.markers, fit.adjustment.rotations)))
+        again = _collect(better, frames, order, pixel_sigma, required=False)
+        if again.groups and {better.points[r[4]][0] for r in again.rows} >= observed:
+            data = again
+            fit = _fit(data, prior, fit.adjustment.markers, fit.adjustment.rotations, *args)
+    adj = fit.adjustment
+    motion = _motion_summary(fit.groups, adj, order)
+    n_par = len(adj.information)
+    _, C = constraint_jacobian(adj.markers, constraints, n_par)
+    marker_robot = [model.robot[b] for b in body]
+    held: tuple | None = None
+    if prior_sigma is None:
+        free = n_par - len(constraints)
+        V, sig_v = _undetermined(adj, C, pixel_sigma, len(names), MAX_SIGMA_M)
+        if len(V) > free // 2 or (weak_sigma is None and len(V)):
+            _refuse_undetermined(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used)
+        if weak_sigma is not None:
+            V, sig_v = _undetermined(adj, C, pixel_sigma, len(names), weak_sigma)
+            held = (V, sig_v) if len(V) else None
+            prior = (old, (pixel_sigma / weak_sigma) ** 2, _orthonormal(V)) if len(V) else (None, 0.0, None)
+            outliers, dropped = fit.outliers, fit.dropped
+            fit = _fit(fit.data, prior, adj.markers, adj.rotations, *args)
+            fit.outliers, fit.dropped = outliers + fit.outliers, dropped + fit.dropped
+            adj = fit.adjustment
+            _, C = constraint_jacobian(adj.markers, constraints, n_par)
     cov_post, _ = adj.marker_covariance(C, pixel_sigma)
-    marker_robot = [rig.owner(n) for n in names]
-    weak = _weak_directions(adj, C, names, marker_robot, _motion_summary(groups, adj, order), pixel_sigma,
-                            fit.frames_used)
-    sigma = np.sqrt(np.clip(np.diag(cov_post), 0.0, None)).reshape(-1, 3)
-    markers = {n: MarkerCalibration(n, marker_robot[j], old[j], adj.markers[j].copy(), sigma[j])
-               for j, n in enumerate(names)}
-    new_rig = rig.to_dict()
+    weak = _weak_directions(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used, held, weak_sigma)
+    nb = 3 * len(names)
+    sigma = np.sqrt(np.clip(np.diag(cov_post)[:nb], 0.0, None)).reshape(-1, 3)
+    rot_sigma = np.sqrt(np.clip(np.diag(cov_post)[nb:], 0.0, None)).reshape(-1, 3)
+    markers: dict[str, MarkerCalibration] = {}
+    k = 0
+    for j, n in enumerate(names):
+        m = MarkerCalibration(n, marker_robot[j], old[j], adj.markers[j].copy(), sigma[j])
+        if model.rotates[body[j]]:
+            m.old_rotation, m.new_rotation = so3_log(old_rot[j]), so3_log(adj.rotations[j])
+            m.rotation_sigma = rot_sigma[k]
+            k += 1
+        markers[n] = m
+    new_rig = _moved_rig(model, names, adj.markers, adj.rotations)
     for n, m in markers.items():
         spec = new_rig["robots"][m.robot]["markers"][n]
-        spec["position"] = m.new.tolist()
         spec["position_sigma"] = m.sigma.tolist()
+        if m.rotation_sigma is not None:
+            spec["tag"]["rotation_sigma"] = m.rotation_sigma.tolist()
     for n in unobserved:
         # A sigma from an earlier calibration no longer describes this rig's position.
-        new_rig["robots"][rig.owner(n)]["markers"][n].pop("position_sigma", None)
+        spec = new_rig["robots"][model.robot[model.bodies.index(n)]]["markers"][n]
+        spec.pop("position_sigma", None)
+        if isinstance(spec.get("tag"), dict):
+            spec["tag"].pop("rotation_sigma", None)
     poses = [{"frame": g.frame, "reference": g.anchor,
               "poses": {r: Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy()) for s, r in enumerate(g.members)}}
-             for gi, g in enumerate(groups)]
+             for gi, g in enumerate(fit.groups)]
+    skipped = sorted(data.skipped + fit.dropped, key=lambda d: d["frame"])
     return CalibrationResult(
         rig=new_rig, markers=markers, weak_directions=weak, scale=list(named), pixel_sigma=pixel_sigma,
-        covariance=cov_post, covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames),
+        covariance=cov_post[:nb, :nb], covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames),
         frames_used=fit.frames_used, observations_used=len(fit.rows),
         reprojection_rms_px=float(np.sqrt(np.mean(np.sum(adj.residuals**2, axis=1)))), chi2=adj.chi2,
-        dof=fit.dof, iterations=adj.iterations, converged=adj.converged, outliers=fit.outliers,
-        unobserved=unobserved, skipped_frames=data.skipped, poses=poses)
+        dof=fit.dof, iterations=adj.iterations, converged=adj.converged, outliers=data.gross + fit.outliers,
+        unobserved=unobserved, skipped_frames=skipped, poses=poses)
 
 
-def _check_scale(rig: Rig, named: list[tuple[str, str, float]]) -> list[tuple[str, str, float]]:
+def _check_scale(model: _Model, named: list[tuple[str, str, float]]) -> list[tuple[str, str, float]]:
     """The held distances, each between two known markers of one robot."""
+    rig = model.rig
     for a, b, _ in named:
         for n in (a, b):
-            try:
-                rig.owner(n)
-            except UnknownMarkerError:
-                known = sorted(x for r in rig.robots.values() for x in r.markers)
-                raise UnknownMarkerError(f"scale {a}:{b}: unknown marker {n!r} (rig has {', '.join(known)})"
-                                         ) from None
+            if n not in model.bodies:
+                if n in model.points:
+                    raise InputError(f"scale {a}:{b}: {n!r} is a point of marker "
+                                     f"{model.bodies[model.points[n][0]]!r}; a held distance is between the centres "
+                                     "of two markers (their names in the rig)")
+                raise UnknownMarkerError(f"scale {a}:{b}: unknown marker {n!r} (rig has {', '.join(model.bodies)})")
         if rig.owner(a) != rig.owner(b):
             raise InputError(f"scale {a}:{b}: markers of different robots ({rig.owner(a)!r}, {rig.owner(b)!r}); "
                              "a held distance is between two markers of one robot")
@@ -378,41 +580,74 @@ def _check_scale(rig: Rig, named: list[tuple[str, str, float]]) -> list[tuple[st
     return named
 
 
-@dataclass
-class _Collected:
-    groups: list[_Group]
-    rows: list[tuple]                     # group, observer slot, owner slot, camera, marker, u, v
-    row_info: list[tuple[int, str, str]]  # frame, observer, marker
-    skipped: list[dict[str, Any]]
-
-
-def _collect(rig: Rig, frames: list[ObservationSet], order: list[str], pixel_sigma: float) -> _Collected:
-    """Every frame on its own: its groups with their initial poses, and the observation rows."""
-    out = _Collected([], [], [], [])
+def _checked(model: _Model, frames: list[ObservationSet]) -> list[ObservationSet]:
+    """The frames' best candidates of known identity, checked against the expanded rig."""
+    out = []
     for k, frame in enumerate(frames):
         obs = frame.best()
         if any(m is None for m in obs.marker):
             obs = obs.take(np.array([m is not None for m in obs.marker]))
-        where = f"frame {k}" + ("" if np.all(np.isnan(obs.time)) else f" (time {obs.time[0]:g})")
         try:
-            obs.check(rig)
+            obs.check(model.expanded)
         except MutlocError as exc:
-            raise type(exc)(f"{where}: {exc}") from None
+            raise type(exc)(f"{_where(k, obs)}: {exc}") from None
+        out.append(obs)
+    return out
+
+
+def _where(k: int, obs: ObservationSet) -> str:
+    return f"frame {k}" + ("" if len(obs) == 0 or np.all(np.isnan(obs.time)) else f" (time {obs.time[0]:g})")
+
+
+@dataclass
+class _Collected:
+    groups: list[_Group]
+    rows: list[tuple]                     # group, observer slot, owner slot, camera, point, u, v
+    row_info: list[tuple[int, str, str]]  # frame, observer, marker
+    skipped: list[dict[str, Any]]
+    gross: list[dict[str, Any]] = field(default_factory=list)  # set aside at the start
+
+
+def _collect(model: _Model, frames: list[ObservationSet], order: list[str], pixel_sigma: float,
+             required: bool = True) -> _Collected:
+    """Every frame on its own: its groups with their initial poses, and the
+    observation rows.  An observation the start puts behind the camera that
+    sees it is set aside; a group left with fewer than three observations
+    of a robot, and a frame nothing places, is skipped and named."""
+    rig = model.expanded
+    positions = model.point_positions()
+    out = _Collected([], [], [], [], [])
+    for k, obs in enumerate(frames):
         fg, why = _frame_groups(rig, obs, k, order, pixel_sigma)
-        if not fg:
-            out.skipped.append({"frame": k, "reason": why})
-            continue
+        placed = False
         for grp in fg:
-            gi = len(out.groups)
-            out.groups.append(grp)
             slot = {r: i for i, r in enumerate(grp.members)}
             slot[grp.anchor] = -1
-            for o, m, (u, v) in zip(obs.observer, obs.marker, obs.uv.tolist()):
-                w = rig.owner(m)
-                if o in slot and w in slot:
-                    out.rows.append((gi, slot[o], slot[w], order.index(o), m, u, v))
-                    out.row_info.append((k, o, m))
-    if not out.groups:
+            idx = [i for i, (o, m) in enumerate(zip(obs.observer, obs.marker)) if o in slot and rig.owner(m) in slot]
+            res = _start_residuals(rig, positions, grp, obs, idx)
+            for i, e in zip(idx, res):
+                if START_GATE_PX < e < math.inf:
+                    out.gross.append({"frame": k, "observer": obs.observer[i], "marker": obs.marker[i],
+                                      "residual_px": float(e), "at": "start"})
+            idx = [i for i, e in zip(idx, res) if e <= START_GATE_PX]
+            count: dict[str, int] = {}
+            for i in idx:
+                for r in (obs.observer[i], rig.owner(obs.marker[i])):
+                    count[r] = count.get(r, 0) + 1
+            if any(count.get(r, 0) < 3 for r in slot):
+                why = why or "the frame's poses put markers behind the cameras that see them"
+                continue
+            gi = len(out.groups)
+            out.groups.append(grp)
+            placed = True
+            for i in idx:
+                o, m = obs.observer[i], obs.marker[i]
+                u, v = obs.uv[i].tolist()
+                out.rows.append((gi, slot[o], slot[rig.owner(m)], order.index(o), m, u, v))
+                out.row_info.append((k, o, m))
+        if not placed:
+            out.skipped.append({"frame": k, "reason": why or "no observations"})
+    if not out.groups and required:
         raise UnobservableMarkersError(
             f"no frame of the {len(frames)} could be localized with the given rig"
             + (f" (frame 0: {out.skipped[0]['reason']})" if out.skipped else "")
@@ -428,68 +663,133 @@ class _Fit:
     outliers: list[dict[str, Any]]
     frames_used: int
     dof: int
+    dropped: list[dict[str, Any]] = field(default_factory=list)
+    data: _Collected | None = None   # the groups (poses at the optimum) and rows it used
 
 
-def _fit(rig: Rig, order: list[str], data: _Collected, mindex: dict[str, int], constraints: tuple, prior: tuple,
-         start: np.ndarray, pixel_sigma: float, huber: float, max_iter: int, confidence: float) -> _Fit:
+def _fit(data: _Collected, prior: tuple, start: np.ndarray, start_rot: np.ndarray, model: _Model, order: list[str],
+         bindex: dict[str, int], constraints: tuple, pixel_sigma: float, huber: float, max_iter: int,
+         confidence: float) -> _Fit:
     """The bundle adjustment; observations failing their own chi-square test
     are reported and left out of a second fit (the Huber loss bounds their
     pull but does not remove it).  The test is family-wise at
     ``confidence``: a log without a stray detection passes whole with that
-    probability, however long it is."""
-    groups, rows = data.groups, data.rows
-    problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints, prior)
+    probability, however long it is.  A frame left without enough
+    observations is dropped and named."""
+    groups, rows, info = data.groups, data.rows, data.row_info
+    problem, R0, t0 = _problem(model, groups, rows, bindex, constraints, prior)
+    depth_ok = start_depths(problem, start, R0, t0, start_rot) > 0
+    if not depth_ok.all():
+        groups, rows, info = _without(groups, rows, depth_ok, info)
+        if not groups:
+            raise UnobservableMarkersError("no frame is left once the observations the start puts behind their "
+                                           "cameras are set aside")
+        problem, R0, t0 = _problem(model, groups, rows, bindex, constraints, prior)
     frames_used = len({g.frame for g in groups})
     if problem.dof < 0:
         raise UnobservableMarkersError(
             f"too few frames: {frames_used} usable frame{'s' if frames_used != 1 else ''} give "
             f"{2 * len(rows)} measurements for {problem.n_pose_parameters} pose and "
-            f"{3 * len(mindex) - len(constraints)} marker unknowns; record more frames while the robots move "
+            f"{problem.n_parameters - len(constraints)} marker unknowns; record more frames while the robots move "
             "(different distances, turning in place while facing each other, rolling)")
-    adj = adjust(problem, start, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
+    adj = adjust(problem, start, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter,
+                 rotations0=start_rot)
     gate = chi2_quantile(1.0 - (1.0 - confidence) / len(rows), 2) * pixel_sigma**2 if confidence < 1.0 else math.inf
     e2 = np.sum(adj.residuals**2, axis=1)
-    info = data.row_info
     outliers = [{"frame": info[i][0], "observer": info[i][1], "marker": info[i][2],
                  "residual_px": float(np.sqrt(e2[i]))} for i in np.flatnonzero(e2 > gate)]
+    dropped: list[dict[str, Any]] = []
     if outliers:
         for gi, grp in enumerate(groups):
             for s, r in enumerate(grp.members):
                 grp.poses[r] = Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy())
-        groups, rows = _without(groups, rows, e2 <= gate)
+        kept_frames = {g.frame for g in groups}
+        groups, rows, info = _without(groups, rows, e2 <= gate, info)
         if not groups:
             raise UnobservableMarkersError("no frame is left once the observations that fail their chi-square test "
                                            f"at {pixel_sigma:g} px are set aside: is --pixel-sigma right?")
-        problem, R0, t0 = _problem(rig, order, groups, rows, mindex, constraints, prior)
-        frames_used = len({g.frame for g in groups})
-        adj = adjust(problem, adj.markers, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter)
-    return _Fit(adj, groups, rows, outliers, frames_used, problem.dof)
+        left = {g.frame for g in groups}
+        dropped = [{"frame": f, "reason": "too few observations left once its outliers are set aside"}
+                   for f in sorted(kept_frames - left)]
+        problem, R0, t0 = _problem(model, groups, rows, bindex, constraints, prior)
+        frames_used = len(left)
+        adj = adjust(problem, adj.markers, R0, t0, pixel_sigma=pixel_sigma, huber=huber, max_iter=max_iter,
+                     rotations0=adj.rotations)
+    for gi, grp in enumerate(groups):
+        for s, r in enumerate(grp.members):
+            grp.poses[r] = Pose(adj.R[gi, s].copy(), adj.t[gi, s].copy())
+    return _Fit(adj, groups, rows, outliers, frames_used, problem.dof, dropped,
+                _Collected(groups, rows, info, data.skipped, data.gross))
 
 
-def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: list[str], motion: "_Motion",
-                     pixel_sigma: float, frames_used: int) -> list[WeakDirection]:
-    """The combinations the log alone determines weakly, weakest first;
-    UnobservableMarkersError when one is not determined at all."""
-    cov, eig = adj.marker_covariance(C, pixel_sigma, data_only=True)
-    if not np.all(np.isfinite(eig)) or eig[0] <= SINGULAR_RATIO * eig[-1]:
-        Z = null_space(C, 3 * len(names))
-        S = adj.information - adj.prior_weight * np.eye(3 * len(names))
-        v = Z @ np.linalg.eigh(0.5 * (Z.T @ S @ Z + (Z.T @ S @ Z).T))[1][:, 0]
+def _undetermined(adj: Any, C: np.ndarray, pixel_sigma: float, n_bodies: int,
+                  limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The combinations of the centres the log alone determines no better
+    than ``limit`` (metres, 1 sigma) or not at all: unit rows (h, 3B) and
+    the log's own sigma along each (inf: none at all)."""
+    Z = null_space(C, C.shape[1])
+    N = Z.T @ adj.data_information() @ Z
+    w, U = np.linalg.eigh(0.5 * (N + N.T))
+    singular = w <= SINGULAR_RATIO * max(w[-1], 1e-300)
+    bad = singular | (pixel_sigma**2 / np.maximum(w, 1e-300) > limit**2)
+    V = (Z @ U[:, bad])[: 3 * n_bodies].T
+    norm = np.linalg.norm(V, axis=1)
+    keep = norm > 0.5  # mostly centres (a tag's rotation alone is never this weak)
+    sig = np.where(singular[bad], np.inf, pixel_sigma / np.sqrt(np.maximum(w[bad], 1e-300)))
+    return V[keep] / norm[keep, None], sig[keep]
+
+
+def _orthonormal(V: np.ndarray) -> np.ndarray:
+    u, s, _ = np.linalg.svd(V.T, full_matrices=False)
+    return u[:, s > 1e-6].T
+
+
+def _refuse_undetermined(adj: Any, C: np.ndarray, names: list[str], marker_robot: list[str], motion: "_Motion",
+                         pixel_sigma: float, frames_used: int) -> None:
+    """UnobservableMarkersError naming the combination the log determines least."""
+    Z = null_space(C, C.shape[1])
+    N = Z.T @ adj.data_information() @ Z
+    w, U = np.linalg.eigh(0.5 * (N + N.T))
+    v = (Z @ U[:, 0])[: 3 * len(names)]
+    if w[0] <= SINGULAR_RATIO * max(w[-1], 1e-300):
         raise UnobservableMarkersError(
             f"the log cannot determine the markers: {_describe(v, names, marker_robot)} changes no pixel "
             f"({frames_used} usable frames{motion.note}). {_advice(v, motion)}")
-    w, V = np.linalg.eigh(cov)
+    raise UnobservableMarkersError(
+        f"the log cannot determine the markers: {_describe(v, names, marker_robot)} is known only to "
+        f"{pixel_sigma / math.sqrt(w[0]) * 1000:.0f} mm (1 sigma at {pixel_sigma:g} px; {frames_used} usable "
+        f"frames{motion.note}). {_advice(v, motion)}")
+
+
+def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: list[str], motion: "_Motion",
+                     pixel_sigma: float, frames_used: int, held: tuple | None,
+                     weak_sigma: float | None) -> list[WeakDirection]:
+    """The combinations of marker centres the log alone determines weakly,
+    weakest first; ``held`` (directions, the log's sigmas): those held near
+    the given rig, listed first."""
+    nb = 3 * len(names)
+    cov_all, _ = adj.marker_covariance(C, pixel_sigma, data_only=held is None)
+    if held is not None:
+        # The log's own sigma of everything but the held combinations.
+        Q = null_space(held[0], nb)
+        cov = Q @ (Q.T @ cov_all[:nb, :nb] @ Q) @ Q.T
+    else:
+        cov = cov_all[:nb, :nb]
+    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
     w = np.clip(w, 0.0, None)[::-1]
     V = V[:, ::-1]
     sig = np.sqrt(w)
-    if sig[0] > MAX_SIGMA_M:
-        raise UnobservableMarkersError(
-            f"the log cannot determine the markers: {_describe(V[:, 0], names, marker_robot)} is known only to "
-            f"{sig[0] * 1000:.0f} mm (1 sigma at {pixel_sigma:g} px; {frames_used} usable frames{motion.note}). "
-            f"{_advice(V[:, 0], motion)}")
-    free = sig[: 3 * len(names) - C.shape[0]]
+    free = sig[: nb - C.shape[0] - (0 if held is None else len(held[0]))]
     med = float(np.median(free)) if len(free) else 0.0
     weak = []
+    if held is not None:
+        for v, s in zip(*held):
+            s = float(s)
+            weak.append(WeakDirection(
+                s, _describe(v, names, marker_robot)
+                + (f" (the log alone: {s * 1000:.0f} mm, 1 sigma)" if math.isfinite(s) else " (the log alone: not at all)")
+                + f" is held near the given rig, taken as good to {weak_sigma * 1000:g} mm along it",
+                _advice(v, motion), {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}, held=True))
     for i in range(len(free)):
         if sig[i] > WEAK_RATIO * med and sig[i] > WEAK_MIN_M:
             v = V[:, i]
@@ -498,8 +798,8 @@ def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: li
     return weak
 
 
-def _problem(rig: Rig, order: list[str], groups: list[_Group], rows: list[tuple], mindex: dict[str, int],
-             constraints: tuple, prior: tuple) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
+def _problem(model: _Model, groups: list[_Group], rows: list[tuple], bindex: dict[str, int], constraints: tuple,
+             prior: tuple) -> tuple[BundleProblem, np.ndarray, np.ndarray]:
     """The adjustment's problem and its start (the groups' poses)."""
     n_slots = max(1, max(len(g.members) for g in groups))
     G = len(groups)
@@ -511,21 +811,34 @@ def _problem(rig: Rig, order: list[str], groups: list[_Group], rows: list[tuple]
             slot_used[gi, s] = True
             R0[gi, s] = grp.poses[r].R
             t0[gi, s] = grp.poses[r].t
+    # the observed points, each of an unknown body
+    pnames = sorted({r[4] for r in rows}, key=lambda n: (bindex[model.bodies[model.points[n][0]]], n))
+    pindex = {n: i for i, n in enumerate(pnames)}
+    body = [bindex[model.bodies[model.points[n][0]]] for n in pnames]
+    rotates = np.array([bool(model.rotates[model.bodies.index(n)]) for n in bindex], dtype=bool)
+    simple = not rotates.any() and all(not np.any(model.points[n][1]) for n in pnames) and body == list(range(len(body)))
     arr = np.array([(r[0], r[1], r[2], r[3]) for r in rows], dtype=np.int64).reshape(-1, 4)
+    order = list(model.rig.robots)
     problem = BundleProblem(
         group=np.ascontiguousarray(arr[:, 0]), observer_slot=np.ascontiguousarray(arr[:, 1]),
         owner_slot=np.ascontiguousarray(arr[:, 2]), camera=np.ascontiguousarray(arr[:, 3]),
-        marker=np.array([mindex[r[4]] for r in rows], dtype=np.int64),
+        marker=np.array([pindex[r[4]] for r in rows], dtype=np.int64),
         uv=np.array([(r[5], r[6]) for r in rows], dtype=float).reshape(-1, 2),
-        K=np.ascontiguousarray(np.stack([rig.robots[r].camera.K for r in order])),
-        dist=np.ascontiguousarray(np.stack([rig.robots[r].camera.dist for r in order])),
-        slot_used=slot_used, n_markers=len(mindex), constraints=constraints, prior=prior[0], prior_weight=prior[1])
+        K=np.ascontiguousarray(np.stack([model.rig.robots[r].camera.K for r in order])),
+        dist=np.ascontiguousarray(np.stack([model.rig.robots[r].camera.dist for r in order])),
+        slot_used=slot_used, n_markers=len(pnames), constraints=constraints, prior=prior[0], prior_weight=prior[1],
+        prior_directions=prior[2],
+        point_body=None if simple else np.array(body, dtype=np.int64),
+        point_offset=None if simple else np.array([model.points[n][1] for n in pnames], float).reshape(-1, 3),
+        body_rotates=None if simple else rotates)
     return problem, R0, t0
 
 
-def _without(groups: list[_Group], rows: list[tuple], keep: np.ndarray) -> tuple[list[_Group], list[tuple]]:
-    """The groups and rows left when only rows ``keep`` are used; a group in
-    which a robot keeps fewer than three observations is dropped whole."""
+def _without(groups: list[_Group], rows: list[tuple], keep: np.ndarray, info: list[tuple]
+             ) -> tuple[list[_Group], list[tuple], list[tuple]]:
+    """The groups, rows and row infos left when only rows ``keep`` are used;
+    a group in which a robot keeps fewer than three observations is dropped
+    whole."""
     count: dict[tuple[int, int], int] = {}
     for r, k in zip(rows, keep):
         if k:
@@ -533,13 +846,15 @@ def _without(groups: list[_Group], rows: list[tuple], keep: np.ndarray) -> tuple
                 count[(r[0], s_)] = count.get((r[0], s_), 0) + 1
     ok = [all(count.get((gi, s_), 0) >= 3 for s_ in range(-1, len(g.members))) for gi, g in enumerate(groups)]
     renum = {gi: k for k, gi in enumerate(gi for gi in range(len(groups)) if ok[gi])}
-    new_rows = [(renum[r[0]],) + tuple(r[1:]) for r, k in zip(rows, keep) if k and ok[r[0]]]
-    return [g for gi, g in enumerate(groups) if ok[gi]], new_rows
+    sel = [i for i, (r, k) in enumerate(zip(rows, keep)) if k and ok[r[0]]]
+    new_rows = [(renum[rows[i][0]],) + tuple(rows[i][1:]) for i in sel]
+    return [g for gi, g in enumerate(groups) if ok[gi]], new_rows, [info[i] for i in sel]
 
 
-def _default_scale(rig: Rig, order: list[str], observed: set[str]) -> tuple[str, str, float]:
+def _default_scale(model: _Model, order: list[str], observed: set[str]) -> tuple[str, str, float]:
     """SPEC: the two markers farthest apart on the first robot, at their given distance."""
     first = order[0]
+    rig = model.rig
     names = [n for n in rig.robots[first].markers if n in observed]
     if len(names) < 2:
         raise UnobservableMarkersError(

@@ -15,11 +15,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "calibrate-markers", parents=[RIG, NOISE],
         help="re-estimate the markers' positions from a log of mutual observations",
         description=(
-            "Bundle adjustment over every frame's relative pose(s) and every marker position of an observation "
-            "log (SPEC 'Observation logs'; any number of robots). Writes the rig with each marker's new "
-            "position and position_sigma (1 sigma per axis, metres, for --pixel-sigma noise, scale held) and "
-            "prints, per marker, the old and new position and the change, and which combinations the log "
-            "determines only weakly. --confidence is the chi-square test that names outlier observations."
+            "Bundle adjustment over every frame's relative pose(s) and every marker of an observation log "
+            "(SPEC 'Observation logs'; any number of robots; what track --observations-out writes: a tag's "
+            "corners NAME#0..3 calibrate the tag as a rigid body, centre and rotation; a cylinder's bands NAME#bK "
+            "its axis). Writes the rig with each marker's new position and position_sigma (1 sigma per axis, "
+            "metres, for --pixel-sigma noise, scale held), for tags also tag.rotation and tag.rotation_sigma "
+            "(radians), and prints, per marker, the old and new position and the change, and which combinations "
+            "the log determines only weakly. --confidence is the chi-square test that names outlier observations."
         ),
     )
     p.add_argument("--observations", required=True, metavar="LOG", help="observation log (JSON Lines)")
@@ -29,6 +31,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--prior-sigma", type=positive_float, metavar="M",
                    help="how well the rig's positions were measured (metres, 1 sigma per axis): they then count as "
                         "a measurement and hold what the log determines only weakly (default: the log alone)")
+    p.add_argument("--weak-sigma", type=positive_float, metavar="M", default=None,
+                   help="without --prior-sigma, the combinations the log determines worse than M metres (1 sigma) "
+                        "are held near the given rig, taken as good to M along them (default 0.01)")
+    p.add_argument("--log-alone", action="store_true",
+                   help="no combination held near the given rig: the log alone (refused where it cannot "
+                        "determine the markers)")
     p.add_argument("--out", required=True, metavar="NEW_RIG", help="the calibrated rig (YAML, or JSON if .json)")
     p.add_argument("--report", metavar="FILE", help="also write the full result (JSON) here")
     return p
@@ -36,12 +44,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate, write the new rig, print the per-marker table."""
-    from ..calibration import calibrate_markers
+    from ..calibration import WEAK_PRIOR_SIGMA_M, calibrate_markers
+    from ..errors import InputError
     from ..io import load_rig, save_rig, write_json
 
+    if args.log_alone and args.weak_sigma is not None:
+        raise InputError("--log-alone and --weak-sigma contradict each other: give one")
+    weak = None if args.log_alone else (args.weak_sigma or WEAK_PRIOR_SIGMA_M)
     result = calibrate_markers(load_rig(args.rig), args.observations, scale=args.scale,
                                pixel_sigma=args.pixel_sigma, prior_sigma=args.prior_sigma,
-                               confidence=args.confidence)
+                               confidence=args.confidence, weak_sigma=weak)
     save_rig(result.rig, args.out)
     if args.report:
         write_json(result.to_dict(), args.report)

@@ -5,11 +5,15 @@ Unknowns.  A *group* is one frame's robots tied together by their mutual
 observations; its first robot is the group's *anchor* and every other member
 has a pose ``T_aj`` (``x_a = R @ x_j + t``, perturbed as refine does:
 ``R <- exp(dtheta) @ R``, ``t <- t + dt``) in a *slot* of the group.  Every
-marker has one position in its own robot's camera frame, shared by all
-frames.  Robot frames are camera frames, so nothing but the scale is free:
-scaling every marker and every translation by ``s`` leaves every pixel
-unchanged.  The scale is held by equality constraints on distances between
-markers of one robot.
+marker is a *body* with one position (its centre) in its own robot's camera
+frame, shared by all frames; the observed *points* are fixed offsets in the
+body's frame: a ball is one point at its centre, a printed tag its four
+corners (the body also has a rotation, perturbed on the left like the
+poses), a banded cylinder its bands along its axis.  Robot frames are camera
+frames, so without a known body size nothing but the scale is free: scaling
+every marker and every translation by ``s`` leaves every pixel unchanged.
+The scale is held by equality constraints on distances between the centres
+of markers of one robot.
 
 Residuals are pixels through each observer's camera model (core.camera's
 projection and its Jacobian) with a Huber loss on each observation's
@@ -20,6 +24,13 @@ solved together with the linearised constraints (KKT), and the groups are
 recovered by back-substitution.  The markers' covariance with the scale
 held is ``sigma^2 Z (Z^T S Z)^-1 Z^T``, ``S`` the reduced information and
 ``Z`` a basis of the directions the constraints leave free.
+
+The kernel works on points; the bodies enter by the chain rule: with ``A``
+the points' Jacobian with respect to the bodies' parameters (identity for
+balls; ``[I | -[R o]x]`` for a corner at offset ``o`` of a tag turned by
+``R``) the body-space blocks are ``H_gm A``, ``A^T H_mm A`` and ``A^T g_m``.
+Body parameters: every body's centre (3 each, in body order), then the
+rotation of every rotating body (3 each, in body order).
 """
 
 from __future__ import annotations
@@ -33,7 +44,7 @@ from ..errors import InputError
 from .camera import project_jac_kernel, project_kernel
 from .refine import so3_exp_left
 
-__all__ = ["BundleProblem", "Adjustment", "adjust", "constraint_jacobian", "null_space", "HUBER_K"]
+__all__ = ["BundleProblem", "Adjustment", "adjust", "constraint_jacobian", "null_space", "start_depths", "HUBER_K"]
 
 #: Huber threshold, in units of the pixel sigma: an observation whose residual
 #: is longer than this counts linearly (a Gaussian 2-D residual exceeds 3.5
@@ -60,6 +71,16 @@ class BundleProblem:
     ``prior`` (M, 3), when given, adds ``prior_weight * |m - prior|^2``
     (pixels^2) to the cost: the given positions as a measurement
     (``prior_weight = (pixel_sigma / prior_sigma)^2``).
+
+    ``marker[k]`` indexes *points* (``n_markers`` of them).  Without
+    ``point_body`` every point is a body of its own (a ball); with it, point
+    ``i`` is ``centre[point_body[i]] + R[point_body[i]] @ point_offset[i]``
+    and ``body_rotates[b]`` says whether body ``b``'s rotation is estimated
+    (a tag) or held (a ball, a cylinder).  ``constraints`` and ``prior``
+    refer to bodies.  ``prior_directions`` (h, 3B), orthonormal rows, limits
+    the prior to those combinations of the centres:
+    ``prior_weight * |D (m - prior)|^2`` (the directions the observations
+    determine only weakly, held near the given rig).
     """
 
     group: np.ndarray
@@ -75,6 +96,32 @@ class BundleProblem:
     constraints: tuple[tuple[int, int, float], ...]
     prior: np.ndarray | None = None
     prior_weight: float = 0.0
+    point_body: np.ndarray | None = None
+    point_offset: np.ndarray | None = None
+    body_rotates: np.ndarray | None = None
+    prior_directions: np.ndarray | None = None
+
+    @property
+    def n_bodies(self) -> int:
+        return self.n_markers if self.point_body is None else len(self.body_rotates)
+
+    @property
+    def n_rotating(self) -> int:
+        return 0 if self.body_rotates is None else int(np.sum(self.body_rotates))
+
+    @property
+    def n_parameters(self) -> int:
+        """Body parameters: 3 per centre, 3 per estimated rotation."""
+        return 3 * self.n_bodies + 3 * self.n_rotating
+
+    def prior_matrix(self) -> np.ndarray | None:
+        """The prior's information over the centres (3B, 3B), pixels^-2 units; None without one."""
+        if self.prior is None or self.prior_weight <= 0:
+            return None
+        if self.prior_directions is None:
+            return self.prior_weight * np.eye(3 * self.n_bodies)
+        D = np.asarray(self.prior_directions, dtype=float).reshape(-1, 3 * self.n_bodies)
+        return self.prior_weight * (D.T @ D)
 
     @property
     def n_groups(self) -> int:
@@ -91,16 +138,18 @@ class BundleProblem:
     @property
     def dof(self) -> int:
         """Residuals minus free parameters (the scale is held, not free)."""
-        return 2 * len(self.group) - self.n_pose_parameters - (3 * self.n_markers - len(self.constraints))
+        return 2 * len(self.group) - self.n_pose_parameters - (self.n_parameters - len(self.constraints))
 
 
 @dataclass
 class Adjustment:
     """The bundle adjustment's optimum.
 
-    ``markers`` (M, 3), ``R`` (groups, slots, 3, 3), ``t`` (groups, slots, 3);
-    ``information`` is the reduced marker information ``S`` (3M, 3M) in
-    pixels^-2 units (``J^T W J`` with the groups eliminated); ``residuals``
+    ``markers`` (B, 3) the bodies' centres, ``rotations`` (B, 3, 3) their
+    rotations, ``points`` (P, 3) the observed points, ``R`` (groups, slots,
+    3, 3), ``t`` (groups, slots, 3); ``information`` is the reduced
+    information ``S`` over the body parameters (n, n) in pixels^-2 units
+    (``J^T W J`` with the groups eliminated); ``residuals``
     (n, 2) pixels and ``weights`` (n,) the Huber weights at the optimum;
     ``cost`` the robust cost (pixels^2), ``chi2`` the plain sum of squared
     residuals over sigma^2.
@@ -118,15 +167,25 @@ class Adjustment:
     converged: bool
 
     prior_weight: float = 0.0
+    rotations: np.ndarray | None = None
+    points: np.ndarray | None = None
+    prior_information: np.ndarray | None = None
+
+    def data_information(self) -> np.ndarray:
+        """The information without the prior (what the observations alone say)."""
+        S = self.information
+        if self.prior_information is not None:
+            S = S.copy()
+            k = self.prior_information.shape[0]
+            S[:k, :k] -= self.prior_information
+        return S
 
     def marker_covariance(self, constraints_jacobian: np.ndarray, pixel_sigma: float,
                           data_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """(covariance (3M, 3M) of the markers with the constraints held,
-        eigenvalues of the constrained information ``Z^T S Z``, ascending);
-        ``data_only``: without the prior (what the observations alone say)."""
-        S = self.information
-        if data_only and self.prior_weight > 0:
-            S = S - self.prior_weight * np.eye(S.shape[0])
+        """(covariance (n, n) of the body parameters with the constraints
+        held, eigenvalues of the constrained information ``Z^T S Z``,
+        ascending); ``data_only``: without the prior."""
+        S = self.data_information() if data_only else self.information
         Z = null_space(constraints_jacobian, S.shape[0])
         N = Z.T @ S @ Z
         N = 0.5 * (N + N.T)
@@ -148,12 +207,13 @@ def null_space(C: np.ndarray, n: int) -> np.ndarray:
     return Vt[rank:].T
 
 
-def constraint_jacobian(markers: np.ndarray,
-                        constraints: tuple[tuple[int, int, float], ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Values ``|m_i - m_j| - D`` (nc,) and their Jacobian (nc, 3M)."""
+def constraint_jacobian(markers: np.ndarray, constraints: tuple[tuple[int, int, float], ...],
+                        n_parameters: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Values ``|m_i - m_j| - D`` (nc,) and their Jacobian (nc, n_parameters;
+    default 3M: the centres alone)."""
     M = markers.shape[0]
     c = np.zeros(len(constraints))
-    C = np.zeros((len(constraints), 3 * M))
+    C = np.zeros((len(constraints), 3 * M if n_parameters is None else n_parameters))
     for k, (i, j, D) in enumerate(constraints):
         d = markers[i] - markers[j]
         n = float(np.linalg.norm(d))
@@ -319,17 +379,69 @@ def _apply_step(R, t, M, used, dg, dm, Rn, tn, Mn):
 # ---------------------------------------------------------------------------
 
 
-def _prior_cost(p: BundleProblem, M: np.ndarray) -> float:
-    if p.prior is None or p.prior_weight <= 0:
+def _prior_cost(p: BundleProblem, M: np.ndarray, W: np.ndarray | None) -> float:
+    if W is None:
         return 0.0
-    return float(p.prior_weight * np.sum((M - p.prior) ** 2))
+    d = (M - p.prior).ravel()
+    return float(d @ W @ d)
+
+
+class _Bodies:
+    """The map from body parameters (centres, rotations) to the observed points."""
+
+    def __init__(self, p: BundleProblem):
+        P = p.n_markers
+        self.identity = p.point_body is None
+        if self.identity:
+            self.body = np.arange(P)
+            self.offset = np.zeros((P, 3))
+            rotates = np.zeros(P, dtype=bool)
+        else:
+            self.body = np.asarray(p.point_body, dtype=np.int64)
+            self.offset = np.asarray(p.point_offset, dtype=float).reshape(P, 3)
+            rotates = np.asarray(p.body_rotates, dtype=bool)
+        B = len(rotates)
+        self.n_bodies = B
+        self.rot_index = np.full(B, -1, dtype=np.int64)
+        self.rot_index[rotates] = 3 * B + 3 * np.arange(int(rotates.sum()))
+        self.n = 3 * B + 3 * int(rotates.sum())
+
+    def points(self, C: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+        if self.identity:
+            return np.ascontiguousarray(C)
+        return np.ascontiguousarray(C[self.body] + np.einsum("pij,pj->pi", Rb[self.body], self.offset))
+
+    def jacobian(self, Rb: np.ndarray) -> np.ndarray | None:
+        """d points / d parameters (3P, n); None for the identity."""
+        if self.identity:
+            return None
+        P = len(self.body)
+        A = np.zeros((3 * P, self.n))
+        for i, b in enumerate(self.body.tolist()):
+            A[3 * i:3 * i + 3, 3 * b:3 * b + 3] = np.eye(3)
+            k = int(self.rot_index[b])
+            if k >= 0:
+                x, y, z = Rb[b] @ self.offset[i]
+                A[3 * i:3 * i + 3, k:k + 3] = -np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        return A
+
+    def step(self, C: np.ndarray, Rb: np.ndarray, dm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        B = self.n_bodies
+        Cn = C + dm[:3 * B].reshape(B, 3)
+        Rn = Rb.copy()
+        for b in np.flatnonzero(self.rot_index >= 0).tolist():
+            k = int(self.rot_index[b])
+            so3_exp_left(np.ascontiguousarray(dm[k:k + 3]), Rb[b], Rn[b])
+        return Cn, Rn
 
 
 class _System:
-    """Buffers of the normal equations, reused across iterations."""
+    """Buffers of the normal equations, reused across iterations.  ``Hgm``,
+    ``Hmm`` and ``gm`` are in body-parameter space after :meth:`linearize`."""
 
     def __init__(self, problem: BundleProblem):
         G, S, M = problem.n_groups, problem.n_slots, problem.n_markers
+        self.bodies = _Bodies(problem)
         self.Hgg = np.zeros((G, 6 * S, 6 * S))
         self.Hgm = np.zeros((G, 6 * S, 3 * M))
         self.Hmm = np.zeros((3 * M, 3 * M))
@@ -342,24 +454,39 @@ class _System:
         unused = ~problem.slot_used
         self.pad = np.zeros((G, 6 * S))
         self.pad[np.repeat(unused, 6, axis=1)] = 1.0
+        self.W = problem.prior_matrix()
 
-    def linearize(self, p: BundleProblem, M, R, t, sigma: float, huber: float) -> float:
-        for a in (self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm):
+    def linearize(self, p: BundleProblem, M, R, t, sigma: float, huber: float, Rb=None) -> float:
+        """Cost and normal equations at body centres ``M`` (rotations ``Rb``)."""
+        pts = self.bodies.points(M, Rb)
+        Hgm, Hmm, gm = self.Hgm, self.Hmm, self.gm
+        if not self.bodies.identity:
+            P3 = 3 * p.n_markers
+            Hgm = np.zeros(self.Hgg.shape[:2] + (P3,))
+            Hmm = np.zeros((P3, P3))
+            gm = np.zeros(P3)
+        for a in (self.Hgg, Hgm, Hmm, self.gg, gm):
             a.fill(0.0)
-        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, M, R, t,
-                       sigma, huber, True, self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm, self.res, self.wts)
+        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, pts, R, t,
+                       sigma, huber, True, self.Hgg, Hgm, Hmm, self.gg, gm, self.res, self.wts)
+        A = self.bodies.jacobian(Rb)
+        if A is not None:
+            self.Hgm = np.einsum("gpi,in->gpn", Hgm, A)
+            self.Hmm = A.T @ Hmm @ A
+            self.gm = A.T @ gm
         ii = np.arange(self.Hgg.shape[1])
         self.Hgg[:, ii, ii] += self.pad
-        if p.prior is not None and p.prior_weight > 0:
-            jm = np.arange(self.Hmm.shape[0])
-            self.Hmm[jm, jm] += p.prior_weight
-            self.gm += p.prior_weight * (M - p.prior).ravel()
-        return c + _prior_cost(p, M)
+        if self.W is not None:
+            k = self.W.shape[0]
+            self.Hmm[:k, :k] += self.W
+            self.gm[:k] += self.W @ (M - p.prior).ravel()
+        return c + _prior_cost(p, M, self.W)
 
-    def cost(self, p: BundleProblem, M, R, t, sigma: float, huber: float, res, wts) -> float:
-        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, M, R, t,
+    def cost(self, p: BundleProblem, M, R, t, sigma: float, huber: float, res, wts, Rb=None) -> float:
+        pts = self.bodies.points(M, Rb)
+        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, pts, R, t,
                        sigma, huber, False, self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm, res, wts)
-        return c + _prior_cost(p, M)
+        return c + _prior_cost(p, M, self.W)
 
     def reduce(self, lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(damped reduced marker matrix, its right-hand side, the groups'
@@ -369,7 +496,12 @@ class _System:
         dg = Agg[:, ii, ii]
         Agg[:, ii, ii] = dg + lam * (dg + 1e-9)
         rhs = np.concatenate([self.Hgm, self.gg[:, :, None]], axis=2)
-        sol = np.linalg.solve(Agg, rhs)
+        try:
+            sol = np.linalg.solve(Agg, rhs)
+        except np.linalg.LinAlgError:
+            # a group's pose not determined (at lam = 0): the least damping that solves it
+            Agg[:, ii, ii] += 1e-9 * (np.abs(dg) + 1.0)
+            sol = np.linalg.solve(Agg, rhs)
         jm = np.arange(self.Hmm.shape[0])
         Amm = self.Hmm.copy()
         Amm[jm, jm] += lam * (np.diag(self.Hmm) + 1e-9)
@@ -378,18 +510,40 @@ class _System:
         return 0.5 * (Smm + Smm.T), b, sol
 
 
-def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.ndarray, *,
-           pixel_sigma: float = 1.0, huber: float = HUBER_K, max_iter: int = 100) -> Adjustment:
-    """Levenberg-Marquardt from the initial markers (M, 3) and group poses
-    (groups, slots, 3, 3) / (groups, slots, 3) to the constrained optimum.
+def start_depths(problem: BundleProblem, markers: np.ndarray, R: np.ndarray, t: np.ndarray,
+                 rotations: np.ndarray | None = None) -> np.ndarray:
+    """Depth (n,) of every observation's point in its observer's camera at
+    the given parameters (a point at depth <= 0 cannot be projected)."""
+    p = problem
+    pts = _Bodies(p).points(np.asarray(markers, float), rotations)[p.marker]
+    G, S = p.slot_used.shape
+    Rs = np.concatenate([np.broadcast_to(np.eye(3), (G, 1, 3, 3)), R], axis=1)  # slot -1 -> index 0
+    ts = np.concatenate([np.zeros((G, 1, 3)), t], axis=1)
+    Rw, tw = Rs[p.group, p.owner_slot + 1], ts[p.group, p.owner_slot + 1]
+    Ro, to = Rs[p.group, p.observer_slot + 1], ts[p.group, p.observer_slot + 1]
+    P = np.einsum("nij,nj->ni", Rw, pts) + tw
+    X = np.einsum("nji,nj->ni", Ro, P - to)
+    return X[:, 2]
 
-    The start is first rescaled (markers and translations together, which
-    changes no pixel) to fit the constraints as well as one factor can.
+
+def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.ndarray, *,
+           pixel_sigma: float = 1.0, huber: float = HUBER_K, max_iter: int = 100,
+           rotations0: np.ndarray | None = None) -> Adjustment:
+    """Levenberg-Marquardt from the initial body centres (B, 3) (and
+    rotations (B, 3, 3), default identity) and group poses (groups, slots,
+    3, 3) / (groups, slots, 3) to the constrained optimum.
+
+    The start is first rescaled (centres and translations together, which
+    changes no pixel of point markers) to fit the constraints as well as
+    one factor can.  Raises InputError when the start puts a marker behind
+    the camera that sees it (the caller screens its start for that).
     """
     p = problem
     if not p.constraints:
         raise InputError("marker calibration needs at least one distance to hold the scale")
     M = np.array(markers0, dtype=float)
+    B = M.shape[0]
+    Rb = np.broadcast_to(np.eye(3), (B, 3, 3)).copy() if rotations0 is None else np.array(rotations0, dtype=float)
     R = np.ascontiguousarray(R0, dtype=float).copy()
     t = np.ascontiguousarray(t0, dtype=float).copy()
     d = np.array([np.linalg.norm(M[i] - M[j]) / D for i, j, D in p.constraints])
@@ -397,18 +551,19 @@ def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.
     M *= s
     t *= s
     sys = _System(p)
+    n_par = sys.bodies.n
     n = len(p.group)
     res_try = np.zeros((n, 2))
     wts_try = np.ones(n)
-    Rn, tn, Mn = np.empty_like(R), np.empty_like(t), np.empty_like(M)
-    cost = sys.linearize(p, M, R, t, pixel_sigma, huber)
+    Rn, tn = np.empty_like(R), np.empty_like(t)
+    cost = sys.linearize(p, M, R, t, pixel_sigma, huber, Rb)
     if not np.isfinite(cost):
         raise InputError("marker calibration: the initial poses put a marker behind the camera that sees it")
     lam = _LAMBDA0
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
-        c, C = constraint_jacobian(M, p.constraints)
+        c, C = constraint_jacobian(M, p.constraints, n_par)
         viol = float(np.abs(c).max())
         accepted = False
         small = False
@@ -428,8 +583,9 @@ def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.
             dm = x[:m3]
             dg = -sol[:, :, -1] - np.einsum("gpi,i->gp", sol[:, :, :-1], dm)
             step = float(np.sqrt(dm @ dm + np.sum(dg * dg)))
-            _apply_step(R, t, M, p.slot_used, dg, dm, Rn, tn, Mn)
-            cn = sys.cost(p, Mn, Rn, tn, pixel_sigma, huber, res_try, wts_try)
+            Mn, Rbn = sys.bodies.step(M, Rb, dm)
+            _apply_step(R, t, np.zeros((0, 3)), p.slot_used, dg, dm[:0], Rn, tn, np.zeros((0, 3)))
+            cn = sys.cost(p, Mn, Rn, tn, pixel_sigma, huber, res_try, wts_try, Rbn)
             vn = float(np.abs(constraint_jacobian(Mn, p.constraints)[0]).max())
             # A step that restores the constraints may cost a little; accept it
             # while it clearly reduces their violation.
@@ -437,7 +593,7 @@ def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.
                 dc = cost - cn
                 R, Rn = Rn, R
                 t, tn = tn, t
-                M, Mn = Mn, M
+                M, Rb = Mn, Rbn
                 cost = cn
                 lam = max(lam * 0.1, 1e-12)
                 accepted = True
@@ -451,10 +607,11 @@ def adjust(problem: BundleProblem, markers0: np.ndarray, R0: np.ndarray, t0: np.
         if not accepted or small:
             converged = small or not accepted
             break
-        sys.linearize(p, M, R, t, pixel_sigma, huber)
-    cost = sys.linearize(p, M, R, t, pixel_sigma, huber)
+        sys.linearize(p, M, R, t, pixel_sigma, huber, Rb)
+    cost = sys.linearize(p, M, R, t, pixel_sigma, huber, Rb)
     S0, _, _ = sys.reduce(0.0)
     res = sys.res.copy()
     return Adjustment(markers=M, R=R, t=t, information=S0, residuals=res, weights=sys.wts.copy(), cost=float(cost),
                       chi2=float(np.sum(res * res)) / pixel_sigma**2, iterations=it, converged=converged,
-                      prior_weight=p.prior_weight if p.prior is not None else 0.0)
+                      prior_weight=p.prior_weight if p.prior is not None else 0.0, rotations=Rb,
+                      points=sys.bodies.points(M, Rb), prior_information=sys.W)

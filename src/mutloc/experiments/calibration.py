@@ -16,8 +16,13 @@ pixel noise; the predicted sigmas beside them (normalised squared errors);
 true rig (and calibrated with the measured rig as a 1 cm prior); and the
 team case (three robots, and two with roll +-45 deg).
 
+Then, unless ``rendered_frames=0`` (``--quick``), the same end to end on
+rendered images (:mod:`.calibration_rendered`: ``simulate``, ``track
+--observations-out`` with the perturbed rig, ``calibrate-markers``,
+held-out localize; a ball pair, a tag team and a ball team; a few minutes).
+
 Output in ``OUT/calibration/``: ``results.json``, ``report.md``,
-``error_vs_frames.png``, ``error_vs_sigma.png``.
+``error_vs_frames.png``, ``error_vs_sigma.png`` (and ``rendered/``).
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ SCALE = ("M3", "M4", 0.30)
 # How well a tape measure gets the markers (1 sigma per axis) for the
 # calibration that uses the measured rig as a prior.
 PRIOR_SIGMA_M = 0.01
-QUICK = dict(frames=(10, 40), sigmas=(0.5, 2.0), seeds=2, held_out=10, team_frames=40)
+QUICK = dict(frames=(10, 40), sigmas=(0.5, 2.0), seeds=2, held_out=10, team_frames=40, rendered_frames=0)
 
 
 def _one(truth: dict, n: int, sigma: float, seed: int, *, held_out: int = 0, kind: str = "pair") -> dict[str, Any]:
@@ -116,8 +121,11 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 def run_calibration(out_dir: str | Path, *, seed: int = 0, progress: bool = True, command: str | None = None,
                     frames: Sequence[int] = (10, 20, 40, 80, 160), sigmas: Sequence[float] = (0.25, 0.5, 1.0, 2.0),
-                    seeds: int = 10, held_out: int = 20, team_frames: int = 80) -> dict[str, Any]:
-    """Run the experiment; write ``out_dir/calibration/`` and return the results."""
+                    seeds: int = 10, held_out: int = 20, team_frames: int = 80,
+                    rendered_frames: int = 40) -> dict[str, Any]:
+    """Run the experiment; write ``out_dir/calibration/`` and return the results.
+    ``rendered_frames`` > 0 also runs the cases end to end on rendered images
+    (:mod:`.calibration_rendered`; slow: a few minutes per case)."""
     from tqdm import tqdm
 
     from ..sim.calibration import ball_rig
@@ -140,12 +148,18 @@ def run_calibration(out_dir: str | Path, *, seed: int = 0, progress: bool = True
         key = {"frames": str(n), "sigma": f"{sigma:g}", "team": kind}[what]
         by[what][key] = _summary(runs)
     bar.close()
+    rendered = {}
+    if rendered_frames > 0:
+        from .calibration_rendered import run_rendered
+
+        rendered = run_rendered(out, frames=rendered_frames, seed=seed, progress=progress)
     base = by["sigma"].get("0.5") or by["frames"].get("40") or next(iter(by["frames"].values()))
     methods = ({rig: base["held_out"][rig] for rig in ("measured", "calibrated", "calibrated_prior", "true")}
                if "held_out" in base else {})
     results = {"experiment": NAME, "seed": seed, "methods": methods, "frames": list(frames),
                "sigma_px": list(sigmas), "seeds": seeds, "held_out_frames": held_out, "team_frames": team_frames,
                "by_frames": by["frames"], "by_sigma": by["sigma"], "team": by["team"],
+               "rendered": rendered, "rendered_frames": rendered_frames,
                "command": command or f"mutloc experiment calibration --out {out_dir} --seed {seed}",
                "versions": versions(), "elapsed_s": time.perf_counter() - started}
     write_results(results, out)
@@ -232,6 +246,10 @@ def _report(res: dict[str, Any]) -> str:
                   f"gives {fmt(res['team']['team'].get('position_rms_mm'), 1, 1)} mm with {res['team_frames']} "
                   "frames. Counting the measured rig as a measurement (`--prior-sigma 0.01`) keeps the weak "
                   "combinations near it.", ""]
+    if res.get("rendered"):
+        from .calibration_rendered import report_lines
+
+        lines += report_lines(res["rendered"], res["rendered_frames"])
     lines += ["Plots: `error_vs_frames.png`, `error_vs_sigma.png`.", ""]
     lines += reproduce_lines(res)
     return "\n".join(lines)

@@ -50,7 +50,7 @@ EXTRA_MARKER_KEYS = ("radius", "phase", "intensity", "cylinder", "position_sigma
                      "tag_of", "tag_corner", "cylinder_of", "band")  # the last four: derived points
 # Keys of the user's own (kept in Marker.extra, never interpreted) start with this.
 USER_KEY_PREFIX = "x_"
-TAG_KEYS = ("family", "id", "size", "rotation")
+TAG_KEYS = ("family", "id", "size", "rotation", "rotation_sigma")
 ROBOT_KEYS = ("camera", "markers", "base_from_camera")
 BASE_KEYS = ("R", "rotation", "quaternion_xyzw", "t")
 # Where a marker's position (and a tag's rotation) is given: the camera's optical frame or the robot's base.

@@ -22,7 +22,7 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from .synthetic import USUAL_MARKERS, facing_pose, looking_pose
 
-__all__ = ["ball_rig", "perturb_rig", "CalibrationSequence", "pair_sequence", "team_sequence", "true_positions",
+__all__ = ["ball_rig", "tag_rig", "point_rig", "perturb_rig", "true_rotations", "CalibrationSequence", "pair_sequence", "team_sequence", "true_positions",
            "robots_of", "held_out_errors", "observe", "pair_frames", "ROBOT_NAMES"]
 
 #: Robot names of the synthetic rigs, in order (SPEC's example: p, q).
@@ -56,10 +56,37 @@ def ball_rig(n_robots: int = 2, *, markers_per_robot: int = 2, f: float = 800.0,
     return {"robots": robots}
 
 
+def tag_rig(n_robots: int = 3, *, f: float = 800.0, size: tuple[int, int] = (1920, 1080)) -> dict[str, Any]:
+    """A team rig in rig-file form (robots r0, r1, ...) whose robots carry two
+    printed tags each, left and right of the camera, facing forward (what
+    ``mutloc simulate --robots N --markers tags`` renders)."""
+    from .team import robot_names, team_rig
+
+    return team_rig(robot_names(n_robots), focal=f, size=size, kind="tags").to_dict()
+
+
+def point_rig(rig: dict[str, Any]) -> dict[str, Any]:
+    """``rig`` (rig-file form) with the points a detector reports as its
+    markers: an oriented tag's four corners ``NAME#k`` instead of its centre,
+    a cylinder's bands ``NAME#bK`` instead of its centre (what ``track
+    --observations-out`` logs)."""
+    from ..api import load_rig
+    from ..track.frames import expanded_rig
+
+    out = expanded_rig(load_rig(rig)).to_dict()
+    for spec in out["robots"].values():
+        parents = {m.get("tag_of") or m.get("cylinder_of") for m in spec["markers"].values()} - {None}
+        spec["markers"] = {n: {"position": m["position"]} for n, m in spec["markers"].items() if n not in parents}
+    return out
+
+
 def perturb_rig(rig: dict[str, Any], rng: np.random.Generator, low: float = 0.01,
-                high: float = 0.02) -> dict[str, Any]:
+                high: float = 0.02, rotation_deg: float = 0.0) -> dict[str, Any]:
     """A copy of ``rig`` (rig-file form) with every marker moved ``low``..``high``
-    metres in a random direction."""
+    metres in a random direction, and every tag's rotation turned by
+    ``rotation_deg`` about a random axis."""
+    from ..core.geometry import so3_log
+
     out = {"robots": {}}
     for r, spec in rig["robots"].items():
         markers = {}
@@ -67,8 +94,19 @@ def perturb_rig(rig: dict[str, Any], rng: np.random.Generator, low: float = 0.01
             d = rng.normal(size=3)
             d *= rng.uniform(low, high) / np.linalg.norm(d)
             markers[n] = dict(m, position=(np.asarray(m["position"], float) + d).tolist())
+            if rotation_deg and isinstance(m.get("tag"), dict) and "rotation" in m["tag"]:
+                axis = rng.normal(size=3)
+                axis *= np.radians(rotation_deg) / np.linalg.norm(axis)
+                R = so3_exp(axis) @ so3_exp(np.asarray(m["tag"]["rotation"], float))
+                markers[n]["tag"] = dict(m["tag"], rotation=so3_log(R).tolist())
         out["robots"][r] = dict(spec, markers=markers)
     return out
+
+
+def true_rotations(rig: dict[str, Any]) -> dict[str, np.ndarray]:
+    """``{tag: rotation matrix}`` of the tags of a rig in rig-file form that give one."""
+    return {n: so3_exp(np.asarray(m["tag"]["rotation"], float)) for spec in rig["robots"].values()
+            for n, m in spec["markers"].items() if isinstance(m.get("tag"), dict) and "rotation" in m["tag"]}
 
 
 @dataclass
