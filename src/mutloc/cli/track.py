@@ -76,6 +76,9 @@ def run(args: argparse.Namespace) -> int:
         for robot in rig.default_pair(args.source, args.target):
             if rig.robot(robot).base_from_camera is None:
                 raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
+    if args.observations and args.observations_out:
+        raise InputError("--observations-out writes what is detected in images: with --observations the log "
+                         "is already there")
     team = team_mode(rig, args)
     # Teams report the causal filter: the default lag applies to pairs only; an explicit one is refused.
     lag = 0 if team and args.smooth_lag is None else args.smooth_lag
@@ -86,11 +89,12 @@ def run(args: argparse.Namespace) -> int:
     if args.observations:
         if args.annotate:
             raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
-        traj = track_log(rig, iter_observation_log(args.observations), args.source, args.target,
-                         pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
-                         filter=options, rerun=args.rerun)
-        _write(traj, out, args, rig)
-        return 0
+
+        def work(sink):
+            return track_log(rig, iter_observation_log(args.observations), args.source, args.target,
+                             pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
+                             filter=options, rerun=args.rerun, sink=sink)
+        return _written_as_it_runs(work, out, args, rig)
     paths = robot_map(args.stream, "--stream")
     for robot in paths:
         rig.robot(robot)
@@ -98,12 +102,13 @@ def run(args: argparse.Namespace) -> int:
     infos = robot_map(args.camera_info, "--camera-info")
     if infos:
         rig = rig_with_bag_cameras(rig, paths, infos)
-    traj = track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
-                 tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence, fps=args.fps,
-                 annotate=args.annotate, observations_out=args.observations_out, progress=args.progress,
-                 filter=options, rerun=args.rerun)
-    _write(traj, out, args, rig)
-    return 0
+
+    def work(sink):
+        return track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
+                     tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence,
+                     fps=args.fps, annotate=args.annotate, observations_out=args.observations_out,
+                     progress=args.progress, filter=options, rerun=args.rerun, sink=sink)
+    return _written_as_it_runs(work, out, args, rig)
 
 
 def check_outputs(args: argparse.Namespace) -> Path:
@@ -131,17 +136,31 @@ def check_outputs(args: argparse.Namespace) -> Path:
     return out
 
 
-def _write(traj, out, args, rig) -> None:
-    if args.frames == "base":
-        traj = traj.in_base_frames(rig)
-    traj.write_tum(out / "trajectory.tum")
-    traj.write_csv(out / "trajectory.csv")
-    wrote = [str(out / "trajectory.tum"), str(out / "trajectory.csv")]
-    if args.bag or args.mcap:
-        traj.write_ros(bag=args.bag, mcap=args.mcap)
-        wrote += [p for p in (args.bag, args.mcap) if p]
-    wrote += [p for p in (args.rerun, args.annotate, args.observations_out) if p]
+def _written_as_it_runs(work, out, args, rig) -> int:
+    """Run ``work(sink)`` (a pair's track) with every output file appended
+    row by row as the rows become final; Ctrl-C stops it with every frame
+    finished so far written, and says so (exit 130)."""
+    import sys
+
+    from ..track.outputs import TrackOutputs
+
+    pair = rig.default_pair(args.source, args.target)
+    with TrackOutputs(out, *pair, bag=args.bag, mcap=args.mcap,
+                      base_frames=rig if args.frames == "base" else None) as outputs:
+        try:
+            traj = work(outputs.write)
+        except KeyboardInterrupt:
+            outputs.close()
+            wrote = [str(p) for p in outputs.paths] + _side_files(args)
+            print(f"interrupted: {outputs.rows} frames finished and written to {', '.join(wrote)}", file=sys.stderr)
+            return 130
+    wrote = [str(p) for p in outputs.paths] + _side_files(args)
     print(f"{traj.summary()}; wrote {', '.join(wrote)}")
+    return 0
+
+
+def _side_files(args) -> list[str]:
+    return [str(p) for p in (args.rerun, args.annotate, args.observations_out) if p]
 
 
 def _run_team(args, rig, options, out) -> int:

@@ -239,6 +239,11 @@ class PairTracker:
     def filtering(self) -> bool:
         return self.options.kind == "cv"
 
+    @property
+    def rows_filtered(self) -> int:
+        """Rows taken into the smoothing history so far (what :meth:`finalize` counts)."""
+        return len(self._stepped)
+
     def step(self, row: "TrackRow") -> None:
         """Set ``row``'s status, reason and estimate from its observations
         (rows without observations -- unpaired, corrupt -- are left alone)."""

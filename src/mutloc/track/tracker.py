@@ -10,9 +10,11 @@ happens later in the files.
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 from tqdm import tqdm
@@ -92,31 +94,14 @@ class Trajectory:
 
     def write_tum(self, path: str | Path) -> None:
         """TUM format: ``timestamp tx ty tz qx qy qz qw`` of the rows with a pose."""
-        write_tum(path, self.times, self.poses,
-                  comment=f"mutloc: pose of {self.source} in {self.target}'s {self.frames} frame (T_qp)")
+        write_tum(path, self.times, self.poses, comment=tum_comment(self.source, self.target, self.frames))
 
     def in_base_frames(self, rig: Any) -> "Trajectory":
         """The same track between the robots' base frames (``base_from_camera``
         in the rig): ``T = B_q @ T_qp @ inv(B_p)`` with its covariance; the
         robots are then named ``NAME_base``."""
-        rig = load_rig(rig)
-        B = {}
-        for r in (self.source, self.target):
-            B[r] = rig.robot(r).base_from_camera
-            if B[r] is None:
-                raise InputError(f"base frames asked for, but robot {r!r} has no base_from_camera in the rig")
-        A, C = B[self.target], B[self.source].inverse()
-        src, tgt = f"{self.source}_base", f"{self.target}_base"
-        rows = []
-        for row in self.rows:
-            new = replace(row)
-            e = row.estimate
-            if e is not None:
-                new.estimate = replace(e, source=src, target=tgt, pose=A @ e.pose @ C,
-                                       covariance=sandwich_covariance(A, e.pose, C, e.covariance),
-                                       candidates=A @ e.candidates @ C)
-            rows.append(new)
-        return Trajectory(src, tgt, rows, self.fps, frames="base")
+        to_base = BaseFrames(rig, self.source, self.target)
+        return Trajectory(to_base.source, to_base.target, [to_base(r) for r in self.rows], self.fps, frames="base")
 
     @property
     def covariances(self) -> np.ndarray:
@@ -140,20 +125,76 @@ class Trajectory:
 
     def write_csv(self, path: str | Path) -> None:
         """SPEC's ``trajectory.csv``: every frame with its status, pose and sigmas."""
-        def rows():
-            for r in self.rows:
-                e = r.estimate
-                yield {"t": r.t, "status": r.status, "pose": None if e is None else e.pose,
-                       "covariance": None if e is None else e.covariance, "reason": r.reason,
-                       "t_source": r.t_source, "t_target": r.t_target,
-                       "reprojection_rms_px": None if e is None else e.reprojection_rms_px,
-                       "markers_used": None if e is None else " ".join(e.markers_used)}
-
-        write_trajectory_csv(path, rows(), extra=CSV_EXTRA)
+        write_trajectory_csv(path, (csv_row(r) for r in self.rows), extra=CSV_EXTRA)
 
 
 #: Columns ``trajectory.csv`` adds after the SPEC's.
 CSV_EXTRA = ("reason", "t_source", "t_target", "reprojection_rms_px", "markers_used")
+
+
+def csv_row(r: TrackRow) -> dict[str, Any]:
+    """A row of ``trajectory.csv`` (:func:`mutloc.io.trajectory.write_trajectory_csv`'s form)."""
+    e = r.estimate
+    return {"t": r.t, "status": r.status, "pose": None if e is None else e.pose,
+            "covariance": None if e is None else e.covariance, "reason": r.reason,
+            "t_source": r.t_source, "t_target": r.t_target,
+            "reprojection_rms_px": None if e is None else e.reprojection_rms_px,
+            "markers_used": None if e is None else " ".join(e.markers_used)}
+
+
+def tum_comment(source: str, target: str, frames: str = "camera") -> str:
+    """The comment line of a track's TUM file."""
+    return f"mutloc: pose of {source} in {target}'s {frames} frame (T_qp)"
+
+
+class BaseFrames:
+    """A row's pose (and covariance) between the robots' base frames
+    (``base_from_camera`` in the rig): ``T = B_q @ T_qp @ inv(B_p)``; the
+    robots are then named ``NAME_base``.  Called on a row, returns a copy."""
+
+    def __init__(self, rig: Any, source: str, target: str) -> None:
+        rig = load_rig(rig)
+        B = {}
+        for r in (source, target):
+            B[r] = rig.robot(r).base_from_camera
+            if B[r] is None:
+                raise InputError(f"base frames asked for, but robot {r!r} has no base_from_camera in the rig")
+        self.A, self.C = B[target], B[source].inverse()
+        self.source, self.target = f"{source}_base", f"{target}_base"
+
+    def __call__(self, row: TrackRow) -> TrackRow:
+        new = replace(row)
+        e = row.estimate
+        if e is not None:
+            A, C = self.A, self.C
+            new.estimate = replace(e, source=self.source, target=self.target, pose=A @ e.pose @ C,
+                                   covariance=sandwich_covariance(A, e.pose, C, e.covariance),
+                                   candidates=A @ e.candidates @ C)
+        return new
+
+
+class _Emitter:
+    """Hands each row to ``sink(row, payload)`` in input order once its
+    report is final (see :meth:`PairTracker.finalize`): outputs written as
+    the track runs."""
+
+    def __init__(self, tracker: PairTracker, sink: Callable[[TrackRow, Any], None]) -> None:
+        self.tracker, self.sink = tracker, sink
+        self.queue: deque[tuple[TrackRow, bool, Any]] = deque()
+        self.done = 0  # filtered rows handed on
+
+    def add(self, row: TrackRow, filtered: bool, payload: Any = None) -> None:
+        self.queue.append((row, filtered, payload))
+
+    def emit(self, end: bool = False) -> None:
+        final = math.inf if self.tracker.history is None else self.tracker.finalize(end)
+        while self.queue:
+            row, filtered, payload = self.queue[0]
+            if filtered and self.done >= final:
+                break
+            self.queue.popleft()
+            self.done += filtered
+            self.sink(row, payload)
 
 
 def pair_streams(a: Iterator[Frame], b: Iterator[Frame], tolerance: float) -> Iterator[tuple[Frame | None, Frame | None]]:
@@ -232,8 +273,17 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
           tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
           fps: float | None = None, annotate: str | Path | None = None,
           observations_out: str | Path | None = None, progress: bool = True, total: int | None = None,
-          filter: str | FilterOptions = "cv", rerun: str | Path | None = None) -> Trajectory:
+          filter: str | FilterOptions = "cv", rerun: str | Path | None = None,
+          sink: Callable[[TrackRow], None] | None = None) -> Trajectory:
     """Localize over two streams (``{robot: frames}``).
+
+    ``sink`` is called with every row, in input order, as soon as its report
+    is final (after the smoother's lag; see
+    :meth:`~mutloc.track.filtering.PairTracker.finalize`): write outputs
+    there to have them as the track runs (:class:`mutloc.track.outputs.TrackOutputs`).
+    The annotated video and the Rerun recording are written the same way.
+    On Ctrl-C (``KeyboardInterrupt``) every frame finished so far is
+    reported, as if the input ended there, before the exception goes on.
 
     ``rerun`` writes a Rerun recording (``.rrd``: images with detections,
     the robots' frames with covariance ellipsoids, the trajectory; see
@@ -257,6 +307,18 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
     log = ObservationLogWriter(observations_out) if observations_out else None
     viz = _rerun_writer(rerun, source, target)
+
+    def final(row: TrackRow, images: tuple[dict, dict]) -> None:
+        shown, both = images
+        if viz is not None:
+            _rerun_row(viz, row, {r: (img, {n: d.uv for n, d in row.detections[r].detections.items()})
+                                  for r, img in shown.items() if r in row.detections})
+        if writer is not None and both:
+            writer.write(both[source], both[target], row, source, target)
+        if sink is not None:
+            sink(row)
+
+    emitter = _Emitter(tracker, final)
     rows: list[TrackRow] = []
     checked = False
     last: dict[str, np.ndarray] = {}  # each robot's latest image (the annotated video shows both)
@@ -292,15 +354,20 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 row.observations = observations_of(row.detections, row.t)
                 if log is not None:
                     log.write(row.t, row.observations)
+                before = tracker.rows_filtered
                 tracker.step(row)
+                filtered = tracker.rows_filtered > before
                 if notes:
                     row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
             rows.append(row)
-            if viz is not None:
-                _rerun_row(viz, row, {r: (img, {n: d.uv for n, d in row.detections[r].detections.items()})
-                                      for r, img in images.items() if r in row.detections})
-            if writer is not None and images and len(last) == 2:
-                writer.write(last[source], last[target], row, source, target)
+            shown = images if (viz is not None or writer is not None) else {}
+            emitter.add(row, filtered if row.observations is not None else False,
+                        (shown, dict(last) if writer is not None and images and len(last) == 2 else {}))
+            emitter.emit()
+        emitter.emit(end=True)
+    except KeyboardInterrupt:
+        emitter.emit(end=True)  # every frame finished so far, reported as if the input ended here
+        raise
     finally:
         bar.close()
         if writer is not None:
@@ -309,38 +376,53 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             log.close()
         if viz is not None:
             viz.close()
-    tracker.finish()
     return Trajectory(source, target, rows, rate)
 
 
 def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, ObservationSet]], source: str | None = None,
               target: str | None = None, *, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
               progress: bool = True, total: int | None = None, filter: str | FilterOptions = "cv",
-              rerun: str | Path | None = None) -> Trajectory:
+              rerun: str | Path | None = None, sink: Callable[[TrackRow], None] | None = None) -> Trajectory:
     """Track over an observation log: ``frames`` are ``(time, ObservationSet)``
     as :func:`mutloc.io.logs.iter_observation_log` yields them (or
-    ObservationSets stamped with their time); ``filter`` and ``rerun`` as :func:`track`."""
+    ObservationSets stamped with their time); ``filter``, ``rerun`` and
+    ``sink`` (rows as they become final) as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
     source, target = rig.default_pair(source, target)
     if rerun is not None:
         writable_path(rerun, "rerun")  # before the work, not after it
     tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
                           options=_options(filter))
+    viz = _rerun_writer(rerun, source, target)
+
+    def final(row: TrackRow, _: Any) -> None:
+        if viz is not None:
+            _rerun_row(viz, row)
+        if sink is not None:
+            sink(row)
+
+    emitter = _Emitter(tracker, final)
     rows: list[TrackRow] = []
-    for item in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
-        if isinstance(item, ObservationSet):
-            times = item.times
-            t, obs = (float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)), item
-        else:
-            t, obs = float(item[0]), item[1]
-        row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
-        tracker.step(row)
-        rows.append(row)
-    tracker.finish()
-    if rerun is not None:
-        with _rerun_writer(rerun, source, target) as viz:
-            for row in rows:
-                _rerun_row(viz, row)
+    try:
+        for item in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
+            if isinstance(item, ObservationSet):
+                times = item.times
+                t, obs = (float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)), item
+            else:
+                t, obs = float(item[0]), item[1]
+            row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
+            before = tracker.rows_filtered
+            tracker.step(row)
+            rows.append(row)
+            emitter.add(row, tracker.rows_filtered > before)
+            emitter.emit()
+        emitter.emit(end=True)
+    except KeyboardInterrupt:
+        emitter.emit(end=True)
+        raise
+    finally:
+        if viz is not None:
+            viz.close()
     return Trajectory(source, target, rows, None)
 
 

@@ -1,0 +1,111 @@
+"""`track` written as it runs (issue: outputs appended as rows become
+final): stopped by SIGINT or SIGKILL mid-run, every file written parses and
+holds the frames finished so far, identical to what a complete run over the
+same records reports.
+
+The child reads its observation log from a named pipe, so the test decides
+how far it gets: it writes records, waits for the rows to be written, then
+stops it.  The child always runs in its own process group, killed in a
+``finally``.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from mutloc.io import save_rig
+from mutloc.io.logs import ObservationLogWriter
+from mutloc.io.trajectory import read_trajectory_csv, read_tum
+from mutloc.sim.tracking import camera_records
+from mutloc.sim.world import standard_rig
+from mutloc.track.filtering import DEFAULT_SMOOTH_LAG
+from mutloc.track.tracker import track_log
+
+N_WRITTEN = 60  # records fed before the stop (of 120)
+
+
+def _lines(path, frames):
+    with ObservationLogWriter(path) as w:
+        for f in frames:
+            w.write(float(f.times[0]), f)
+    return path.read_text().splitlines(keepends=True)
+
+
+def _csv_rows(path):
+    return read_trajectory_csv(path) if path.exists() else []
+
+
+def _bag_poses(bag):
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic.startswith("/mutloc/")]
+        return [(ts, reader.deserialize(raw, c.msgtype)) for c, ts, raw in reader.messages(connections=conns)]
+
+
+def _mcap_poses(path):
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return [m for _, ch, m in make_reader(f).iter_messages() if ch.topic.startswith("/mutloc/")]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
+def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
+    rig = standard_rig()
+    save_rig(rig, tmp_path / "rig.yaml")
+    recs = camera_records(rig, duration=4.0, offsets={"q": 1 / 60}, seed=11)
+    lines = _lines(tmp_path / "all.jsonl", recs.frames)
+    fifo = tmp_path / "log.pipe"
+    os.mkfifo(fifo)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "mutloc", "track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(fifo),
+           "--out", str(out), "--bag", str(tmp_path / "bag"), "--mcap", str(tmp_path / "poses.mcap"),
+           "--no-progress"]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        with open(fifo, "w") as pipe:  # blocks until the child opens it
+            pipe.writelines(lines[:N_WRITTEN])
+            pipe.flush()
+            # Rows are final DEFAULT_SMOOTH_LAG + 1 records after they came.
+            want = N_WRITTEN - DEFAULT_SMOOTH_LAG - 1
+            deadline = time.monotonic() + 120
+            while len(_csv_rows(out / "trajectory.csv")) < want:
+                assert child.poll() is None, child.stderr.read().decode()
+                assert time.monotonic() < deadline, "the rows were not written as the track ran"
+                time.sleep(0.1)
+            time.sleep(0.3)
+            os.killpg(child.pid, sig)
+            child.wait(timeout=60)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+    err = child.stderr.read().decode()
+    # The reference: a complete run over the records the child had.
+    ref = track_log(rig, [(float(f.times[0]), f) for f in recs.frames[:N_WRITTEN]], progress=False)
+    rows = _csv_rows(out / "trajectory.csv")
+    if sig == signal.SIGINT:
+        assert child.returncode == 130
+        assert "interrupted" in err and "frames finished" in err and "Traceback" not in err
+        assert len(rows) == N_WRITTEN  # every record it had, reported as if the log ended there
+    else:
+        assert child.returncode == -signal.SIGKILL
+        assert N_WRITTEN - DEFAULT_SMOOTH_LAG - 1 <= len(rows) <= N_WRITTEN
+    for got, want in zip(rows, ref.rows):
+        assert got["t"] == pytest.approx(want.t, abs=1e-9) and got["status"] == str(want.status)
+        if want.estimate is None:
+            assert got["pose"] is None
+        else:
+            assert np.allclose(got["pose"].t, want.estimate.t, atol=1e-8)
+            assert np.allclose(got["sigma"], np.sqrt(np.diag(want.estimate.covariance)), rtol=1e-6, atol=1e-12)
+    posed = sum(r["pose"] is not None for r in rows)
+    times, _ = read_tum(out / "trajectory.tum")
+    assert len(times) == posed
+    assert len(_bag_poses(tmp_path / "bag")) == posed
+    assert len(_mcap_poses(tmp_path / "poses.mcap")) == posed
