@@ -91,10 +91,14 @@ def test_localize_and_track_from_a_log_need_no_extra(scene):
 
 
 @pytest.mark.parametrize("option, extra", [(["--bag", "bag"], "ros"), (["--mcap", "poses.mcap"], "ros"),
-                                           (["--rerun", "track.rrd"], "viz")])
-def test_track_outputs_of_an_extra_fail_in_one_line_before_the_work(scene, option, extra):
+                                           (["--rerun", "track.rrd"], "viz"), (["--topic", "p=/image"], "ros")])
+def test_track_options_of_an_extra_fail_in_one_line_before_the_work(scene, option, extra):
     d, _ = scene
-    out = _run(d, ["-m", "mutloc", "track", "--rig", "rig.yaml", "--observations", "log.jsonl",
+    (d / "a_bag").mkdir(exist_ok=True)
+    (d / "a_bag" / "metadata.yaml").touch()  # a rosbag2 folder, as far as the command line can tell
+    source = ["--stream", "p=a_bag", "--stream", "q=a_bag", "--topic", "q=/image"] if option[0] == "--topic" \
+        else ["--observations", "log.jsonl"]
+    out = _run(d, ["-m", "mutloc", "track", "--rig", "rig.yaml", *source,
                    "--out", f"out_{extra}{option[0]}", "--no-progress", *option])
     err = out.stderr.strip()
     assert out.returncode == 2 and len(err.splitlines()) == 1, err

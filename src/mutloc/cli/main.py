@@ -58,10 +58,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: What a command, or one of its options, needs beyond the core install:
-#: (command, option's dest or None for the command itself, optional packages,
+#: (command, option's dest -- when given -- or None for the command itself, optional packages,
 #: extra to name or None for each package's own; see mutloc._extras).
 #: Checked before the command starts, so it fails at once, not after the work.
 NEEDS: tuple[tuple[str, str | None, tuple[str, ...], str | None], ...] = (
+    ("track", "topic", ("rosbags",), None),  # a stream from a ROS bag
+    ("track", "camera_info", ("rosbags",), None),
     ("track", "bag", ("rosbags",), None),
     ("track", "mcap", ("mcap", "rosbags"), None),
     ("track", "rerun", ("rerun",), None),
@@ -76,7 +78,7 @@ def check_extras(args: argparse.Namespace) -> None:
     from .._extras import require
 
     for command, dest, modules, extra in NEEDS:
-        if args.command != command or (dest is not None and getattr(args, dest, None) is None):
+        if args.command != command or (dest is not None and not getattr(args, dest, None)):
             continue
         what = f"mutloc {command}" + ("" if dest is None else f" --{dest.replace('_', '-')}")
         for module in modules:
