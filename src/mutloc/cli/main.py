@@ -67,8 +67,9 @@ NEEDS: tuple[tuple[str, str | None, tuple[str, ...], str | None], ...] = (
     ("track", "bag", ("rosbags",), None),
     ("track", "mcap", ("mcap", "rosbags"), None),
     ("track", "rerun", ("rerun",), None),
+    ("track", "annotate", ("av",), None),
     ("experiment", None, ("matplotlib", "pycolmap"), "experiments"),
-    ("demo", None, ("matplotlib",), None),
+    ("demo", None, ("matplotlib", "av"), None),
 )
 
 

@@ -9,7 +9,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..errors import MutlocError
 
 __all__ = ["draw_pair", "label", "Annotator", "STATUS_COLOURS"]
 
@@ -70,24 +69,23 @@ def draw_pair(img_s: np.ndarray, img_t: np.ndarray, row: Any, source: str, targe
 
 
 class Annotator:
-    """Writes annotated frames to an mp4 video at the stream's frame rate
-    (the folder is created if missing)."""
+    """Writes annotated frames to an mp4 video at the stream's frame rate,
+    each frame flushed as it comes (:class:`mutloc.io.video.VideoWriter`: a
+    killed run leaves a video that plays); the folder is created if missing."""
 
     def __init__(self, path: str | Path, fps: float = 30.0):
         self.path = Path(path)
         self.fps = float(fps)
-        self.vw: cv2.VideoWriter | None = None
+        self.vw: Any = None
 
     def write(self, img_s: np.ndarray, img_t: np.ndarray, row: Any, source: str, target: str) -> None:
         frame = draw_pair(img_s, img_t, row, source, target)
         if self.vw is None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.vw = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps,
-                                      (frame.shape[1], frame.shape[0]))
-            if not self.vw.isOpened():
-                raise MutlocError(f"{self.path}: cannot write the annotated video")
+            from ..io.video import VideoWriter
+
+            self.vw = VideoWriter(self.path, fps=self.fps)
         self.vw.write(frame)
 
     def close(self) -> None:
         if self.vw is not None:
-            self.vw.release()
+            self.vw.close()

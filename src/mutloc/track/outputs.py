@@ -33,36 +33,47 @@ class TrackOutputs:
         self.to_base = BaseFrames(base_frames, source, target) if base_frames is not None else None
         if self.to_base is not None:
             source, target = self.to_base.source, self.to_base.target
-        out = Path(out).expanduser()
+        self.source, self.target = source, target
+        self.out = Path(out).expanduser()
+        self.bag = None if bag is None else Path(bag).expanduser()
+        self.mcap = None if mcap is None else Path(mcap).expanduser()
+        #: The writers, opened with the first row (a run refused before any row leaves no file).
         self.writers: list[Any] = []
+        self.csv: Any = None
+
+    def _open(self) -> None:
         try:
-            self.csv = self._open(TrajectoryCsvWriter(out / "trajectory.csv", extra=CSV_EXTRA))
-            self.tum = self._open(TumWriter(out / "trajectory.tum",
-                                            comment=tum_comment(source, target,
-                                                                "camera" if self.to_base is None else "base")))
-            self.ros = [self._open(Ros2BagWriter(bag, [(source, target)]))] if bag is not None else []
-            if mcap is not None:
-                self.ros.append(self._open(McapPoseWriter(mcap, [(source, target)])))
+            self.csv = self._add(TrajectoryCsvWriter(self.out / "trajectory.csv", extra=CSV_EXTRA))
+            self.tum = self._add(TumWriter(self.out / "trajectory.tum",
+                                           comment=tum_comment(self.source, self.target,
+                                                               "camera" if self.to_base is None else "base")))
+            names = [(self.source, self.target)]
+            self.ros = [self._add(Ros2BagWriter(self.bag, names))] if self.bag is not None else []
+            if self.mcap is not None:
+                self.ros.append(self._add(McapPoseWriter(self.mcap, names)))
         except BaseException:
             self.close()
             raise
 
-    def _open(self, writer: Any) -> Any:
+    def _add(self, writer: Any) -> Any:
         self.writers.append(writer)
         return writer
 
     @property
     def rows(self) -> int:
         """Rows written to ``trajectory.csv`` so far."""
-        return self.csv.rows
+        return 0 if self.csv is None else self.csv.rows
 
     @property
     def paths(self) -> list[Path]:
-        """Every file or folder written, in the order opened."""
-        return [p for w in self.writers for p in w.paths]
+        """Every file or folder this writes, in that order."""
+        return [self.out / "trajectory.csv", self.out / "trajectory.tum",
+                *(p for p in (self.bag, self.mcap) if p is not None)]
 
     def write(self, row: TrackRow) -> None:
         """One final row into every file (a row without a pose only into the CSV)."""
+        if self.csv is None:
+            self._open()
         if self.to_base is not None:
             row = self.to_base(row)
         self.csv.write(csv_row(row))
