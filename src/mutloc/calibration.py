@@ -486,9 +486,10 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     directions and the refusal are judged on the log alone).  Without it,
     the combinations the log determines worse than ``weak_sigma`` (two
     upright robots leave some; default 1 cm, what a tape measure gives) are
-    held near the given rig, taken as good to ``weak_sigma`` along them,
-    and reported as weak with the log's own sigma; ``weak_sigma=None``: the
-    log alone everywhere.  A log that leaves more than half the unknowns
+    taken from the given rig, good to ``weak_sigma`` along them (the log's
+    weak say along them is not fused in: it rests on pixel changes where
+    the detectors' small systematic errors decide it), and reported as weak
+    with the log's own sigma; ``weak_sigma=None``: the log alone everywhere.  A log that leaves more than half the unknowns
     undetermined (sigma above :data:`MAX_SIGMA_M`) is refused.
     """
     from .api import load_rig
@@ -865,7 +866,7 @@ def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: li
             weak.append(WeakDirection(
                 s, _describe(v, names, marker_robot)
                 + (f" (the log alone: {s * 1000:.0f} mm, 1 sigma)" if math.isfinite(s) else " (the log alone: not at all)")
-                + f" is held near the given rig, taken as good to {weak_sigma * 1000:g} mm along it",
+                + f" is taken from the given rig, good to {weak_sigma * 1000:g} mm along it",
                 _advice(v, motion), {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}, held=True))
     for i in range(len(free)):
         if sig[i] > WEAK_RATIO * med and sig[i] > WEAK_MIN_M:
