@@ -547,8 +547,10 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     held: tuple | None = None
     motion = _motion_summary(fit.groups, fit.adjustment, order)
     for round_ in range(_NOISE_ROUNDS):
-        measured = _measured_noise(fit)
-        target = _sigma_noise(measured, fit.dof, pixel_sigma) if measure_noise else pixel_sigma
+        # the held combinations are not estimated: no degrees of freedom spent on them
+        dof = fit.dof + (0 if held is None else len(held[0]))
+        measured = _measured_noise(fit.adjustment, dof)
+        target = _sigma_noise(measured, dof, pixel_sigma) if measure_noise else pixel_sigma
         if round_ > 0 and abs(math.log(target / noise)) < math.log(_NOISE_SETTLED):
             break
         noise = target
@@ -559,10 +561,12 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
                 break  # the first fit's weights already
             prior = (old, (noise / prior_sigma) ** 2, None)
         else:
-            free = n_par - len(constraints)
-            V, sig_v = _undetermined(adj, C, noise, len(names), MAX_SIGMA_M)
-            if len(V) > free // 2 or (weak_sigma is None and len(V)):
-                _refuse_undetermined(adj, C, names, marker_robot, motion, noise, fit.frames_used)
+            if round_ == 0:
+                # what the log cannot determine at all: judged at the stated noise
+                free = n_par - len(constraints)
+                V, sig_v = _undetermined(adj, C, pixel_sigma, len(names), MAX_SIGMA_M)
+                if len(V) > free // 2 or (weak_sigma is None and len(V)):
+                    _refuse_undetermined(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used)
             if weak_sigma is None:
                 break  # the log alone: no weight depends on the noise
             V, sig_v = _undetermined(adj, C, noise, len(names), weak_sigma)
@@ -779,12 +783,12 @@ def _fit(data: _Collected, prior: tuple, start: np.ndarray, start_rot: np.ndarra
                 _Collected(groups, rows, info, data.skipped, data.gross))
 
 
-def _measured_noise(fit: _Fit) -> float | None:
-    """The detection noise (px, per image axis) the fit's residuals show:
+def _measured_noise(adj: Any, dof: int) -> float | None:
+    """The detection noise (px, per image axis) the residuals show:
     ``sqrt(sum r^2 / dof)``; None without degrees of freedom."""
-    if fit.dof <= 0:
+    if dof <= 0:
         return None
-    return float(np.sqrt(np.sum(fit.adjustment.residuals**2) / fit.dof))
+    return float(np.sqrt(np.sum(adj.residuals**2) / dof))
 
 
 def _sigma_noise(measured: float | None, dof: int, stated: float) -> float:

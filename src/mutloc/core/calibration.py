@@ -201,7 +201,7 @@ class Adjustment:
             inv = np.full_like(N, np.inf)
         else:
             inv = (V / w) @ V.T
-        if prior_sigma is None or data_only or self.prior_information is None:
+        if prior_sigma is None or data_only or self.prior_information is None or not np.all(np.isfinite(inv)):
             cov = pixel_sigma**2 * (Z @ inv @ Z.T)
         else:
             P = np.zeros_like(S)
