@@ -669,3 +669,25 @@ def test_cli_on_a_rendered_tag_team_log(tmp_path, capsys):
     z2 = np.array(z2)
     assert z2.max() < 16.0, z2
     assert 0.5 < z2.mean() < 2.0, z2.mean(axis=0)
+
+
+def test_sigmas_are_for_the_noise_the_residuals_show():
+    """Detections ten times better than stated (0.05 px, stated 0.5): the
+    noise is measured from the residuals and the sigmas are for it
+    (normalised squared errors average 0.4-2 per axis over seeds); with
+    measure_noise=False they stay for the stated noise, ten times larger."""
+    nees, ratio = [], []
+    for seed in range(4):
+        _, truth, measured, seq = _tag_team(40 + seed, sigma=0.05)
+        res = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.5)
+        stated = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.5,
+                                   measure_noise=False)
+        assert res.measured_pixel_sigma == pytest.approx(0.05, rel=0.15)
+        assert res.measured_pixel_sigma <= res.sigma_noise_px < 1.2 * res.measured_pixel_sigma
+        assert stated.sigma_noise_px == 0.5
+        tp = true_positions(truth)
+        nees += [((m.new - tp[n]) / m.sigma) ** 2 for n, m in res.markers.items()]
+        ratio += [stated.markers[n].sigma / m.sigma for n, m in res.markers.items()]
+    mean = np.mean(nees, axis=0)
+    assert np.all((mean > 0.4) & (mean < 2.0)), mean
+    assert 7.0 < np.median(ratio) < 12.0
