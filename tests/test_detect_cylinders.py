@@ -213,3 +213,31 @@ def test_known_hard_cases(d, yp, yq, seed, kw, obs, name):
     assert max(errs) <= 1.0, errs
     for n, det in res.detections.items():
         assert np.linalg.norm(det.uv - np.asarray(gt[n])) <= 1.0, (n, det.uv, gt[n])
+
+
+def test_odd_band_count_middle_band_on_the_centre_tracks():
+    """A cylinder with an odd number of bands has its middle band on its
+    centre: the expanded rig holds both (the band is derived from the
+    cylinder), the detections name the bands and not the centre (the same
+    pixel twice would count one measurement twice), and the pose from the
+    images matches the world's."""
+    from mutloc.track.frames import detect_markers, expanded_rig
+
+    spec = standard_rig("cylinders").to_dict()
+    codes = {"M1": [1, 0, 1, 0, 1], "M2": [1, 1, 0, 1, 1], "M3": [1, 0, 0, 1, 1], "M4": [1, 1, 1, 0, 1]}
+    for r in spec["robots"].values():
+        for n, m in r["markers"].items():
+            m["cylinder"] = dict(m["cylinder"], code=codes[n])
+    rig = mutloc.load_rig(spec)
+    ex = expanded_rig(rig)
+    assert np.allclose(ex.robot("p").markers["M3#b2"].position, rig.robot("p").markers["M3"].position)
+    T = Pose(so3_exp(np.array([0.0, np.pi + 0.2, 0.0])), np.array([0.1, 0.0, 1.5]))
+    world = two_robot_world(rig, T)
+    imgs = {o: render(world, o) for o in ("p", "q")}
+    det = detect_markers(ex, "q", imgs["q"])
+    assert {"M3#b0", "M3#b2", "M3#b4"} <= set(det.detections), (det.detections.keys(), det.missing)
+    assert "M3" not in det.detections and "M4" not in det.detections
+    res = mutloc.localize_images(spec, imgs)
+    truth = relative_pose(world, "p", "q")
+    assert np.linalg.norm(res.estimate.t - truth.t) < 0.02
+    assert rotation_error_deg(res.estimate.R, truth.R) < 1.0

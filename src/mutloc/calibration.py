@@ -44,6 +44,9 @@ MAX_SIGMA_M = 0.5
 #: this (1 sigma, metres; two upright robots leave some) are held near the
 #: given rig, taken as good to it along them (a tape measure's centimetre).
 WEAK_PRIOR_SIGMA_M = 0.01
+#: The held combinations' weight in the fit, relative to ``weak_sigma``'s:
+#: taken from the given rig, not fused with the log's weak say along them.
+HOLD_STIFFNESS = 1e4
 #: A combination whose sigma is above this many times the median one (and
 #: above :data:`WEAK_MIN_M`) is reported as weakly determined.
 WEAK_RATIO = 4.0
@@ -54,6 +57,17 @@ WEAK_MIN_M = 0.003
 #: from where the start puts it is a wrong detection, set aside and reported.
 START_SIGMA_PX = 3.0
 START_GATE_PX = 50.0
+#: The detection noise behind the reported sigmas is measured from the fit's
+#: residuals (the a-posteriori variance factor, as a bundle adjuster or
+#: OpenCV's calibrateCamera reports it) once the fit has this many degrees
+#: of freedom; below the stated noise, its upper two-sigma bound is used
+#: (as the tracker's measured noise).
+NOISE_MIN_DOF = 20
+NOISE_FLOOR = 0.01
+# Rounds of (measure the noise, weigh the priors by it, fit), and the ratio
+# under which the measured noise counts as settled.
+_NOISE_ROUNDS = 3
+_NOISE_SETTLED = 1.1
 # Frames this close in relative pose count as one pose (degree, metre).
 SAME_POSE_DEG = 3.0
 SAME_POSE_M = 0.01
@@ -157,6 +171,12 @@ class CalibrationResult:
     iterations: int
     converged: bool
     prior_sigma: float | None = None
+    #: The detection noise (px, per image axis) the fit's residuals show,
+    #: and the noise behind ``position_sigma`` and ``rotation_sigma``: the
+    #: measured one once the log has enough degrees of freedom (below the
+    #: stated ``pixel_sigma``: its upper two-sigma bound), else ``pixel_sigma``.
+    measured_pixel_sigma: float | None = None
+    sigma_noise_px: float | None = None
     outliers: list[dict[str, Any]] = field(default_factory=list)
     unobserved: list[str] = field(default_factory=list)
     skipped_frames: list[dict[str, Any]] = field(default_factory=list)
@@ -169,12 +189,20 @@ class CalibrationResult:
             "markers": {n: m.to_dict() for n, m in self.markers.items()},
             "weak_directions": [w.to_dict() for w in self.weak_directions],
             "scale": [{"markers": [a, b], "distance_m": d} for a, b, d in self.scale],
-            "pixel_sigma": self.pixel_sigma, "prior_sigma": self.prior_sigma,
+            "pixel_sigma": self.pixel_sigma, "measured_pixel_sigma": self.measured_pixel_sigma,
+            "sigma_noise_px": self.sigma_noise_px, "prior_sigma": self.prior_sigma,
             "frames_total": self.frames_total, "frames_used": self.frames_used,
             "observations_used": self.observations_used, "reprojection_rms_px": self.reprojection_rms_px,
             "chi2": self.chi2, "dof": self.dof, "iterations": self.iterations, "converged": self.converged,
             "outliers": self.outliers, "unobserved": self.unobserved, "skipped_frames": self.skipped_frames,
         }
+
+    def _noise_words(self) -> str:
+        noise = self.pixel_sigma if self.sigma_noise_px is None else self.sigma_noise_px
+        shown = "" if self.measured_pixel_sigma is None else f"the residuals show {self.measured_pixel_sigma:.3g} px"
+        if noise == self.pixel_sigma:
+            return f"sigmas for the stated {noise:g} px noise" + (f" ({shown})" if shown else "")
+        return f"sigmas for the measured {noise:.3g} px noise ({shown}; stated {self.pixel_sigma:g} px)"
 
     def summary(self) -> str:
         """The per-marker table (old, new, change, sigma) and the weak directions, in words."""
@@ -194,7 +222,7 @@ class CalibrationResult:
         lines.append(f"{self.frames_used} of {self.frames_total} frames, {self.observations_used} observations, "
                      f"reprojection RMS {self.reprojection_rms_px:.2f} px; scale held by "
                      + ", ".join(f"|{a}-{b}| = {d:g} m" for a, b, d in self.scale)
-                     + f"; sigmas for {self.pixel_sigma:g} px noise"
+                     + f"; {self._noise_words()}"
                      + ("" if self.prior_sigma is None else f" and the given positions good to {self.prior_sigma:g} m"))
         if self.outliers:
             lines.append(f"{len(self.outliers)} observations down-weighted as outliers (largest "
@@ -422,7 +450,8 @@ def _start_residuals(rig: Rig, positions: dict[str, np.ndarray], grp: _Group, ob
 def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sigma: float = 1.0, *,
                       prior_sigma: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
                       huber: float = HUBER_K, max_iter: int = 100,
-                      weak_sigma: float | None = WEAK_PRIOR_SIGMA_M) -> CalibrationResult:
+                      weak_sigma: float | None = WEAK_PRIOR_SIGMA_M, measure_noise: bool = True
+                      ) -> CalibrationResult:
     """Re-estimate every observed marker's position from a sequence of mutual
     observations (SPEC "Marker calibration").
 
@@ -436,12 +465,19 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     held fixed (``"A:B=D"`` strings or ``(A, B, D)``; markers A and B of one
     robot, centres); default the two markers of the rig's first robot
     farthest apart, at their given distance.  ``pixel_sigma`` is the
-    detection noise behind ``position_sigma``; observations whose residual
+    stated detection noise; observations whose residual
     fails the chi-square test (family-wise at ``confidence`` over the log)
     are reported as outliers and left out of a second fit (a Huber loss at
     ``huber`` sigma bounds their pull in the first); frames that cannot be
     placed are named in ``skipped_frames``.  Raises UnobservableMarkersError
     when the sequence cannot determine the markers.
+
+    ``position_sigma`` (and a tag's ``rotation_sigma``) are for the noise
+    the fit's residuals show (``measured_pixel_sigma``, per image axis;
+    below ``pixel_sigma``, its upper two-sigma bound), as a bundle adjuster
+    reports them, once the log has :data:`NOISE_MIN_DOF` degrees of
+    freedom; the priors below are weighed against the pixels with it too.
+    ``measure_noise=False``, or a log too short: for ``pixel_sigma``.
 
     ``prior_sigma`` (metres, 1 sigma per axis; default None: the log alone)
     says how well the given positions were measured: they then count as a
@@ -450,9 +486,10 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     directions and the refusal are judged on the log alone).  Without it,
     the combinations the log determines worse than ``weak_sigma`` (two
     upright robots leave some; default 1 cm, what a tape measure gives) are
-    held near the given rig, taken as good to ``weak_sigma`` along them,
-    and reported as weak with the log's own sigma; ``weak_sigma=None``: the
-    log alone everywhere.  A log that leaves more than half the unknowns
+    taken from the given rig, good to ``weak_sigma`` along them (the log's
+    weak say along them is not fused in: it rests on pixel changes where
+    the detectors' small systematic errors decide it), and reported as weak
+    with the log's own sigma; ``weak_sigma=None``: the log alone everywhere.  A log that leaves more than half the unknowns
     undetermined (sigma above :data:`MAX_SIGMA_M`) is refused.
     """
     from .api import load_rig
@@ -502,28 +539,51 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         if again.groups and {better.points[r[4]][0] for r in again.rows} >= observed:
             data = again
             fit = _fit(data, prior, fit.adjustment.markers, fit.adjustment.rotations, *args)
-    adj = fit.adjustment
-    motion = _motion_summary(fit.groups, adj, order)
-    n_par = len(adj.information)
-    _, C = constraint_jacobian(adj.markers, constraints, n_par)
     marker_robot = [model.robot[b] for b in body]
+    n_par = len(fit.adjustment.information)
+    # The noise behind the sigmas (and the priors' weights against the
+    # pixels): measured from the residuals; the fit again while it moves.
+    noise, measured = pixel_sigma, None
     held: tuple | None = None
-    if prior_sigma is None:
-        free = n_par - len(constraints)
-        V, sig_v = _undetermined(adj, C, pixel_sigma, len(names), MAX_SIGMA_M)
-        if len(V) > free // 2 or (weak_sigma is None and len(V)):
-            _refuse_undetermined(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used)
-        if weak_sigma is not None:
-            V, sig_v = _undetermined(adj, C, pixel_sigma, len(names), weak_sigma)
+    motion = _motion_summary(fit.groups, fit.adjustment, order)
+    for round_ in range(_NOISE_ROUNDS):
+        # the held combinations are not estimated: no degrees of freedom spent on them
+        dof = fit.dof + (0 if held is None else len(held[0]))
+        measured = _measured_noise(fit.adjustment, dof)
+        target = _sigma_noise(measured, dof, pixel_sigma) if measure_noise else pixel_sigma
+        if round_ > 0 and abs(math.log(target / noise)) < math.log(_NOISE_SETTLED):
+            break
+        noise = target
+        adj = fit.adjustment
+        _, C = constraint_jacobian(adj.markers, constraints, n_par)
+        if prior_sigma is not None:
+            if round_ == 0 and abs(math.log(noise / pixel_sigma)) < math.log(_NOISE_SETTLED):
+                break  # the first fit's weights already
+            prior = (old, (noise / prior_sigma) ** 2, None)
+        else:
+            if round_ == 0:
+                # what the log cannot determine at all: judged at the stated noise
+                free = n_par - len(constraints)
+                V, sig_v = _undetermined(adj, C, pixel_sigma, len(names), MAX_SIGMA_M)
+                if len(V) > free // 2 or (weak_sigma is None and len(V)):
+                    _refuse_undetermined(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used)
+            if weak_sigma is None:
+                break  # the log alone: no weight depends on the noise
+            V, sig_v = _undetermined(adj, C, noise, len(names), weak_sigma)
             held = (V, sig_v) if len(V) else None
-            prior = (old, (pixel_sigma / weak_sigma) ** 2, _orthonormal(V)) if len(V) else (None, 0.0, None)
-            outliers, dropped = fit.outliers, fit.dropped
-            fit = _fit(fit.data, prior, adj.markers, adj.rotations, *args)
-            fit.outliers, fit.dropped = outliers + fit.outliers, dropped + fit.dropped
-            adj = fit.adjustment
-            _, C = constraint_jacobian(adj.markers, constraints, n_par)
-    cov_post, _ = adj.marker_covariance(C, pixel_sigma)
-    weak = _weak_directions(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used, held, weak_sigma)
+            # held: taken from the given rig (stiffly), not fused with the
+            # log's weak say along them (systematic detection errors, a
+            # fraction of a pixel, decide what the log says there); the
+            # covariance adds the given rig's own error back
+            prior = (old, HOLD_STIFFNESS * (noise / weak_sigma) ** 2, _orthonormal(V)) if len(V) \
+                else (None, 0.0, None)
+        outliers, dropped = fit.outliers, fit.dropped
+        fit = _fit(fit.data, prior, adj.markers, adj.rotations, *args)
+        fit.outliers, fit.dropped = outliers + fit.outliers, dropped + fit.dropped
+    adj = fit.adjustment
+    _, C = constraint_jacobian(adj.markers, constraints, n_par)
+    cov_post, _ = adj.marker_covariance(C, noise, prior_sigma=weak_sigma if held is not None else None)
+    weak = _weak_directions(adj, C, names, marker_robot, motion, noise, fit.frames_used, held, weak_sigma)
     nb = 3 * len(names)
     sigma = np.sqrt(np.clip(np.diag(cov_post)[:nb], 0.0, None)).reshape(-1, 3)
     rot_sigma = np.sqrt(np.clip(np.diag(cov_post)[nb:], 0.0, None)).reshape(-1, 3)
@@ -554,6 +614,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     skipped = sorted(data.skipped + fit.dropped, key=lambda d: d["frame"])
     return CalibrationResult(
         rig=new_rig, markers=markers, weak_directions=weak, scale=list(named), pixel_sigma=pixel_sigma,
+        measured_pixel_sigma=measured, sigma_noise_px=noise,
         covariance=cov_post[:nb, :nb], covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames),
         frames_used=fit.frames_used, observations_used=len(fit.rows),
         reprojection_rms_px=float(np.sqrt(np.mean(np.sum(adj.residuals**2, axis=1)))), chi2=adj.chi2,
@@ -722,6 +783,27 @@ def _fit(data: _Collected, prior: tuple, start: np.ndarray, start_rot: np.ndarra
                 _Collected(groups, rows, info, data.skipped, data.gross))
 
 
+def _measured_noise(adj: Any, dof: int) -> float | None:
+    """The detection noise (px, per image axis) the residuals show:
+    ``sqrt(sum r^2 / dof)``; None without degrees of freedom."""
+    if dof <= 0:
+        return None
+    return float(np.sqrt(np.sum(adj.residuals**2) / dof))
+
+
+def _sigma_noise(measured: float | None, dof: int, stated: float) -> float:
+    """The noise behind the reported sigmas: the measured one once the log
+    has :data:`NOISE_MIN_DOF` degrees of freedom (below the stated noise its
+    upper two-sigma bound, never below :data:`NOISE_FLOOR` of the stated),
+    else the stated one."""
+    if measured is None or dof < NOISE_MIN_DOF:
+        return stated
+    if measured >= stated:
+        return measured
+    upper = measured * math.sqrt(1.0 + 2.0 * math.sqrt(2.0 / dof))
+    return max(min(upper, stated), NOISE_FLOOR * stated)
+
+
 def _undetermined(adj: Any, C: np.ndarray, pixel_sigma: float, n_bodies: int,
                   limit: float) -> tuple[np.ndarray, np.ndarray]:
     """The combinations of the centres the log alone determines no better
@@ -768,7 +850,7 @@ def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: li
     weakest first; ``held`` (directions, the log's sigmas): those held near
     the given rig, listed first."""
     nb = 3 * len(names)
-    cov_all, _ = adj.marker_covariance(C, pixel_sigma, data_only=held is None)
+    cov_all, _ = adj.marker_covariance(C, pixel_sigma, data_only=held is None, prior_sigma=weak_sigma)
     if held is not None:
         # The log's own sigma of everything but the held combinations.
         Q = null_space(held[0], nb)
@@ -788,7 +870,7 @@ def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: li
             weak.append(WeakDirection(
                 s, _describe(v, names, marker_robot)
                 + (f" (the log alone: {s * 1000:.0f} mm, 1 sigma)" if math.isfinite(s) else " (the log alone: not at all)")
-                + f" is held near the given rig, taken as good to {weak_sigma * 1000:g} mm along it",
+                + f" is taken from the given rig, good to {weak_sigma * 1000:g} mm along it",
                 _advice(v, motion), {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}, held=True))
     for i in range(len(free)):
         if sig[i] > WEAK_RATIO * med and sig[i] > WEAK_MIN_M:

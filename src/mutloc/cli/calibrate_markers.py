@@ -19,9 +19,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
             "(SPEC 'Observation logs'; any number of robots; what track --observations-out writes: a tag's "
             "corners NAME#0..3 calibrate the tag as a rigid body, centre and rotation; a cylinder's bands NAME#bK "
             "its axis). Writes the rig with each marker's new position and position_sigma (1 sigma per axis, "
-            "metres, for --pixel-sigma noise, scale held), for tags also tag.rotation and tag.rotation_sigma "
-            "(radians), and prints, per marker, the old and new position and the change, and which combinations "
-            "the log determines only weakly. --confidence is the chi-square test that names outlier observations."
+            "metres, scale held, for the detection noise the residuals show; --pixel-sigma is the noise the "
+            "outlier test expects), for tags also tag.rotation and tag.rotation_sigma (radians), and prints, per "
+            "marker, the old and new position and the change, and which combinations the log determines only "
+            "weakly. --confidence is the chi-square test that names outlier observations."
         ),
     )
     p.add_argument("--observations", required=True, metavar="LOG", help="observation log (JSON Lines)")
@@ -33,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "a measurement and hold what the log determines only weakly (default: the log alone)")
     p.add_argument("--weak-sigma", type=positive_float, metavar="M", default=None,
                    help="without --prior-sigma, the combinations the log determines worse than M metres (1 sigma) "
-                        "are held near the given rig, taken as good to M along them (default 0.01)")
+                        "are taken from the given rig, good to M along them (default 0.01)")
     p.add_argument("--log-alone", action="store_true",
                    help="no combination held near the given rig: the log alone (refused where it cannot "
                         "determine the markers)")

@@ -181,10 +181,17 @@ class Adjustment:
         return S
 
     def marker_covariance(self, constraints_jacobian: np.ndarray, pixel_sigma: float,
-                          data_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                          data_only: bool = False, prior_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(covariance (n, n) of the body parameters with the constraints
         held, eigenvalues of the constrained information ``Z^T S Z``,
-        ascending); ``data_only``: without the prior."""
+        ascending); ``data_only``: without the prior.
+
+        ``prior_sigma`` (metres): the prior's own error, 1 sigma per
+        combination it holds, when its weight is not ``(pixel_sigma /
+        prior_sigma)^2`` (a combination held stiffer than it is known, i.e.
+        taken from the prior rather than fused with the log): the sandwich
+        ``N^-1 (sigma^2 S_data + prior_sigma^2 P P) N^-1`` instead of
+        ``sigma^2 N^-1`` (the two agree when the weight is that one)."""
         S = self.data_information() if data_only else self.information
         Z = null_space(constraints_jacobian, S.shape[0])
         N = Z.T @ S @ Z
@@ -194,7 +201,15 @@ class Adjustment:
             inv = np.full_like(N, np.inf)
         else:
             inv = (V / w) @ V.T
-        cov = pixel_sigma**2 * (Z @ inv @ Z.T)
+        if prior_sigma is None or data_only or self.prior_information is None or not np.all(np.isfinite(inv)):
+            cov = pixel_sigma**2 * (Z @ inv @ Z.T)
+        else:
+            P = np.zeros_like(S)
+            k = self.prior_information.shape[0]
+            P[:k, :k] = self.prior_information
+            M = pixel_sigma**2 * self.data_information() + prior_sigma**2 * (P @ P)
+            G = Z @ inv @ Z.T
+            cov = G @ M @ G
         return 0.5 * (cov + cov.T), w
 
 

@@ -146,8 +146,12 @@ class Rig:
                 self._owner[mname] = rname
             names = list(robot.markers)
             pos = robot.marker_positions(names)
+            parent = [robot.markers[n].extra.get("cylinder_of") or robot.markers[n].extra.get("tag_of")
+                      for n in names]
             for i in range(len(names)):
                 for j in range(i + 1, len(names)):
+                    if parent[i] == names[j] or parent[j] == names[i]:
+                        continue  # a derived point on its own marker (the middle band of an odd count)
                     if np.linalg.norm(pos[i] - pos[j]) < COINCIDENT_TOL_M:
                         raise RigError(f"robot {rname!r}: markers {names[i]!r} and {names[j]!r} coincide")
 

@@ -74,6 +74,8 @@ def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str
         found = detector(image, markers, camera=camera)
         if kind == MarkerKind.TAG:
             _add_tag_corners(found, markers)
+        elif kind == MarkerKind.CYLINDER:
+            _bands_replace_centres(found)
         result.merge(found)
     return result
 
@@ -113,6 +115,14 @@ def _add_tag_corners(found: DetectionResult, tags: Mapping[str, Marker]) -> None
             for cname, uv in zip(corner_marker_names(name), det.corners):
                 found.detections[cname] = Detection(cname, np.asarray(uv, float), det.score)
             del found.detections[name]
+
+
+def _bands_replace_centres(found: DetectionResult) -> None:
+    """A cylinder's bands (NAME#bK) replace its centre: the centre is a point
+    of the same fitted axis line as the bands (with an odd count, the middle
+    band's very pixel), so keeping it would count the same measurement twice."""
+    for name in {d.info.get("cylinder") for d in found.detections.values() if d.info} - {None}:
+        found.detections.pop(name, None)
 
 
 def expanded_rig(rig: Rig) -> Rig:
