@@ -16,7 +16,7 @@ from mutloc.detect.balls.cues import hue_chroma, shading_contrast
 from mutloc.detect.balls.light import light_gains
 from mutloc.detect.balls.numeric import column_medians, np_sum
 from mutloc.detect.balls.params import BallParams, value_lut
-from mutloc.detect.balls.search import BallSearch, hue_masks, value_floor
+from mutloc.detect.balls.search import value_floor
 
 SEEDS = st.integers(0, 2**32 - 1)
 
@@ -106,17 +106,3 @@ def test_np_sum_adds_in_numpys_order(seed, n, strided, offset, scale):
     x = a[:, 1] if strided else np.ascontiguousarray(a[:, 1])
     assert np_sum(x, 0, n) == x.sum()  # bit for bit: pairwise, eight running sums per block
 
-
-def test_hue_masks_from_bgr_are_opencvs_hsv_masks():
-    # Every one of the 2^24 colours: the masks computed from BGR directly
-    # are those of cv2.cvtColor(COLOR_BGR2HSV_FULL) (wrap-around red included).
-    a = np.arange(1 << 24, dtype=np.uint32)
-    img = np.stack([(a >> 16) & 255, (a >> 8) & 255, a & 255], axis=-1).astype(np.uint8).reshape(4096, 4096, 3)
-    searches = [BallSearch("r", (255, 0, 0), 0.0, 1.0, 1.0), BallSearch("y", (255, 255, 0), 60.0, 0.3, 1.0),
-                BallSearch("b", (0, 0, 255), 240.0, 1.0, 1.0)]
-    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV_FULL)
-    for v_floor in (12, 40):
-        want = hue_masks(hsv, searches, 12.0, v_floor)
-        got = hue_masks(img, searches, 12.0, v_floor, bgr=True)
-        assert all(np.array_equal(g, w) for g, w in zip(got, want))
-        assert all(w.any() for w in want)

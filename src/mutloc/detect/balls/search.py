@@ -166,15 +166,8 @@ def _value_p99(img, step):
     return 256
 
 
-def hue_masks(
-    hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_floor: int, *, bgr: bool = False,
-) -> list[np.ndarray]:
+def hue_masks(hsv: np.ndarray, searches: list[BallSearch], tol_deg: float, v_floor: int) -> list[np.ndarray]:
     """One mask per marker: hue within ``tol_deg`` of its own, saturated and bright enough.
-
-    ``hsv`` is the image in OpenCV's ``COLOR_BGR2HSV_FULL``; with ``bgr``,
-    the BGR image itself, whose hue and saturation are then computed as
-    OpenCV does (:func:`_bgr_label_kernel`; the same masks), only where the
-    value reaches its floor.
 
     Shading scales RGB, which leaves saturation unchanged; haze, highlights
     and JPEG chroma blur lower it, so the saturation floor is a fraction of
@@ -193,50 +186,9 @@ def hue_masks(
             dh = np.abs((deg - s.hue_deg + 180.0) % 360.0 - 180.0)
             table[dh <= tol_deg + 0.71] |= np.uint8(1 << bit)
         label = np.empty(hsv.shape[:2], np.uint8)
-        if bgr:
-            _bgr_label_kernel(hsv, table, s_floor, int(v_floor), _SDIV, _HDIV, label)
-        else:
-            _label_kernel(hsv, table, s_floor, int(v_floor), label)
+        _label_kernel(hsv, table, s_floor, int(v_floor), label)
         masks.extend(np.bitwise_and(label, np.uint8(1 << bit)) for bit in range(len(chunk)))
     return masks
-
-
-# OpenCV's tables for 8-bit BGR -> HSV_FULL (imgproc/color_hsv: 12 fractional
-# bits, rounded to nearest even): saturation 255 / V and hue 256 / (6 diff).
-_HSV_SHIFT = 12
-_SDIV = np.zeros(256, np.int64)
-_SDIV[1:] = np.rint((255 << _HSV_SHIFT) / np.arange(1.0, 256.0))
-_HDIV = np.zeros(256, np.int64)
-_HDIV[1:] = np.rint((256 << _HSV_SHIFT) / (6.0 * np.arange(1.0, 256.0)))
-
-
-@numba.njit(cache=True, fastmath=False)
-def _bgr_label_kernel(img, table, s_floor, v_floor, sdiv, hdiv, out) -> None:
-    """:func:`_label_kernel` on the BGR image: its HSV_FULL computed per pixel exactly as
-    ``cv2.cvtColor`` does (integer arithmetic, the same tables), hue only where it is needed."""
-    half = 1 << (_HSV_SHIFT - 1)
-    for y in range(out.shape[0]):
-        for x in range(out.shape[1]):
-            b = np.int64(img[y, x, 0])
-            g = np.int64(img[y, x, 1])
-            r = np.int64(img[y, x, 2])
-            v = max(b, g, r)
-            out[y, x] = 0
-            if v < v_floor:
-                continue
-            diff = v - min(b, g, r)
-            if (diff * sdiv[v] + half) >> _HSV_SHIFT < s_floor:
-                continue
-            if v == r:
-                h = g - b
-            elif v == g:
-                h = b - r + 2 * diff
-            else:
-                h = r - g + 4 * diff
-            h = (h * hdiv[diff] + half) >> _HSV_SHIFT
-            if h < 0:
-                h += 256
-            out[y, x] = table[min(h, 255)]
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -417,10 +369,11 @@ def find_blobs(
     coarse = img if k == 1 else cv2.resize(img, (W // k, H // k), interpolation=cv2.INTER_AREA)
     if gains is not None:
         coarse = correct(coarse, gains)
+    hsv = cv2.cvtColor(coarse, cv2.COLOR_BGR2HSV_FULL)
     sx = W / coarse.shape[1]
     sy = H / coarse.shape[0]
     out = []
-    for mask in hue_masks(coarse, searches, params.hue_tol_deg, v_floor, bgr=True):
+    for mask in hue_masks(hsv, searches, params.hue_tol_deg, v_floor):
         rows = _coarse_rows(mask, sx, sy, params.min_radius_px, max_r)
         # A ball split by a pole leaves half-discs: support ~0.5 of their
         # circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
