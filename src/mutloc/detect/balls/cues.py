@@ -33,7 +33,11 @@ def evidence(rim_length_px: float) -> float:
 
 def hue_chroma(bgr: np.ndarray, lut: np.ndarray) -> tuple[float, float]:
     """Hue (deg) and chroma (max - min, 0..255 encoded) of a BGR colour in ``lut``'s values."""
-    b, g, r = _encode(lut, float(bgr[0]), float(bgr[1]), float(bgr[2]))
+    return encoded_hue_chroma(*_encode(lut, float(bgr[0]), float(bgr[1]), float(bgr[2])))
+
+
+def encoded_hue_chroma(b: float, g: float, r: float) -> tuple[float, float]:
+    """:func:`hue_chroma` of a colour already encoded to 0..255 (``_encode``)."""
     h, _, _ = colorsys.rgb_to_hsv(r / 255.0, g / 255.0, b / 255.0)
     return 360.0 * h, max(b, g, r) - min(b, g, r)
 

@@ -10,6 +10,8 @@ Python, the calls between them cost as much as the steps.  :func:`sweep`
 runs the chain as one compiled call, with the very same kernels and the
 sums added in NumPy's order, so its figures are those of the step-by-step
 code (which still serves other cameras, and the rescue of cut blobs).
+:func:`measure` does the same for what the score measures of the ball
+(:func:`~.choose.score_candidate`).
 """
 
 from __future__ import annotations
@@ -17,12 +19,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ...core.camera import project_kernel
+from .cues import _encode, _shading_kernel
 from .fit import _OUTLINE_POINTS, _cone_rim_kernel, _pinhole_bearings_kernel, cone_fit
-from .numeric import np_sum
+from .numeric import column_medians, np_sum
 from .occlusion import _smooth_kernel
 from .rim import _rim_points, edges_kernel, rim_radii
 
-__all__ = ["FAILED", "NO_RIM", "OK", "sweep"]
+__all__ = ["FAILED", "NO_RIM", "OK", "measure", "sweep"]
 
 #: :func:`sweep`'s status: a fit, fewer than six rays to start it from, or a fit that failed.
 OK, NO_RIM, FAILED = 0, 1, 2
@@ -36,12 +40,12 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
     ``slope_lim``: :func:`~.occlusion.smooth_rim`'s limit; ``Kinv``, ``K``,
     ``dist`` (all zero) and ``f``: the pinhole camera (:class:`~.fit.CameraModel`).
 
-    Returns ``(status, near, radius, valid, inner, contrast, direction,
-    weights, cos_theta, rms, outline, centre_u, centre_v, radii, radius_px,
-    radii_finite)``: ``near`` counts the rays within ``tol0`` before the
-    occluder test; ``radius``, ``valid`` (after the occluder test),
-    ``inner`` and ``contrast`` are the :class:`~.rim.Rim`'s; the rest is
-    the :class:`~.fit.Fit`'s (meaningful only when ``status`` is OK).
+    Returns ``(status, near, inner, direction, weights, cos_theta, rms,
+    outline, centre_u, centre_v, radii, radius_px, radii_finite)``:
+    ``near`` counts the rays within ``tol0`` before the occluder test;
+    ``inner`` is the :class:`~.rim.Rim`'s (the ball colour per ray); the
+    rest is the :class:`~.fit.Fit`'s (meaningful only when ``status`` is
+    OK).
     """
     n = ang.shape[0]
     e = np.empty(n)
@@ -69,7 +73,7 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
         near[i] = near[i] and kept[i]
         n_init += near[i]
     if n_init < 6:
-        return NO_RIM, n_near, e, kept, inner, contrast, d, w, 0.0, 0.0, outline, 0.0, 0.0, radii, 0.0, False
+        return NO_RIM, n_near, inner, d, w, 0.0, 0.0, outline, 0.0, 0.0, radii, 0.0, False
     pts = np.empty((n, 2))
     _rim_points(cx, cy, ang, e, pts)
     bear = np.empty((n, 3))
@@ -77,7 +81,7 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
     _pinhole_bearings_kernel(Kinv, pts, fin, bear)
     ok, cos_t, rms = cone_fit(bear, fin, near, f, d, w)
     if not ok or not _cone_rim_kernel(K, dist, d, cos_t, outline):
-        return FAILED, n_near, e, kept, inner, contrast, d, w, 0.0, 0.0, outline, 0.0, 0.0, radii, 0.0, False
+        return FAILED, n_near, inner, d, w, 0.0, 0.0, outline, 0.0, 0.0, radii, 0.0, False
     m = outline.shape[0]
     cu = np_sum(outline[:, 0], 0, m) / m
     cv_ = np_sum(outline[:, 1], 0, m) / m
@@ -85,5 +89,46 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
     finite = True
     for i in range(n):
         finite = finite and np.isfinite(radii[i])
-    return (OK, n_near, e, kept, inner, contrast, d, w, cos_t, rms, outline, cu, cv_, radii,
+    return (OK, n_near, inner, d, w, cos_t, rms, outline, cu, cv_, radii,
             np_sum(radii, 0, n) / n, finite)
+
+
+@numba.njit(cache=True, fastmath=False)
+def measure(img, lut, w, inner_all, cx, cy, K, dist, d):
+    """What :func:`~.choose.score_candidate` measures of a fitted ball (no light correction), compiled.
+
+    ``w``: the fit's weights per ray, ``inner_all`` the rim's inner colours,
+    ``(cx, cy)`` the fitted centre, ``d`` the cone's axis.  Returns
+    ``(inliers, b, g, r, shading, uv)``: the rays with weight, the ball's
+    median colour encoded to 0..255 (:func:`~.cues.hue_chroma`), its
+    shading contrast (:func:`~.cues.shading_contrast`) and the projection
+    of ``d``.
+    """
+    n = w.shape[0]
+    k = 0
+    for i in range(n):
+        if w[i] > 0.0:
+            k += 1
+    inner = np.empty((k, 3))
+    j = 0
+    for i in range(n):
+        if w[i] > 0.0:
+            for c in range(3):
+                inner[j, c] = inner_all[i, c]
+            j += 1
+    ball = np.empty(3)
+    column_medians(inner, ball)
+    # ball / max(1.0, ball.max()): NumPy's max is NaN if any is, and
+    # Python's max keeps 1.0 unless the other is larger.
+    top = ball[0]
+    for c in range(1, 3):
+        if ball[c] > top or np.isnan(ball[c]):
+            top = ball[c]
+    if np.isnan(ball[0]):
+        top = ball[0]
+    div = top if top > 1.0 else 1.0
+    b, g, r = _encode(lut, ball[0] / div, ball[1] / div, ball[2] / div)
+    shading = _shading_kernel(img, lut, cx, cy, inner)
+    uv = np.empty(2)
+    project_kernel(K, dist, d, uv)
+    return k, b, g, r, shading, uv
