@@ -20,11 +20,11 @@ import numba
 import numpy as np
 
 from ...core.camera import project_kernel
-from .cues import _encode, _shading_kernel
-from .fit import _OUTLINE_POINTS, _cone_rim_kernel, _pinhole_bearings_kernel, cone_fit
+from .cues import encode_kernel, shading_kernel
+from .fit import OUTLINE_POINTS, cone_fit, cone_rim_kernel, pinhole_bearings_kernel
 from .numeric import column_medians, np_sum
-from .occlusion import _smooth_kernel
-from .rim import _rim_points, edges_kernel, rim_radii
+from .occlusion import smooth_kernel
+from .rim import edges_kernel, rim_points_kernel, rim_radii
 
 __all__ = ["FAILED", "NO_RIM", "OK", "measure", "sweep"]
 
@@ -54,7 +54,7 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
     contrast = np.empty(n)
     d = np.zeros(3)
     w = np.zeros(n)
-    outline = np.zeros((_OUTLINE_POINTS, 2))
+    outline = np.zeros((OUTLINE_POINTS, 2))
     radii = np.zeros(n)
     # rim.window
     r = np_sum(rexp, 0, n) / n
@@ -67,7 +67,7 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
         near[i] = valid[i] and abs(e[i] - rexp[i]) <= tol0
         n_near += near[i]
     kept = np.empty(n, np.bool_)
-    _smooth_kernel(e, valid, slope_lim, kept)
+    smooth_kernel(e, valid, slope_lim, kept)
     n_init = 0
     for i in range(n):
         near[i] = near[i] and kept[i]
@@ -75,12 +75,12 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
     if n_init < 6:
         return NO_RIM, n_near, inner, d, w, 0.0, 0.0, outline, 0.0, 0.0, radii, 0.0, False
     pts = np.empty((n, 2))
-    _rim_points(cx, cy, ang, e, pts)
+    rim_points_kernel(cx, cy, ang, e, pts)
     bear = np.empty((n, 3))
     fin = kept.copy()
-    _pinhole_bearings_kernel(Kinv, pts, fin, bear)
+    pinhole_bearings_kernel(Kinv, pts, fin, bear)
     ok, cos_t, rms = cone_fit(bear, fin, near, f, d, w)
-    if not ok or not _cone_rim_kernel(K, dist, d, cos_t, outline):
+    if not ok or not cone_rim_kernel(K, dist, d, cos_t, outline):
         return FAILED, n_near, inner, d, w, 0.0, 0.0, outline, 0.0, 0.0, radii, 0.0, False
     m = outline.shape[0]
     cu = np_sum(outline[:, 0], 0, m) / m
@@ -127,8 +127,8 @@ def measure(img, lut, w, inner_all, cx, cy, K, dist, d):
     if np.isnan(ball[0]):
         top = ball[0]
     div = top if top > 1.0 else 1.0
-    b, g, r = _encode(lut, ball[0] / div, ball[1] / div, ball[2] / div)
-    shading = _shading_kernel(img, lut, cx, cy, inner)
+    b, g, r = encode_kernel(lut, ball[0] / div, ball[1] / div, ball[2] / div)
+    shading = shading_kernel(img, lut, cx, cy, inner)
     uv = np.empty(2)
     project_kernel(K, dist, d, uv)
     return k, b, g, r, shading, uv
