@@ -10,7 +10,7 @@ DOCS_STAMP := $(VENV)/.docs-installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet -e ".[all,test]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -23,14 +23,14 @@ test: $(STAMP)
 
 # The manual, into site/ (open site/index.html); --strict fails on a broken link or API reference.
 $(DOCS_STAMP): $(STAMP)
-	$(BIN)/python -m pip install --quiet -e ".[test,docs]"
+	$(BIN)/python -m pip install --quiet -e ".[all,test,docs]"
 	touch $(DOCS_STAMP)
 
 docs: $(DOCS_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 bench: $(STAMP)
-	$(BIN)/python -m pip install --quiet -e ".[test,bench]"  # GTSAM, the peer of bench_team.py
+	$(BIN)/python -m pip install --quiet -e ".[all,test,bench]"  # GTSAM, the peer of bench_team.py
 	$(BIN)/python bench/bench_solvers.py
 	$(BIN)/python bench/bench_detectors.py
 	$(BIN)/python bench/bench_cli.py

@@ -106,3 +106,52 @@ def test_mutloc_track_is_the_subpackage_whatever_is_imported_first(first):
         "from mutloc import track\nassert track is mutloc.track\nprint('ok')\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-800:]
+
+
+def _optional_imports(path: Path):
+    """(package, line, at module level) of every import of a package of
+    :data:`mutloc._extras.PACKAGES`; module level: not inside a function
+    (a class body runs at import too)."""
+    from mutloc._extras import PACKAGES
+
+    def walk(node, in_function):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.Import):
+                tops = [a.name.partition(".")[0] for a in child.names]
+            elif isinstance(child, ast.ImportFrom) and not child.level:
+                tops = [(child.module or "").partition(".")[0]]
+            else:
+                tops = []
+            for top in tops:
+                if top in PACKAGES:
+                    yield top, child.lineno, not in_function
+            yield from walk(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef,
+                                                                          ast.Lambda)))
+
+    yield from walk(ast.parse(path.read_text(encoding="utf-8")), False)
+
+
+def _required(path: Path) -> set[str]:
+    """Packages named by a ``require("package", ...)`` call in the file."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if (isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "require"
+                and node.args and isinstance(node.args[0], ast.Constant)):
+            out.add(node.args[0].value)
+    return out
+
+
+def test_optional_packages_are_imported_lazily_through_require():
+    """``pip install mutloc`` (no extra) imports every module: none imports an
+    optional package (or pupil-apriltags) at module level, and a module that
+    imports one in a function also calls ``mutloc._extras.require`` for it, so
+    a missing one is a one-line error naming its extra."""
+    bad = []
+    for f in FILES:
+        required = _required(f)
+        for top, line, module_level in _optional_imports(f):
+            if module_level:
+                bad.append(f"{f.relative_to(ROOT)}:{line} imports {top} at module level")
+            elif top not in required:
+                bad.append(f"{f.relative_to(ROOT)}:{line} imports {top} without require({top!r}, ...)")
+    assert not bad, "\n".join(bad)

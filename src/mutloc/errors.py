@@ -37,6 +37,13 @@ class TooFewObservationsError(ObservationError):
     """Fewer than three marker observations between the two robots."""
 
 
+class MissingExtraError(MutlocError, ImportError):
+    """The call needs an optional package this install does not have; the
+    message names it and the extra that installs it (``pip install
+    "mutloc[ros]"``).  Also an ``ImportError``, so code that already treats
+    optional parts that way keeps working."""
+
+
 class GeometryError(MutlocError):
     """The problem is well formed but geometrically unsolvable."""
 
@@ -85,6 +92,7 @@ __all__ = [
     "ObservationError",
     "UnknownMarkerError",
     "TooFewObservationsError",
+    "MissingExtraError",
     "GeometryError",
     "DegenerateGeometryError",
     "NoSolutionError",

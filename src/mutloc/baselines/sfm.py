@@ -39,6 +39,7 @@ from typing import Any, Callable, ContextManager, Iterable, Mapping
 
 import numpy as np
 
+from .._extras import require
 from ..core.camera import Camera
 from ..core.pose import Pose
 from ..errors import InputError, NoSolutionError
@@ -134,8 +135,12 @@ def _pose_from_rigid(cam_from_world: Any) -> Pose:
     return Pose(M[:, :3], M[:, 3]).inverse()
 
 
+def _pycolmap() -> Any:
+    return require("pycolmap", "structure from motion (COLMAP)", "experiments")
+
+
 def _rigid_from_pose(T_wc: Pose) -> Any:
-    import pycolmap
+    pycolmap = _pycolmap()
 
     T_cw = T_wc.inverse()
     return pycolmap.Rigid3d(np.column_stack([T_cw.R, T_cw.t]))
@@ -159,6 +164,7 @@ class SfmScene:
                  pairs: Iterable[tuple[str, str]] | None = None, workdir: str | Path | None = None,
                  progress: bool = False, verbose: bool = False,
                  timer: Callable[[str], ContextManager[Any]] | None = None) -> None:
+        _pycolmap()  # before any work
         if len(images) < 2:
             raise InputError(f"structure from motion needs at least two images, got {len(images)}")
         for n in images:
@@ -234,7 +240,7 @@ class SfmScene:
 
     def _prepare(self) -> None:
         import cv2
-        import pycolmap
+        pycolmap = _pycolmap()
         from tqdm import tqdm
 
         if not self.verbose:
@@ -293,7 +299,7 @@ class SfmScene:
     # -- incremental mapping ----------------------------------------------
 
     def _mapping_options(self) -> Any:
-        import pycolmap
+        pycolmap = _pycolmap()
 
         opt = pycolmap.IncrementalPipelineOptions()
         # One thread: with more, Ceres sums a large bundle adjustment's terms
@@ -327,7 +333,7 @@ class SfmScene:
         see also :meth:`SfmResult.scaled`.  Raises
         :class:`~mutloc.errors.NoSolutionError` when no model is built.
         """
-        import pycolmap
+        pycolmap = _pycolmap()
 
         if scale is not None:
             for n in (scale.a, scale.b):
@@ -367,7 +373,7 @@ class SfmScene:
         mean reprojection error (n,) px, track length (n,), colour (n, 3)
         uint8 RGB)``.
         """
-        import pycolmap
+        pycolmap = _pycolmap()
 
         unknown = [n for n in poses if n not in self._images]
         if unknown:

@@ -10,7 +10,7 @@ from types import ModuleType
 
 from ..errors import MutlocError
 
-__all__ = ["main", "build_parser", "command_modules"]
+__all__ = ["main", "build_parser", "command_modules", "check_extras", "NEEDS"]
 
 PROG = "mutloc"
 EXIT_USER_ERROR = 2
@@ -57,6 +57,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What a command, or one of its options, needs beyond the core install:
+#: (command, option's dest -- when given -- or None for the command itself, optional packages,
+#: extra to name or None for each package's own; see mutloc._extras).
+#: Checked before the command starts, so it fails at once, not after the work.
+NEEDS: tuple[tuple[str, str | None, tuple[str, ...], str | None], ...] = (
+    ("track", "topic", ("rosbags",), None),  # a stream from a ROS bag
+    ("track", "camera_info", ("rosbags",), None),
+    ("track", "bag", ("rosbags",), None),
+    ("track", "mcap", ("mcap", "rosbags"), None),
+    ("track", "rerun", ("rerun",), None),
+    ("experiment", None, ("matplotlib", "pycolmap"), "experiments"),
+    ("demo", None, ("matplotlib",), None),
+)
+
+
+def check_extras(args: argparse.Namespace) -> None:
+    """:class:`~mutloc.errors.MissingExtraError` for the first package
+    :data:`NEEDS` asks of the parsed command line that is not installed."""
+    from .._extras import require
+
+    for command, dest, modules, extra in NEEDS:
+        if args.command != command or (dest is not None and not getattr(args, dest, None)):
+            continue
+        what = f"mutloc {command}" + ("" if dest is None else f" --{dest.replace('_', '-')}")
+        for module in modules:
+            require(module, what, extra)
+
+
 def _error(message: object) -> int:
     text = " ".join(str(message).split()) or "unknown error"
     print(f"{PROG}: error: {text}", file=sys.stderr)
@@ -73,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        check_extras(args)
         status = args._run(args)
     except MutlocError as exc:
         return _error(exc if str(exc) else type(exc).__name__)

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from .._extras import require
 from ..errors import InputError
 
 __all__ = ["APRILTAG_FAMILIES", "AprilTagDetection", "FamilyLayout", "detect", "family_layout", "peer_detector",
@@ -96,11 +97,7 @@ class _ZArray(ctypes.Structure):
 
 @functools.cache
 def _lib() -> Any:
-    try:
-        import pupil_apriltags
-    except ImportError:  # pragma: no cover - a declared dependency
-        raise InputError("the AprilTag families need the pupil-apriltags package (pip install pupil-apriltags)") \
-            from None
+    pupil_apriltags = require("pupil_apriltags", "detecting and drawing AprilTag-library tags")
     root = Path(pupil_apriltags.__file__).parent
     for pattern in ("lib*/libapriltag.so*", "lib*/libapriltag*.dylib", "lib*/*apriltag*.dll"):
         for path in sorted(root.glob(pattern)):
@@ -290,7 +287,7 @@ def peer_detector(family: str = "tag36h11") -> Any:
     after free that corrupted the heap and aborted a test run much later);
     here the detector goes first.
     """
-    import pupil_apriltags
+    pupil_apriltags = require("pupil_apriltags", "the pupil-apriltags peer detector")
 
     class _Peer(pupil_apriltags.Detector):  # type: ignore[misc]
         def __del__(self) -> None:

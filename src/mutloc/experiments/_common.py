@@ -12,6 +12,8 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from .._extras import require
+
 __all__ = ["versions", "median", "fmt", "pose_errors", "write_results", "reproduce_lines", "pyplot", "save_figure",
            "cpu_seconds", "StageTimer", "timing_lines"]
 
@@ -131,7 +133,7 @@ def reproduce_lines(results: dict[str, Any]) -> list[str]:
 
 def pyplot():
     """Matplotlib's pyplot on the non-interactive Agg backend."""
-    import matplotlib
+    matplotlib = require("matplotlib", "the experiments' plots", "experiments")
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt

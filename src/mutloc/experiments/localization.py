@@ -51,6 +51,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._extras import require
 from ._common import (StageTimer, fmt, median, pose_errors, pyplot, reproduce_lines, save_figure, versions,
                       write_results)
 
@@ -175,7 +176,7 @@ def _bundler(setup: "_Setup", frames: dict[str, np.ndarray], walk: list[tuple[st
     Metric scale: the true distance between the two registered walk-around
     views farthest apart.
     """
-    import pycolmap
+    pycolmap = require("pycolmap", "the Bundler baseline (COLMAP)", "experiments")
 
     from ..baselines.sfm import SfmScene, farthest_reference
     from ..errors import MutlocError

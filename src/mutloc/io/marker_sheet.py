@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .._extras import require
 from ..core.rig import Marker, MarkerKind, Rig
 from ..errors import InputError
 
@@ -224,6 +225,7 @@ def write_marker_sheet(rig: Rig, path: str | Path, *, title: str = "") -> SheetS
     if not items:
         raise InputError("the rig has nothing printable (tags or banded cylinders)"
                          + (f": its markers are {', '.join(other)}" if other else ""))
+    require("matplotlib", "the marker sheet")
     from matplotlib.backends.backend_pdf import PdfPages
     from matplotlib.figure import Figure
 

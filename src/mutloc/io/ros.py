@@ -27,6 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._extras import require
 from ..core.pose import Pose
 from ..errors import FileFormatError, InputError
 from ._files import PathLike
@@ -61,6 +62,7 @@ def pose_topic(source: str, target: str) -> str:
 
 
 def _store() -> Any:
+    require("rosbags", "ROS messages")
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_HUMBLE)
@@ -159,6 +161,7 @@ class _McapStorage:
     at close."""
 
     def __init__(self, path: Path, compression: Any) -> None:
+        require("mcap", "a rosbag2 bag with MCAP storage")
         from mcap.writer import CompressionType, Writer
 
         self.path = path / f"{path.name}.mcap"
@@ -211,6 +214,7 @@ class Ros2BagWriter(_PoseWriter):
 
     def __init__(self, path: PathLike, names: Names, *, storage: str = "sqlite3",
                  metadata_every: float = 1.0) -> None:
+        require("rosbags", "a ROS 2 bag")
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         if storage not in BAG_STORAGES:
@@ -281,6 +285,8 @@ class McapPoseWriter(_PoseWriter):
     :class:`mutloc.io.streaming.RollingFile`)."""
 
     def __init__(self, path: PathLike, names: Names) -> None:
+        require("mcap", "an MCAP file")
+        require("rosbags", "an MCAP file of ROS messages")
         from mcap.writer import CompressionType, Writer
 
         super().__init__(names)

@@ -29,6 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .._extras import require
 from ..core.pose import Pose
 from ..errors import FileFormatError
 from ._files import PathLike, one_line, writable_path
@@ -50,8 +51,7 @@ class RerunWriter(StreamWriter):
     strips, which :meth:`close` writes); use as a context manager."""
 
     def __init__(self, path: PathLike, source: str | None, target: str, application_id: str = "mutloc") -> None:
-        import rerun as rr
-
+        rr = require("rerun", "a Rerun recording")
         self.rr = rr
         self.path = writable_path(path, "the Rerun recording")
         self.paths = (self.path,)

@@ -45,6 +45,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
+from .._extras import require
 from ..errors import FileFormatError
 from ._files import PathLike, output_folder
 
@@ -179,6 +180,7 @@ class RollingFile:
     def mcap(cls, path: Path) -> "RollingFile":
         """For an MCAP file: the trailer is a ``DataEnd`` record, a footer
         without summary and the closing magic."""
+        require("mcap", "an MCAP file")
         from mcap.data_stream import RecordBuilder
         from mcap.records import DataEnd, Footer
         from mcap.writer import MCAP0_MAGIC

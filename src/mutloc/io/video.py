@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import require
 from ..errors import FileFormatError, InputError
 from ._files import PathLike, output_folder
 from .streaming import StreamWriter
@@ -30,10 +31,7 @@ class VideoWriter(StreamWriter):
     sizes get a black row or column: the codec needs even ones)."""
 
     def __init__(self, path: PathLike, fps: float = 30.0, bit_rate: int = 8_000_000) -> None:
-        try:
-            import av
-        except ImportError:
-            raise InputError("writing a video as it goes needs PyAV: pip install av") from None
+        av = require("av", "writing a video as it goes")
         self._av = av
         self.path = Path(path).expanduser()
         self.paths = (self.path,)

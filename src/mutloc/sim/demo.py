@@ -37,6 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .._extras import require
 from ..core.geometry import so3_log
 from ..core.pose import Pose
 from ..errors import InputError, NoSolutionError
@@ -228,7 +229,7 @@ def _run_sequence(out: Path, rig_file: Path, rig: Any, seed: int, frames: int, f
 
 
 def _plot(seq: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    matplotlib = require("matplotlib", "the demo's plot")
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt

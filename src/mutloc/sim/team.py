@@ -19,7 +19,7 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Marker, Rig, Robot
 
-__all__ = ["TeamScene", "random_team", "chain_team", "team_rig", "robot_names", "level_pose", "MARKER_RING",
+__all__ = ["TeamScene", "team_camera_records", "random_team", "chain_team", "team_rig", "robot_names", "level_pose", "MARKER_RING",
            "TAG_LAYOUT", "TEAM_KINDS", "team_motion", "team_sequence"]
 
 # Markers on each robot (its own camera frame, metres): four balls above and
@@ -227,4 +227,31 @@ def team_sequence(scene: TeamScene, frames: int, fps: float, *, sigma: float = 0
         snap = TeamScene(scene.rig, at(t), scene.links, scene.max_range, dict(scene.extra))
         obs = snap.observations(sigma, rng)
         out.append((t, snap, ObservationSet.trusted(obs.observer, obs.marker, obs.uv, time=t)))
+    return out
+
+
+def team_camera_records(scene: TeamScene, duration: float, *, fps: float | dict[str, float] = 30.0,
+                        offsets: dict[str, float] | None = None, sigma: float = 0.0, seed: int = 0,
+                        **motion) -> list[tuple[float, str, dict[str, Pose], ObservationSet]]:
+    """Every camera of ``scene`` capturing at its own rate (``fps``, one
+    for all or per robot) from its own offset (``offsets``, default: the
+    cameras spread evenly over one frame, so that no two capture together)
+    while the team moves by :func:`team_motion`: per frame, in time order,
+    ``(time, observer, T_world_r of every robot at that time, what that
+    camera saw)`` with ``sigma`` px noise, stamped with the time."""
+    names = scene.names
+    rates = {n: float(fps[n] if isinstance(fps, dict) else fps) for n in names}
+    if offsets is None:
+        offsets = {n: i / (len(names) * rates[n]) for i, n in enumerate(names)}
+    at = team_motion(scene, seed=seed, **motion)
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 517])
+    frames = sorted((round(offsets.get(n, 0.0) + k / rates[n], 9), n) for n in names
+                    for k in range(int(np.floor((duration - offsets.get(n, 0.0)) * rates[n] - 1e-9)) + 1))
+    out = []
+    for t, a in frames:
+        world = at(t)
+        snap = TeamScene(scene.rig, world, scene.links, scene.max_range, dict(scene.extra))
+        vis = [v for v in snap.visible() if v[0] == a]
+        obs = snap.observations(sigma, rng, vis)
+        out.append((t, a, world, ObservationSet.trusted(obs.observer, obs.marker, obs.uv, time=t)))
     return out

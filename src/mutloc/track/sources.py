@@ -179,11 +179,12 @@ def _image_from_msg(msg) -> np.ndarray:
 
 
 def _reader(path: Path):
-    try:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError as exc:  # pragma: no cover - rosbags is a dependency
-        raise InputError(f"reading ROS bags needs the 'rosbags' package ({exc})") from None
+    from .._extras import require
+
+    require("rosbags", "reading a ROS bag")
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
     if not path.exists():
         raise FileFormatError(f"{path}: no such bag")
     try:

@@ -102,10 +102,8 @@ class TeamTrajectory:
         """A Rerun recording (``.rrd``) of every robot's track in the
         reference's frame (see :mod:`mutloc.io.rrd`; poses, covariance
         ellipsoids, trajectories and statuses; no images)."""
-        try:
-            from ..io.rrd import RerunWriter
-        except ImportError:
-            raise InputError("--rerun needs the Rerun SDK: pip install rerun-sdk") from None
+        from ..io.rrd import RerunWriter
+
         with RerunWriter(path, None, self.reference) as viz:
             for r, tr in self.tracks.items():
                 for row in tr.rows:

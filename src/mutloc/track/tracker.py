@@ -429,10 +429,8 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
 def _rerun_writer(path: str | Path | None, source: str, target: str) -> Any:
     if path is None:
         return None
-    try:
-        from ..io.rrd import RerunWriter
-    except ImportError:
-        raise InputError("--rerun needs the Rerun SDK: pip install rerun-sdk") from None
+    from ..io.rrd import RerunWriter
+
     return RerunWriter(path, source, target)
 
 

@@ -1,0 +1,343 @@
+"""One filter for a whole team: every robot's pose and velocity in the
+reference robot's frame, with their correlations, updated by each camera's
+observations at that camera's own capture time.
+
+State: for each tracked robot ``i`` (not the reference, whose pose is the
+identity) the pose ``T_ref_i = (R_i, t_i)`` and its velocity ``(w_i, v_i)``
+-- the pair filter's state (:mod:`mutloc.core.filter`) per robot -- and one
+``12k x 12k`` covariance over all ``k`` tracked robots' error states
+``(dtheta, dt, dw, dv)`` (SPEC perturbations: ``R <- exp(dtheta) R``,
+``t <- t + dt``).  The off-diagonal blocks are the robots' correlations:
+two robots seen by one camera are known relative to each other better than
+each is known in the reference's frame, and an observation of one moves the
+other.
+
+Motion: each robot's constant-velocity model, independent white-noise
+accelerations (:class:`~mutloc.core.filter.MotionNoise`).
+
+Update: an iterated EKF on the pixel residuals of any set of observations
+taken at one time (typically one camera's frame) -- "camera ``a`` saw
+marker ``P`` of robot ``b``", either of them possibly the reference --
+through the team solver's residuals and Jacobians
+(:func:`mutloc.core.team.team_residuals`), touching only the blocks of the
+robots involved.  Gated like the pair filter: the innovation's Mahalanobis
+distance against the chi-square quantile with ``2n`` degrees of freedom; a
+failing update is retried without each single observation (with three or
+more) and exactly one passing subset drops that observation, else the
+update is rejected and the state stays the prediction.  Observations of
+robots not tracked are not used (the caller starts them first).
+
+Nothing here reads files or decides statuses: the tracker does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError, positive_number
+from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
+from .filter import STATE_DIM, MotionNoise, cv_transition
+from .geometry import so3_exp
+from .pose import Pose
+from .team import TeamProblem, team_residuals
+
+__all__ = ["TeamFilter", "TeamUpdate"]
+
+
+@dataclass(frozen=True)
+class TeamUpdate:
+    """What one set of observations did: ``accepted`` (the state was
+    updated), the gate's ``test``, the rows ``used`` and ``dropped``, each
+    row's reprojection error (px) at the resulting state, and the ``reason``
+    of a rejection."""
+
+    accepted: bool
+    test: Consistency
+    used: np.ndarray
+    dropped: np.ndarray
+    residuals_px: np.ndarray
+    reason: str = ""
+
+
+class TeamFilter:
+    """The joint filter of a team (see the module docstring).
+
+    ``robots``: every robot's name in the order of the
+    :class:`~mutloc.core.team.TeamProblem` indices the updates use;
+    ``reference``: the one whose frame the poses are in.  Robots enter the
+    state with :meth:`add` (or :meth:`reset`) and leave it with :meth:`drop`.
+    """
+
+    def __init__(self, robots: list[str], reference: str, noise: MotionNoise | None = None,
+                 pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 5) -> None:
+        if reference not in robots:
+            raise InputError(f"reference {reference!r} is not among the robots {robots}")
+        self.robots = list(robots)
+        self.reference = reference
+        self.noise = noise if noise is not None else MotionNoise()
+        self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
+        if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
+            raise InputError(f"confidence must be a number in (0, 1], got {confidence!r}")
+        self.confidence = float(confidence)
+        self.max_iter = int(max_iter)
+        self.time: float | None = None
+        n = len(self.robots)
+        #: Every robot's pose (the reference's and untracked robots' are the identity / unused).
+        self.R = np.tile(np.eye(3), (n, 1, 1))
+        self.t = np.zeros((n, 3))
+        self.vel = np.zeros((n, 6))
+        #: Tracked robots' indices, in state order, and the joint covariance.
+        self.tracked: list[int] = []
+        self.P = np.zeros((0, 0))
+
+    # -- the state ----------------------------------------------------------
+
+    def index(self, name: str) -> int:
+        try:
+            return self.robots.index(name)
+        except ValueError:
+            raise InputError(f"unknown robot {name!r} (the filter has {self.robots})") from None
+
+    def is_tracked(self, name: str) -> bool:
+        return self.index(name) in self.tracked
+
+    def pose(self, name: str) -> Pose:
+        """``T_ref_name`` now."""
+        i = self.index(name)
+        return Pose(self.R[i].copy(), self.t[i].copy())
+
+    def velocity(self, name: str) -> np.ndarray:
+        return self.vel[self.index(name)].copy()
+
+    def _block(self, name: str) -> slice:
+        i = self.index(name)
+        if i not in self.tracked:
+            raise InputError(f"robot {name!r} is not tracked")
+        k = self.tracked.index(i)
+        return slice(STATE_DIM * k, STATE_DIM * (k + 1))
+
+    def covariance(self, name: str) -> np.ndarray:
+        """6x6 pose covariance of ``T_ref_name`` (SPEC order)."""
+        b = self._block(name)
+        return self.P[b, b][:6, :6].copy()
+
+    def state_covariance(self, a: str, b: str | None = None) -> np.ndarray:
+        """The 12x12 block of robots ``a`` and ``b`` (default ``a``) of the joint covariance."""
+        return self.P[self._block(a), self._block(b or a)].copy()
+
+    def relative(self, a: str, b: str) -> tuple[Pose, np.ndarray]:
+        """``T_b_a`` (robot ``a`` in ``b``'s frame) and its 6x6 covariance,
+        from the joint covariance (their correlation included)."""
+        from .team import relative_jacobian
+
+        ia, ib = self.index(a), self.index(b)
+        Ja, Jb = relative_jacobian(self.R[ia], self.t[ia], self.R[ib], self.t[ib])
+        pose = Pose(self.R[ib].T @ self.R[ia], self.R[ib].T @ (self.t[ia] - self.t[ib]))
+        blocks, jac = [], []
+        for name, J in ((a, Ja), (b, Jb)):
+            if name != self.reference:
+                blocks.append(self._block(name))
+                jac.append(J)
+        C = np.zeros((6, 6))
+        for s1, J1 in zip(blocks, jac):
+            for s2, J2 in zip(blocks, jac):
+                C += J1 @ self.P[s1, s2][:6, :6] @ J2.T
+        return pose, 0.5 * (C + C.T)
+
+    def add(self, name: str, pose: Pose, covariance: np.ndarray, velocity: np.ndarray | None = None,
+            velocity_covariance: np.ndarray | None = None) -> None:
+        """Start tracking ``name`` at ``pose`` (6x6 ``covariance``; velocity
+        zero with the noise's initial sigmas unless given), uncorrelated with
+        the robots already tracked."""
+        i = self.index(name)
+        if name == self.reference:
+            raise InputError("the reference's pose is the identity: it is not tracked")
+        if i in self.tracked:
+            self.drop(name)
+        n = self.noise
+        B = np.zeros((STATE_DIM, STATE_DIM))
+        B[:6, :6] = np.asarray(covariance, float)
+        B[6:, 6:] = (np.asarray(velocity_covariance, float) if velocity_covariance is not None else
+                     np.diag([n.initial_angular**2] * 3 + [n.initial_linear**2] * 3))
+        k = len(self.tracked)
+        P = np.zeros((STATE_DIM * (k + 1),) * 2)
+        P[:STATE_DIM * k, :STATE_DIM * k] = self.P
+        P[STATE_DIM * k:, STATE_DIM * k:] = B
+        self.P = P
+        self.tracked.append(i)
+        self.R[i], self.t[i] = pose.R, pose.t
+        self.vel[i] = 0.0 if velocity is None else np.asarray(velocity, float)
+
+    def drop(self, name: str) -> None:
+        """Stop tracking ``name`` (its block and correlations go)."""
+        b = self._block(name)
+        keep = np.r_[np.arange(0, b.start), np.arange(b.stop, self.P.shape[0])]
+        self.P = self.P[np.ix_(keep, keep)]
+        self.tracked.remove(self.index(name))
+
+    def reset(self, time: float, poses: dict[str, Pose], covariance: np.ndarray) -> None:
+        """Start the filter at ``time`` from a joint estimate: ``poses`` of
+        robots (not the reference) with their ``6k x 6k`` joint
+        ``covariance`` in that order (what
+        :attr:`mutloc.TeamEstimate.joint_covariance` gives); velocities zero
+        with the noise's initial sigmas."""
+        names = list(poses)
+        C = np.asarray(covariance, float)
+        if C.shape != (6 * len(names), 6 * len(names)):
+            raise InputError(f"covariance must be {6 * len(names)} square for {len(names)} robots, got {C.shape}")
+        self.tracked, self.P, self.time = [], np.zeros((0, 0)), float(time)
+        for name in names:
+            self.add(name, poses[name], np.eye(6))
+        for x, a in enumerate(names):
+            for y, b in enumerate(names):
+                sa, sb = self._block(a), self._block(b)
+                self.P[sa.start:sa.start + 6, sb.start:sb.start + 6] = C[6 * x:6 * x + 6, 6 * y:6 * y + 6]
+
+    # -- motion ---------------------------------------------------------------
+
+    def predict(self, time: float) -> None:
+        """Every tracked robot moved to ``time`` by its motion model."""
+        if self.time is None:
+            self.time = float(time)
+            return
+        dt = float(time) - self.time
+        if dt < 0.0:
+            raise InputError(f"time goes back: {time} after {self.time}")
+        self.time = float(time)
+        if dt == 0.0 or not self.tracked:
+            return
+        k = len(self.tracked)
+        F = np.empty((k, STATE_DIM, STATE_DIM))
+        for x, i in enumerate(self.tracked):
+            cv_transition(self.vel[i], dt, F[x])
+            self.R[i] = so3_exp(self.vel[i, :3] * dt) @ self.R[i]
+            self.t[i] = self.t[i] + self.vel[i, 3:] * dt
+        Pb = self.P.reshape(k, STATE_DIM, k, STATE_DIM).transpose(0, 2, 1, 3)  # (k, k, 12, 12)
+        Pb = F[:, None] @ Pb @ F[None].transpose(0, 1, 3, 2)
+        P = Pb.transpose(0, 2, 1, 3).reshape(k * STATE_DIM, k * STATE_DIM)
+        qa, ql = self.noise.angular**2, self.noise.linear**2
+        d3, d2 = dt**3 / 3.0, dt**2 / 2.0
+        for x in range(k):
+            o = STATE_DIM * x
+            for a in range(6):
+                q = qa if a < 3 else ql
+                P[o + a, o + a] += q * d3
+                P[o + a, o + a + 6] += q * d2
+                P[o + a + 6, o + a] += q * d2
+                P[o + a + 6, o + a + 6] += q * dt
+        self.P = 0.5 * (P + P.T)
+
+    # -- observations -------------------------------------------------------
+
+    def update(self, problem: TeamProblem) -> TeamUpdate:
+        """Fold in observations taken at the filter's time (call
+        :meth:`predict` first); rows involving an untracked robot (other
+        than the reference) are ignored.  Gated (see the module docstring)."""
+        ref = self.index(self.reference)
+        ok = np.array([(a == ref or a in self.tracked) and (b == ref or b in self.tracked)
+                       for a, b in zip(problem.cam.tolist(), problem.own.tolist())], dtype=bool)
+        rows = np.flatnonzero(ok)
+        n = len(rows)
+        if n == 0:
+            return TeamUpdate(False, Consistency(0.0, 0, self.confidence, math.inf), rows, rows, np.empty(0),
+                              "no observation of tracked robots")
+        first = self._try(problem, rows)
+        if first is not None and first[1].passed is not False:
+            self._accept(first)
+            return TeamUpdate(True, first[1], rows, np.empty(0, np.int64), first[2])
+        passing = []
+        if n >= 3:
+            for j in range(n):
+                keep = np.delete(rows, j)
+                alt = self._try(problem, keep)
+                if alt is not None and alt[1].passed:
+                    passing.append((rows[j], keep, alt))
+        if len(passing) == 1:
+            j, keep, alt = passing[0]
+            self._accept(alt)
+            return TeamUpdate(True, alt[1], keep, np.array([j]), alt[2])
+        test = first[1] if first is not None else Consistency(math.inf, 2 * n, self.confidence,
+                                                              chi2_quantile(self.confidence, 2 * n))
+        res = first[2] if first is not None else np.full(n, np.inf)
+        reason = (f"inconsistent with the track: chi2 {test.chi2:.1f} over {test.dof} degrees of freedom, above "
+                  f"{test.threshold:.1f} at {100 * test.confidence:g}%")
+        return TeamUpdate(False, test, np.empty(0, np.int64), rows, res, reason)
+
+    def _try(self, problem: TeamProblem, rows: np.ndarray):
+        """The iterated update with observations ``rows``: ``(state, test,
+        residuals_px)`` or None (a marker behind its camera, or no positive
+        definite innovation covariance)."""
+        cam, own = problem.cam[rows], problem.own[rows]
+        pts, meas = problem.points[rows], problem.uv[rows]
+        m = len(rows)
+        ref = self.index(self.reference)
+        involved = sorted({int(x) for x in np.r_[cam, own]} - {ref})
+        cols = np.concatenate([np.arange(STATE_DIM * self.tracked.index(i), STATE_DIM * self.tracked.index(i) + 6)
+                               for i in involved])
+        where = {i: 6 * x for x, i in enumerate(involved)}
+        obs_a = [j for j in range(m) if cam[j] != ref]
+        obs_b = [j for j in range(m) if own[j] != ref]
+        wa = {j: where[int(cam[j])] for j in obs_a}
+        wb = {j: where[int(own[j])] for j in obs_b}
+        P0 = self.P
+        PH_cols = P0[:, cols]  # (12k, 6q): the columns the observations touch
+        Pcc = P0[np.ix_(cols, cols)]
+        s2 = self.pixel_sigma**2
+        R0, t0 = self.R, self.t
+        e = np.zeros(P0.shape[0])
+        r = np.empty(2 * m)
+        Ja = np.empty((m, 2, 6))
+        Jb = np.empty((m, 2, 6))
+        chi2, L, H = math.inf, None, None
+        Rs, ts = R0.copy(), t0.copy()
+        for _ in range(self.max_iter if m >= 3 else 1):
+            if not team_residuals(cam, own, pts, meas, problem.K, problem.dist, Rs, ts, r, Ja, Jb, True):
+                return None
+            H = np.zeros((m, 2, len(cols)))
+            for j in obs_a:
+                H[j, :, wa[j]:wa[j] + 6] += Ja[j]
+            for j in obs_b:
+                H[j, :, wb[j]:wb[j] + 6] += Jb[j]
+            H = H.reshape(2 * m, len(cols))
+            S = H @ Pcc @ H.T + s2 * np.eye(2 * m)
+            innov = -r + H @ e[cols]
+            try:
+                L = np.linalg.cholesky(0.5 * (S + S.T))
+            except np.linalg.LinAlgError:
+                return None
+            y = np.linalg.solve(L.T, np.linalg.solve(L, innov))
+            chi2 = float(innov @ y)
+            e_new = PH_cols @ (H.T @ y)
+            step = float(np.max(np.abs(e_new - e)))
+            e = e_new
+            for i in involved:  # the residuals see only the robots involved
+                o = STATE_DIM * self.tracked.index(i)
+                Rs[i] = so3_exp(e[o:o + 3]) @ R0[i]
+                ts[i] = t0[i] + e[o + 3:o + 6]
+            if step < 1e-7:  # (rad, m, rad/s, m/s): far below any noise
+                break
+        for x, i in enumerate(self.tracked):  # the others move through their correlations
+            if i not in involved:
+                o = STATE_DIM * x
+                Rs[i] = so3_exp(e[o:o + 3]) @ R0[i]
+                ts[i] = t0[i] + e[o + 3:o + 6]
+        # Posterior covariance with the last linearisation: P0 - K S K^T, K = P0[:, cols] H^T S^-1.
+        PHt = PH_cols @ H.T
+        KL = np.linalg.solve(L, PHt.T).T  # K L = P H^T L^-T
+        P = P0 - KL @ KL.T
+        vel = self.vel.copy()
+        for x, i in enumerate(self.tracked):
+            vel[i] = self.vel[i] + e[STATE_DIM * x + 6:STATE_DIM * x + 12]
+        res = np.empty(2 * m)
+        if not team_residuals(cam, own, pts, meas, problem.K, problem.dist, Rs, ts, res, Ja, Jb, False):
+            return None
+        dof = 2 * m
+        test = Consistency(chi2, dof, self.confidence,
+                           chi2_quantile(self.confidence, dof) if self.confidence < 1.0 else math.inf)
+        return (Rs, ts, vel, 0.5 * (P + P.T)), test, np.hypot(res[0::2], res[1::2])
+
+    def _accept(self, result) -> None:
+        (self.R, self.t, self.vel, self.P), _, _ = result
