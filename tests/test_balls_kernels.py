@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from mutloc.detect.balls.cues import hue_chroma, shading_contrast
 from mutloc.detect.balls.light import light_gains
-from mutloc.detect.balls.numeric import column_medians
+from mutloc.detect.balls.numeric import column_medians, np_sum
 from mutloc.detect.balls.params import BallParams, value_lut
 from mutloc.detect.balls.search import value_floor
 
@@ -97,3 +97,12 @@ def test_shading_contrast_is_the_numpy_figure(seed, n):
         hi = max(vals)
         want = (hi - min(vals)) / hi if hi > 0 else 0.0
     assert shading_contrast(img, lut, cx, cy, inner) == want
+
+
+@settings(max_examples=60, deadline=None)
+@given(SEEDS, st.integers(0, 300), st.booleans(), st.floats(-1e3, 1e3), st.sampled_from([1e-3, 1.0, 1e4]))
+def test_np_sum_adds_in_numpys_order(seed, n, strided, offset, scale):
+    a = np.random.default_rng(seed).normal(offset, scale, (n, 2))
+    x = a[:, 1] if strided else np.ascontiguousarray(a[:, 1])
+    assert np_sum(x, 0, n) == x.sum()  # bit for bit: pairwise, eight running sums per block
+

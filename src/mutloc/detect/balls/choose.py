@@ -74,10 +74,8 @@ def score_candidate(
     the marker's radius) outside ``params.distance_range_m`` is implausible.
     """
     cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
-    r = fit.radius_px
     inl = fit.weights > 0
-    n_rays = len(fit.weights)
-    rim_frac = float(inl.sum()) / n_rays
+    rim_frac = float(inl.sum()) / len(fit.weights)
     inner = rim.inner[inl]
     # Hue of the ball as seen (inner colours of the inlier rays), vs nominal.
     ball = np.empty(3)
@@ -88,13 +86,28 @@ def score_candidate(
     # Colours corrected for the light may exceed full scale.
     ball = ball / max(1.0, float(ball.max()))
     hue, chroma = hue_chroma(ball, lut)
+    # Shading is a soft cue: balls in perfectly diffuse light look flat too.
+    shading = shading_contrast(img, lut, cx, cy, inner)
+    if cam is not None:
+        assert fit.direction is not None
+        uv = cam.camera.project(fit.direction)
+    else:
+        uv = fit.ellipse_centre
+    return scored(search, fill, fit, cam is not None, params, rim_frac, hue, chroma, shading, uv)
+
+
+def scored(
+    search: BallSearch, fill: float, fit: Fit, with_camera: bool, params: BallParams, rim_frac: float, hue: float,
+    chroma: float, shading: float, uv: np.ndarray | None,
+) -> Candidate | None:
+    """The score of :func:`score_candidate` from its measurements (rim fraction, the ball's hue, chroma and
+    shading, the reported pixel ``uv``); None if implausible."""
+    r = fit.radius_px
     dh = abs((hue - search.hue_deg + 180.0) % 360.0 - 180.0)
     colour = math.exp(-0.5 * (dh / (1.5 * params.hue_tol_deg)) ** 2)
     shape = 1.0 / (1.0 + (fit.rms / 0.5) ** 2)
     # A blob that fills little of its circle is a ring or a crescent.
     solid = min(1.0, fill / 0.6)
-    # Shading is a soft cue: balls in perfectly diffuse light look flat too.
-    shading = shading_contrast(img, lut, cx, cy, inner)
     relief = 0.6 + 0.4 * min(1.0, shading / 0.12)
     score = rim_frac * colour * vivid(chroma) * shape * solid * evidence(rim_frac * 2.0 * math.pi * r) * relief
     info: dict[str, Any] = {
@@ -106,16 +119,13 @@ def score_candidate(
         "shading": shading,
     }
     xyz = None
-    if cam is not None:
+    if with_camera:
         assert fit.direction is not None
-        uv = cam.camera.project(fit.direction)
         dist_m = search.radius_m / max(math.sqrt(max(1.0 - fit.cos_theta**2, 0.0)), 1e-12)
         info["distance_m"] = float(dist_m)
         if not (params.distance_range_m[0] <= dist_m <= params.distance_range_m[1]):
             return None
         xyz = fit.direction * dist_m
-    else:
-        uv = fit.ellipse_centre
     if uv is None or not np.all(np.isfinite(uv)):
         return None
     return Candidate(search, np.asarray(uv, float), fit.centre_px, r, float(score), info, xyz, fit.outline)

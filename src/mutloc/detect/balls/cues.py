@@ -10,7 +10,9 @@ import numpy as np
 
 from .numeric import sort_inplace
 
-__all__ = ["evidence", "hue_chroma", "shading_contrast", "vivid"]
+__all__ = [
+    "encode_kernel", "encoded_hue_chroma", "evidence", "hue_chroma", "shading_contrast", "shading_kernel", "vivid",
+]
 
 
 def vivid(chroma: float) -> float:
@@ -33,13 +35,17 @@ def evidence(rim_length_px: float) -> float:
 
 def hue_chroma(bgr: np.ndarray, lut: np.ndarray) -> tuple[float, float]:
     """Hue (deg) and chroma (max - min, 0..255 encoded) of a BGR colour in ``lut``'s values."""
-    b, g, r = _encode(lut, float(bgr[0]), float(bgr[1]), float(bgr[2]))
+    return encoded_hue_chroma(*encode_kernel(lut, float(bgr[0]), float(bgr[1]), float(bgr[2])))
+
+
+def encoded_hue_chroma(b: float, g: float, r: float) -> tuple[float, float]:
+    """:func:`hue_chroma` of a colour already encoded to 0..255 (``encode_kernel``)."""
     h, _, _ = colorsys.rgb_to_hsv(r / 255.0, g / 255.0, b / 255.0)
     return 360.0 * h, max(b, g, r) - min(b, g, r)
 
 
 @numba.njit(cache=True, fastmath=False)
-def _encode(lut, b, g, r):
+def encode_kernel(lut, b, g, r):
     """The 0..255 values whose ``lut`` entries first reach ``b, g, r`` (clipped to 0..1)."""
     out = np.empty(3)
     n = lut.shape[0]
@@ -66,11 +72,11 @@ def shading_contrast(img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inn
     printed disc of the same colour is flat.  ``inner`` (n, 3) holds the
     ball colours next to the rim, in ``lut``'s values.
     """
-    return float(_shading_kernel(img, lut, float(cx), float(cy), inner))
+    return float(shading_kernel(img, lut, float(cx), float(cy), inner))
 
 
 @numba.njit(cache=True, fastmath=False)
-def _shading_kernel(img, lut, cx, cy, inner):
+def shading_kernel(img, lut, cx, cy, inner):
     # Sums in NumPy's order (three values in turn, nine pairwise), so the
     # figures match the array code they replace.
     n = inner.shape[0]

@@ -12,13 +12,15 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
-from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate
-from .fit import CameraModel, ellipse_info, fit_rim
+from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored
+from .fit import CameraModel, Fit, ellipse_info, fit_rim
+from .cues import encoded_hue_chroma
 from .light import light_gains, lut_gains
 from .occlusion import recentre, smooth_rim
 from .params import BallParams, value_lut
 from .rim import sample_rim
 from .search import WHOLE, BallSearch, Blob, find_blobs, pick_downscale, value_floor
+from .sweep import OK, measure, sweep
 
 __all__ = ["detect_balls", "refine_blob"]
 
@@ -273,6 +275,8 @@ def refine_blob(
     cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
     # Rims are measured in colours as under white light.
     lg = lut_gains(gains, params) if gains is not None else None
+    if cam is not None and cam.pinhole and not recentre_it:
+        return _refine_pinhole(img, lut, s, blob, cam, max_r, params, lg, cut)
     recentred = moved = False
     it = 0
     while it < 2:
@@ -313,3 +317,41 @@ def refine_blob(
     # its circle: the visible rim (in the score) is the better judge then.
     fill = max(blob.fill, 0.6) if moved else blob.fill
     return score_candidate(img, lut, s, fill, rim, fit, cam, params)
+
+
+def _refine_pinhole(
+    img: np.ndarray,
+    lut: np.ndarray,
+    s: BallSearch,
+    blob: Blob,
+    cam: CameraModel,
+    max_r: float,
+    params: BallParams,
+    lg: np.ndarray | None,
+    cut: list[Blob] | None,
+) -> Candidate | None:
+    """:func:`refine_blob` with a pinhole camera and no recentring: each round of rays one compiled
+    :func:`~.sweep.sweep`, the score's measurements one :func:`~.sweep.measure` (the same figures)."""
+    cx, cy, r = float(blob.u), float(blob.v), float(blob.radius)
+    gain = np.ones(3) if lg is None else np.ascontiguousarray(lg, dtype=np.float64)
+    n_rays = min(max(round(2 * math.pi * r), 24), 96)
+    ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
+    rexp = np.full(n_rays, r)
+    slope_lim = math.tan(math.radians(params.max_rim_slope_deg)) * 2.0 * math.pi / max(n_rays, 1)
+    K, dist = cam.camera.K, cam.camera.dist
+    for it in range(2):
+        tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
+        status, n_near, inner, d, w, cos_t, rms, outline, cu, cv_, radii, r_fit, finite = sweep(
+            img, lut, gain, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, tol0, slope_lim,
+            cam.Kinv, K, dist, cam.f)
+        if it == 0 and n_near < params.recentre_below * n_rays and cut is not None:
+            cut.append(blob)
+        if status != OK:
+            return None
+        cx, cy, rexp, r = cu, cv_, radii, r_fit
+        if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not finite:
+            return None
+    fit = Fit(outline, np.array([cx, cy]), radii, r, w, rms, d, cos_t, None)
+    n_in, eb, eg, er, shading, uv = measure(img, lut, w, inner, cx, cy, K, dist, d)
+    hue, chroma = encoded_hue_chroma(eb, eg, er)
+    return scored(s, blob.fill, fit, True, params, float(n_in) / len(w), hue, chroma, shading, uv)

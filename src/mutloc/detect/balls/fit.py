@@ -26,20 +26,23 @@ from .numeric import kasa_circle, median_inplace, solve3
 from .rim import Rim, rim_radii
 
 __all__ = [
+    "OUTLINE_POINTS",
     "CameraModel",
     "Fit",
     "bearings",
     "cone_fit",
     "cone_rim",
+    "cone_rim_kernel",
     "ellipse_info",
     "fit_circle",
     "fit_ellipse",
     "fit_ellipse_irls",
     "fit_rim",
+    "pinhole_bearings_kernel",
 ]
 
 # Points on a fitted outline.
-_OUTLINE_POINTS = 48
+OUTLINE_POINTS = 48
 
 
 class CameraModel:
@@ -185,14 +188,14 @@ def cone_fit(bear, fin, init, f, d, w):
     return True, cos_t, math.sqrt(s2 / sw)
 
 
-def cone_rim(camera: Camera, d: np.ndarray, cos_t: float, n: int = _OUTLINE_POINTS) -> np.ndarray | None:
+def cone_rim(camera: Camera, d: np.ndarray, cos_t: float, n: int = OUTLINE_POINTS) -> np.ndarray | None:
     """Pixels (n, 2) of the cone's rim: the outline of the sphere's image; None if it does not project."""
     uv = np.empty((n, 2))
-    return uv if _cone_rim_kernel(camera.K, camera.dist, d, cos_t, uv) else None
+    return uv if cone_rim_kernel(camera.K, camera.dist, d, cos_t, uv) else None
 
 
 @numba.njit(cache=True, fastmath=False)
-def _cone_rim_kernel(K, dist, d, cos_t, uv) -> bool:
+def cone_rim_kernel(K, dist, d, cos_t, uv) -> bool:
     """Writes the rim's pixels into ``uv``; False if some do not project (not finite)."""
     n = uv.shape[0]
     sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
@@ -218,7 +221,7 @@ def _cone_rim_kernel(K, dist, d, cos_t, uv) -> bool:
 
 
 @numba.njit(cache=True, fastmath=False)
-def _pinhole_bearings_kernel(Ki, pts, ok, bear) -> None:
+def pinhole_bearings_kernel(Ki, pts, ok, bear) -> None:
     for i in range(pts.shape[0]):
         bear[i, 0] = 0.0
         bear[i, 1] = 0.0
@@ -239,7 +242,7 @@ def bearings(cam: CameraModel, pts: np.ndarray, ok: np.ndarray) -> tuple[np.ndar
     if cam.pinhole:
         bear = np.empty((len(pts), 3))
         ok = ok.copy()
-        _pinhole_bearings_kernel(cam.Kinv, pts, ok, bear)
+        pinhole_bearings_kernel(cam.Kinv, pts, ok, bear)
         return bear, ok
     bear = np.zeros((len(pts), 3))
     ok = ok & np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1])
@@ -299,7 +302,7 @@ def fit_ellipse_irls(
         return None
     rms = float(np.sqrt(np.sum(w * res**2) / np.sum(w)))
     (cu, cv_), (a, b), ang = model["ellipse"]
-    phi = np.linspace(0, 2 * math.pi, _OUTLINE_POINTS, endpoint=False)
+    phi = np.linspace(0, 2 * math.pi, OUTLINE_POINTS, endpoint=False)
     ca, sa = math.cos(math.radians(ang)), math.sin(math.radians(ang))
     x, y = a * np.cos(phi), b * np.sin(phi)
     outline = np.column_stack([cu + ca * x - sa * y, cv_ + sa * x + ca * y])

@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["circle3", "column_medians", "kasa_circle", "median_inplace", "solve3", "sort_inplace"]
+__all__ = ["circle3", "column_medians", "kasa_circle", "median_inplace", "np_sum", "solve3", "sort_inplace"]
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -130,3 +130,86 @@ def circle3(ax, ay, bx, by, cx, cy):
     ux = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d
     uy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d
     return True, ux, uy, math.hypot(ax - ux, ay - uy)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _block_sum(a, lo, hi):
+    """NumPy's sum of at most 128 values: eight running sums, then the rest in turn."""
+    n = hi - lo
+    if n < 8:
+        res = 0.0
+        for i in range(lo, hi):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = lo + 8
+    while i < hi - n % 8:
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < hi:
+        res += a[i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True, fastmath=False)
+def np_sum(a, lo, hi):
+    """``a[lo:hi].sum()`` added in NumPy's order, so compiled code gives the very figures of the array code
+    it replaces.
+
+    NumPy sums pairwise: a range of more than 128 values is split in two
+    (the first half a multiple of 8 long) and each half summed so; up to
+    128, :func:`_block_sum`.  The halving runs on an explicit stack (a
+    recursive kernel crashes when loaded from Numba's cache).
+    """
+    if hi - lo <= 128:
+        return _block_sum(a, lo, hi)
+    los = np.empty(64, np.int64)
+    his = np.empty(64, np.int64)
+    mids = np.empty(64, np.int64)
+    left_done = np.zeros(64, np.bool_)
+    vals = np.empty(64)
+    top = 0
+    los[0] = lo
+    his[0] = hi
+    ret = 0.0
+    returning = False
+    while True:
+        if returning:
+            if top < 0:
+                return ret
+            if not left_done[top]:  # the left half is summed: now the right one
+                vals[top] = ret
+                left_done[top] = True
+                los[top + 1] = mids[top]
+                his[top + 1] = his[top]
+                left_done[top + 1] = False
+                top += 1
+                returning = False
+            else:
+                ret = vals[top] + ret
+                top -= 1
+            continue
+        n = his[top] - los[top]
+        if n <= 128:
+            ret = _block_sum(a, los[top], his[top])
+            top -= 1
+            returning = True
+            continue
+        n2 = n // 2
+        n2 -= n2 % 8
+        mids[top] = los[top] + n2
+        left_done[top] = False
+        los[top + 1] = los[top]
+        his[top + 1] = mids[top]
+        left_done[top + 1] = False
+        top += 1

@@ -32,7 +32,7 @@ from .numeric import circle3, kasa_circle
 from .params import BallParams
 from .search import BallSearch, Blob
 
-__all__ = ["outline_points", "recentre", "smooth_rim"]
+__all__ = ["outline_points", "recentre", "smooth_kernel", "smooth_rim"]
 
 # Fixed random draws: detections are repeatable.
 _DRAWS = np.random.default_rng(2718).random((48, 3))
@@ -193,12 +193,12 @@ def smooth_rim(radius: np.ndarray, valid: np.ndarray, ang: np.ndarray, max_slope
     Points without a valid neighbour pass.
     """
     out = np.empty(len(radius), np.bool_)
-    _smooth_kernel(radius, valid, math.tan(math.radians(max_slope_deg)) * 2.0 * math.pi / max(len(radius), 1), out)
+    smooth_kernel(radius, valid, math.tan(math.radians(max_slope_deg)) * 2.0 * math.pi / max(len(radius), 1), out)
     return out
 
 
 @numba.njit(cache=True, fastmath=False)
-def _smooth_kernel(radius, valid, lim_dphi, out):
+def smooth_kernel(radius, valid, lim_dphi, out):
     n = radius.shape[0]
     for i in range(n):
         out[i] = valid[i]

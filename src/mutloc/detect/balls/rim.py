@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["Rim", "edges_kernel", "rim_radii", "sample_rim", "unmix_edge", "window"]
+__all__ = ["Rim", "edges_kernel", "rim_points_kernel", "rim_radii", "sample_rim", "unmix_edge", "window"]
 
 
 @dataclass
@@ -41,12 +41,12 @@ class Rim:
     def pts(self) -> np.ndarray:
         """Edge pixels (n, 2); NaN where not valid."""
         out = np.empty((len(self.ang), 2))
-        _rim_points(float(self.cx), float(self.cy), self.ang, self.radius, out)
+        rim_points_kernel(float(self.cx), float(self.cy), self.ang, self.radius, out)
         return out
 
 
 @numba.njit(cache=True, fastmath=False)
-def _rim_points(cx, cy, ang, radius, out) -> None:
+def rim_points_kernel(cx, cy, ang, radius, out) -> None:
     for i in range(ang.shape[0]):
         out[i, 0] = cx + math.cos(ang[i]) * radius[i]
         out[i, 1] = cy + math.sin(ang[i]) * radius[i]
