@@ -654,7 +654,8 @@ def test_cli_on_a_rendered_tag_team_log(tmp_path, capsys):
     d = float(np.linalg.norm(tp["r0_m0"] - tp["r0_m1"]))
     out = tmp_path / "new.yaml"
     code = main(["calibrate-markers", "--rig", str(data / "rig_measured.yaml"), "--observations",
-                 str(data / "log.jsonl"), "--scale", f"r0_m0:r0_m1={d!r}", "--pixel-sigma", "0.1", "--out", str(out)])
+                 str(data / "log.jsonl"), "--scale", f"r0_m0:r0_m1={d!r}", "--pixel-sigma", "0.1", "--measured-noise",
+                 "--out", str(out)])
     assert code == 0
     assert "sigmas for the measured" in capsys.readouterr().out
     given, new = mutloc.load_rig(data / "rig_measured.yaml"), mutloc.load_rig(out)
@@ -679,9 +680,10 @@ def test_sigmas_are_for_the_noise_the_residuals_show():
     nees, ratio = [], []
     for seed in range(4):
         _, truth, measured, seq = _tag_team(40 + seed, sigma=0.05)
-        res = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.5)
-        stated = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.5,
-                                   measure_noise=False)
+        res = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.5,
+                                measure_noise=True)
+        # The default (and the command line's without --measured-noise): the stated noise.
+        stated = calibrate_markers(measured, seq.frames, scale=("r0_m0", "r0_m1", 0.32), pixel_sigma=0.5)
         assert res.measured_pixel_sigma == pytest.approx(0.05, rel=0.15)
         assert res.measured_pixel_sigma <= res.sigma_noise_px < 1.2 * res.measured_pixel_sigma
         assert stated.sigma_noise_px == 0.5

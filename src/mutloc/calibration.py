@@ -450,7 +450,7 @@ def _start_residuals(rig: Rig, positions: dict[str, np.ndarray], grp: _Group, ob
 def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sigma: float = 1.0, *,
                       prior_sigma: float | None = None, confidence: float = DEFAULT_CONFIDENCE,
                       huber: float = HUBER_K, max_iter: int = 100,
-                      weak_sigma: float | None = WEAK_PRIOR_SIGMA_M, measure_noise: bool = True
+                      weak_sigma: float | None = WEAK_PRIOR_SIGMA_M, measure_noise: bool = False
                       ) -> CalibrationResult:
     """Re-estimate every observed marker's position from a sequence of mutual
     observations (SPEC "Marker calibration").
@@ -472,12 +472,13 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     placed are named in ``skipped_frames``.  Raises UnobservableMarkersError
     when the sequence cannot determine the markers.
 
-    ``position_sigma`` (and a tag's ``rotation_sigma``) are for the noise
-    the fit's residuals show (``measured_pixel_sigma``, per image axis;
-    below ``pixel_sigma``, its upper two-sigma bound), as a bundle adjuster
-    reports them, once the log has :data:`NOISE_MIN_DOF` degrees of
-    freedom; the priors below are weighed against the pixels with it too.
-    ``measure_noise=False``, or a log too short: for ``pixel_sigma``.
+    ``position_sigma`` (and a tag's ``rotation_sigma``) are for the stated
+    detection noise ``pixel_sigma``.  With ``measure_noise`` they are for
+    the noise the fit's residuals show instead (``measured_pixel_sigma``,
+    per image axis; below ``pixel_sigma``, its upper two-sigma bound), as a
+    bundle adjuster reports them, once the log has :data:`NOISE_MIN_DOF`
+    degrees of freedom; the priors below are weighed against the pixels
+    with it too.  The residuals' noise is reported either way.
 
     ``prior_sigma`` (metres, 1 sigma per axis; default None: the log alone)
     says how well the given positions were measured: they then count as a

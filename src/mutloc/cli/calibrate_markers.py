@@ -19,8 +19,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
             "(SPEC 'Observation logs'; any number of robots; what track --observations-out writes: a tag's "
             "corners NAME#0..3 calibrate the tag as a rigid body, centre and rotation; a cylinder's bands NAME#bK "
             "its axis). Writes the rig with each marker's new position and position_sigma (1 sigma per axis, "
-            "metres, scale held, for the detection noise the residuals show; --pixel-sigma is the noise the "
-            "outlier test expects), for tags also tag.rotation and tag.rotation_sigma (radians), and prints, per "
+            "metres, scale held, for the detection noise --pixel-sigma; --measured-noise: for the noise the "
+            "fit's residuals show), for tags also tag.rotation and tag.rotation_sigma (radians), and prints, per "
             "marker, the old and new position and the change, and which combinations the log determines only "
             "weakly. --confidence is the chi-square test that names outlier observations."
         ),
@@ -38,6 +38,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--log-alone", action="store_true",
                    help="no combination held near the given rig: the log alone (refused where it cannot "
                         "determine the markers)")
+    p.add_argument("--measured-noise", action="store_true",
+                   help="report the sigmas for the detection noise the fit's residuals show (when clearly below "
+                        "--pixel-sigma) instead of --pixel-sigma; the outlier test keeps --pixel-sigma")
     p.add_argument("--out", required=True, metavar="NEW_RIG", help="the calibrated rig (YAML, or JSON if .json)")
     p.add_argument("--report", metavar="FILE", help="also write the full result (JSON) here")
     return p
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     weak = None if args.log_alone else (args.weak_sigma or WEAK_PRIOR_SIGMA_M)
     result = calibrate_markers(load_rig(args.rig), args.observations, scale=args.scale,
                                pixel_sigma=args.pixel_sigma, prior_sigma=args.prior_sigma,
-                               confidence=args.confidence, weak_sigma=weak)
+                               confidence=args.confidence, weak_sigma=weak, measure_noise=args.measured_noise)
     save_rig(result.rig, args.out)
     if args.report:
         write_json(result.to_dict(), args.report)

@@ -67,7 +67,7 @@ def _one(d: Path, robots: int, markers: str, frames: int, seed: int) -> dict[str
     a, b = first[0], first[1]  # one tape-measured distance between two markers of the first robot
     t0 = time.perf_counter()
     res = calibrate_markers(measured, log[0::2], scale=(a, b, float(np.linalg.norm(tp[a] - tp[b]))),
-                            pixel_sigma=PIXEL_SIGMA)
+                            pixel_sigma=PIXEL_SIGMA, measure_noise=True)
     seconds = time.perf_counter() - t0
     new = np.array([res.markers[n].new - tp[n] for n in res.markers])
     old = np.array([res.markers[n].old - tp[n] for n in res.markers])
