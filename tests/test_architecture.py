@@ -155,3 +155,47 @@ def test_optional_packages_are_imported_lazily_through_require():
             elif top not in required:
                 bad.append(f"{f.relative_to(ROOT)}:{line} imports {top} without require({top!r}, ...)")
     assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("package", ["mutloc.track", "mutloc.core", "mutloc.io", "mutloc.detect"])
+def test_no_import_circle_among_a_package_s_modules(package):
+    """Within a subpackage the modules import each other one way only --
+    counting imports inside functions and under TYPE_CHECKING, which hide a
+    circle rather than remove it (issue: filtering <-> hindsight, frames <->
+    second_look)."""
+    mods = {_module_name(p): p for p in FILES if _module_name(p).startswith(package + ".")}
+
+    def target(mod, names):
+        # "from .x import y" names module x, or module x.y where y is a submodule
+        return [f"{mod}.{n}" if f"{mod}.{n}" in mods else mod for n in names] or [mod]
+
+    graph = {m: {t for mod, names, _ in _imports(p) for t in target(mod, names) if t in mods and t != m}
+             for m, p in mods.items()}
+    # Tarjan's strongly connected components
+    index, low, stack, on, cycles = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    assert not cycles, cycles

@@ -8,14 +8,14 @@ Images are NumPy arrays in OpenCV's layout: ``uint8`` BGR ``(H, W, 3)`` (as
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from ..core.observations import ObservationSet
 from ..errors import InputError
 
-__all__ = ["Detection", "DetectionResult", "as_bgr"]
+__all__ = ["Detection", "DetectionResult", "as_bgr", "observations_of"]
 
 
 @dataclass
@@ -129,3 +129,11 @@ def as_bgr(image: Any, where: str = "image") -> np.ndarray:
         else:
             raise InputError(f"{where}: unsupported image dtype {image.dtype}")
     return np.ascontiguousarray(image)
+
+
+def observations_of(detections: Mapping[str, DetectionResult], time: float | None = None, *,
+                    include_predicted: bool = False) -> ObservationSet:
+    """One :class:`ObservationSet` from each observer's detections (measured
+    positions only, unless ``include_predicted``)."""
+    return ObservationSet.concatenate([d.observations(r, time, include_predicted=include_predicted)
+                                       for r, d in detections.items()])

@@ -68,20 +68,16 @@ from ..core.filter import (ConstantVelocityFilter, FilterState, FilterUpdate, Mo
 from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.pose import Pose
 from ..core.rig import Rig
-from ..errors import InconsistentObservationsError, InputError, MutlocError, positive_number
+from ..errors import InputError, MutlocError, positive_number
 from .hindsight import TentativeFrames
+from .solving import CONFIRM_SPREAD, lost_reason, solve_row
 from .status import FrameStatus
 
 if TYPE_CHECKING:
-    from .tracker import TrackRow
+    from .rows import TrackRow
 
 __all__ = ["DEFAULT_SMOOTH_LAG", "FILTERS", "FilterOptions", "PairTracker", "solve_row", "lost_reason",
            "pair_problem"]
-
-#: A tentative track is confirmed only by markers it predicted within this
-#: many pixel sigmas (1-sigma, largest axis): a sharper prediction than any
-#: plausible wrong start could meet.
-CONFIRM_SPREAD = 5.0
 
 #: ``--filter`` choices: the constant-velocity filter, or every frame on its own.
 FILTERS = ("cv", "none")
@@ -141,57 +137,6 @@ class FilterOptions:
             raise InputError(f"start_window must be a number of seconds >= 0, got {self.start_window!r}")
         positive_number(self.lost_sigma_t, "lost_sigma_t")
         positive_number(self.lost_sigma_r_deg, "lost_sigma_r_deg")
-
-
-def solve_row(row: "TrackRow", rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float) -> None:
-    """Localize the row's observations on their own; set its status, reason and estimate.
-
-    Where too few markers were measured but blinking lights that are off
-    have predicted positions, the frame is localized with those too: the
-    pose is reported, always ``unverified`` (a prediction cannot expose a
-    wrong pose)."""
-    _solve_observations(row, rig, source, target, pixel_sigma, confidence)
-    if row.status != FrameStatus.TOO_FEW or not any(d.predicted for d in (row.detections or {}).values()):
-        return
-    from .frames import observations_of
-
-    attempt = replace(row, reason="", estimate=None,
-                      observations=observations_of(row.detections, row.t, include_predicted=True))
-    _solve_observations(attempt, rig, source, target, pixel_sigma, confidence)
-    if attempt.estimate is not None:
-        n_pred = sum(len(d.predicted) for d in row.detections.values())
-        row.estimate, row.status = attempt.estimate, FrameStatus.UNVERIFIED
-        row.reason = (f"{row.reason}; localized with {n_pred} predicted position(s) of lights that are off "
-                      "(unverified)")
-
-
-def _solve_observations(row: "TrackRow", rig: Rig, source: str, target: str, pixel_sigma: float,
-                        confidence: float) -> None:
-    obs = row.observations
-    assert obs is not None
-    try:
-        pair = obs.pair(rig, source, target)
-        if pair.count < MIN_OBSERVATIONS:
-            row.status = FrameStatus.TOO_FEW
-            row.reason = f"{pair.count} markers seen ({_seen(pair, source, target)})"
-            return
-        row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
-        row.status = FrameStatus.SOLVED if row.estimate.status == "solved" else FrameStatus.UNVERIFIED
-        if row.estimate.rejected:
-            row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
-                                                for r in row.estimate.rejected)
-    except InconsistentObservationsError as exc:
-        row.status = FrameStatus.REJECTED
-        row.reason = " ".join(str(exc).split())
-    except MutlocError as exc:
-        row.status = FrameStatus.FAILED
-        row.reason = " ".join(str(exc).split())
-
-
-def _seen(pair: PairObservations, source: str, target: str) -> str:
-    obs = pair.parent
-    seen = {r: sorted(m or "?" for o, m in zip(obs.observer, obs.marker) if o == r) for r in (source, target)}
-    return ", ".join(f"{r}: {v}" for r, v in seen.items())
 
 
 class PairTracker:
@@ -716,19 +661,6 @@ def pair_problem(pair: PairObservations) -> PairProblem:
     labels = [f"{obs.observer[r]} saw {obs.marker[r]}" for r in rows.tolist()]
     return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), None,
                                np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels)
-
-
-def lost_reason(state: FilterState, options: FilterOptions) -> str:
-    """Why a predicted state has lost its track (its 1-sigma beyond the
-    options' limits), or "" while it holds."""
-    d = np.diag(state.pose_covariance)
-    st = math.sqrt(max(d[3:6].max(), 0.0))
-    sr = math.degrees(math.sqrt(max(d[0:3].max(), 0.0)))
-    o = options
-    if st > o.lost_sigma_t or sr > o.lost_sigma_r_deg:
-        return (f"predicted sigma {st:.2f} m / {sr:.1f} deg beyond {o.lost_sigma_t:g} m / "
-                f"{o.lost_sigma_r_deg:g} deg")
-    return ""
 
 
 class _Unconfirmed(Exception):

@@ -11,10 +11,9 @@ import cv2
 import numpy as np
 
 from ..api import Estimate, load_rig
-from ..core.observations import ObservationSet
 from ..core.rig import DETECTED_KINDS, Marker, MarkerKind, Rig
 from ..detect import image_detector
-from ..detect.base import Detection, DetectionResult, as_bgr
+from ..detect.base import Detection, DetectionResult, as_bgr, observations_of
 from ..errors import FileFormatError, InputError, ObservationError
 from .second_look import first_solve, second_look
 
@@ -162,14 +161,6 @@ def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target
         if robot not in inputs:
             raise ObservationError(f"no {what} for robot {robot!r}")
     return rig, source, target
-
-
-def observations_of(detections: Mapping[str, DetectionResult], time: float | None = None, *,
-                    include_predicted: bool = False) -> ObservationSet:
-    """One :class:`ObservationSet` from each observer's detections (measured
-    positions only, unless ``include_predicted``)."""
-    return ObservationSet.concatenate([d.observations(r, time, include_predicted=include_predicted)
-                                       for r, d in detections.items()])
 
 
 def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = None, target: str | None = None, *,

@@ -35,11 +35,12 @@ from ..core.filter import ConstantVelocityFilter
 from ..core.geometry import so3_log
 from ..core.observations import MIN_OBSERVATIONS
 from ..errors import MutlocError
+from .solving import CONFIRM_SPREAD, lost_reason, solve_row
 from .status import FrameStatus
 
 if TYPE_CHECKING:
     from ..core.filter import FilterState
-    from .tracker import TrackRow
+    from .rows import TrackRow
 
 __all__ = ["BackwardUpdate", "TentativeFrames", "backward_update", "verified_backward"]
 
@@ -168,7 +169,6 @@ def backward_update(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"],
     noise, options and spread measure).  The backward track starts from the
     last frame of ``later`` that ``localize`` fixes on measured markers alone
     (three or more) and runs with time reversed; it is independent of ``row``."""
-    from .filtering import CONFIRM_SPREAD, lost_reason, solve_row
 
     f = ConstantVelocityFilter(tracker.options.noise, tracker.pixel_sigma, tracker.confidence,
                                measure_noise=tracker.options.measure_noise)

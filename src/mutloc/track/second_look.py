@@ -39,7 +39,7 @@ import numpy as np
 from ..api import Estimate, localize
 from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
-from ..detect.base import DetectionResult
+from ..detect.base import DetectionResult, observations_of
 from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
 
 __all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "first_solve", "look_again", "needs_second_look",
@@ -301,7 +301,6 @@ def _near_mates(rig: Rig, images: Mapping[str, np.ndarray], contexts: Mapping[st
 def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None, error: Exception | None,
                 solve: Any) -> list[tuple[Pose, tuple[str, str] | None]]:
     """Poses to predict the balls from, each with the observation it leaves out (if any)."""
-    from .frames import observations_of
 
     if est is None and isinstance(error, UnverifiedError):
         est = error.estimate  # type: ignore[assignment]
@@ -354,7 +353,6 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
     if not needs_second_look(rig, detections, source, target):
         return None
     from ..detect.balls.refit import RefitContext
-    from .frames import observations_of
 
     opts = dict(options, allow_unverified=True)
 
@@ -454,7 +452,6 @@ def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, Detectio
 def first_solve(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str, *,
                 pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate | None, MutlocError | None]:
     """The first look's pose, or why there is none: what :func:`second_look` starts from."""
-    from .frames import observations_of
 
     try:
         return localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options), None

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 from tqdm import tqdm
 
-from ..api import Estimate, load_rig
+from ..api import load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
 from ..core.pose import Pose, sandwich_covariance
@@ -34,6 +34,7 @@ from .filtering import FilterOptions, PairTracker
 from .frames import check_streams, detect_markers, expanded_rig, observations_of, prepare_pair
 from .second_look import look_again
 from .sources import Frame
+from .rows import TrackRow
 from .status import FrameStatus
 
 __all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "check_streams", "frame_rate", "DEFAULT_FPS",
@@ -41,20 +42,6 @@ __all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "chec
 
 #: Frame rate assumed when neither the caller nor the streams say.
 DEFAULT_FPS = 30.0
-
-
-@dataclass
-class TrackRow:
-    """One paired frame (or one that could not be paired or solved)."""
-
-    t: float
-    t_source: float | None
-    t_target: float | None
-    status: FrameStatus
-    reason: str = ""
-    estimate: Estimate | None = None
-    detections: dict[str, DetectionResult] = field(default_factory=dict)
-    observations: ObservationSet | None = None
 
 
 @dataclass
