@@ -18,7 +18,7 @@ from .core.pose import Pose
 from .core.rig import Rig
 from .core.robust import largest_consistent_set, observation_errors
 from .errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, UnverifiedError,
-                     positive_number)
+                     confidence_level, positive_number)
 
 __all__ = ["Estimate", "localize", "localize_batch", "solve_bearings", "load_rig", "invert_covariance"]
 
@@ -237,8 +237,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     source, target = rig.default_pair(source, target)
     if not (type(pixel_sigma) is float and 0.0 < pixel_sigma < math.inf):  # the common case, at once
         pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
-    if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
-        raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
+    confidence_level(confidence)
     if initializer not in ("minimal", "essential", "both"):
         raise InputError(f"initializer must be 'minimal', 'essential' or 'both', got {initializer!r}")
     observations = ObservationSet.from_dict(observations)

@@ -100,6 +100,7 @@ __all__ = [
     "InconsistentObservationsError",
     "UnverifiedError",
     "positive_number",
+    "confidence_level",
 ]
 
 
@@ -117,3 +118,11 @@ def positive_number(value: object, what: str, error: type[InputError] = InputErr
     if not (math.isfinite(x) and x > 0):
         raise error(f"{what} must be a finite number > 0, got {value!r}")
     return x
+
+
+def confidence_level(value: object) -> float:
+    """``value`` as a test's confidence in (0, 1] (1 disables the test), else
+    InputError (the one check of ``confidence`` for every estimator)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value <= 1.0:
+        raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {value!r}")
+    return float(value)

@@ -16,8 +16,8 @@ from .core.pose import Pose
 from .core.rig import Rig
 from .core.team import (MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor, relative_jacobian,
                         residual_norms, solve_team)
-from .errors import (DegenerateGeometryError, InconsistentObservationsError, InputError, ObservationError, TooFewObservationsError,
-                     UnverifiedError, positive_number)
+from .errors import (DegenerateGeometryError, InconsistentObservationsError, ObservationError,
+                     TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
 __all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
 
@@ -205,8 +205,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     """
     rig = load_rig(rig)
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
-    if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
-        raise InputError(f"confidence must be a number in (0, 1] (1 disables the test), got {confidence!r}")
+    confidence_level(confidence)
     names = list(rig.robots)
     if len(names) < 2:
         raise ObservationError(f"a team needs at least two robots; the rig has {len(names)}")

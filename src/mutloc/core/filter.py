@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ..errors import InputError, positive_number
+from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .estimate import PairProblem
 from .pose import Pose
@@ -398,9 +398,7 @@ class ConstantVelocityFilter:
                  confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 5, measure_noise: bool = True) -> None:
         self.noise = noise if noise is not None else MotionNoise()
         self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
-        if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
-            raise InputError(f"confidence must be a number in (0, 1], got {confidence!r}")
-        self.confidence = float(confidence)
+        self.confidence = confidence_level(confidence)
         self.max_iter = int(max_iter)
         self.measure_noise = bool(measure_noise)
         self.state: FilterState | None = None

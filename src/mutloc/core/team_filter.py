@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError, positive_number
+from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .filter import STATE_DIM, MotionNoise, cv_transition
 from .geometry import so3_exp
@@ -79,9 +79,7 @@ class TeamFilter:
         self.reference = reference
         self.noise = noise if noise is not None else MotionNoise()
         self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
-        if not (isinstance(confidence, (int, float)) and 0.0 < confidence <= 1.0):
-            raise InputError(f"confidence must be a number in (0, 1], got {confidence!r}")
-        self.confidence = float(confidence)
+        self.confidence = confidence_level(confidence)
         self.max_iter = int(max_iter)
         self.time: float | None = None
         n = len(self.robots)
