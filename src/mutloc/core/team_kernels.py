@@ -1,0 +1,298 @@
+"""Numba kernels of the team filter (:mod:`mutloc.core.team_filter`): its
+prediction and its iterated update, written to touch only what they must.
+
+- :func:`team_predict` moves every tracked robot by its constant velocity
+  and propagates the joint covariance ``F P F^T + Q`` using the transition's
+  structure (per robot ``F`` is the identity but for ``exp(w dt)`` and
+  ``J_l dt`` in the rotation rows and ``dt I`` in the translation rows), in
+  place, with no ``12k x 12k`` temporary.
+- :func:`team_iekf` is the iterated EKF update on the pixel residuals of
+  one set of observations: the Jacobian only over the six pose columns of
+  each robot involved, the innovation covariance from their block of ``P``,
+  the state step through those columns of ``P``, and the posterior
+  ``P - K S K^T`` as one symmetric low-rank update of rank ``min(2m, 6q)``
+  (``m`` observations, ``q`` robots involved).
+
+The arithmetic is that of the NumPy formulation it replaces (same
+linearisation points, iterations and stopping rule); only the order of
+floating-point sums differs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .filter import STATE_DIM, _left_jacobian
+from .refine import so3_exp_left
+from .team import team_residuals
+
+__all__ = ["team_predict", "team_iekf"]
+
+
+@njit(cache=True)
+def _left_jacobian_dt(phi, dt, out):
+    """``J_l(phi) dt`` (3, 3), as :func:`mutloc.core.filter.cv_transition` builds it."""
+    _left_jacobian(phi, out)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] *= dt
+
+
+@njit(cache=True)
+def team_predict(tracked, R, t, vel, P, dt, qa, ql):
+    """In place: each tracked robot ``tracked[x]`` (state block ``x``)
+    moved over ``dt`` by its velocity; ``P <- F P F^T + Q``, symmetrised."""
+    k = tracked.shape[0]
+    N = STATE_DIM * k
+    E = np.empty((k, 3, 3))
+    G = np.empty((k, 3, 3))
+    phi = np.empty(3)
+    Rn = np.empty((3, 3))
+    I3 = np.eye(3)
+    for x in range(k):
+        i = tracked[x]
+        for c in range(3):
+            phi[c] = vel[i, c] * dt
+        so3_exp_left(phi, I3, E[x])
+        _left_jacobian_dt(phi, dt, G[x])
+        so3_exp_left(phi, R[i], Rn)
+        R[i, :, :] = Rn
+        for c in range(3):
+            t[i, c] = t[i, c] + vel[i, 3 + c] * dt
+    tmp = np.empty(3)
+    # rows: F P
+    for x in range(k):
+        o = STATE_DIM * x
+        for c in range(N):
+            for a in range(3):
+                s = 0.0
+                for b in range(3):
+                    s += E[x, a, b] * P[o + b, c] + G[x, a, b] * P[o + 6 + b, c]
+                tmp[a] = s
+            for a in range(3):
+                P[o + a, c] = tmp[a]
+                P[o + 3 + a, c] += dt * P[o + 9 + a, c]
+    # columns: (F P) F^T
+    for x in range(k):
+        o = STATE_DIM * x
+        for r in range(N):
+            for a in range(3):
+                s = 0.0
+                for b in range(3):
+                    s += P[r, o + b] * E[x, a, b] + P[r, o + 6 + b] * G[x, a, b]
+                tmp[a] = s
+            for a in range(3):
+                P[r, o + a] = tmp[a]
+                P[r, o + 3 + a] += dt * P[r, o + 9 + a]
+    d3 = dt**3 / 3.0
+    d2 = dt**2 / 2.0
+    for x in range(k):
+        o = STATE_DIM * x
+        for a in range(6):
+            q = qa if a < 3 else ql
+            P[o + a, o + a] += q * d3
+            P[o + a, o + a + 6] += q * d2
+            P[o + a + 6, o + a] += q * d2
+            P[o + a + 6, o + a + 6] += q * dt
+    for r in range(N):
+        for c in range(r + 1, N):
+            v = 0.5 * (P[r, c] + P[c, r])
+            P[r, c] = v
+            P[c, r] = v
+
+
+@njit(cache=True)
+def _cholesky(A, L):
+    """Lower ``L`` with ``L L^T = A``; False if ``A`` is not positive definite."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return False
+        d = np.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+@njit(cache=True)
+def _forward(L, B):
+    """In place ``B <- L^-1 B`` (``B``: n x cols)."""
+    n = L.shape[0]
+    for i in range(n):
+        for k in range(i):
+            f = L[i, k]
+            if f != 0.0:
+                for c in range(B.shape[1]):
+                    B[i, c] -= f * B[k, c]
+        d = 1.0 / L[i, i]
+        for c in range(B.shape[1]):
+            B[i, c] *= d
+
+
+@njit(cache=True)
+def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res):
+    """The iterated update with the observations given (all of tracked
+    robots or the reference ``ref``; ``pos[i]``: robot ``i``'s state block
+    or -1).  Writes the posterior robots' ``Rs``, ``ts``, ``vel``, ``P`` and
+    each row's reprojection error at it (``res``, px).  Returns ``(ok,
+    chi2)``; not ok when a marker is behind its camera or the innovation
+    covariance is not positive definite."""
+    m = cam.shape[0]
+    n = R0.shape[0]
+    N = P0.shape[0]
+    # the robots involved (ascending index) and their pose columns in P
+    slot = np.full(n, -1, np.int64)
+    for j in range(m):
+        if cam[j] != ref:
+            slot[cam[j]] = 0
+        if own[j] != ref:
+            slot[own[j]] = 0
+    q = 0
+    for i in range(n):
+        if slot[i] >= 0:
+            slot[i] = q
+            q += 1
+    invol = np.empty(q, np.int64)
+    for i in range(n):
+        if slot[i] >= 0:
+            invol[slot[i]] = i
+    c = 6 * q
+    cols = np.empty(c, np.int64)
+    for x in range(q):
+        for a in range(6):
+            cols[6 * x + a] = STATE_DIM * pos[invol[x]] + a
+    PHc = np.empty((N, c))
+    for r in range(N):
+        for a in range(c):
+            PHc[r, a] = P0[r, cols[a]]
+    Pcc = np.empty((c, c))
+    for a in range(c):
+        for b in range(c):
+            Pcc[a, b] = PHc[cols[a], b]
+    Rs[:, :, :] = R0
+    ts[:, :] = t0
+    e = np.zeros(N)
+    e_new = np.empty(N)
+    r = np.empty(2 * m)
+    Ja = np.empty((m, 2, 6))
+    Jb = np.empty((m, 2, 6))
+    H = np.zeros((2 * m, c))
+    S = np.empty((2 * m, 2 * m))
+    L = np.empty((2 * m, 2 * m))
+    innov = np.empty((2 * m, 1))
+    g = np.empty(c)
+    phi = np.empty(3)
+    Rn = np.empty((3, 3))
+    chi2 = np.inf
+    iters = max_iter if m >= 3 else 1
+    for _ in range(iters):
+        if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
+            return False, chi2
+        H[:, :] = 0.0
+        for j in range(m):
+            if cam[j] != ref:
+                o = 6 * slot[cam[j]]
+                for k in range(2):
+                    for a in range(6):
+                        H[2 * j + k, o + a] += Ja[j, k, a]
+            if own[j] != ref:
+                o = 6 * slot[own[j]]
+                for k in range(2):
+                    for a in range(6):
+                        H[2 * j + k, o + a] += Jb[j, k, a]
+        HP = H @ Pcc
+        S[:, :] = HP @ H.T
+        for a in range(2 * m):
+            S[a, a] += s2
+        for a in range(2 * m):
+            for b in range(a):
+                v = 0.5 * (S[a, b] + S[b, a])
+                S[a, b] = v
+                S[b, a] = v
+        for a in range(2 * m):
+            s = -r[a]
+            for b in range(c):
+                s += H[a, b] * e[cols[b]]
+            innov[a, 0] = s
+        if not _cholesky(S, L):
+            return False, chi2
+        w = innov.copy()
+        _forward(L, w)  # w = L^-1 innov; chi2 = |w|^2, y = L^-T w
+        chi2 = 0.0
+        for a in range(2 * m):
+            chi2 += w[a, 0] * w[a, 0]
+        for a in range(2 * m - 1, -1, -1):
+            s = w[a, 0]
+            for b in range(a + 1, 2 * m):
+                s -= L[b, a] * w[b, 0]
+            w[a, 0] = s / L[a, a]
+        for b in range(c):
+            s = 0.0
+            for a in range(2 * m):
+                s += H[a, b] * w[a, 0]
+            g[b] = s
+        step = 0.0
+        for row in range(N):
+            s = 0.0
+            for b in range(c):
+                s += PHc[row, b] * g[b]
+            e_new[row] = s
+            d = abs(s - e[row])
+            if d > step:
+                step = d
+        e[:] = e_new
+        for x in range(q):  # the residuals see only the robots involved
+            i = invol[x]
+            o = STATE_DIM * pos[i]
+            for k in range(3):
+                phi[k] = e[o + k]
+            so3_exp_left(phi, R0[i], Rn)
+            Rs[i, :, :] = Rn
+            for k in range(3):
+                ts[i, k] = t0[i, k] + e[o + 3 + k]
+        if step < 1e-7:  # (rad, m, rad/s, m/s): far below any noise
+            break
+    vel[:, :] = vel0
+    for i in range(n):  # the others move through their correlations; velocities all
+        if pos[i] < 0:
+            continue
+        o = STATE_DIM * pos[i]
+        if slot[i] < 0:
+            for k in range(3):
+                phi[k] = e[o + k]
+            so3_exp_left(phi, R0[i], Rn)
+            Rs[i, :, :] = Rn
+            for k in range(3):
+                ts[i, k] = t0[i, k] + e[o + 3 + k]
+        for k in range(6):
+            vel[i, k] = vel0[i, k] + e[o + 6 + k]
+    # Posterior with the last linearisation: P0 - K S K^T = P0 - W W^T, of
+    # rank min(2m, c): W = P0[:, cols] H^T L^-T, or P0[:, cols] (H^T S^-1 H)
+    # P0[cols, :] when fewer columns than rows.
+    B = H.copy()
+    _forward(L, B)  # B = L^-1 H (2m x c)
+    if 2 * m <= c:
+        W = PHc @ B.T  # (N, 2m)
+        WW = W @ W.T
+    else:
+        WW = (PHc @ (B.T @ B)) @ PHc.T  # B^T B = H^T S^-1 H (c x c)
+    for a in range(N):
+        for b in range(a, N):
+            v = 0.5 * ((P0[a, b] - WW[a, b]) + (P0[b, a] - WW[b, a]))
+            P[a, b] = v
+            P[b, a] = v
+    if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, False):
+        return False, chi2
+    for j in range(m):
+        res[j] = np.hypot(r[2 * j], r[2 * j + 1])
+    return True, chi2
