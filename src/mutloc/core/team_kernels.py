@@ -186,7 +186,9 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     r = np.empty(2 * m)
     Ja = np.empty((m, 2, 6))
     Jb = np.empty((m, 2, 6))
-    H = np.zeros((2 * m, c))
+    oa = np.empty(m, np.int64)
+    ob = np.empty(m, np.int64)
+    HP = np.empty((2 * m, c))
     S = np.empty((2 * m, 2 * m))
     L = np.empty((2 * m, 2 * m))
     innov = np.empty((2 * m, 1))
@@ -198,20 +200,38 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     for _ in range(iters):
         if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
             return False, chi2
-        H[:, :] = 0.0
+        # H is sparse: each row has the observer's and the owner's six columns (none for the reference)
         for j in range(m):
-            if cam[j] != ref:
-                o = 6 * slot[cam[j]]
-                for k in range(2):
+            oa[j] = 6 * slot[cam[j]] if cam[j] != ref else -1
+            ob[j] = 6 * slot[own[j]] if own[j] != ref else -1
+        HP[:, :] = 0.0  # H Pcc
+        for j in range(m):
+            for k in range(2):
+                row = 2 * j + k
+                for side in range(2):
+                    o = oa[j] if side == 0 else ob[j]
+                    if o < 0:
+                        continue
                     for a in range(6):
-                        H[2 * j + k, o + a] += Ja[j, k, a]
-            if own[j] != ref:
-                o = 6 * slot[own[j]]
-                for k in range(2):
+                        h = Ja[j, k, a] if side == 0 else Jb[j, k, a]
+                        for b in range(c):
+                            HP[row, b] += h * Pcc[o + a, b]
+        for j in range(m):  # S = (H Pcc) H^T + s2 I, and the innovation -r + H e
+            for k in range(2):
+                col = 2 * j + k
+                he = 0.0
+                for a in range(2 * m):
+                    S[a, col] = 0.0
+                for side in range(2):
+                    o = oa[j] if side == 0 else ob[j]
+                    if o < 0:
+                        continue
                     for a in range(6):
-                        H[2 * j + k, o + a] += Jb[j, k, a]
-        HP = H @ Pcc
-        S[:, :] = HP @ H.T
+                        h = Ja[j, k, a] if side == 0 else Jb[j, k, a]
+                        he += h * e[cols[o + a]]
+                        for row in range(2 * m):
+                            S[row, col] += HP[row, o + a] * h
+                innov[col, 0] = -r[col] + he
         for a in range(2 * m):
             S[a, a] += s2
         for a in range(2 * m):
@@ -219,11 +239,6 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
                 v = 0.5 * (S[a, b] + S[b, a])
                 S[a, b] = v
                 S[b, a] = v
-        for a in range(2 * m):
-            s = -r[a]
-            for b in range(c):
-                s += H[a, b] * e[cols[b]]
-            innov[a, 0] = s
         if not _cholesky(S, L):
             return False, chi2
         w = innov.copy()
@@ -236,11 +251,16 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
             for b in range(a + 1, 2 * m):
                 s -= L[b, a] * w[b, 0]
             w[a, 0] = s / L[a, a]
-        for b in range(c):
-            s = 0.0
-            for a in range(2 * m):
-                s += H[a, b] * w[a, 0]
-            g[b] = s
+        g[:] = 0.0  # H^T y
+        for j in range(m):
+            for k in range(2):
+                y = w[2 * j + k, 0]
+                for side in range(2):
+                    o = oa[j] if side == 0 else ob[j]
+                    if o < 0:
+                        continue
+                    for a in range(6):
+                        g[o + a] += (Ja[j, k, a] if side == 0 else Jb[j, k, a]) * y
         step = 0.0
         for row in range(N):
             s = 0.0
@@ -279,7 +299,15 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     # Posterior with the last linearisation: P0 - K S K^T = P0 - W W^T, of
     # rank min(2m, c): W = P0[:, cols] H^T L^-T, or P0[:, cols] (H^T S^-1 H)
     # P0[cols, :] when fewer columns than rows.
-    B = H.copy()
+    B = np.zeros((2 * m, c))  # H, dense
+    for j in range(m):
+        for k in range(2):
+            for side in range(2):
+                o = oa[j] if side == 0 else ob[j]
+                if o < 0:
+                    continue
+                for a in range(6):
+                    B[2 * j + k, o + a] += Ja[j, k, a] if side == 0 else Jb[j, k, a]
     _forward(L, B)  # B = L^-1 H (2m x c)
     if 2 * m <= c:
         W = PHc @ B.T  # (N, 2m)
