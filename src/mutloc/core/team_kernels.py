@@ -23,20 +23,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .filter import STATE_DIM, _left_jacobian
+from .filter import STATE_DIM, cv_transition
 from .refine import so3_exp_left
 from .team import team_residuals
 
 __all__ = ["team_predict", "team_iekf"]
-
-
-@njit(cache=True)
-def _left_jacobian_dt(phi, dt, out):
-    """``J_l(phi) dt`` (3, 3), as :func:`mutloc.core.filter.cv_transition` builds it."""
-    _left_jacobian(phi, out)
-    for i in range(3):
-        for j in range(3):
-            out[i, j] *= dt
 
 
 @njit(cache=True)
@@ -49,13 +40,16 @@ def team_predict(tracked, R, t, vel, P, dt, qa, ql):
     G = np.empty((k, 3, 3))
     phi = np.empty(3)
     Rn = np.empty((3, 3))
-    I3 = np.eye(3)
+    F = np.empty((STATE_DIM, STATE_DIM))
     for x in range(k):
         i = tracked[x]
         for c in range(3):
             phi[c] = vel[i, c] * dt
-        so3_exp_left(phi, I3, E[x])
-        _left_jacobian_dt(phi, dt, G[x])
+        cv_transition(vel[i], dt, F)
+        for a in range(3):
+            for b in range(3):
+                E[x, a, b] = F[a, b]
+                G[x, a, b] = F[a, 6 + b]
         so3_exp_left(phi, R[i], Rn)
         R[i, :, :] = Rn
         for c in range(3):
