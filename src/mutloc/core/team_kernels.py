@@ -304,13 +304,20 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
                     B[2 * j + k, o + a] += Ja[j, k, a] if side == 0 else Jb[j, k, a]
     _forward(L, B)  # B = L^-1 H (2m x c)
     if 2 * m <= c:
-        W = PHc @ B.T  # (N, 2m)
-        WW = W @ W.T
+        Wl = PHc @ B.T  # (N, 2m)
+        Wr = Wl
     else:
-        WW = (PHc @ (B.T @ B)) @ PHc.T  # B^T B = H^T S^-1 H (c x c)
+        Wl = PHc @ (B.T @ B)  # B^T B = H^T S^-1 H (c x c)
+        Wr = PHc
+    # the upper triangle of Wl Wr^T, by row blocks (symmetric: the rest is not needed)
+    WW = np.empty((N, N))
+    step = max(64, (N + 3) // 4)
+    for s0 in range(0, N, step):
+        s1 = min(N, s0 + step)
+        WW[s0:s1, s0:] = Wl[s0:s1] @ Wr[s0:].T
     for a in range(N):
         for b in range(a, N):
-            v = 0.5 * ((P0[a, b] - WW[a, b]) + (P0[b, a] - WW[b, a]))
+            v = 0.5 * (P0[a, b] + P0[b, a]) - WW[a, b]
             P[a, b] = v
             P[b, a] = v
     if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, False):
