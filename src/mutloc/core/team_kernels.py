@@ -31,6 +31,25 @@ __all__ = ["team_predict", "team_iekf"]
 
 
 @njit(cache=True)
+def _rows_by_f(P, E, G, dt):
+    """In place ``P <- F P`` for the block-diagonal transition whose block
+    ``x`` is the identity but for rows ``0:3`` (``E[x]`` on columns ``0:3``,
+    ``G[x]`` on ``6:9``) and rows ``3:6`` (``dt I`` on ``9:12``)."""
+    tmp = np.empty(3)
+    for x in range(E.shape[0]):
+        o = STATE_DIM * x
+        for c in range(P.shape[1]):
+            for a in range(3):
+                s = 0.0
+                for b in range(3):
+                    s += E[x, a, b] * P[o + b, c] + G[x, a, b] * P[o + 6 + b, c]
+                tmp[a] = s
+            for a in range(3):
+                P[o + a, c] = tmp[a]
+                P[o + 3 + a, c] += dt * P[o + 9 + a, c]
+
+
+@njit(cache=True)
 def team_predict(tracked, R, t, vel, P, dt, qa, ql):
     """In place: each tracked robot ``tracked[x]`` (state block ``x``)
     moved over ``dt`` by its velocity; ``P <- F P F^T + Q``, symmetrised."""
@@ -54,31 +73,8 @@ def team_predict(tracked, R, t, vel, P, dt, qa, ql):
         R[i, :, :] = Rn
         for c in range(3):
             t[i, c] = t[i, c] + vel[i, 3 + c] * dt
-    tmp = np.empty(3)
-    # rows: F P
-    for x in range(k):
-        o = STATE_DIM * x
-        for c in range(N):
-            for a in range(3):
-                s = 0.0
-                for b in range(3):
-                    s += E[x, a, b] * P[o + b, c] + G[x, a, b] * P[o + 6 + b, c]
-                tmp[a] = s
-            for a in range(3):
-                P[o + a, c] = tmp[a]
-                P[o + 3 + a, c] += dt * P[o + 9 + a, c]
-    # columns: (F P) F^T
-    for x in range(k):
-        o = STATE_DIM * x
-        for r in range(N):
-            for a in range(3):
-                s = 0.0
-                for b in range(3):
-                    s += P[r, o + b] * E[x, a, b] + P[r, o + 6 + b] * G[x, a, b]
-                tmp[a] = s
-            for a in range(3):
-                P[r, o + a] = tmp[a]
-                P[r, o + 3 + a] += dt * P[r, o + 9 + a]
+    _rows_by_f(P, E, G, dt)  # F P
+    _rows_by_f(P.T, E, G, dt)  # (F (F P)^T)^T = F P F^T, in place through the transposed view
     d3 = dt**3 / 3.0
     d2 = dt**2 / 2.0
     for x in range(k):
@@ -134,6 +130,33 @@ def _forward(L, B):
 
 
 @njit(cache=True)
+def _sparse_rows(cam, own, ref, slot, Ja, Jb, hv, hc):
+    """The Jacobian's rows in sparse form: row ``2j + k`` is ``hv[row]`` on
+    columns ``hc[row]`` -- the observer's six pose columns, then the
+    owner's (zeros on column 0 for the reference, which has none)."""
+    for j in range(cam.shape[0]):
+        for side in range(2):
+            i = cam[j] if side == 0 else own[j]
+            for k in range(2):
+                for a in range(6):
+                    z = 6 * side + a
+                    if i == ref:
+                        hv[2 * j + k, z] = 0.0
+                        hc[2 * j + k, z] = 0
+                    else:
+                        hv[2 * j + k, z] = Ja[j, k, a] if side == 0 else Jb[j, k, a]
+                        hc[2 * j + k, z] = 6 * slot[i] + a
+
+
+@njit(cache=True)
+def _retract(i, o, e, R0, t0, Rs, ts):
+    """Robot ``i``'s pose moved by the error state's entries ``o:o+6``."""
+    so3_exp_left(e[o:o + 3], R0[i], Rs[i])
+    for k in range(3):
+        ts[i, k] = t0[i, k] + e[o + 3 + k]
+
+
+@njit(cache=True)
 def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res):
     """The iterated update with the observations given (all of tracked
     robots or the reference ``ref``; ``pos[i]``: robot ``i``'s state block
@@ -180,52 +203,37 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     r = np.empty(2 * m)
     Ja = np.empty((m, 2, 6))
     Jb = np.empty((m, 2, 6))
-    oa = np.empty(m, np.int64)
-    ob = np.empty(m, np.int64)
+    hv = np.empty((2 * m, 12))
+    hc = np.empty((2 * m, 12), np.int64)
     HP = np.empty((2 * m, c))
     S = np.empty((2 * m, 2 * m))
     L = np.empty((2 * m, 2 * m))
     innov = np.empty((2 * m, 1))
     g = np.empty(c)
-    phi = np.empty(3)
-    Rn = np.empty((3, 3))
     chi2 = np.inf
     iters = max_iter if m >= 3 else 1
     for _ in range(iters):
         if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
             return False, chi2
-        # H is sparse: each row has the observer's and the owner's six columns (none for the reference)
-        for j in range(m):
-            oa[j] = 6 * slot[cam[j]] if cam[j] != ref else -1
-            ob[j] = 6 * slot[own[j]] if own[j] != ref else -1
+        _sparse_rows(cam, own, ref, slot, Ja, Jb, hv, hc)
         HP[:, :] = 0.0  # H Pcc
-        for j in range(m):
-            for k in range(2):
-                row = 2 * j + k
-                for side in range(2):
-                    o = oa[j] if side == 0 else ob[j]
-                    if o < 0:
-                        continue
-                    for a in range(6):
-                        h = Ja[j, k, a] if side == 0 else Jb[j, k, a]
-                        for b in range(c):
-                            HP[row, b] += h * Pcc[o + a, b]
-        for j in range(m):  # S = (H Pcc) H^T + s2 I, and the innovation -r + H e
-            for k in range(2):
-                col = 2 * j + k
-                he = 0.0
-                for a in range(2 * m):
-                    S[a, col] = 0.0
-                for side in range(2):
-                    o = oa[j] if side == 0 else ob[j]
-                    if o < 0:
-                        continue
-                    for a in range(6):
-                        h = Ja[j, k, a] if side == 0 else Jb[j, k, a]
-                        he += h * e[cols[o + a]]
-                        for row in range(2 * m):
-                            S[row, col] += HP[row, o + a] * h
-                innov[col, 0] = -r[col] + he
+        for row in range(2 * m):
+            for z in range(12):
+                h = hv[row, z]
+                o = hc[row, z]
+                for b in range(c):
+                    HP[row, b] += h * Pcc[o, b]
+        for col in range(2 * m):  # S = (H Pcc) H^T + s2 I, and the innovation -r + H e
+            he = 0.0
+            for a in range(2 * m):
+                S[a, col] = 0.0
+            for z in range(12):
+                h = hv[col, z]
+                o = hc[col, z]
+                he += h * e[cols[o]]
+                for row in range(2 * m):
+                    S[row, col] += HP[row, o] * h
+            innov[col, 0] = -r[col] + he
         for a in range(2 * m):
             S[a, a] += s2
         for a in range(2 * m):
@@ -246,15 +254,9 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
                 s -= L[b, a] * w[b, 0]
             w[a, 0] = s / L[a, a]
         g[:] = 0.0  # H^T y
-        for j in range(m):
-            for k in range(2):
-                y = w[2 * j + k, 0]
-                for side in range(2):
-                    o = oa[j] if side == 0 else ob[j]
-                    if o < 0:
-                        continue
-                    for a in range(6):
-                        g[o + a] += (Ja[j, k, a] if side == 0 else Jb[j, k, a]) * y
+        for row in range(2 * m):
+            for z in range(12):
+                g[hc[row, z]] += hv[row, z] * w[row, 0]
         step = 0.0
         for row in range(N):
             s = 0.0
@@ -266,14 +268,7 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
                 step = d
         e[:] = e_new
         for x in range(q):  # the residuals see only the robots involved
-            i = invol[x]
-            o = STATE_DIM * pos[i]
-            for k in range(3):
-                phi[k] = e[o + k]
-            so3_exp_left(phi, R0[i], Rn)
-            Rs[i, :, :] = Rn
-            for k in range(3):
-                ts[i, k] = t0[i, k] + e[o + 3 + k]
+            _retract(invol[x], STATE_DIM * pos[invol[x]], e, R0, t0, Rs, ts)
         if step < 1e-7:  # (rad, m, rad/s, m/s): far below any noise
             break
     vel[:, :] = vel0
@@ -282,26 +277,16 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
             continue
         o = STATE_DIM * pos[i]
         if slot[i] < 0:
-            for k in range(3):
-                phi[k] = e[o + k]
-            so3_exp_left(phi, R0[i], Rn)
-            Rs[i, :, :] = Rn
-            for k in range(3):
-                ts[i, k] = t0[i, k] + e[o + 3 + k]
+            _retract(i, o, e, R0, t0, Rs, ts)
         for k in range(6):
             vel[i, k] = vel0[i, k] + e[o + 6 + k]
     # Posterior with the last linearisation: P0 - K S K^T = P0 - W W^T, of
     # rank min(2m, c): W = P0[:, cols] H^T L^-T, or P0[:, cols] (H^T S^-1 H)
     # P0[cols, :] when fewer columns than rows.
     B = np.zeros((2 * m, c))  # H, dense
-    for j in range(m):
-        for k in range(2):
-            for side in range(2):
-                o = oa[j] if side == 0 else ob[j]
-                if o < 0:
-                    continue
-                for a in range(6):
-                    B[2 * j + k, o + a] += Ja[j, k, a] if side == 0 else Jb[j, k, a]
+    for row in range(2 * m):
+        for z in range(12):
+            B[row, hc[row, z]] += hv[row, z]
     _forward(L, B)  # B = L^-1 H (2m x c)
     if 2 * m <= c:
         Wl = PHc @ B.T  # (N, 2m)
