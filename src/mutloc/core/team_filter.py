@@ -20,7 +20,7 @@ taken at one time (typically one camera's frame) -- "camera ``a`` saw
 marker ``P`` of robot ``b``", either of them possibly the reference --
 through the team solver's residuals and Jacobians
 (:func:`mutloc.core.team.team_residuals`), touching only the blocks of the
-robots involved.  Gated like the pair filter: the innovation's Mahalanobis
+robots involved (Numba kernels: :mod:`mutloc.core.team_kernels`).  Gated like the pair filter: the innovation's Mahalanobis
 distance against the chi-square quantile with ``2n`` degrees of freedom; a
 failing update is retried without each single observation (with three or
 more) and exactly one passing subset drops that observation, else the
