@@ -123,8 +123,9 @@ def run_mutloc(scene, recs, team, settle: float) -> dict:
         obs_count.append(len(prob.cam))
         accepted += bool(upd is not None and upd.accepted)
         errors.append([pose_error(world, ref, names[i], f.pose(names[i]), f.covariance(names[i]))
-                       for i in involved(scene, prob, 0)] if t >= settle else [])
-    return {"time_per_record": timings(wall, cpu), "accuracy": score(sum(errors, [])), "accepted": accepted,
+                       for i in involved(scene, prob, 0)])
+    late = [e for (t, *_), e in zip(recs, errors) if t >= settle]
+    return {"time_per_record": timings(wall, cpu), "accuracy": score(sum(late, [])), "accepted": accepted,
             "records": len(recs), "observations_per_record_median": float(np.median(obs_count)),
             "errors_per_record": errors}
 
@@ -286,7 +287,8 @@ def main(argv: list[str] | None = None) -> int:
             for lag in args.lags:
                 g = run_gtsam(scene, cut, team, settle, lag, args.relinearize, args.gtsam_budget)
                 # mutloc on the same records (its run above), for the same accuracy window
-                g["mutloc_on_the_same_records"] = score(sum(m["errors_per_record"][:g["records"]], []))
+                g["mutloc_on_the_same_records"] = score(sum((e for (t, *_), e in zip(cut[:g["records"]], m["errors_per_record"])
+                                                             if t >= settle), []))
                 entry[f"gtsam_lag_{lag:g}"] = g
                 tp = g["time_per_record"] or {}
                 share = g["python_motion_factor_share_of_wall"]
@@ -295,6 +297,11 @@ def main(argv: list[str] | None = None) -> int:
                       f"{1e6 * tp.get('median_cpu_s', np.nan):.0f} us CPU (Python motion factors "
                       f"{100 * (share if share is not None else np.nan):.0f}% of wall); failed: {g['failed']}; "
                       f"{g['accuracy']}; mutloc on them: {g['mutloc_on_the_same_records']}", flush=True)
+        times = np.array([r[0] for r in recs])
+        edges = np.linspace(0.0, dur, 9)  # mutloc's accuracy over time: the start's transient
+        m["accuracy_by_time"] = [{"from_s": float(lo), "to_s": float(hi), **score(sum(
+            (m["errors_per_record"][k] if m["errors_per_record"][k] else []
+             for k in np.flatnonzero((times >= lo) & (times < hi))), []))} for lo, hi in zip(edges[:-1], edges[1:])]
         del m["errors_per_record"]
         res["teams"][str(n)] = entry
     Path(args.out).write_text(json.dumps(res, indent=2) + "\n")
