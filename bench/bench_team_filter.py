@@ -6,7 +6,8 @@ run: every camera of a team at 30 fps, unsynchronized (the cameras spread
 evenly over a frame, so each record is one camera's frame: 300 records a
 second for 10 robots, 1500 for 50), 1 px noise.
 
-    OPENBLAS_NUM_THREADS=1 python bench/bench_team_filter.py [--robots 10 50] [--durations 2 0.2] [--gtsam-durations 1 0.05]
+    OPENBLAS_NUM_THREADS=1 taskset -c 1 python bench/bench_team_filter.py [--robots 10 50] [--durations 2 0.2]
+        [--gtsam-durations 1 0.2] [--lags 0.02 0.1] [--gtsam-budget 120]
 
 Per record, timed alike (wall clock and the process's CPU time, all threads; median over
 the records after a warm-up, a new ``ObservationSet`` every call):
