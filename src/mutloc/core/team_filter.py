@@ -20,7 +20,7 @@ taken at one time (typically one camera's frame) -- "camera ``a`` saw
 marker ``P`` of robot ``b``", either of them possibly the reference --
 through the team solver's residuals and Jacobians
 (:func:`mutloc.core.team.team_residuals`), touching only the blocks of the
-robots involved.  Gated like the pair filter: the innovation's Mahalanobis
+robots involved (Numba kernels: :mod:`mutloc.core.team_kernels`).  Gated like the pair filter: the innovation's Mahalanobis
 distance against the chi-square quantile with ``2n`` degrees of freedom; a
 failing update is retried without each single observation (with three or
 more) and exactly one passing subset drops that observation, else the
@@ -39,10 +39,10 @@ import numpy as np
 
 from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
-from .filter import STATE_DIM, MotionNoise, cv_transition
-from .geometry import so3_exp
+from .filter import STATE_DIM, MotionNoise
 from .pose import Pose
-from .team import TeamProblem, team_residuals
+from .team import TeamProblem
+from .team_kernels import team_iekf, team_predict
 
 __all__ = ["TeamFilter", "TeamUpdate"]
 
@@ -207,26 +207,10 @@ class TeamFilter:
         self.time = float(time)
         if dt == 0.0 or not self.tracked:
             return
-        k = len(self.tracked)
-        F = np.empty((k, STATE_DIM, STATE_DIM))
-        for x, i in enumerate(self.tracked):
-            cv_transition(self.vel[i], dt, F[x])
-            self.R[i] = so3_exp(self.vel[i, :3] * dt) @ self.R[i]
-            self.t[i] = self.t[i] + self.vel[i, 3:] * dt
-        Pb = self.P.reshape(k, STATE_DIM, k, STATE_DIM).transpose(0, 2, 1, 3)  # (k, k, 12, 12)
-        Pb = F[:, None] @ Pb @ F[None].transpose(0, 1, 3, 2)
-        P = Pb.transpose(0, 2, 1, 3).reshape(k * STATE_DIM, k * STATE_DIM)
-        qa, ql = self.noise.angular**2, self.noise.linear**2
-        d3, d2 = dt**3 / 3.0, dt**2 / 2.0
-        for x in range(k):
-            o = STATE_DIM * x
-            for a in range(6):
-                q = qa if a < 3 else ql
-                P[o + a, o + a] += q * d3
-                P[o + a, o + a + 6] += q * d2
-                P[o + a + 6, o + a] += q * d2
-                P[o + a + 6, o + a + 6] += q * dt
-        self.P = 0.5 * (P + P.T)
+        P = np.array(self.P, dtype=float, order="C")  # a new array: results handed out before stay as they were
+        team_predict(np.asarray(self.tracked, np.int64), self.R, self.t, self.vel, P, dt, self.noise.angular**2,
+                     self.noise.linear**2)
+        self.P = P
 
     # -- observations -------------------------------------------------------
 
@@ -235,9 +219,9 @@ class TeamFilter:
         :meth:`predict` first); rows involving an untracked robot (other
         than the reference) are ignored.  Gated (see the module docstring)."""
         ref = self.index(self.reference)
-        ok = np.array([(a == ref or a in self.tracked) and (b == ref or b in self.tracked)
-                       for a, b in zip(problem.cam.tolist(), problem.own.tolist())], dtype=bool)
-        rows = np.flatnonzero(ok)
+        known = self._positions() >= 0
+        known[ref] = True
+        rows = np.flatnonzero(known[problem.cam] & known[problem.own])
         n = len(rows)
         if n == 0:
             return TeamUpdate(False, Consistency(0.0, 0, self.confidence, math.inf), rows, rows, np.empty(0),
@@ -268,74 +252,28 @@ class TeamFilter:
         """The iterated update with observations ``rows``: ``(state, test,
         residuals_px)`` or None (a marker behind its camera, or no positive
         definite innovation covariance)."""
-        cam, own = problem.cam[rows], problem.own[rows]
-        pts, meas = problem.points[rows], problem.uv[rows]
+        if len(rows) == len(problem.cam):
+            cam, own, pts, meas = problem.cam, problem.own, problem.points, problem.uv
+        else:
+            cam, own, pts, meas = problem.cam[rows], problem.own[rows], problem.points[rows], problem.uv[rows]
         m = len(rows)
-        ref = self.index(self.reference)
-        involved = sorted({int(x) for x in np.r_[cam, own]} - {ref})
-        cols = np.concatenate([np.arange(STATE_DIM * self.tracked.index(i), STATE_DIM * self.tracked.index(i) + 6)
-                               for i in involved])
-        where = {i: 6 * x for x, i in enumerate(involved)}
-        obs_a = [j for j in range(m) if cam[j] != ref]
-        obs_b = [j for j in range(m) if own[j] != ref]
-        wa = {j: where[int(cam[j])] for j in obs_a}
-        wb = {j: where[int(own[j])] for j in obs_b}
-        P0 = self.P
-        PH_cols = P0[:, cols]  # (12k, 6q): the columns the observations touch
-        Pcc = P0[np.ix_(cols, cols)]
-        s2 = self.pixel_sigma**2
-        R0, t0 = self.R, self.t
-        e = np.zeros(P0.shape[0])
-        r = np.empty(2 * m)
-        Ja = np.empty((m, 2, 6))
-        Jb = np.empty((m, 2, 6))
-        chi2, L, H = math.inf, None, None
-        Rs, ts = R0.copy(), t0.copy()
-        for _ in range(self.max_iter if m >= 3 else 1):
-            if not team_residuals(cam, own, pts, meas, problem.K, problem.dist, Rs, ts, r, Ja, Jb, True):
-                return None
-            H = np.zeros((m, 2, len(cols)))
-            for j in obs_a:
-                H[j, :, wa[j]:wa[j] + 6] += Ja[j]
-            for j in obs_b:
-                H[j, :, wb[j]:wb[j] + 6] += Jb[j]
-            H = H.reshape(2 * m, len(cols))
-            S = H @ Pcc @ H.T + s2 * np.eye(2 * m)
-            innov = -r + H @ e[cols]
-            try:
-                L = np.linalg.cholesky(0.5 * (S + S.T))
-            except np.linalg.LinAlgError:
-                return None
-            y = np.linalg.solve(L.T, np.linalg.solve(L, innov))
-            chi2 = float(innov @ y)
-            e_new = PH_cols @ (H.T @ y)
-            step = float(np.max(np.abs(e_new - e)))
-            e = e_new
-            for i in involved:  # the residuals see only the robots involved
-                o = STATE_DIM * self.tracked.index(i)
-                Rs[i] = so3_exp(e[o:o + 3]) @ R0[i]
-                ts[i] = t0[i] + e[o + 3:o + 6]
-            if step < 1e-7:  # (rad, m, rad/s, m/s): far below any noise
-                break
-        for x, i in enumerate(self.tracked):  # the others move through their correlations
-            if i not in involved:
-                o = STATE_DIM * x
-                Rs[i] = so3_exp(e[o:o + 3]) @ R0[i]
-                ts[i] = t0[i] + e[o + 3:o + 6]
-        # Posterior covariance with the last linearisation: P0 - K S K^T, K = P0[:, cols] H^T S^-1.
-        PHt = PH_cols @ H.T
-        KL = np.linalg.solve(L, PHt.T).T  # K L = P H^T L^-T
-        P = P0 - KL @ KL.T
-        vel = self.vel.copy()
-        for x, i in enumerate(self.tracked):
-            vel[i] = self.vel[i] + e[STATE_DIM * x + 6:STATE_DIM * x + 12]
-        res = np.empty(2 * m)
-        if not team_residuals(cam, own, pts, meas, problem.K, problem.dist, Rs, ts, res, Ja, Jb, False):
+        Rs, ts, vel = np.empty_like(self.R), np.empty_like(self.t), np.empty_like(self.vel)
+        P = np.empty_like(self.P)
+        res = np.empty(m)
+        ok, chi2 = team_iekf(cam, own, pts, meas, problem.K, problem.dist, self._positions(), self.index(self.reference),
+                             self.R, self.t, self.vel, self.P, self.pixel_sigma**2, self.max_iter, Rs, ts, vel, P, res)
+        if not ok:
             return None
         dof = 2 * m
         test = Consistency(chi2, dof, self.confidence,
                            chi2_quantile(self.confidence, dof) if self.confidence < 1.0 else math.inf)
-        return (Rs, ts, vel, 0.5 * (P + P.T)), test, np.hypot(res[0::2], res[1::2])
+        return (Rs, ts, vel, P), test, res
+
+    def _positions(self) -> np.ndarray:
+        """Each robot's state block (-1: not tracked)."""
+        pos = np.full(len(self.robots), -1, np.int64)
+        pos[np.asarray(self.tracked, np.int64)] = np.arange(len(self.tracked))
+        return pos
 
     def _accept(self, result) -> None:
         (self.R, self.t, self.vel, self.P), _, _ = result
