@@ -38,6 +38,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_filter.py
 	$(BIN)/python bench/bench_unsync.py
 	$(BIN)/python bench/bench_team.py
+	env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OPENBLAS_NUM_THREADS=1 $(BIN)/python bench/bench_team_filter.py
 	$(BIN)/python bench/bench_calibrate.py
 	@echo "figures written to bench/results/"
 
