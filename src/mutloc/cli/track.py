@@ -164,36 +164,68 @@ def _side_files(args) -> list[str]:
 
 
 def _run_team(args, rig, options, out) -> int:
-    """A team: one stream per robot (or a log), one trajectory per robot."""
+    """A team: one stream per robot (or a log), one trajectory per robot,
+    every file appended row by row as the track runs (Ctrl-C: exit 130 with
+    every row so far written, and said)."""
+    import sys
+
     from ..errors import InputError
     from ..io.logs import iter_observation_log
+    from ..track.outputs import TrackOutputs
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.team import require_streams, track_team, track_team_log
+    from ..track.tracker import BaseFrames
 
     if args.annotate:
         raise InputError("--annotate is not available for a team track yet (pairs only)")
-    if args.observations:
-        traj = track_team_log(rig, iter_observation_log(args.observations), args.reference,
-                              pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
-                              filter=options)
-    else:
-        paths = robot_map(args.stream, "--stream")
-        require_streams(rig, paths)
-        infos = robot_map(args.camera_info, "--camera-info")
-        if infos:
-            rig = rig_with_bag_cameras(rig, paths, infos)
-        traj = track_team(rig, open_streams(paths, fps=args.fps, topics=robot_map(args.topic, "--topic")),
-                          args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
-                          confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
-                          progress=args.progress, filter=options)
-    if args.frames == "base":
-        traj = traj.in_base_frames(rig)
-    wrote = [str(p) for p in traj.write(out)]
-    if args.bag or args.mcap:
-        traj.write_ros(bag=args.bag, mcap=args.mcap)
-        wrote += [p for p in (args.bag, args.mcap) if p]
+    reference = args.reference if args.reference is not None else next(iter(rig.robots))
+    robots = [r for r in rig.robots if r != reference]
+    base = rig if args.frames == "base" else None
+    if base is not None:
+        for r in robots:
+            BaseFrames(rig, r, reference)  # refused here (one line) before the work, not after it
+    viz = None
     if args.rerun:
-        traj.write_rerun(args.rerun)
-        wrote.append(args.rerun)
+        from ..io.rrd import RerunWriter
+
+        viz = RerunWriter(args.rerun, None, reference)
+    with TrackOutputs(out, robots, reference, bag=args.bag, mcap=args.mcap, base_frames=base) as outputs:
+        to_base = outputs.to_base
+
+        def sink(row, robot):
+            outputs.write(row, robot)
+            if viz is not None:
+                shown = to_base[robot](row) if to_base is not None else row
+                e = shown.estimate
+                viz.frame(row.t, str(row.status), row.reason, None if e is None else e.pose,
+                          None if e is None else e.covariance, robot=robot)
+
+        try:
+            if args.observations:
+                traj = track_team_log(rig, iter_observation_log(args.observations), args.reference,
+                                      pixel_sigma=args.pixel_sigma, confidence=args.confidence,
+                                      progress=args.progress, filter=options, sink=sink)
+            else:
+                paths = robot_map(args.stream, "--stream")
+                require_streams(rig, paths)
+                infos = robot_map(args.camera_info, "--camera-info")
+                if infos:
+                    rig = rig_with_bag_cameras(rig, paths, infos)
+                traj = track_team(rig, open_streams(paths, fps=args.fps, topics=robot_map(args.topic, "--topic")),
+                                  args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
+                                  confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
+                                  progress=args.progress, filter=options, sink=sink)
+        except KeyboardInterrupt:
+            outputs.close()
+            if viz is not None:
+                viz.close()
+            wrote = [str(p) for p in outputs.paths] + _side_files(args)
+            print(f"interrupted: {outputs.rows} robot rows finished and written to {', '.join(wrote)}",
+                  file=sys.stderr)
+            return 130
+        finally:
+            if viz is not None:
+                viz.close()
+    wrote = [str(p) for p in outputs.paths] + _side_files(args)
     print(f"reference {traj.reference}; {traj.summary()}; wrote {', '.join(wrote)}")
     return 0

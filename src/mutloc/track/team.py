@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 from tqdm import tqdm
@@ -460,26 +460,33 @@ def require_streams(rig: Rig, names: Iterable[str]) -> None:
 
 def track_team_log(rig: Any, frames: Iterable[tuple[float, ObservationSet]], reference: str | None = None, *,
                    pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, progress: bool = True,
-                   total: int | None = None, filter: str | FilterOptions = "cv") -> TeamTrajectory:
+                   total: int | None = None, filter: str | FilterOptions = "cv",
+                   sink: Callable[[TrackRow, str], None] | None = None) -> TeamTrajectory:
     """Track a team over an observation log (``(time, ObservationSet)`` per
-    frame, as :func:`mutloc.io.logs.iter_observation_log` yields them)."""
+    frame, as :func:`mutloc.io.logs.iter_observation_log` yields them);
+    ``sink(row, robot)`` gets every robot's row as soon as it is made (a
+    team's rows are final at once: no smoothing)."""
     rig, reference = _team_setup(rig, reference, (), "log")
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
     rows: dict[str, list[TrackRow]] = {r: [] for r in tracker.robots}
     for t, obs in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track team"):
         for r, row in tracker.step(float(t), obs).items():
             rows[r].append(row)
+            if sink is not None:
+                sink(row, r)
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r]) for r in tracker.robots})
 
 
 def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str | None = None, *,
                tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
                fps: float | None = None, observations_out: str | Path | None = None, progress: bool = True,
-               total: int | None = None, filter: str | FilterOptions = "cv") -> TeamTrajectory:
+               total: int | None = None, filter: str | FilterOptions = "cv",
+               sink: Callable[[TrackRow, str], None] | None = None) -> TeamTrajectory:
     """Track a team from one image stream per robot (``{robot: frames}``;
     every robot of the rig needs one).  Frames are grouped by timestamp
     (:func:`sync_streams`); each robot's image is searched for every other
-    robot's markers and the group localized jointly (see the module docstring)."""
+    robot's markers and the group localized jointly (see the module
+    docstring).  ``sink`` as :func:`track_team_log`."""
     rig, reference = _team_setup(rig, reference, streams, "stream")
     require_streams(rig, streams)
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
@@ -514,6 +521,8 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             for r, row in out.items():
                 row.detections = {o: d for o, d in detections.items()}
                 rows[r].append(row)
+                if sink is not None:
+                    sink(row, r)
     finally:
         bar.close()
         if log is not None:
