@@ -109,3 +109,56 @@ def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
     assert len(times) == posed
     assert len(_bag_poses(tmp_path / "bag")) == posed
     assert len(_mcap_poses(tmp_path / "poses.mcap")) == posed
+
+
+def test_stopped_team_track_leaves_every_robot_s_files(tmp_path):
+    """A team (three robots, one joint estimate per record; no smoother, so
+    every row is final at once) stopped with SIGINT: each robot's
+    trajectory_NAME.csv holds every record it had, equal to a complete run
+    over those records, and the bag one pose per row with a pose."""
+    from mutloc.sim.team import random_team, team_sequence
+    from mutloc.track.team import track_team_log
+
+    scene = random_team(3, np.random.default_rng(4), one_way=0.0)
+    save_rig(scene.rig, tmp_path / "rig.yaml")
+    seq = team_sequence(scene, 40, 20.0, sigma=1.0, seed=4)
+    lines = _lines(tmp_path / "all.jsonl", [obs for _, _, obs in seq])
+    fifo = tmp_path / "log.pipe"
+    os.mkfifo(fifo)
+    out = tmp_path / "out"
+    robots = scene.names[1:]
+    cmd = [sys.executable, "-m", "mutloc", "track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(fifo),
+           "--out", str(out), "--bag", str(tmp_path / "bag"), "--no-progress"]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    n = 20
+    try:
+        with open(fifo, "w") as pipe:
+            pipe.writelines(lines[:n])
+            pipe.flush()
+            deadline = time.monotonic() + 120
+            while any(len(_csv_rows(out / f"trajectory_{r}.csv")) < n for r in robots):
+                assert child.poll() is None, child.stderr.read().decode()
+                assert time.monotonic() < deadline, "the rows were not written as the track ran"
+                time.sleep(0.1)
+            os.killpg(child.pid, signal.SIGINT)
+            child.wait(timeout=60)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+    err = child.stderr.read().decode()
+    assert child.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    ref = track_team_log(scene.rig, [(t, obs) for t, _, obs in seq[:n]], progress=False)
+    posed = 0
+    for r in robots:
+        rows = _csv_rows(out / f"trajectory_{r}.csv")
+        want = ref.tracks[r].rows
+        assert len(rows) == n == len(want)
+        for got, w in zip(rows, want):
+            assert got["status"] == str(w.status)
+            if w.estimate is not None:
+                assert np.allclose(got["pose"].t, w.estimate.t, atol=1e-8)
+        posed += sum(row["pose"] is not None for row in rows)
+        times, _ = read_tum(out / f"trajectory_{r}.tum")
+        assert len(times) == sum(row["pose"] is not None for row in rows)
+    assert posed > 0 and len(_bag_poses(tmp_path / "bag")) == posed
