@@ -120,3 +120,35 @@ def test_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> N
         main(["simulate", "--out", str(tmp_path / "x"), "--markers", "smoke"])
     with pytest.raises(SystemExit):
         main(["simulate", "--out", str(tmp_path / "x"), "--size", "big"])
+
+
+def test_simulated_cameras_at_their_own_times_are_tracked(tmp_path, capsys):
+    """simulate --camera-offset/--camera-fps renders each camera at its own
+    times (each folder its own frames.csv); track takes every frame at its
+    own time and holds the rendered truth."""
+    import json
+
+    import numpy as np
+
+    from mutloc.io.trajectory import read_trajectory_csv, read_tum
+
+    out = tmp_path / "sim"
+    assert main(["simulate", "--out", str(out), "--frames", "6", "--fps", "15", "--camera-offset", "q=0.0333",
+                 "--no-progress"]) == 0
+    truth = json.loads((out / "truth.json").read_text())
+    assert [f["cameras"] for f in truth["frames"]] == [["p"], ["q"]] * 6
+    q_times = [float(line.split(",")[1]) for line in (out / "q" / "frames.csv").read_text().splitlines()[1:]]
+    assert np.allclose(q_times, 0.0333 + np.arange(6) / 15)
+    assert main(["track", "--rig", str(out / "rig.yaml"), "--stream", f"p={out / 'p'}", "--stream",
+                 f"q={out / 'q'}", "--out", str(tmp_path / "trk"), "--no-progress"]) == 0
+    rows = read_trajectory_csv(tmp_path / "trk" / "trajectory.csv")
+    times, poses = read_tum(out / "truth.tum")
+    assert len(rows) == 12 and np.allclose([r["t"] for r in rows], times, atol=1e-6)
+    err = [r["pose"].translation_error(T) for r, T in zip(rows, poses) if r["pose"] is not None]
+    assert len(err) >= 8 and np.median(err) < 0.01
+    capsys.readouterr()
+    for bad in (["--frames", "1", "--camera-fps", "q=15"], ["--frames", "4", "--camera-offset", "q=0.5"],
+                ["--frames", "4", "--camera-fps", "r=15"], ["--frames", "4", "--camera-fps", "q=fast"]):
+        assert main(["simulate", "--out", str(tmp_path / "bad"), *bad]) == 2
+        err_text = capsys.readouterr().err.strip()
+        assert len(err_text.splitlines()) == 1 and "camera" in err_text

@@ -6,7 +6,7 @@ import argparse
 import math
 import re
 
-from ._common import PROGRESS, SEED, int_in_range, nonnegative_float, positive_float
+from ._common import PROGRESS, SEED, int_in_range, nonnegative_float, positive_float, robot_map, robot_value
 
 ORDER = 70
 
@@ -52,6 +52,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--frames", type=int_in_range(1), default=1, metavar="N",
                    help="number of frames; more than 1 renders a sequence of p moving (default 1)")
     p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate of a sequence (default 30)")
+    p.add_argument("--camera-fps", action="append", type=robot_value, default=[], metavar="ROBOT=FPS",
+                   help="this robot's camera captures at its own rate (a sequence; default --fps): cameras not "
+                        "synchronized, each folder with its own frames.csv")
+    p.add_argument("--camera-offset", action="append", type=robot_value, default=[], metavar="ROBOT=S",
+                   help="this robot's camera captures its first frame S seconds after the start (less than one "
+                        "of its frames; default 0)")
     p.add_argument("--noise", type=nonnegative_float, default=1.0, metavar="SIGMA",
                    help="sensor noise, standard deviation in grey levels (default 1.0)")
     p.add_argument("--jpeg", type=int_in_range(1, 100, 'JPEG quality'), metavar="Q",
@@ -80,6 +86,10 @@ def run(args: argparse.Namespace) -> int:
     from ..sim.scenario import write_simulation, write_team_simulation
 
     if args.robots > 2:
+        if args.camera_fps or args.camera_offset:
+            from ..errors import InputError
+
+            raise InputError("--camera-fps/--camera-offset: for the pair p, q (teams: not yet)")
         if args.markers not in ("balls", "tags"):
             from ..errors import InputError
 
@@ -93,6 +103,21 @@ def run(args: argparse.Namespace) -> int:
         args.out, markers=args.markers, distance=args.distance, frames=args.frames, fps=args.fps,
         seed=args.seed, noise=args.noise, jpeg=args.jpeg, blur=args.blur, k1=args.k1, size=args.size,
         focal=args.focal, room=not args.no_room, progress=args.progress,
+        camera_fps=_numbers(args.camera_fps, "--camera-fps"), camera_offset=_numbers(args.camera_offset,
+                                                                                       "--camera-offset"),
     )
     print(summary)
     return 0
+
+
+def _numbers(pairs: list[tuple[str, str]], option: str) -> dict[str, float]:
+    """``{robot: number}`` from repeated ``ROBOT=NUMBER`` options (one line naming the option if not a number)."""
+    from ..errors import InputError
+
+    out = {}
+    for robot, text in robot_map(pairs, option).items():
+        try:
+            out[robot] = float(text)
+        except ValueError:
+            raise InputError(f"{option} {robot}={text}: not a number") from None
+    return out

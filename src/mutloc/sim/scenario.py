@@ -7,6 +7,7 @@ with :mod:`mutloc.sim.render`, with the ground truth in the SPEC's formats.
 from __future__ import annotations
 
 import csv
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,8 +38,16 @@ def single_frame_pose(distance: float, seed: int) -> Any:
 def write_simulation(out: str | Path, *, markers: str = "balls", distance: float = 2.0, frames: int = 1,
                      fps: float = 30.0, seed: int = 0, noise: float = 1.0, jpeg: int | None = None,
                      blur: float = 0.0, k1: float = 0.0, size: tuple[int, int] = (960, 540),
-                     focal: float = 800.0, room: bool = True, progress: bool = False) -> str:
+                     focal: float = 800.0, room: bool = True, progress: bool = False,
+                     camera_fps: dict[str, float] | None = None, camera_offset: dict[str, float] | None = None) -> str:
     """Render a scene (``frames == 1``) or a sequence into ``out``; returns a one-line summary.
+
+    Cameras need not be synchronized: ``camera_fps`` and ``camera_offset``
+    (per robot, default ``fps`` and 0 s) make each camera capture at its own
+    rate from its own offset over the sequence's ``frames / fps`` seconds;
+    each robot's folder then has its own ``frames.csv``, and ``truth.json``
+    has one entry per capture instant (with the ``cameras`` capturing then,
+    their images and observations), ``truth.tum`` the pose at each instant.
 
     Files: ``rig.yaml``; ``p.png``, ``q.png`` and ``observations.json`` for a
     single frame, or ``p/NNNNNN.png``, ``q/NNNNNN.png``, ``frames.csv`` and
@@ -63,6 +72,7 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
         raise InputError(f"--k1 {k1:g}: the distortion is not invertible over {100 * bad:.0f}% of the "
                          f"{size[0]}x{size[1]} image; use a smaller |k1|")
     sequence = frames > 1
+    stamps = _camera_times(frames, fps, camera_fps, camera_offset, sequence)
     if sequence:
         world = moving_world(rig, distance=distance, room=room, seed=seed, source="p", target="q")
     else:
@@ -76,49 +86,110 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
             (out_dir / robot).mkdir(exist_ok=True)
 
     truth_frames = []
-    steps = tqdm(range(frames), desc="rendering", unit="frame", disable=not (progress and sequence))
-    for i in steps:
-        t = i / fps if sequence else 0.0
+    count = {"p": 0, "q": 0}
+    own: dict[str, list[tuple[int, float]]] = {"p": [], "q": []}  # per camera: (frame, timestamp)
+    steps = tqdm(stamps, desc="rendering", unit="frame", disable=not (progress and sequence))
+    for i, (t, cameras) in enumerate(steps):
         images = {}
-        for robot in ("p", "q"):
-            img = render(world, robot, t, seed=seed + i, noise_sigma=noise, jpeg_quality=jpeg, blur_px=blur)
-            rel = f"{robot}/{i:06d}.png" if sequence else f"{robot}.png"
+        for robot in cameras:
+            k = count[robot] if stamps.unsynchronized else i
+            img = render(world, robot, t, seed=seed + k, noise_sigma=noise, jpeg_quality=jpeg, blur_px=blur)
+            rel = f"{robot}/{k:06d}.png" if sequence else f"{robot}.png"
             if not cv2.imwrite(str(out_dir / rel), img):
                 raise OSError(f"{out_dir / rel}: cannot write image")
             images[robot] = rel
-        obs = {robot: project_markers(world, robot, t) for robot in ("p", "q")}
-        seen = {robot: project_markers(world, robot, t, check_occlusion=True) for robot in ("p", "q")}
-        truth_frames.append({
+            own[robot].append((k, t))
+            count[robot] += 1
+        obs = {robot: project_markers(world, robot, t) for robot in cameras}
+        seen = {robot: project_markers(world, robot, t, check_occlusion=True) for robot in cameras}
+        entry = {
             "frame": i,
             "timestamp": t,
             "images": images,
             "T_qp": relative_pose(world, "p", "q", t).to_dict(),
             "observations": {r: {m: list(uv) for m, uv in o.items()} for r, o in obs.items()},
             "hidden": {r: sorted(set(obs[r]) - set(seen[r])) for r in obs},
-        })
+        }
+        if stamps.unsynchronized:
+            entry["cameras"] = list(cameras)
+        truth_frames.append(entry)
 
     truth = {
         "source": "p", "target": "q", "markers": markers, "frames_count": frames,
         "fps": fps if sequence else None, "seed": seed, "noise_sigma": noise, "jpeg_quality": jpeg,
         "blur_px": blur, "frames": truth_frames,
     }
+    if stamps.unsynchronized:
+        truth["cameras"] = {r: {"fps": stamps.fps[r], "offset": stamps.offset[r]} for r in ("p", "q")}
     write_json(truth, out_dir / "truth.json")
     files = ["rig.yaml", "truth.json"]
     if sequence:
-        with open(out_dir / "frames.csv", "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", "timestamp"])
-            for fr in truth_frames:
-                w.writerow([fr["frame"], f"{fr['timestamp']:.9f}"])
+        for where, rows in ([(out_dir / r / "frames.csv", own[r]) for r in ("p", "q")] if stamps.unsynchronized
+                            else [(out_dir / "frames.csv", [(fr["frame"], fr["timestamp"]) for fr in truth_frames])]):
+            with open(where, "w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(["frame", "timestamp"])
+                for k, t in rows:
+                    w.writerow([k, f"{t:.9f}"])
         write_tum(out_dir / "truth.tum", [fr["timestamp"] for fr in truth_frames],
                   Pose.concatenate([relative_pose(world, "p", "q", fr["timestamp"]) for fr in truth_frames]),
                   comment="timestamp tx ty tz qx qy qz qw  (pose of p in q's camera frame, T_qp)")
-        files += ["p/", "q/", "frames.csv", "truth.tum"]
+        files += (["p/ (frames.csv)", "q/ (frames.csv)"] if stamps.unsynchronized else ["p/", "q/", "frames.csv"]) \
+            + ["truth.tum"]
     else:
         write_json(truth_frames[0]["observations"], out_dir / "observations.json")
         files += ["p.png", "q.png", "observations.json"]
     n = "1 frame" if frames == 1 else f"{frames} frames"
     return f"wrote {n} ({markers}, {size[0]}x{size[1]}) to {out_dir}: {', '.join(files)}"
+
+
+@dataclass
+class _Stamps:
+    """Capture instants of a simulated pair: ``(time, cameras capturing)`` in time order."""
+
+    instants: list[tuple[float, tuple[str, ...]]]
+    fps: dict[str, float]
+    offset: dict[str, float]
+    unsynchronized: bool
+
+    def __iter__(self):
+        return iter(self.instants)
+
+    def __len__(self) -> int:
+        return len(self.instants)
+
+
+def _camera_times(frames: int, fps: float, camera_fps: dict[str, float] | None,
+                  camera_offset: dict[str, float] | None, sequence: bool) -> _Stamps:
+    """Each camera's capture times over ``frames / fps`` seconds (see :func:`write_simulation`)."""
+    rates = {"p": float(fps), "q": float(fps)}
+    offset = {"p": 0.0, "q": 0.0}
+    for given, into, what in ((camera_fps, rates, "camera_fps"), (camera_offset, offset, "camera_offset")):
+        for robot, value in (given or {}).items():
+            if robot not in into:
+                raise InputError(f"{what}: unknown robot {robot!r} (the simulated pair is p and q)")
+            into[robot] = float(value)
+    unsync = bool(camera_fps or camera_offset)
+    if unsync and not sequence:
+        raise InputError("camera rates and offsets need a sequence (--frames 2 or more)")
+    for r in rates:
+        if not (np.isfinite(rates[r]) and rates[r] > 0):
+            raise InputError(f"camera frame rate of {r} must be a finite number > 0, got {rates[r]}")
+        if not (np.isfinite(offset[r]) and 0.0 <= offset[r] < 1.0 / rates[r]):
+            raise InputError(f"camera offset of {r} must be in [0, one frame = {1.0 / rates[r]:.4g} s), "
+                             f"got {offset[r]}")
+    if not sequence:
+        return _Stamps([(0.0, ("p", "q"))], rates, offset, False)
+    if not unsync:
+        return _Stamps([(i / fps, ("p", "q")) for i in range(frames)], rates, offset, False)
+    duration = frames / fps
+    times: dict[float, list[str]] = {}
+    for r in ("p", "q"):
+        k = 0
+        while (t := round(offset[r] + k / rates[r], 9)) < duration - 1e-9:
+            times.setdefault(t, []).append(r)
+            k += 1
+    return _Stamps([(t, tuple(times[t])) for t in sorted(times)], rates, offset, True)
 
 
 # y-down world of mutloc.sim.team -> z-up world of the renderer
