@@ -55,27 +55,22 @@ def _mcap_poses(path):
         return [m for _, ch, m in make_reader(f).iter_messages() if ch.topic.startswith("/mutloc/")]
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
-def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
-    rig = standard_rig()
-    save_rig(rig, tmp_path / "rig.yaml")
-    recs = camera_records(rig, duration=4.0, offsets={"q": 1 / 60}, seed=11)
-    lines = _lines(tmp_path / "all.jsonl", recs.frames)
+def _feed_then_stop(tmp_path, args, lines, written, sig):
+    """Run ``mutloc track`` reading its log from a named pipe (``args``: the
+    options after it), feed it ``lines``, wait until ``written()`` says its
+    files hold what was fed, then stop it with ``sig``.  Returns (exit
+    status, stderr); the child's process group is always killed."""
     fifo = tmp_path / "log.pipe"
     os.mkfifo(fifo)
-    out = tmp_path / "out"
     cmd = [sys.executable, "-m", "mutloc", "track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(fifo),
-           "--out", str(out), "--bag", str(tmp_path / "bag"), "--mcap", str(tmp_path / "poses.mcap"),
-           "--no-progress"]
+           *args, "--no-progress"]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     try:
         with open(fifo, "w") as pipe:  # blocks until the child opens it
-            pipe.writelines(lines[:N_WRITTEN])
+            pipe.writelines(lines)
             pipe.flush()
-            # Rows are final DEFAULT_SMOOTH_LAG + 1 records after they came.
-            want = N_WRITTEN - DEFAULT_SMOOTH_LAG - 1
             deadline = time.monotonic() + 120
-            while len(_csv_rows(out / "trajectory.csv")) < want:
+            while not written():
                 assert child.poll() is None, child.stderr.read().decode()
                 assert time.monotonic() < deadline, "the rows were not written as the track ran"
                 time.sleep(0.1)
@@ -86,16 +81,29 @@ def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
         if child.poll() is None:
             os.killpg(child.pid, signal.SIGKILL)
             child.wait()
-    err = child.stderr.read().decode()
+    return child.returncode, child.stderr.read().decode()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
+def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
+    rig = standard_rig()
+    save_rig(rig, tmp_path / "rig.yaml")
+    recs = camera_records(rig, duration=4.0, offsets={"q": 1 / 60}, seed=11)
+    lines = _lines(tmp_path / "all.jsonl", recs.frames)
+    out = tmp_path / "out"
+    # Rows are final DEFAULT_SMOOTH_LAG + 1 records after they came.
+    code, err = _feed_then_stop(
+        tmp_path, ["--out", str(out), "--bag", str(tmp_path / "bag"), "--mcap", str(tmp_path / "poses.mcap")],
+        lines[:N_WRITTEN], lambda: len(_csv_rows(out / "trajectory.csv")) >= N_WRITTEN - DEFAULT_SMOOTH_LAG - 1, sig)
     # The reference: a complete run over the records the child had.
     ref = track_log(rig, [(float(f.times[0]), f) for f in recs.frames[:N_WRITTEN]], progress=False)
     rows = _csv_rows(out / "trajectory.csv")
     if sig == signal.SIGINT:
-        assert child.returncode == 130
+        assert code == 130
         assert "interrupted" in err and "frames finished" in err and "Traceback" not in err
         assert len(rows) == N_WRITTEN  # every record it had, reported as if the log ended there
     else:
-        assert child.returncode == -signal.SIGKILL
+        assert code == -signal.SIGKILL
         assert N_WRITTEN - DEFAULT_SMOOTH_LAG - 1 <= len(rows) <= N_WRITTEN
     for got, want in zip(rows, ref.rows):
         assert got["t"] == pytest.approx(want.t, abs=1e-9) and got["status"] == str(want.status)
@@ -123,31 +131,13 @@ def test_stopped_team_track_leaves_every_robot_s_files(tmp_path):
     save_rig(scene.rig, tmp_path / "rig.yaml")
     seq = team_sequence(scene, 40, 20.0, sigma=1.0, seed=4)
     lines = _lines(tmp_path / "all.jsonl", [obs for _, _, obs in seq])
-    fifo = tmp_path / "log.pipe"
-    os.mkfifo(fifo)
     out = tmp_path / "out"
     robots = scene.names[1:]
-    cmd = [sys.executable, "-m", "mutloc", "track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(fifo),
-           "--out", str(out), "--bag", str(tmp_path / "bag"), "--no-progress"]
-    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     n = 20
-    try:
-        with open(fifo, "w") as pipe:
-            pipe.writelines(lines[:n])
-            pipe.flush()
-            deadline = time.monotonic() + 120
-            while any(len(_csv_rows(out / f"trajectory_{r}.csv")) < n for r in robots):
-                assert child.poll() is None, child.stderr.read().decode()
-                assert time.monotonic() < deadline, "the rows were not written as the track ran"
-                time.sleep(0.1)
-            os.killpg(child.pid, signal.SIGINT)
-            child.wait(timeout=60)
-    finally:
-        if child.poll() is None:
-            os.killpg(child.pid, signal.SIGKILL)
-            child.wait()
-    err = child.stderr.read().decode()
-    assert child.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    code, err = _feed_then_stop(tmp_path, ["--out", str(out), "--bag", str(tmp_path / "bag")], lines[:n],
+                                lambda: all(len(_csv_rows(out / f"trajectory_{r}.csv")) >= n for r in robots),
+                                signal.SIGINT)
+    assert code == 130 and "interrupted" in err and "Traceback" not in err
     ref = track_team_log(scene.rig, [(t, obs) for t, _, obs in seq[:n]], progress=False)
     posed = 0
     for r in robots:
