@@ -152,3 +152,18 @@ def test_simulated_cameras_at_their_own_times_are_tracked(tmp_path, capsys):
         assert main(["simulate", "--out", str(tmp_path / "bad"), *bad]) == 2
         err_text = capsys.readouterr().err.strip()
         assert len(err_text.splitlines()) == 1 and "camera" in err_text
+
+
+def test_simulated_team_cameras_at_their_own_times(tmp_path):
+    """A team whose cameras capture a third of a frame apart: every capture
+    instant holds one camera's observations, at its own time."""
+    out = tmp_path / "team"
+    assert main(["simulate", "--out", str(out), "--robots", "3", "--markers", "tags", "--frames", "4", "--fps", "10",
+                 "--camera-offset", "r1=0.0333", "--camera-offset", "r2=0.0667", "--no-images", "--no-progress"]) == 0
+    truth = json.loads((out / "truth.json").read_text())
+    frames = truth["frames"]
+    assert [f["cameras"] for f in frames] == [["r0"], ["r1"], ["r2"]] * 4
+    assert np.allclose([f["timestamp"] for f in frames],
+                       np.sort(np.r_[np.arange(4) / 10, 0.0333 + np.arange(4) / 10, 0.0667 + np.arange(4) / 10]))
+    assert all(set(f["observations"]) <= set(f["cameras"]) for f in frames)
+    assert any(f["observations"] for f in frames)

@@ -86,10 +86,6 @@ def run(args: argparse.Namespace) -> int:
     from ..sim.scenario import write_simulation, write_team_simulation
 
     if args.robots > 2:
-        if args.camera_fps or args.camera_offset:
-            from ..errors import InputError
-
-            raise InputError("--camera-fps/--camera-offset: for the pair p, q (teams: not yet)")
         if args.markers not in ("balls", "tags"):
             from ..errors import InputError
 
@@ -97,7 +93,9 @@ def run(args: argparse.Namespace) -> int:
         print(write_team_simulation(args.out, robots=args.robots, markers=args.markers, frames=args.frames,
                                     fps=args.fps, seed=args.seed, noise=args.noise, jpeg=args.jpeg,
                                     size=args.size, focal=args.focal, k1=args.k1, room=not args.no_room,
-                                    images=args.images, progress=args.progress))
+                                    images=args.images, progress=args.progress,
+                                    camera_fps=_numbers(args.camera_fps, "--camera-fps"),
+                                    camera_offset=_numbers(args.camera_offset, "--camera-offset")))
         return 0
     summary = write_simulation(
         args.out, markers=args.markers, distance=args.distance, frames=args.frames, fps=args.fps,

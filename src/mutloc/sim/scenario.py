@@ -160,14 +160,15 @@ class _Stamps:
 
 
 def _camera_times(frames: int, fps: float, camera_fps: dict[str, float] | None,
-                  camera_offset: dict[str, float] | None, sequence: bool) -> _Stamps:
+                  camera_offset: dict[str, float] | None, sequence: bool,
+                  names: tuple[str, ...] = ("p", "q")) -> _Stamps:
     """Each camera's capture times over ``frames / fps`` seconds (see :func:`write_simulation`)."""
-    rates = {"p": float(fps), "q": float(fps)}
-    offset = {"p": 0.0, "q": 0.0}
+    rates = {n: float(fps) for n in names}
+    offset = {n: 0.0 for n in names}
     for given, into, what in ((camera_fps, rates, "camera_fps"), (camera_offset, offset, "camera_offset")):
         for robot, value in (given or {}).items():
             if robot not in into:
-                raise InputError(f"{what}: unknown robot {robot!r} (the simulated pair is p and q)")
+                raise InputError(f"{what}: unknown robot {robot!r} (the simulated robots are {', '.join(names)})")
             into[robot] = float(value)
     unsync = bool(camera_fps or camera_offset)
     if unsync and not sequence:
@@ -179,12 +180,12 @@ def _camera_times(frames: int, fps: float, camera_fps: dict[str, float] | None,
             raise InputError(f"camera offset of {r} must be in [0, one frame = {1.0 / rates[r]:.4g} s), "
                              f"got {offset[r]}")
     if not sequence:
-        return _Stamps([(0.0, ("p", "q"))], rates, offset, False)
+        return _Stamps([(0.0, tuple(names))], rates, offset, False)
     if not unsync:
-        return _Stamps([(i / fps, ("p", "q")) for i in range(frames)], rates, offset, False)
+        return _Stamps([(i / fps, tuple(names)) for i in range(frames)], rates, offset, False)
     duration = frames / fps
     times: dict[float, list[str]] = {}
-    for r in ("p", "q"):
+    for r in names:
         k = 0
         while (t := round(offset[r] + k / rates[r], 9)) < duration - 1e-9:
             times.setdefault(t, []).append(r)
@@ -199,7 +200,9 @@ _Y_DOWN_TO_Z_UP = Pose(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0
 def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls", frames: int = 1,
                           fps: float = 30.0, seed: int = 0, noise: float = 1.0, jpeg: int | None = None,
                           size: tuple[int, int] = (960, 540), focal: float = 800.0, k1: float = 0.0,
-                          room: bool = True, images: bool = True, progress: bool = False) -> str:
+                          room: bool = True, images: bool = True, progress: bool = False,
+                          camera_fps: dict[str, float] | None = None,
+                          camera_offset: dict[str, float] | None = None) -> str:
     """A team of ``robots`` robots in a room (:func:`mutloc.sim.team.random_team`)
     carrying ``markers``: "balls" (four coloured balls each, every ball its
     own colour) or "tags" (two printed AprilTags each, distinct ids; the
@@ -216,7 +219,10 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     ``frames.csv``, ``truth.json`` with per frame ``robots`` (as above) and
     ``observations``, and ``truth_NAME.tum`` per robot but the reference
     (its pose in r0's frame): what ``mutloc track`` writes as
-    ``trajectory_NAME.tum``.
+    ``trajectory_NAME.tum``.  ``camera_fps``/``camera_offset`` as
+    :func:`write_simulation`: each camera at its own times (each folder its
+    own ``frames.csv``; ``truth.json`` per capture instant, with the
+    ``cameras`` capturing then).
     """
     from .render import project_markers, render, room_around
     from .team import TEAM_KINDS, random_team, team_motion
@@ -239,6 +245,7 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
                         kind=markers, yaw_jitter_deg=10.0 if tags else 30.0)
     names = scene.names
     sequence = frames > 1
+    capture = _camera_times(frames, fps, camera_fps, camera_offset, sequence, tuple(names))
     motion = team_motion(scene, seed=seed) if sequence else (lambda t: scene.world)
 
     def pose_fn(n: str):
@@ -254,41 +261,54 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
             (out_dir / n).mkdir(exist_ok=True)
     truth_frames = []
     poses: list[dict[str, Pose]] = []
-    bar = tqdm(range(frames), desc="rendering", unit="frame", disable=not (progress and images))
-    for i in bar:
-        t = i / fps if sequence else 0.0
+    count = {n: 0 for n in names}
+    own: dict[str, list[tuple[int, float]]] = {n: [] for n in names}  # per camera: (frame, timestamp)
+    bar = tqdm(capture, desc="rendering", unit="frame", disable=not (progress and images))
+    for i, (t, cameras) in enumerate(bar):
         obs, hidden = {}, {}
-        for n in names:
+        for n in cameras:
             allm = project_markers(world, n, t)
             seen = project_markers(world, n, t, check_occlusion=True)
             if seen:
                 obs[n] = {m: list(uv) for m, uv in seen.items()}
             hidden[n] = sorted(set(allm) - set(seen))
-        if images:
-            for n in names:
-                img = render(world, n, t, seed=seed + i, noise_sigma=noise, jpeg_quality=jpeg)
-                rel = f"{n}/{i:06d}.png" if sequence else f"{n}.png"
+        for n in cameras:
+            k = count[n] if capture.unsynchronized else i
+            if images:
+                img = render(world, n, t, seed=seed + k, noise_sigma=noise, jpeg_quality=jpeg)
+                rel = f"{n}/{k:06d}.png" if sequence else f"{n}.png"
                 if not cv2.imwrite(str(out_dir / rel), img):
                     raise OSError(f"{out_dir / rel}: cannot write image")
+            own[n].append((k, t))
+            count[n] += 1
         ref = world.pose(names[0], t).inverse()
         poses.append({n: ref @ world.pose(n, t) for n in names[1:]})
         truth_frames.append({"frame": i, "timestamp": t, "robots": {n: T.to_dict() for n, T in poses[-1].items()},
                              "observations": obs, "hidden": hidden})
+        if capture.unsynchronized:
+            truth_frames[-1]["cameras"] = list(cameras)
     files = ["rig.yaml", "truth.json"]
     common = {"reference": names[0], "markers": markers, "seed": seed, "noise_sigma": noise, "jpeg_quality": jpeg}
     if sequence:
+        if capture.unsynchronized:
+            common["cameras"] = {n: {"fps": capture.fps[n], "offset": capture.offset[n]} for n in names}
         write_json({**common, "frames_count": frames, "fps": fps, "frames": truth_frames}, out_dir / "truth.json")
-        with open(out_dir / "frames.csv", "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", "timestamp"])
-            for fr in truth_frames:
-                w.writerow([fr["frame"], f"{fr['timestamp']:.9f}"])
+        csvs = ([(out_dir / n / "frames.csv", own[n]) for n in names if images] if capture.unsynchronized else
+                [(out_dir / "frames.csv", [(fr["frame"], fr["timestamp"]) for fr in truth_frames])])
+        for where, rows in csvs:
+            with open(where, "w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(["frame", "timestamp"])
+                for k, t in rows:
+                    w.writerow([k, f"{t:.9f}"])
         stamps = [fr["timestamp"] for fr in truth_frames]
         for n in names[1:]:
             write_tum(out_dir / f"truth_{n}.tum", stamps,
                       Pose.concatenate([p[n] for p in poses]),
                       comment=f"timestamp tx ty tz qx qy qz qw  (pose of {n} in {names[0]}'s camera frame)")
-        files += ["frames.csv", f"truth_{names[1]}.tum ..."] + ([f"{names[0]}/ ... {names[-1]}/"] if images else [])
+        files += (["frames.csv in each robot's folder" if images else "(no images)"] if capture.unsynchronized
+                  else ["frames.csv"]) + \
+            [f"truth_{names[1]}.tum ..."] + ([f"{names[0]}/ ... {names[-1]}/"] if images else [])
         n_obs = sum(len(v) for fr in truth_frames for v in fr["observations"].values())
         return (f"wrote {frames} frames of a team of {robots} robots ({markers}, {n_obs} marker observations) "
                 f"to {out_dir}: {', '.join(files)}")
