@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 from numba import njit
@@ -52,7 +53,7 @@ from .pose import Pose
 from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, normal_equations, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
-           "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose"]
+           "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose", "single_outlier"]
 
 #: Error-state dimension: rotation, translation, angular and linear velocity.
 STATE_DIM = 12
@@ -494,18 +495,9 @@ class ConstantVelocityFilter:
         if test.passed is not False:
             self._accept(state, ls, n)
             return FilterUpdate(True, state, test, all_rows, np.empty(0, np.int64), res, iterations=iters)
-        passing = []
-        # One observation left is no evidence that the others were wrong: two
-        # pixels fit almost any broad prediction (measured: a single camera's
-        # two markers, one dropped a frame, led a track metres away).
-        if n >= 3:
-            for k in range(n):
-                keep = np.delete(all_rows, k)
-                alt = self._try(problem, keep)
-                if alt is not None and alt[1].passed:
-                    passing.append((k, keep, alt))
-        if len(passing) == 1:
-            k, keep, (state, alt_test, res, iters, ls) = passing[0]
+        single = single_outlier(lambda keep: self._try(problem, keep), all_rows)
+        if single is not None:
+            k, keep, (state, alt_test, res, iters, ls) = single
             self._accept(state, ls, n - 1)
             return FilterUpdate(True, state, alt_test, keep, np.array([k]), res, iterations=iters)
         worst = int(np.argmax(first[2])) if n else -1
@@ -635,6 +627,24 @@ class ConstantVelocityFilter:
     def _rejected(self, prior: FilterState, n: int, reason: str) -> FilterUpdate:
         test = Consistency(math.inf, 2 * n, self.confidence, chi2_quantile(self.confidence, max(2 * n, 1)))
         return FilterUpdate(False, prior, test, np.empty(0, np.int64), np.arange(n), np.full(n, np.inf), reason)
+
+
+def single_outlier(attempt: Callable[[np.ndarray], Any], rows: np.ndarray) -> tuple[int, np.ndarray, Any] | None:
+    """The one observation whose leaving out makes an update pass: ``attempt(kept
+    rows)`` gives a result whose ``[1]`` is its test (or None); returns
+    ``(row left out, kept rows, result)`` when exactly one row does, else None.
+    Only with three or more rows: one observation left is no evidence that the
+    other was wrong -- two pixels fit almost any broad prediction (measured: a
+    single camera's two markers, one dropped a frame, led a track metres away)."""
+    if len(rows) < 3:
+        return None
+    passing = []
+    for k in range(len(rows)):
+        keep = np.delete(rows, k)
+        alt = attempt(keep)
+        if alt is not None and alt[1].passed:
+            passing.append((rows[k], keep, alt))
+    return passing[0] if len(passing) == 1 else None
 
 
 def rts_gains(priors: list[FilterState], posteriors: list[FilterState]) -> list[np.ndarray]:

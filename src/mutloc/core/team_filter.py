@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
-from .filter import STATE_DIM, MotionNoise
+from .filter import STATE_DIM, MotionNoise, single_outlier
 from .pose import Pose
 from .team import TeamProblem
 from .team_kernels import team_iekf, team_predict
@@ -230,15 +230,9 @@ class TeamFilter:
         if first is not None and first[1].passed is not False:
             self._accept(first)
             return TeamUpdate(True, first[1], rows, np.empty(0, np.int64), first[2])
-        passing = []
-        if n >= 3:
-            for j in range(n):
-                keep = np.delete(rows, j)
-                alt = self._try(problem, keep)
-                if alt is not None and alt[1].passed:
-                    passing.append((rows[j], keep, alt))
-        if len(passing) == 1:
-            j, keep, alt = passing[0]
+        single = single_outlier(lambda keep: self._try(problem, keep), rows)
+        if single is not None:
+            j, keep, alt = single
             self._accept(alt)
             return TeamUpdate(True, alt[1], keep, np.array([j]), alt[2])
         test = first[1] if first is not None else Consistency(math.inf, 2 * n, self.confidence,
