@@ -157,7 +157,7 @@ def test_optional_packages_are_imported_lazily_through_require():
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize("package", ["mutloc.track", "mutloc.core", "mutloc.io", "mutloc.detect"])
+@pytest.mark.parametrize("package", ["mutloc.track", "mutloc.core", "mutloc.io", "mutloc.detect", "mutloc.live"])
 def test_no_import_circle_among_a_package_s_modules(package):
     """Within a subpackage the modules import each other one way only --
     counting imports inside functions and under TYPE_CHECKING, which hide a

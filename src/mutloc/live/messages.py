@@ -1,0 +1,339 @@
+"""ROS 2 messages on the DDS wire, without ROS.
+
+A ROS 2 node is a DDS participant: a ROS 2 message ``pkg/msg/Name`` travels
+as DDS type ``pkg::msg::dds_::Name_`` on topic ``rt/<ros topic>``, serialised
+as CDR (little endian, XCDR1).  The types here follow the ROS 2 (Humble and
+later) definitions field by field, so the bytes are the ones ``rmw_cyclonedds``
+puts on the wire and rosbags writes in a bag (``tests/test_live_messages.py``
+checks every type against rosbags' serialisation).  mutloc's own types,
+``mutloc_msgs/msg/Observations`` and ``Observation``, are defined by the
+``.msg`` files shipped in :data:`MSG_PACKAGE` (a ROS 2 package ROS users can
+build with colcon).
+
+The types need ``cyclonedds`` (the ``live`` extra); they are built on the
+first call of :func:`ros_types`.  Converting to and from mutloc's objects:
+:func:`observations_message` / :func:`observations_from_message`,
+:func:`pose_messages`, :func:`diagnostics_message`.
+"""
+
+# No "from __future__ import annotations": cyclonedds reads the field types of the classes in ros_types().
+import hashlib
+import math
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .._extras import require
+from ..core.observations import ObservationSet
+from ..core.pose import Pose
+from ..errors import InputError
+from ..io.ros import TF_TOPIC, pose_topic, ros_covariance
+
+__all__ = ["ros_types", "MSG_PACKAGE", "rig_id", "observations_topic", "dds_topic", "OBSERVATIONS_TYPE",
+           "observations_message", "observations_from_message", "pose_messages", "diagnostics_message",
+           "stamp_of", "stamp", "MessageError", "RobotStatus", "DIAGNOSTICS_TOPIC", "TF_TOPIC", "pose_topic",
+           "OK", "WARN", "ERROR", "STALE"]
+
+#: The ROS 2 package of mutloc's message definitions (``package.xml``, ``msg/*.msg``).
+MSG_PACKAGE = Path(__file__).resolve().parent / "msg" / "mutloc_msgs"
+OBSERVATIONS_TYPE = "mutloc_msgs/msg/Observations"
+DIAGNOSTICS_TOPIC = "/diagnostics"
+#: ``diagnostic_msgs/msg/DiagnosticStatus`` levels.
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+
+class MessageError(InputError):
+    """A message that cannot be taken: malformed content, another rig, a wrong robot."""
+
+
+def rig_id(data: bytes | str | Path) -> str:
+    """The SPEC's ``rig_id`` of a rig file (its bytes, or its path): the first
+    16 hex digits of the SHA-256 of the file's bytes."""
+    if not isinstance(data, bytes):
+        data = Path(data).expanduser().read_bytes()
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def observations_topic(robot: str) -> str:
+    """``/mutloc/NAME/observations``: where robot NAME's node publishes."""
+    return f"/mutloc/{robot}/observations"
+
+
+def dds_topic(ros_topic: str) -> str:
+    """The DDS topic name of a ROS 2 topic (``/tf`` -> ``rt/tf``)."""
+    return "rt/" + ros_topic.lstrip("/")
+
+
+@cache
+def ros_types() -> SimpleNamespace:
+    """The message types (cyclonedds ``IdlStruct`` dataclasses), by ROS name's
+    last part: ``Time``, ``Header``, ``Observation``, ``Observations``, ``Point``,
+    ``Quaternion``, ``Pose``, ``PoseWithCovariance``, ``PoseWithCovarianceStamped``,
+    ``Vector3``, ``Transform``, ``TransformStamped``, ``TFMessage``, ``KeyValue``,
+    ``DiagnosticStatus``, ``DiagnosticArray``, ``RegionOfInterest``, ``Image``,
+    ``CompressedImage``, ``CameraInfo``; ``ros_name[cls]`` is each one's
+    ``pkg/msg/Name``."""
+    require("cyclonedds", "ROS 2 messages over DDS")
+    from dataclasses import dataclass as idl, field
+
+    from cyclonedds.idl import IdlStruct
+    from cyclonedds.idl.types import array, byte, float32, float64, int32, sequence, uint8, uint32
+
+    def name(ros: str) -> str:
+        pkg, _, msg = ros.split("/")
+        return f"{pkg}::msg::dds_::{msg}_"
+
+    @idl
+    class Time(IdlStruct, typename=name("builtin_interfaces/msg/Time")):
+        sec: int32 = 0
+        nanosec: uint32 = 0
+
+    @idl
+    class Header(IdlStruct, typename=name("std_msgs/msg/Header")):
+        stamp: Time = field(default_factory=Time)
+        frame_id: str = ""
+
+    @idl
+    class Observation(IdlStruct, typename=name("mutloc_msgs/msg/Observation")):
+        marker: str = ""
+        u: float64 = 0.0
+        v: float64 = 0.0
+        score: float32 = 0.0
+
+    @idl
+    class Observations(IdlStruct, typename=name(OBSERVATIONS_TYPE)):
+        header: Header = field(default_factory=Header)
+        robot: str = ""
+        rig_id: str = ""
+        frame: uint32 = 0
+        source_time: float64 = 0.0
+        observations: sequence[Observation] = field(default_factory=list)
+
+    @idl
+    class Point(IdlStruct, typename=name("geometry_msgs/msg/Point")):
+        x: float64 = 0.0
+        y: float64 = 0.0
+        z: float64 = 0.0
+
+    @idl
+    class Vector3(IdlStruct, typename=name("geometry_msgs/msg/Vector3")):
+        x: float64 = 0.0
+        y: float64 = 0.0
+        z: float64 = 0.0
+
+    @idl
+    class Quaternion(IdlStruct, typename=name("geometry_msgs/msg/Quaternion")):
+        x: float64 = 0.0
+        y: float64 = 0.0
+        z: float64 = 0.0
+        w: float64 = 1.0
+
+    @idl
+    class PoseMsg(IdlStruct, typename=name("geometry_msgs/msg/Pose")):
+        position: Point = field(default_factory=Point)
+        orientation: Quaternion = field(default_factory=Quaternion)
+
+    @idl
+    class PoseWithCovariance(IdlStruct, typename=name("geometry_msgs/msg/PoseWithCovariance")):
+        pose: PoseMsg = field(default_factory=PoseMsg)
+        covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+    @idl
+    class PoseWithCovarianceStamped(IdlStruct, typename=name("geometry_msgs/msg/PoseWithCovarianceStamped")):
+        header: Header = field(default_factory=Header)
+        pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+
+    @idl
+    class Transform(IdlStruct, typename=name("geometry_msgs/msg/Transform")):
+        translation: Vector3 = field(default_factory=Vector3)
+        rotation: Quaternion = field(default_factory=Quaternion)
+
+    @idl
+    class TransformStamped(IdlStruct, typename=name("geometry_msgs/msg/TransformStamped")):
+        header: Header = field(default_factory=Header)
+        child_frame_id: str = ""
+        transform: Transform = field(default_factory=Transform)
+
+    @idl
+    class TFMessage(IdlStruct, typename=name("tf2_msgs/msg/TFMessage")):
+        transforms: sequence[TransformStamped] = field(default_factory=list)
+
+    @idl
+    class KeyValue(IdlStruct, typename=name("diagnostic_msgs/msg/KeyValue")):
+        key: str = ""
+        value: str = ""
+
+    @idl
+    class DiagnosticStatus(IdlStruct, typename=name("diagnostic_msgs/msg/DiagnosticStatus")):
+        level: byte = 0  # ROS 2 "byte": IDL octet
+        name: str = ""
+        message: str = ""
+        hardware_id: str = ""
+        values: sequence[KeyValue] = field(default_factory=list)
+
+    @idl
+    class DiagnosticArray(IdlStruct, typename=name("diagnostic_msgs/msg/DiagnosticArray")):
+        header: Header = field(default_factory=Header)
+        status: sequence[DiagnosticStatus] = field(default_factory=list)
+
+    @idl
+    class RegionOfInterest(IdlStruct, typename=name("sensor_msgs/msg/RegionOfInterest")):
+        x_offset: uint32 = 0
+        y_offset: uint32 = 0
+        height: uint32 = 0
+        width: uint32 = 0
+        do_rectify: bool = False
+
+    @idl
+    class Image(IdlStruct, typename=name("sensor_msgs/msg/Image")):
+        header: Header = field(default_factory=Header)
+        height: uint32 = 0
+        width: uint32 = 0
+        encoding: str = ""
+        is_bigendian: uint8 = 0
+        step: uint32 = 0
+        data: sequence[uint8] = field(default_factory=list)
+
+    @idl
+    class CompressedImage(IdlStruct, typename=name("sensor_msgs/msg/CompressedImage")):
+        header: Header = field(default_factory=Header)
+        format: str = ""
+        data: sequence[uint8] = field(default_factory=list)
+
+    @idl
+    class CameraInfo(IdlStruct, typename=name("sensor_msgs/msg/CameraInfo")):
+        header: Header = field(default_factory=Header)
+        height: uint32 = 0
+        width: uint32 = 0
+        distortion_model: str = ""
+        d: sequence[float64] = field(default_factory=list)
+        k: array[float64, 9] = field(default_factory=lambda: [0.0] * 9)
+        r: array[float64, 9] = field(default_factory=lambda: [0.0] * 9)
+        p: array[float64, 12] = field(default_factory=lambda: [0.0] * 12)
+        binning_x: uint32 = 0
+        binning_y: uint32 = 0
+        roi: RegionOfInterest = field(default_factory=RegionOfInterest)
+
+    classes = dict(Time=Time, Header=Header, Observation=Observation, Observations=Observations, Point=Point,
+                   Vector3=Vector3, Quaternion=Quaternion, Pose=PoseMsg, PoseWithCovariance=PoseWithCovariance,
+                   PoseWithCovarianceStamped=PoseWithCovarianceStamped, Transform=Transform,
+                   TransformStamped=TransformStamped, TFMessage=TFMessage, KeyValue=KeyValue,
+                   DiagnosticStatus=DiagnosticStatus, DiagnosticArray=DiagnosticArray,
+                   RegionOfInterest=RegionOfInterest, Image=Image, CompressedImage=CompressedImage,
+                   CameraInfo=CameraInfo)
+    ros_name = {cls: cls.__idl_typename__.replace("::msg::dds_::", "/msg/").rstrip("_") for cls in classes.values()}
+    return SimpleNamespace(**classes, ros_name=ros_name)
+
+
+def stamp(t: float) -> Any:
+    """A ``builtin_interfaces/msg/Time`` for ``t`` seconds (rounded to the nanosecond)."""
+    ns = int(round(float(t) * 1e9))
+    return ros_types().Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def stamp_of(header: Any) -> float:
+    """A header's stamp in seconds."""
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+def observations_message(robot: str, rig: str, frame: int, time: float, observations: ObservationSet | None,
+                         source_time: float = 0.0) -> Any:
+    """The ``Observations`` message of one processed frame of ``robot``'s camera
+    (``observations``: what it saw, possibly nothing; only ``robot``'s own
+    observations are taken), stamped with the frame's capture ``time``;
+    ``rig``: the rig's :func:`rig_id`."""
+    T = ros_types()
+    entries = []
+    if observations is not None:
+        for o in observations:
+            if o.observer == robot:
+                entries.append(T.Observation(marker=o.marker or "", u=float(o.uv[0]), v=float(o.uv[1]),
+                                             score=float(o.score)))
+    return T.Observations(header=T.Header(stamp=stamp(time), frame_id=robot), robot=robot, rig_id=rig,
+                          frame=int(frame) % 2**32, source_time=float(source_time), observations=entries)
+
+
+@dataclass(frozen=True)
+class ReceivedObservations:
+    """An ``Observations`` message taken apart and checked."""
+
+    robot: str
+    rig_id: str
+    frame: int
+    time: float
+    source_time: float
+    observations: ObservationSet
+
+
+def observations_from_message(msg: Any, robots: Sequence[str] | None = None) -> ReceivedObservations:
+    """Check an ``Observations`` message and take it apart; :class:`MessageError`
+    (one line) for anything a node of mutloc would not send: an unknown robot
+    (``robots``: the rig's), a header naming another robot, a non-finite or
+    negative stamp, a non-finite pixel or score."""
+    robot = getattr(msg, "robot", None)
+    if not isinstance(robot, str) or not robot:
+        raise MessageError("observations message without a robot name")
+    if robots is not None and robot not in robots:
+        raise MessageError(f"observations message from robot {robot!r}, not in the rig")
+    header = msg.header
+    if header.frame_id not in ("", robot):
+        raise MessageError(f"observations message of robot {robot!r} with frame_id {header.frame_id!r}")
+    t = stamp_of(header)
+    if not math.isfinite(t) or header.stamp.sec < 0 or header.stamp.nanosec >= 1_000_000_000:
+        raise MessageError(f"observations message of robot {robot!r} with an invalid stamp")
+    markers, uv, score = [], [], []
+    for o in msg.observations:
+        if not (math.isfinite(o.u) and math.isfinite(o.v) and math.isfinite(o.score)):
+            raise MessageError(f"observations message of robot {robot!r} with a non-finite pixel or score")
+        markers.append(o.marker or None)
+        uv.append((o.u, o.v))
+        score.append(o.score)
+    obs = ObservationSet.trusted([robot] * len(markers), markers, np.asarray(uv, dtype=float).reshape(-1, 2),
+                                 time=t, score=np.asarray(score, dtype=float))
+    source_time = float(msg.source_time)
+    return ReceivedObservations(robot, str(msg.rig_id), int(msg.frame), t,
+                                source_time if math.isfinite(source_time) else 0.0, obs)
+
+
+def pose_messages(t: float, pose: Pose, covariance: np.ndarray | None, source: str, target: str) -> tuple[Any, Any]:
+    """``(PoseWithCovarianceStamped, TFMessage)`` of ``source``'s pose in
+    ``target``'s frame at time ``t``, exactly as ``track --bag`` writes them
+    (covariance in ROS order; see :mod:`mutloc.io.ros`)."""
+    T = ros_types()
+    st = stamp(t)
+    q = [float(v) for v in pose.quaternion_xyzw]
+    x, y, z = (float(v) for v in pose.t)
+    cov = ros_covariance(covariance if covariance is not None else np.full((6, 6), np.nan)).reshape(-1)
+    quat = T.Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])
+    pmsg = T.PoseWithCovarianceStamped(
+        header=T.Header(stamp=st, frame_id=target),
+        pose=T.PoseWithCovariance(pose=T.Pose(position=T.Point(x=x, y=y, z=z), orientation=quat),
+                                  covariance=[float(c) for c in cov]))
+    tf = T.TFMessage(transforms=[T.TransformStamped(header=T.Header(stamp=st, frame_id=target), child_frame_id=source,
+                                                    transform=T.Transform(translation=T.Vector3(x=x, y=y, z=z),
+                                                                          rotation=quat))])
+    return pmsg, tf
+
+
+@dataclass
+class RobotStatus:
+    """One robot's line in ``/diagnostics``."""
+
+    robot: str
+    level: int
+    message: str
+    values: dict[str, Any]
+
+
+def diagnostics_message(t: float, statuses: Iterable[RobotStatus], name: str = "mutloc localizer") -> Any:
+    """A ``DiagnosticArray`` stamped ``t``: one ``DiagnosticStatus`` per robot
+    (``name`` "NAME: ROBOT", ``hardware_id`` the robot's name)."""
+    T = ros_types()
+    return T.DiagnosticArray(header=T.Header(stamp=stamp(t), frame_id=""), status=[
+        T.DiagnosticStatus(level=int(s.level), name=f"{name}: {s.robot}", message=s.message, hardware_id=s.robot,
+                           values=[T.KeyValue(key=str(k), value=str(v)) for k, v in s.values.items()])
+        for s in statuses])
