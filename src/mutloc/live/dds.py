@@ -1,0 +1,121 @@
+"""One DDS participant with ROS 2's conventions: topics ``rt/<ros topic>``,
+QoS reliable, volatile, keep-last 10 (SPEC "Live operation").
+
+``Bus(domain)`` joins DDS domain ``domain`` (ROS 2's ``ROS_DOMAIN_ID``);
+``loopback=True`` keeps it on this machine (the loopback interface, unicast
+discovery: what tests and ``demo --live`` use).  Otherwise Cyclone DDS's own
+configuration applies (``CYCLONEDDS_URI``; see the guide "Running on your
+robots" for isolating a domain and DDS Security).
+
+A reader's :meth:`Reader.take` returns the valid samples and counts the
+samples it could not decode (malformed bytes on the topic) instead of
+raising: a network message is input, and bad input never stops a node.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .._extras import require
+from ..errors import InputError
+from .messages import dds_topic
+
+__all__ = ["Bus", "Reader", "LOOPBACK_CONFIG", "HISTORY_DEPTH", "check_domain"]
+
+#: ROS 2's default QoS profile for topics: keep-last 10, reliable, volatile.
+HISTORY_DEPTH = 10
+
+#: Cyclone DDS on the loopback interface only, peers found by unicast on 127.0.0.1.
+LOOPBACK_CONFIG = (
+    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
+    "<AllowMulticast>false</AllowMulticast></General>"
+    "<Discovery><Peers><Peer address=\"127.0.0.1\"/></Peers><ParticipantIndex>auto</ParticipantIndex>"
+    "<MaxAutoParticipantIndex>60</MaxAutoParticipantIndex></Discovery></Domain></CycloneDDS>")
+
+
+def check_domain(domain: Any) -> int:
+    """A DDS domain id (ROS 2 allows 0-232 on Linux; 0-101 keep clear of ephemeral ports)."""
+    try:
+        d = int(domain)
+    except (TypeError, ValueError):
+        raise InputError(f"--domain must be an integer from 0 to 232, got {domain!r}") from None
+    if not 0 <= d <= 232 or str(domain).strip() not in (str(d), f"+{d}"):
+        raise InputError(f"--domain must be an integer from 0 to 232, got {domain!r}")
+    return d
+
+
+class Reader:
+    """A topic's reader: :meth:`take` returns decoded samples, counting the undecodable ones in :attr:`malformed`."""
+
+    def __init__(self, reader: Any) -> None:
+        self._reader = reader
+        self.malformed = 0
+
+    def take(self, limit: int = 256) -> list[Any]:
+        """Up to ``limit`` waiting samples, oldest first (never blocks)."""
+        out: list[Any] = []
+        for _ in range(limit):
+            try:
+                got = self._reader.take(N=1)
+            except Exception:  # noqa: BLE001 -- bytes that do not decode: counted, never raised
+                self.malformed += 1
+                continue
+            if not got:
+                break
+            sample = got[0]
+            if getattr(getattr(sample, "sample_info", None), "valid_data", True):
+                out.append(sample)
+        return out
+
+    @property
+    def native(self) -> Any:
+        """The cyclonedds DataReader (for waitsets and listeners)."""
+        return self._reader
+
+
+class Bus:
+    """A DDS participant in ``domain`` with ROS 2 topic names and QoS."""
+
+    def __init__(self, domain: int = 0, *, loopback: bool = False) -> None:
+        require("cyclonedds", "live operation over DDS")
+        from cyclonedds.core import Policy, Qos
+        from cyclonedds.domain import Domain, DomainParticipant
+
+        self.domain_id = check_domain(domain)
+        self._domain = Domain(self.domain_id, LOOPBACK_CONFIG) if loopback else None
+        self.participant = DomainParticipant(self.domain_id)
+        self.qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
+                       Policy.History.KeepLast(HISTORY_DEPTH))
+        self._topics: dict[str, Any] = {}
+
+    def _topic(self, ros_topic: str, cls: type) -> Any:
+        from cyclonedds.topic import Topic
+
+        name = dds_topic(ros_topic)
+        if name not in self._topics:
+            self._topics[name] = Topic(self.participant, name, cls, qos=self.qos)
+        return self._topics[name]
+
+    def writer(self, ros_topic: str, cls: type) -> Any:
+        """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``)."""
+        from cyclonedds.pub import DataWriter
+
+        return DataWriter(self.participant, self._topic(ros_topic, cls), qos=self.qos)
+
+    def reader(self, ros_topic: str, cls: type) -> Reader:
+        """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``."""
+        from cyclonedds.sub import DataReader
+
+        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=self.qos))
+
+    def close(self) -> None:
+        """Leave the domain (readers and writers go with the participant)."""
+        self._topics.clear()
+        self.participant = None
+        self._domain = None
+
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
