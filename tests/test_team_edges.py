@@ -201,3 +201,22 @@ def test_a_robot_seen_at_two_points_only_stays_unlocalized():
     team = mutloc.localize_team(scene.rig, scene.observations())
     assert team.unlocalized == ["r1"]
     _assert_exact(team, scene, ["r0", "r2"])
+
+
+def test_loops_without_a_rigid_sub_group_are_solved_exactly():
+    """Tag scenes 88 and 190 of seed 2024: no robot shares more than two
+    observations with the reference and no group is tied to it by three
+    (TooFewObservationsError before): only the loops through several robots
+    hold the poses, isolated and with redundancy.  Drawn starts on the
+    two-point rays, refined jointly, give the truth, verified by the spare
+    observations."""
+    for index in (88, 190):
+        scene = _tag_scene(2024, index)
+        obs = scene.observations()
+        problem, names, _ = _observations_of(scene, obs)
+        C = problem.counts()
+        assert (C[0] + C[:, 0]).max() <= 2, index  # nobody tied to the reference by three
+        team = mutloc.localize_team(scene.rig, obs)
+        assert team.unlocalized == [] and team.unverified == [], index
+        assert team.consistency.dof > 0
+        _assert_exact(team, scene)

@@ -26,7 +26,10 @@ robot tied by observations spread over several placed cameras, or a group
 of robots tied to the placed ones only together, is solved among itself and
 placed as one rigid body by the generalized minimal solver
 (:mod:`mutloc.core.generalized`: the placed robots as one multi-camera rig,
-rays both ways).  See :func:`initial_poses` for what is well posed.
+rays both ways).  Loops with no rigid sub-group (each link two markers)
+are started from seeded random draws on their two-point rays and refined
+jointly (:func:`_sampled_group`).  See :func:`initial_poses` for what is
+well posed.
 
 A cold start's optimum that fails its chi-square test, or leaves robots
 unlocalized that three observations tie to the others, may come from a
@@ -46,6 +49,7 @@ from ..errors import DegenerateGeometryError, NoSolutionError
 from .camera import project_jac_kernel, project_kernel, undistort_kernel
 from .consistency import DEFAULT_CONFIDENCE, chi2_quantile
 from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
+from .geometry import matrix_from_quaternion_xyzw, so3_exp
 from .generalized import KIND_U_RAY, KIND_W_RAY, generalized_p3p
 from .refine import MODE_PIXEL, so3_exp_left
 
@@ -762,6 +766,169 @@ def _attach_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: 
     return False
 
 
+#: Sampled starts :func:`_sampled_group` tries for a group at most, and the
+#: optima within the noise it compares before it keeps the lowest.
+SAMPLED_STARTS = 120
+SAMPLED_FITS = 4
+
+
+def _isolated(H: np.ndarray) -> np.ndarray:
+    """Per robot of an information matrix (6-blocks): is its pose isolated --
+    no direction of the (Jacobi-scaled) null space touches it."""
+    k = H.shape[0] // 6
+    d = np.sqrt(np.maximum(np.diag(H), 1e-300))
+    w, V = np.linalg.eigh(H / d[:, None] / d[None, :])
+    null = V[:, w < 1e-9 * max(float(w.max()), 1e-300)]
+    out = np.array([bool(np.all(np.diag(H)[6 * i:6 * i + 6] > 0)) for i in range(k)])
+    if null.size:
+        out &= np.abs(null).reshape(k, 6, -1).max(axis=(1, 2)) < 1e-6
+    return out
+
+
+def _relative_sample(rng: np.random.Generator, bearings: np.ndarray, points: np.ndarray) -> tuple[np.ndarray,
+                                                                                                  np.ndarray] | None:
+    """A random pose ``T_ab`` (R, t) that puts points ``points`` (b's frame)
+    exactly on rays ``bearings`` (a's camera): with two or more points, the
+    first two at depths drawn along their rays at their true distance and a
+    random turn about the line through them; with one, a random depth and
+    rotation."""
+    R0 = _random_rotation(rng)
+    if len(points) == 1 or np.linalg.norm(points[1] - points[0]) < 1e-9:
+        lam = float(np.exp(rng.uniform(np.log(0.3), np.log(20.0))))
+        return R0, lam * bearings[0] - R0 @ points[0]
+    b1, b2 = bearings[0], bearings[1]
+    d = float(np.linalg.norm(points[1] - points[0]))
+    c = float(np.clip(b1 @ b2, -1.0, 1.0))
+    s = np.sqrt(max(1.0 - c * c, 1e-12))
+    lam1 = float(rng.uniform(0.02, 1.0)) * min(d / s, 50.0)
+    disc = lam1 * lam1 * (c * c - 1.0) + d * d
+    if disc < 0:
+        return None
+    roots = [r for r in (lam1 * c + np.sqrt(disc), lam1 * c - np.sqrt(disc)) if r > 1e-6]
+    if not roots:
+        return None
+    lam2 = roots[int(rng.integers(len(roots)))]
+    X1, X2 = lam1 * b1, lam2 * b2
+    u, v = (X2 - X1) / d, (points[1] - points[0]) / d
+    # the rotation taking v to u, then a random turn about u
+    w = np.cross(v, u)
+    sw, cw = np.linalg.norm(w), float(v @ u)
+    if sw < 1e-12:
+        align = np.eye(3) if cw > 0 else so3_exp(np.pi * _perpendicular(v))
+    else:
+        align = so3_exp(w / sw * np.arctan2(sw, cw))
+    R = so3_exp(u * rng.uniform(-np.pi, np.pi)) @ align
+    return R, X1 - R @ points[0]
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A rotation drawn uniformly (a normalised Gaussian quaternion)."""
+    q = rng.normal(size=4)
+    return matrix_from_quaternion_xyzw(q / np.linalg.norm(q))
+
+
+def _perpendicular(v: np.ndarray) -> np.ndarray:
+    a = np.eye(3)[int(np.argmin(np.abs(v)))]
+    w = np.cross(v, a)
+    return w / np.linalg.norm(w)
+
+
+def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarray, sigma: float,
+                   max_iter: int) -> bool:
+    """When neither robot-by-robot placement nor a rigid sub-group reaches
+    further: a group of unplaced robots tied to the placed ones only as a
+    whole through pairs of fewer than three observations (a loop r0 -> r1 ->
+    r2 -> r0 of two markers each has no rigid sub-group, yet its poses are
+    isolated).  The group's poses are drawn at random, each robot from one
+    pair of observations with an already drawn or placed robot (the two
+    markers exactly on their rays: two free parameters each), and refined
+    jointly over every observation among the group and the placed robots;
+    an optimum within the noise (chi-square at 99.9%; exactly, to 1e-9
+    px^2 per observation, when there is no redundancy) is kept -- the lowest of the first :data:`SAMPLED_FITS` such
+    optima -- with its isolated poses (a robot seen at only two markers
+    turns freely about their line: not placed).  Draws are seeded: the same
+    observations give the same result.  True if a robot was placed."""
+    N = problem.n_robots
+    C = problem.counts()
+    cam, own = problem.cam, problem.own
+    ties = C[:, placed].sum(axis=1) + C[placed, :].sum(axis=0)
+    bears = [_bearing(problem.K[cam[j]], problem.dist[cam[j]], problem.uv[j]) for j in range(len(cam))]
+    rng = np.random.default_rng(20131103)
+    # a robot whose camera sees nothing and which is seen at fewer than three
+    # distinct markers turns freely about them: never isolated, left out
+    pinned = np.zeros(N, dtype=bool)
+    pinned[cam] = True
+    for i in np.flatnonzero(~pinned).tolist():
+        pinned[i] = len(np.unique(problem.points[own == i].round(9), axis=0)) >= 3
+    for comp in _components(C, ~placed & pinned & (C.sum(axis=0) + C.sum(axis=1) > 0)):
+        if ties[comp].sum() == 0:
+            continue
+        inside = placed.copy()
+        inside[comp] = True
+        rows = np.flatnonzero(inside[cam] & inside[own])
+        dof = 2 * len(rows) - 6 * len(comp)
+        if dof < 0:
+            continue
+        sub = problem.take(rows)
+        var = np.full(N, -1, dtype=np.int64)
+        var[comp] = np.arange(len(comp))
+        gate = sigma**2 * chi2_quantile(0.999, dof) if dof > 0 else 1e-9 * sigma**2 * len(rows)
+        best, found = None, 0
+        for _ in range(SAMPLED_STARTS):
+            Rtry, ttry = Rs.copy(), ts.copy()
+            have = placed.copy()
+            while not have[comp].all():
+                # an observed pair (drawn, undrawn) with the most observations between them
+                drawn = np.where(have[:, None] & ~have[None, :], C + C.T, 0)
+                a, b = np.unravel_index(int(np.argmax(drawn)), drawn.shape)
+                if drawn[a, b] == 0:
+                    break
+                # the direction with more observations; its rays in the observer's camera
+                one = [j for j in rows.tolist() if cam[j] == a and own[j] == b and bears[j] is not None]
+                other = [j for j in rows.tolist() if cam[j] == b and own[j] == a and bears[j] is not None]
+                use, flip = (one, False) if len(one) >= len(other) else (other, True)
+                if not use:
+                    break
+                pick = rng.permutation(use)[:2]
+                got = _relative_sample(rng, np.array([bears[j] for j in pick]), problem.points[pick])
+                if got is None:
+                    break
+                R, t = got  # T_ab, or T_ba when flipped
+                if flip:
+                    R, t = R.T, -R.T @ t
+                Rtry[b], ttry[b] = Rtry[a] @ R, Rtry[a] @ t + ttry[a]
+                have[b] = True
+            if not have[comp].all():
+                continue
+            cost, _, H = _lm(sub, var, Rtry, ttry, max(max_iter, 50))
+            if not np.isfinite(cost) or cost > gate:
+                continue
+            iso = _isolated(H)
+            if iso.any() and (best is None or cost < best[0] - 1e-12 or iso.sum() > best[3].sum()):
+                best = (cost, Rtry, ttry, iso)
+            found += 1
+            if found >= SAMPLED_FITS:
+                break
+        if best is None:
+            continue
+        # the isolated robots, isolated also without the others: a robot
+        # pinned only through a robot left out is not placed either
+        keep = comp[best[3]]
+        while len(keep):
+            inside = placed.copy()
+            inside[keep] = True
+            var = np.full(N, -1, dtype=np.int64)
+            var[keep] = np.arange(len(keep))
+            _, _, H = _lm(problem.take(np.flatnonzero(inside[cam] & inside[own])), var, best[1], best[2], 0)
+            iso = _isolated(H)
+            if iso.all():
+                Rs[keep], ts[keep] = best[1][keep], best[2][keep]
+                placed[keep] = True
+                return True
+            keep = keep[iso]
+    return False
+
+
 def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20,
                   choices: dict[int, int] | None = None, record: list[int] | None = None) -> tuple[np.ndarray,
                                                                                                 np.ndarray, np.ndarray]:
@@ -802,7 +969,10 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     choices = {} if choices is None else choices
     while True:
         _grow(problem, Rs, ts, placed, sigma, max_iter, choices, record)
-        if placed.all() or not _attach_group(problem, Rs, ts, placed, sigma, max_iter, choices, record):
+        if placed.all():
+            break
+        if not _attach_group(problem, Rs, ts, placed, sigma, max_iter, choices, record) and \
+                not _sampled_group(problem, Rs, ts, placed, sigma, max_iter):
             break
     return Rs, ts, placed
 
