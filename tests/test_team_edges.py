@@ -220,3 +220,38 @@ def test_loops_without_a_rigid_sub_group_are_solved_exactly():
         assert team.unlocalized == [] and team.unverified == [], index
         assert team.consistency.dof > 0
         _assert_exact(team, scene)
+
+
+def test_a_robot_held_only_through_a_free_turning_one_is_localized_with_honest_covariance():
+    """Tag scene 76 of seed 2024: r1 is seen at its two tags by r0 and r2 and
+    sees nothing, so it turns freely about their line; r2 sees r0 and r1, and
+    only through r1 is it held (TooFewObservationsError before).  r1 is
+    solved along and reported unlocalized, r2 is the truth on exact pixels;
+    under 1 px noise r2's covariance (r1 marginalised out) is consistent:
+    mean NEES/6 near 1 over 200 draws (a refusal -- no start within the
+    noise at 99.9% -- allowed in at most 2% of them), and the chi-square
+    test has the one spare equation."""
+    from mutloc.core.geometry import so3_log
+
+    scene = _tag_scene(2024, 76)
+    obs = scene.observations()
+    team = mutloc.localize_team(scene.rig, obs)
+    assert team.unlocalized == ["r1"] and set(team.poses) == {"r0", "r2"}
+    _assert_exact(team, scene, ["r2"])
+    assert team.consistency.dof == 1
+    truth = scene.truth(team.reference)["r2"]
+    rng = np.random.default_rng(5)
+    nees, refused = [], 0
+    for _ in range(200):
+        noisy = {a: {m: (np.asarray(uv) + rng.normal(size=2)).tolist() for m, uv in seen.items()}
+                 for a, seen in obs.to_dict().items()}
+        try:
+            est = mutloc.localize_team(scene.rig, noisy, confidence=1.0)
+        except mutloc.errors.TooFewObservationsError:
+            refused += 1
+            continue
+        T = est.poses["r2"]
+        e = np.r_[so3_log(T.R @ truth.R.T), T.t - truth.t]
+        nees.append(e @ np.linalg.solve(est.covariance("r2"), e) / 6)
+    assert refused <= 4
+    assert 0.75 < np.mean(nees) < 1.35, np.mean(nees)

@@ -265,7 +265,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
 
 def _test(sol: TeamSolution, sigma: float, confidence: float) -> Consistency:
     """A pair's chi-square test (core.consistency) with six unknowns per robot."""
-    dof = 2 * sol.n_obs - 6 * len(sol.order)
+    dof = sol.dof
     threshold = chi2_quantile(confidence, dof) if dof > 0 else np.inf
     return Consistency(float(sol.cost) / sigma**2, dof, confidence, threshold)
 

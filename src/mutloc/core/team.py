@@ -41,6 +41,7 @@ keeps the best (:func:`_restarts`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -381,6 +382,23 @@ class TeamSolution:
     information: np.ndarray
     iterations: int
     used: np.ndarray
+    #: Robots in the joint problem whose pose the observations do not isolate
+    #: (free to turn about two markers) but through which others are held:
+    #: solved along, reported unlocalized; the others' ``information`` is
+    #: marginalised over them.
+    nuisance: np.ndarray | None = None
+    #: Parameters of the nuisance robots the observations do fix (rank of their block).
+    nuisance_params: int = 0
+
+    @property
+    def dof(self) -> int:
+        """Redundancy of the optimum: ``2n`` equations less the parameters fixed."""
+        return 2 * self.n_obs - 6 * len(self.order) - self.nuisance_params
+
+    @property
+    def solved(self) -> np.ndarray:
+        """The robots in the joint problem: localized or nuisance."""
+        return self.localized if self.nuisance is None else self.localized | self.nuisance
 
     def covariance(self, sigma: float) -> np.ndarray:
         """The joint covariance (6k square) for isotropic pixel noise ``sigma``."""
@@ -772,17 +790,19 @@ SAMPLED_STARTS = 120
 SAMPLED_FITS = 4
 
 
-def _isolated(H: np.ndarray) -> np.ndarray:
+def _isolated(H: np.ndarray, rank: bool = False) -> Any:
     """Per robot of an information matrix (6-blocks): is its pose isolated --
-    no direction of the (Jacobi-scaled) null space touches it."""
+    no direction of the (Jacobi-scaled) null space touches it; with
+    ``rank``, also H's rank (its parameters the data fix)."""
     k = H.shape[0] // 6
     d = np.sqrt(np.maximum(np.diag(H), 1e-300))
     w, V = np.linalg.eigh(H / d[:, None] / d[None, :])
-    null = V[:, w < 1e-9 * max(float(w.max()), 1e-300)]
+    small = w < 1e-9 * max(float(w.max()), 1e-300)
+    null = V[:, small]
     out = np.array([bool(np.all(np.diag(H)[6 * i:6 * i + 6] > 0)) for i in range(k)])
     if null.size:
         out &= np.abs(null).reshape(k, 6, -1).max(axis=(1, 2)) < 1e-6
-    return out
+    return (out, int(np.count_nonzero(~small))) if rank else out
 
 
 def _relative_sample(rng: np.random.Generator, bearings: np.ndarray, points: np.ndarray) -> tuple[np.ndarray,
@@ -834,7 +854,7 @@ def _perpendicular(v: np.ndarray) -> np.ndarray:
 
 
 def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarray, sigma: float,
-                   max_iter: int) -> bool:
+                   max_iter: int, nuisance: np.ndarray | None = None) -> bool:
     """When neither robot-by-robot placement nor a rigid sub-group reaches
     further: a group of unplaced robots tied to the placed ones only as a
     whole through pairs of fewer than three observations (a loop r0 -> r1 ->
@@ -845,9 +865,12 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
     jointly over every observation among the group and the placed robots;
     an optimum within the noise (chi-square at 99.9%; exactly, to 1e-9
     px^2 per observation, when there is no redundancy) is kept -- the lowest of the first :data:`SAMPLED_FITS` such
-    optima -- with its isolated poses (a robot seen at only two markers
-    turns freely about their line: not placed).  Draws are seeded: the same
-    observations give the same result.  True if a robot was placed."""
+    optima -- with its isolated poses.  A robot seen at only two markers
+    turns freely about their line: it is not placed; when others are held
+    only through it, it is kept in the joint problem as ``nuisance`` (its
+    pose solved along, reported unlocalized), else the isolated robots must
+    be isolated without it.  Draws are seeded: the same observations give
+    the same result.  True if a robot was placed."""
     N = problem.n_robots
     C = problem.counts()
     cam, own = problem.cam, problem.own
@@ -860,19 +883,15 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
     pinned[cam] = True
     for i in np.flatnonzero(~pinned).tolist():
         pinned[i] = len(np.unique(problem.points[own == i].round(9), axis=0)) >= 3
-    for comp in _components(C, ~placed & pinned & (C.sum(axis=0) + C.sum(axis=1) > 0)):
-        if ties[comp].sum() == 0:
+    for comp in _components(C, ~placed & (C.sum(axis=0) + C.sum(axis=1) > 0)):
+        if ties[comp].sum() == 0 or not pinned[comp].any():
             continue
         inside = placed.copy()
         inside[comp] = True
         rows = np.flatnonzero(inside[cam] & inside[own])
-        dof = 2 * len(rows) - 6 * len(comp)
-        if dof < 0:
-            continue
         sub = problem.take(rows)
         var = np.full(N, -1, dtype=np.int64)
         var[comp] = np.arange(len(comp))
-        gate = sigma**2 * chi2_quantile(0.999, dof) if dof > 0 else 1e-9 * sigma**2 * len(rows)
         best, found = None, 0
         for _ in range(SAMPLED_STARTS):
             Rtry, ttry = Rs.copy(), ts.copy()
@@ -901,9 +920,13 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
             if not have[comp].all():
                 continue
             cost, _, H = _lm(sub, var, Rtry, ttry, max(max_iter, 50))
-            if not np.isfinite(cost) or cost > gate:
+            if not np.isfinite(cost):
                 continue
-            iso = _isolated(H)
+            iso, rank = _isolated(H, rank=True)
+            # the redundancy: equations less the parameters the data fix
+            dof = 2 * len(rows) - rank
+            if dof < 0 or cost > (sigma**2 * chi2_quantile(0.999, dof) if dof > 0 else 1e-9 * sigma**2 * len(rows)):
+                continue
             if iso.any() and (best is None or cost < best[0] - 1e-12 or iso.sum() > best[3].sum()):
                 best = (cost, Rtry, ttry, iso)
             found += 1
@@ -911,9 +934,15 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
                 break
         if best is None:
             continue
+        keep = comp[best[3]]
+        Rs[comp], ts[comp] = best[1][comp], best[2][comp]
+        if nuisance is not None:
+            # the others are solved along: the isolated ones are placed
+            placed[keep] = True
+            nuisance[comp[~best[3]]] = True
+            return True
         # the isolated robots, isolated also without the others: a robot
         # pinned only through a robot left out is not placed either
-        keep = comp[best[3]]
         while len(keep):
             inside = placed.copy()
             inside[keep] = True
@@ -930,8 +959,8 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
 
 
 def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, max_iter: int = 20,
-                  choices: dict[int, int] | None = None, record: list[int] | None = None) -> tuple[np.ndarray,
-                                                                                                np.ndarray, np.ndarray]:
+                  choices: dict[int, int] | None = None, record: list[int] | None = None,
+                  nuisance: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start poses ``T_ref_i`` (Rs, ts) and which robots could be placed.
 
     Robots are placed greedily, the best-tied first.  A robot ``r`` can be
@@ -958,7 +987,8 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
     several poses fit those exactly.  ``choices`` ``{robot: k}`` makes such
     a placement take the generalized solver's ``k``-th exact pose instead
     (a restart of :func:`solve_team`; :class:`_NoSuchChoice` when there are
-    not that many).
+    not that many).  ``nuisance`` (a bool array, written): robots a loop's
+    start (:func:`_sampled_group`) solved along without isolating them.
     """
     N = problem.n_robots
     placed = np.zeros(N, dtype=bool)
@@ -972,7 +1002,7 @@ def initial_poses(problem: TeamProblem, reference: int, *, sigma: float = 1.0, m
         if placed.all():
             break
         if not _attach_group(problem, Rs, ts, placed, sigma, max_iter, choices, record) and \
-                not _sampled_group(problem, Rs, ts, placed, sigma, max_iter):
+                not _sampled_group(problem, Rs, ts, placed, sigma, max_iter, nuisance):
             break
     return Rs, ts, placed
 
@@ -1068,13 +1098,15 @@ def solve_team(problem: TeamProblem, reference: int, *, initial: tuple[np.ndarra
         localized = localized.copy()
         localized[reference] = True
         Rs[reference], ts[reference] = np.eye(3), np.zeros(3)
-        return _solve_from(problem, reference, Rs, ts, localized, max_iter)
+        return _solve_from(problem, reference, Rs, ts, localized, max_iter=max_iter)
     record: list[int] = []
+    nuisance = np.zeros(problem.n_robots, dtype=bool)
     try:
-        sol = _solve_from(problem, reference, *initial_poses(problem, reference, sigma=sigma, record=record), max_iter)
+        start = initial_poses(problem, reference, sigma=sigma, record=record, nuisance=nuisance)
+        sol = _solve_from(problem, reference, *start, nuisance, max_iter=max_iter)
     except NoSolutionError as e:
         sol, error = None, e
-    good = sol is not None and _fits(sol, sigma, confidence) and _complete(problem, sol.localized)
+    good = sol is not None and _fits(sol, sigma, confidence) and _complete(problem, sol.solved)
     # a placement on three observations took one of several exact poses; when
     # later observations can tell them apart (redundancy), try the others too
     ambiguous = bool(record) and sol is not None and 2 * sol.n_obs > 6 * len(sol.order)
@@ -1096,7 +1128,7 @@ def _complete(problem: TeamProblem, localized: np.ndarray) -> bool:
 def _fits(sol: TeamSolution, sigma: float, confidence: float) -> bool:
     """The optimum's residual within its noise (the chi-square test of
     mutloc.team; trivially so without redundancy or with the test off)."""
-    dof = 2 * sol.n_obs - 6 * len(sol.order)
+    dof = sol.dof
     if dof <= 0 or confidence >= 1.0:
         return True
     return sol.cost / sigma**2 <= chi2_quantile(confidence, dof)
@@ -1126,14 +1158,14 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
         return ns > nb or (ns == nb and s.cost < best.cost * (1.0 - 1e-9) - 1e-15)
 
     def done(s: TeamSolution) -> bool:
-        if not (_fits(s, sigma, confidence) and _complete(problem, s.localized)):
+        if not (_fits(s, sigma, confidence) and _complete(problem, s.solved)):
             return False
         return not good or s.cost <= 1e-12 * sigma**2 * max(s.n_obs, 1)
 
     def attempt(start) -> TeamSolution | None:
         budget[0] -= 1
         try:
-            s = _solve_from(problem, reference, *start, max_iter)
+            s = _solve_from(problem, reference, *start, max_iter=max_iter)
             if s.information.size:
                 checked_factor(s.information)  # more robots, but not all isolated: no better
             return s
@@ -1148,8 +1180,10 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
             for k in range(8):
                 if budget[0] <= 0:
                     break
+                nuisance = np.zeros(problem.n_robots, dtype=bool)
                 try:
-                    start = initial_poses(problem, reference, sigma=sigma, choices={**chosen, key: k})
+                    start = (*initial_poses(problem, reference, sigma=sigma, choices={**chosen, key: k},
+                                            nuisance=nuisance), nuisance)
                 except _NoSuchChoice:
                     break
                 s = attempt(start)
@@ -1161,35 +1195,40 @@ def _restarts(problem: TeamProblem, reference: int, sol: TeamSolution | None, re
             break
         chosen[step[0]] = step[1]
         keys.remove(step[0])
-    if good or (best is not None and _fits(best, sigma, confidence) and _complete(problem, best.localized)):
+    if good or (best is not None and _fits(best, sigma, confidence) and _complete(problem, best.solved)):
         return best
     C = problem.counts()
     degree = C.sum(axis=0) + C.sum(axis=1)
     for root in np.argsort(-degree, kind="stable").tolist():
         if root == reference or degree[root] == 0 or budget[0] <= 0:
             continue
-        Rs, ts, placed = initial_poses(problem, root, sigma=sigma)
+        nuisance = np.zeros(problem.n_robots, dtype=bool)
+        Rs, ts, placed = initial_poses(problem, root, sigma=sigma, nuisance=nuisance)
         if not placed[reference]:
             continue
         # T_ref_i = T_root_ref^-1 T_root_i
         Rr, tr = Rs[reference].copy(), ts[reference].copy()
         Rs = np.einsum("ji,njk->nik", Rr, Rs)
         ts = (ts - tr) @ Rr
-        s = attempt((Rs, ts, placed))
+        s = attempt((Rs, ts, placed, nuisance))
         if s is not None and better(s):
             best = s
-            if _fits(s, sigma, confidence) and _complete(problem, s.localized):
+            if _fits(s, sigma, confidence) and _complete(problem, s.solved):
                 return s
     return best
 
 
 def _solve_from(problem: TeamProblem, reference: int, Rs: np.ndarray, ts: np.ndarray, localized: np.ndarray,
-                max_iter: int) -> TeamSolution:
-    """The joint LM from the start (Rs, ts) over the ``localized`` robots."""
-    used = np.flatnonzero(localized[problem.cam] & localized[problem.own])
+                nuisance: np.ndarray | None = None, max_iter: int = 50) -> TeamSolution:
+    """The joint LM from the start (Rs, ts) over the ``localized`` robots and
+    the ``nuisance`` ones (solved along; see :class:`TeamSolution`)."""
+    if nuisance is not None and not nuisance.any():
+        nuisance = None
+    both = localized if nuisance is None else localized | nuisance
+    used = np.flatnonzero(both[problem.cam] & both[problem.own])
     sub = problem.take(used)
     var = np.full(problem.n_robots, -1, dtype=np.int64)
-    order = np.array([i for i in range(problem.n_robots) if localized[i] and i != reference], dtype=np.int64)
+    order = np.array([i for i in range(problem.n_robots) if both[i] and i != reference], dtype=np.int64)
     # unknowns in reverse Cuthill-McKee order of the observation graph: a
     # narrow envelope for the Cholesky factor
     rcm = _rcm(sub, order)
@@ -1200,8 +1239,31 @@ def _solve_from(problem: TeamProblem, reference: int, Rs: np.ndarray, ts: np.nda
     H = H[np.ix_(idx, idx)]
     if not np.isfinite(cost):
         raise NoSolutionError("the team's start poses put a marker behind the camera observing it")
+    params = 0
+    if nuisance is not None:
+        H, params = _marginalised(H, nuisance[order])
+        order = order[~nuisance[order]]
+        localized = localized & ~nuisance
     return TeamSolution(Rs=Rs, ts=ts, localized=localized, order=order, cost=cost, n_obs=len(used),
-                        information=H, iterations=it, used=used)
+                        information=H, iterations=it, used=used, nuisance=nuisance, nuisance_params=params)
+
+
+def _marginalised(H: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, int]:
+    """The information of the robots not in ``drop`` (a mask over H's
+    6-blocks) with the dropped ones marginalised out (Schur complement with
+    the pseudo-inverse of their block), and the rank of that block.
+    DegenerateGeometryError when a kept robot is not isolated."""
+    if not _isolated(H)[~drop].all():
+        raise DegenerateGeometryError("the observations do not determine an isolated pose for every robot")
+    m = np.repeat(drop, 6)
+    Hnn = H[np.ix_(m, m)]
+    d = np.sqrt(np.maximum(np.diag(Hnn), 1e-300))
+    w, V = np.linalg.eigh(Hnn / d[:, None] / d[None, :])
+    big = w > 1e-9 * max(float(w.max()), 1e-300)
+    pinv = (V[:, big] / w[big]) @ V[:, big].T / d[:, None] / d[None, :]
+    Hin = H[np.ix_(~m, m)]
+    marg = H[np.ix_(~m, ~m)] - Hin @ pinv @ Hin.T
+    return 0.5 * (marg + marg.T), int(big.sum())
 
 
 def residual_norms(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
