@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from ..io import load_rig
-    from ..live.cameras import open_camera
+    from ..live.cameras import camera_kind, open_camera
     from ..live.dds import Bus
     from ..live.node import Node
 
@@ -52,10 +52,12 @@ def run(args: argparse.Namespace) -> int:
     def say(line: str) -> None:
         print(f"mutloc node: {line}", file=sys.stderr, flush=True)
 
-    bus = Bus(domain, loopback=loopback_wanted(args))
+    # A device, stream or recording is opened before joining DDS: a bad one fails at once.
+    bus = Bus(domain, loopback=loopback_wanted(args)) if camera_kind(args.camera) == "ros" else None
+    source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic,
+                         rig_camera=rig.robot(args.robot).camera)
+    bus = bus or Bus(domain, loopback=loopback_wanted(args))
     try:
-        source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic,
-                             rig_camera=rig.robot(args.robot).camera)
         node = Node(args.rig, args.robot, source, bus, diagnostics=args.diagnostics, report=say)
         say(f"robot {args.robot}, camera {source.name}, publishing on {node.topic} (DDS domain {domain}"
             f"{', loopback' if loopback_wanted(args) else ''})")
