@@ -33,6 +33,7 @@ from typing import Any, Callable, Iterator
 import cv2
 import numpy as np
 
+from .._extras import require
 from ..core.camera import Camera
 from ..errors import InputError
 from ..track.sources import Frame, camera_from_info, image_from_message, open_source
@@ -369,6 +370,7 @@ class RosImageSource(CameraSource):
             return
 
     def _run(self) -> None:
+        require("cyclonedds", "a ROS image topic as the camera")
         from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
         from cyclonedds.util import duration
 
