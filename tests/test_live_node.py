@@ -28,9 +28,9 @@ import pytest
 pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
 
 from mutloc.cli.main import main  # noqa: E402
-from mutloc.live.cameras import LatestFrame, LiveFrame, ReplaySource, RosImageSource  # noqa: E402
+from mutloc.live.cameras import CaptureSource, LatestFrame, LiveFrame, ReplaySource, RosImageSource  # noqa: E402
 from mutloc.live.dds import Bus  # noqa: E402
-from mutloc.live.messages import observations_topic, rig_id, ros_types, stamp, stamp_of  # noqa: E402
+from mutloc.live.messages import DIAGNOSTICS_TOPIC, observations_topic, rig_id, ros_types, stamp, stamp_of  # noqa: E402
 from mutloc.live.node import Node  # noqa: E402
 from mutloc.sim.scenario import write_simulation  # noqa: E402
 from mutloc.track.sources import open_streams  # noqa: E402
@@ -281,9 +281,10 @@ def test_compressed_images_on_a_ros_topic(sim):
     stop = threading.Event()
     try:
         reader = bus.reader(observations_topic("q"), T.Observations)
+        diagnostics = bus.reader(DIAGNOSTICS_TOPIC, T.DiagnosticArray)
         packed = bus.writer("/q/image_raw/compressed", T.CompressedImage)
         source = RosImageSource(bus, "/q/image_raw/compressed")
-        node = Node(out / "rig.yaml", "q", source, bus)
+        node = Node(out / "rig.yaml", "q", source, bus, diagnostics=True)
         runner = threading.Thread(target=node.run, kwargs=dict(stop=stop, status_every=None))
         runner.start()
         _wait_matched(packed)
@@ -297,8 +298,9 @@ def test_compressed_images_on_a_ros_topic(sim):
             time.sleep(0.3)
         packed.write(T.CompressedImage(header=T.Header(stamp=stamp(time.time()), frame_id="q"), format="jpeg",
                                        data=b"not an image"))
-        time.sleep(0.3)
+        time.sleep(1.1)
         got = reader.take()
+        status = [s for d in diagnostics.take() for s in d.status]
     finally:
         stop.set()
         runner.join(timeout=10)
@@ -307,3 +309,34 @@ def test_compressed_images_on_a_ros_topic(sim):
     for m in got:
         assert _seen(m) == offline["q"][sent[round(stamp_of(m.header), 6)]]
     assert node.stats.corrupt == 1 and node.stats.processed == 3
+    # the node's own /diagnostics, once a second: its counts as key-values
+    last = {kv.key: kv.value for kv in status[-1].values}
+    assert status[-1].hardware_id == "q" and last["processed"] == "3" and last["corrupt"] == "1"
+
+
+def test_an_opencv_capture_is_read_in_the_background_keeping_the_newest_frame(sim, tmp_path):
+    """A capture OpenCV opens (here a video file, as a stream would be) is read
+    as fast as it delivers; a slow consumer gets the newest frame, the others
+    are counted as dropped; a capture that stops delivering is an error."""
+    out, _, _ = sim
+    video = tmp_path / "camera.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (480, 270))
+    for k in range(30):
+        writer.write(cv2.imread(str(out / "q" / f"{k % N_FRAMES:06d}.png")))
+    writer.release()
+    source = CaptureSource(str(video)).start()
+    taken = []
+    try:
+        deadline = time.monotonic() + 30
+        while not source.finished and time.monotonic() < deadline:
+            frame = source.take(0.5)
+            if frame is not None:
+                taken.append(frame)
+                time.sleep(0.05)  # a detector slower than the capture
+    finally:
+        source.close()
+    assert source.error is not None and "stopped delivering frames" in source.error
+    assert source.captured == 30 and len(taken) < 30 and source.dropped == 30 - len(taken)
+    assert [f.index for f in taken] == sorted({f.index for f in taken})
+    assert all(f.image.shape == (270, 480, 3) for f in taken)
+    assert np.all(np.diff([f.t for f in taken]) > 0) and abs(taken[0].t - time.time()) < 60
