@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -37,12 +38,15 @@ from .cameras import CameraSource, LiveFrame, ReplaySource
 from .messages import (DIAGNOSTICS_TOPIC, OK, WARN, RobotStatus, diagnostics_message, observations_message,
                        observations_topic, rig_id as rig_file_id, ros_types)
 
-__all__ = ["Node", "NodeStats", "percentile_ms"]
+__all__ = ["Node", "NodeStats", "percentile_ms", "LATENCY_WINDOW"]
+
+#: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
+LATENCY_WINDOW = 108_000
 
 
-def percentile_ms(values: list[float], q: float) -> float:
+def percentile_ms(values: Any, q: float) -> float:
     """The ``q``-th percentile of ``values`` (seconds) in milliseconds (NaN when empty)."""
-    return float(np.percentile(np.asarray(values, float), q) * 1e3) if values else float("nan")
+    return float(np.percentile(np.asarray(values, float), q) * 1e3) if len(values) else float("nan")
 
 
 @dataclass
@@ -51,7 +55,8 @@ class NodeStats:
     message published each), dropped (replaced by a newer frame before the
     detector was free), corrupt (unreadable, not published), out of order
     (a stamp not after the previous frame's, not published); ``latencies``:
-    capture -> publish of every published message, seconds."""
+    capture -> publish of the published messages, seconds (the last
+    :data:`LATENCY_WINDOW`)."""
 
     robot: str
     source: str
@@ -62,7 +67,7 @@ class NodeStats:
     corrupt: int = 0
     out_of_order: int = 0
     markers_seen: int = 0  # in the last processed frame
-    latencies: list[float] = field(default_factory=list)
+    latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     started: float = field(default_factory=time.monotonic)
 
     @property
@@ -74,7 +79,7 @@ class NodeStats:
     def _latency(self) -> str:
         if not self.latencies:
             return ""
-        recent = self.latencies[-300:]
+        recent = list(self.latencies)[-300:]
         return f", capture->publish p50 {percentile_ms(recent, 50):.1f} ms p99 {percentile_ms(recent, 99):.1f} ms"
 
     def status_line(self) -> str:
@@ -184,7 +189,7 @@ class Node:
         values = {"captured": s.captured, "processed": s.processed, "dropped": s.dropped, "corrupt": s.corrupt,
                   "fps": f"{s.fps:.2f}", "source": s.source, "topic": s.topic}
         if s.latencies:
-            values["latency_p50_ms"] = f"{percentile_ms(s.latencies[-300:], 50):.1f}"
+            values["latency_p50_ms"] = f"{percentile_ms(list(s.latencies)[-300:], 50):.1f}"
         self.diagnostics.write(diagnostics_message(time.time(), [RobotStatus(self.robot, level, message, values)],
                                                    name="mutloc node"))
 
