@@ -27,6 +27,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--realtime", nargs="?", const=1.0, type=positive_float, metavar="SPEED",
                    help="replay a recording as a camera: frames released at their own rate (times SPEED, default 1), "
                         "stamped with the wall-clock time of their release")
+    p.add_argument("--loop", action="store_true", help="with --realtime: play the recording again and again")
     p.add_argument("--topic", metavar="TOPIC", help="the image topic of a recorded bag")
     p.add_argument("--diagnostics", action="store_true",
                    help="also publish the node's own status on /diagnostics once a second")
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     # A device, stream or recording is opened before joining DDS: a bad one fails at once.
     bus = Bus(domain, loopback=loopback_wanted(args)) if camera_kind(args.camera) == "ros" else None
-    source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic,
+    source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic, loop=args.loop,
                          rig_camera=rig.robot(args.robot).camera)
     bus = bus or Bus(domain, loopback=loopback_wanted(args))
     try:

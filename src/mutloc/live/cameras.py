@@ -266,32 +266,46 @@ class ReplaySource(CameraSource):
     the first, stamped with the wall-clock time of its release, its own time
     in the recording as ``source_time``.  Images are decoded before their
     release time (a camera's readout), so the stamps keep the recording's
-    spacing while decoding keeps up."""
+    spacing while decoding keeps up.  ``loop``: play it again and again (frame
+    numbers and ``source_time`` going on from one pass to the next)."""
 
     def __init__(self, spec: str | Path, *, speed: float = 1.0, topic: str | None = None,
-                 fps: float | None = None) -> None:
+                 fps: float | None = None, loop: bool = False) -> None:
         super().__init__()
         p = Path(spec)
+        self._open = lambda: open_source(p, fps=fps, topic=topic)
+        self.loop = loop
         if topic is None and (p.suffix in (".bag", ".mcap", ".db3") or (p / "metadata.yaml").exists()):
             raise InputError(f"{p}: a ROS bag needs the image topic (--topic TOPIC)")
         if not (math.isfinite(speed) and speed > 0):
             raise InputError(f"replay speed must be a finite number > 0, got {speed}")
-        self.stream = open_source(p, fps=fps, topic=topic)
+        self.stream = self._open()
         self.name = self.stream.name
-        self.fps = self.stream.fps * speed if self.stream.fps else None
+        self.fps = self.stream.fps  # the recording's rate: the clock its detectors run on (source_time)
         self.speed = float(speed)
 
     def _run(self) -> None:
         start = t0 = None
-        for f in self.stream:
-            if self._stop.is_set():
+        stream, shift, index = self.stream, 0.0, 0
+        while True:
+            first = last = None
+            for f in stream:
+                if self._stop.is_set():
+                    return
+                t = f.t + shift
+                if start is None:
+                    start, t0 = time.monotonic(), t
+                delay = start + (t - t0) / self.speed - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
+                self.slot.put(LiveFrame(index + f.index, time.time(), f.image, f.status, source_time=t))
+                first, last = first or f, f
+            if not self.loop or last is None:
                 return
-            if start is None:
-                start, t0 = time.monotonic(), f.t
-            delay = start + (f.t - t0) / self.speed - time.monotonic()
-            if delay > 0 and self._stop.wait(delay):
-                return
-            self.slot.put(LiveFrame(f.index, time.time(), f.image, f.status, source_time=f.t))
+            # Played again from the start, its times going on one frame after the last one's.
+            shift += last.t - first.t + 1.0 / (self.stream.fps or 30.0)
+            index += last.index + 1
+            stream = self._open()
 
 
 def camera_info_topic(image_topic: str) -> str:
@@ -409,10 +423,11 @@ def camera_kind(spec: str) -> str:
 
 
 def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, topic: str | None = None,
-                rig_camera: Camera | None = None) -> CameraSource:
+                loop: bool = False, rig_camera: Camera | None = None) -> CameraSource:
     """The :class:`CameraSource` ``spec`` names (see the module docstring),
     not started.  ``realtime``: the replay speed of a recording (1: its own
-    rate; required for a recording); ``topic``: a bag's image topic; ``bus``:
+    rate; required for a recording); ``loop``: replay it again and again;
+    ``topic``: a bag's image topic; ``bus``:
     the :class:`mutloc.live.dds.Bus` a ROS topic is read on; ``rig_camera``:
     the calibration a camera_info is checked against.  InputError (one line)
     when the source cannot be opened."""
@@ -432,7 +447,9 @@ def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, to
             if not p.exists():
                 raise InputError(f"--camera {spec}: no such device, stream, ROS topic (ros:/...) or recording")
             raise InputError(f"--camera {spec}: {RECORDING_NEEDS_REALTIME}")
-        return ReplaySource(spec, speed=realtime, topic=topic)
+        return ReplaySource(spec, speed=realtime, topic=topic, loop=loop)
+    if loop:
+        raise InputError(f"--loop replays a recording again and again; --camera {spec} is live")
     if realtime is not None:
         raise InputError(f"--realtime replays a recording; --camera {spec} is live")
     return CaptureSource(spec)
