@@ -11,7 +11,8 @@ import argparse
 import math
 
 __all__ = ["positive_float", "nonnegative_float", "output_path", "robot_value", "int_in_range", "unit_interval",
-           "RIG", "PAIR", "NOISE", "TRUST", "OUTPUT", "PROGRESS", "SEED", "TEAM", "robot_map", "team_mode"]
+           "RIG", "PAIR", "NOISE", "TRUST", "OUTPUT", "PROGRESS", "SEED", "TEAM", "LIVE", "robot_map", "team_mode",
+           "loopback_wanted", "live_domain"]
 
 
 def positive_float(text: str) -> float:
@@ -139,3 +140,35 @@ PROGRESS.add_argument("--no-progress", dest="progress", action="store_false", he
 
 SEED = _parent()
 SEED.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same results")
+
+LIVE = _parent()
+LIVE.add_argument("--domain", metavar="N", default=None,
+                  help="DDS domain id, as ROS 2's ROS_DOMAIN_ID (0-232; default: $ROS_DOMAIN_ID, else 0)")
+LIVE.add_argument("--loopback", action="store_true",
+                  help="keep DDS on this machine (loopback interface, no multicast; also MUTLOC_DDS_LOOPBACK=1): "
+                       "for tests and demos")
+
+
+def loopback_wanted(args: argparse.Namespace) -> bool:
+    """``--loopback`` given, or ``MUTLOC_DDS_LOOPBACK`` set to 1/true/yes."""
+    import os
+
+    return bool(args.loopback) or os.environ.get("MUTLOC_DDS_LOOPBACK", "").strip().lower() in ("1", "true", "yes")
+
+
+def live_domain(args: argparse.Namespace) -> int:
+    """``--domain``, else ``$ROS_DOMAIN_ID``, else 0 (checked: one line when it is not a domain id)."""
+    import os
+
+    from ..errors import InputError
+    from ..live.dds import check_domain
+
+    if args.domain is not None:
+        return check_domain(args.domain)
+    env = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not env:
+        return 0
+    try:
+        return check_domain(env)
+    except InputError:
+        raise InputError(f"ROS_DOMAIN_ID must be an integer from 0 to 232, got {env!r}") from None

@@ -102,11 +102,16 @@ class Bus:
 
         return DataWriter(self.participant, self._topic(ros_topic, cls), qos=self.qos)
 
-    def reader(self, ros_topic: str, cls: type) -> Reader:
-        """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``."""
+    def reader(self, ros_topic: str, cls: type, *, sensor: bool = False) -> Reader:
+        """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``.
+        ``sensor``: ROS 2's sensor-data QoS (best effort, keep-last 5), which
+        matches camera drivers' best-effort writers as well as reliable ones."""
+        from cyclonedds.core import Policy, Qos
         from cyclonedds.sub import DataReader
 
-        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=self.qos))
+        qos = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5)) \
+            if sensor else self.qos
+        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos))
 
     def close(self) -> None:
         """Leave the domain (readers and writers go with the participant)."""

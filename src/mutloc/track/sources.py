@@ -20,7 +20,7 @@ from ..core.rig import Rig
 from ..errors import FileFormatError, InputError
 
 __all__ = ["Frame", "Stream", "folder_frames", "video_frames", "bag_frames", "bag_camera", "open_source",
-           "open_streams", "rig_with_bag_cameras", "IMAGE_SUFFIXES"]
+           "open_streams", "rig_with_bag_cameras", "IMAGE_SUFFIXES", "image_from_message", "camera_from_info"]
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
 _NUMBER = re.compile(r"^(\d+(?:\.\d+)?)$")
@@ -146,8 +146,9 @@ def video_frames(path: str | Path, fps: float | None = None) -> Iterator[Frame]:
         raise FileFormatError(f"{p}: the video has no decodable frame")
 
 
-def _image_from_msg(msg) -> np.ndarray:
-    """BGR image of a sensor_msgs Image or CompressedImage message."""
+def image_from_message(msg) -> np.ndarray:
+    """BGR image of a sensor_msgs Image or CompressedImage message (from a bag, or
+    received over DDS: ``data`` bytes or a list of ints); ValueError when it cannot be decoded."""
     if hasattr(msg, "format"):  # CompressedImage
         img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
         if img is None:
@@ -212,7 +213,7 @@ def bag_frames(path: str | Path, topic: str) -> Iterator[Frame]:
                 hs = msg.header.stamp
                 if hs.sec or hs.nanosec:
                     t = hs.sec + hs.nanosec * 1e-9
-                img = _image_from_msg(msg)
+                img = image_from_message(msg)
                 yield Frame(i, t, img)
             except Exception as exc:  # a corrupt message must not end the stream
                 yield Frame(i, t, None, f"corrupt message: {' '.join(str(exc).split())}")
@@ -229,15 +230,19 @@ def bag_camera(path: str | Path, topic: str) -> Camera | None:
         if not conns:
             raise InputError(f"{p}: no camera_info topic {topic!r}")
         for conn, _, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
-            # ROS 1 spells the fields K and D, ROS 2 k and d.
-            K = np.asarray(getattr(msg, "k", None) if hasattr(msg, "k") else msg.K, float).reshape(3, 3)
-            d = np.asarray(getattr(msg, "d", None) if hasattr(msg, "d") else msg.D, float)
-            size = (int(msg.width), int(msg.height)) if msg.width and msg.height else None
-            return Camera(K, d if d.size else None, size)
+            return camera_from_info(reader.deserialize(raw, conn.msgtype))
         return None
     finally:
         reader.close()
+
+
+def camera_from_info(msg) -> Camera:
+    """The camera of a ``sensor_msgs/CameraInfo`` message (ROS 1 or ROS 2, from a bag or over DDS)."""
+    # ROS 1 spells the fields K and D, ROS 2 k and d.
+    K = np.asarray(getattr(msg, "k", None) if hasattr(msg, "k") else msg.K, float).reshape(3, 3)
+    d = np.asarray(getattr(msg, "d", None) if hasattr(msg, "d") else msg.D, float)
+    size = (int(msg.width), int(msg.height)) if msg.width and msg.height else None
+    return Camera(K, d if d.size else None, size)
 
 
 def _video_rate(p: Path) -> float | None:

@@ -1,0 +1,183 @@
+#!/usr/bin/env python
+"""Live operation benchmark (issue 25), part 1: the node.
+
+    python bench/bench_live.py            # 60 rendered frames per marker kind, 4 s replays
+    python bench/bench_live.py --quick    # 20 frames, 2 s replays
+
+Measured:
+
+* **detection alone**, per marker kind, on one core (NUMBA_NUM_THREADS=1,
+  cv2.setNumThreads(1)): the node's detector (:class:`~mutloc.track.tracker.ObserverDetector`,
+  what ``mutloc node`` runs: every marker kind of the rig, blinking-light
+  trackers fed every frame) over a rendered 960x540 sequence held in
+  memory; frames/s (wall and CPU) beside the camera's 30 frames/s;
+* **node capture -> publish latency** on a replayed 30 fps stream (the
+  rendered sequence looped to ``--seconds``, released at its own rate by
+  :class:`~mutloc.live.cameras.ReplaySource`, the node in this process on
+  DDS loopback): p50/p99 of capture -> publish (the node's own figure) and
+  capture -> received by a subscriber of this process, and frames dropped.
+
+The machine and its load average are recorded beside the figures (the
+machine is shared: other work running changes them).  The functions
+(:func:`render_sequences`, :func:`detection_rate`, :func:`node_latency`)
+are reused by the end-to-end part.  Writes bench/results/live_results.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mutloc.api import load_rig  # noqa: E402
+from mutloc.live.cameras import ReplaySource  # noqa: E402
+from mutloc.live.dds import Bus  # noqa: E402
+from mutloc.live.messages import observations_topic, ros_types, stamp_of  # noqa: E402
+from mutloc.live.node import Node, percentile_ms  # noqa: E402
+from mutloc.sim.scenario import write_simulation  # noqa: E402
+from mutloc.track.frames import expanded_rig  # noqa: E402
+from mutloc.track.sources import Frame, folder_frames  # noqa: E402
+from mutloc.track.tracker import ObserverDetector  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import machine, result_file  # noqa: E402
+
+cv2.setNumThreads(1)
+
+KINDS = ("balls", "tags", "lights", "cylinders")
+CAMERA_FPS = 30.0
+SIZE = (960, 540)
+OBSERVER = "q"  # q's camera, looking for p's markers
+
+
+def render_sequences(root: Path, kinds=KINDS, frames: int = 60, size=SIZE, fps: float = CAMERA_FPS) -> dict:
+    """``{kind: folder}`` of a rendered two-robot sequence per marker kind (rig.yaml, p/, q/)."""
+    out = {}
+    for kind in kinds:
+        folder = root / kind
+        if not (folder / "rig.yaml").exists():
+            write_simulation(folder, markers=kind, frames=frames, size=size, fps=fps)
+        out[kind] = folder
+    return out
+
+
+def detection_rate(folder: Path, observer: str = OBSERVER, repeats: int = 3) -> dict:
+    """Frames/s of the node's detector over ``observer``'s frames of a sequence
+    (held in memory; a fresh detector per repeat, every frame fed in order)."""
+    rig = expanded_rig(load_rig(folder / "rig.yaml"))
+    others = [r for r in rig.robots if r != observer]
+    frames = list(folder_frames(folder / observer))
+    walls, cpus, seen = [], [], []
+    for _ in range(repeats + 1):  # the first is a warm-up (kernels loaded)
+        det = ObserverDetector(rig, observer, others, CAMERA_FPS)
+        t0, c0 = time.perf_counter(), time.process_time()
+        n = 0
+        for f in frames:
+            det.feed(f)
+            n += len(det.detect(f).observations(observer))
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+        seen.append(n / len(frames))
+    walls, cpus = walls[1:], cpus[1:]
+    return {"frames": len(frames), "fps_wall": len(frames) / float(np.median(walls)),
+            "fps_cpu": len(frames) / float(np.median(cpus)), "markers_per_frame": seen[-1],
+            "camera_fps": CAMERA_FPS}
+
+
+def looped_folder(folder: Path, out: Path, seconds: float, fps: float = CAMERA_FPS) -> Path:
+    """A folder of symbolic links playing ``folder``'s images over and over
+    for ``seconds`` at ``fps`` (its own frames.csv)."""
+    images = sorted(p for p in folder.iterdir() if p.suffix == ".png")
+    out.mkdir(parents=True, exist_ok=True)
+    n = int(round(seconds * fps))
+    lines = ["frame,timestamp"]
+    for k in range(n):
+        link = out / f"{k:06d}.png"
+        if not link.exists():
+            link.symlink_to(images[k % len(images)].resolve())
+        lines.append(f"{k},{k / fps:.9f}")
+    (out / "frames.csv").write_text("\n".join(lines) + "\n")
+    return out
+
+
+def node_latency(rig_path: Path, robot: str, folder: Path, domain: int, speed: float = 1.0) -> dict:
+    """Run a node (this process, DDS loopback) over ``folder`` replayed at
+    ``speed`` times its rate; p50/p99 of capture -> publish and capture ->
+    received by a subscriber, frames captured/processed/dropped."""
+    T = ros_types()
+    bus = Bus(domain, loopback=True)
+    received: list[float] = []
+    stop = threading.Event()
+    try:
+        reader = bus.reader(observations_topic(robot), T.Observations)
+
+        def listen():
+            while not stop.is_set():
+                for m in reader.take():
+                    received.append(time.time() - stamp_of(m.header))
+                time.sleep(0.0005)
+
+        listener = threading.Thread(target=listen, daemon=True)
+        listener.start()
+        node = Node(rig_path, robot, ReplaySource(folder, speed=speed), bus)
+        stats = node.run(status_every=None)
+        time.sleep(0.2)
+        stop.set()
+        listener.join(timeout=2)
+    finally:
+        bus.close()
+    return {"captured": stats.captured, "processed": stats.processed, "dropped": stats.dropped,
+            "publish_p50_ms": percentile_ms(stats.latencies, 50), "publish_p99_ms": percentile_ms(stats.latencies, 99),
+            "received": len(received), "receive_p50_ms": percentile_ms(received, 50),
+            "receive_p99_ms": percentile_ms(received, 99)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="20 frames per kind, 2 s replays")
+    ap.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
+    ap.add_argument("--work", help="keep the rendered sequences here (reused when present)")
+    ap.add_argument("--out", default=result_file("live_results.json"))
+    args = ap.parse_args()
+    frames, seconds = (20, 2.0) if args.quick else (60, 4.0)
+    info = machine()
+    print(f"machine: {info['cpu']}, {info['cores']} cores, load average {info['load_average_at_start']}")
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(args.work) if args.work else Path(tmp)
+        seqs = render_sequences(root, args.kinds, frames)
+        detection, latency = {}, {}
+        print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
+        print(f"{'kind':<10} {'frames/s wall':>14} {'frames/s cpu':>13} {'markers/frame':>14}")
+        for kind, folder in seqs.items():
+            r = detection[kind] = detection_rate(folder)
+            print(f"{kind:<10} {r['fps_wall']:>14.1f} {r['fps_cpu']:>13.1f} {r['markers_per_frame']:>14.2f}")
+        print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
+        print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
+              f"{'received p50/p99 ms':>20}")
+        for k, (kind, folder) in enumerate(seqs.items()):
+            loop = looped_folder(folder / OBSERVER, root / f"{kind}_loop", seconds)
+            r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, loop, 90 + (os.getpid() + k) % 10)
+            print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
+                  f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
+                  f"{r['receive_p99_ms']:<9.1f}")
+    info["load_average_at_end"] = list(os.getloadavg())
+    result = {"machine": info, "size": list(SIZE), "camera_fps": CAMERA_FPS, "frames_per_kind": frames,
+              "replay_seconds": seconds, "detection": detection, "node_latency": latency}
+    Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+    print(f"\nload average at end {info['load_average_at_end']}; wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

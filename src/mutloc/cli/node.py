@@ -1,0 +1,73 @@
+"""``mutloc node``: one robot's camera, its detections published over DDS as ROS 2 messages."""
+
+from __future__ import annotations
+
+import argparse
+
+from ._common import LIVE, PROGRESS, RIG, live_domain, loopback_wanted, positive_float
+
+ORDER = 80
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register ``node``."""
+    p = subparsers.add_parser(
+        "node", parents=[RIG, LIVE, PROGRESS],
+        help="live: detect the other robots' markers in this robot's camera, publish them over DDS (ROS 2)",
+        description="Run on each robot: takes the newest frame of the camera (frames the detector cannot keep up "
+        "with are dropped and counted, never queued), finds the other robots' markers and publishes one "
+        "mutloc_msgs/msg/Observations message per processed frame on /mutloc/NAME/observations, stamped with "
+        "the frame's capture time (SPEC \"Live operation\"). Needs the live extra (cyclonedds).",
+    )
+    p.add_argument("--robot", required=True, metavar="NAME", help="the robot whose camera this is (a robot of the rig)")
+    p.add_argument("--camera", required=True, metavar="SOURCE",
+                   help="a camera device (/dev/video0 or 0), a GStreamer pipeline or stream URL (rtsp://...), a ROS 2 "
+                        "image topic (ros:/p/image_raw, or .../compressed; its camera_info is checked against the "
+                        "rig), or a recorded video, image folder or bag (with --realtime)")
+    p.add_argument("--realtime", nargs="?", const=1.0, type=positive_float, metavar="SPEED",
+                   help="replay a recording as a camera: frames released at their own rate (times SPEED, default 1), "
+                        "stamped with the wall-clock time of their release")
+    p.add_argument("--loop", action="store_true", help="with --realtime: play the recording again and again")
+    p.add_argument("--topic", metavar="TOPIC", help="the image topic of a recorded bag")
+    p.add_argument("--diagnostics", action="store_true",
+                   help="also publish the node's own status on /diagnostics once a second")
+    p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
+    p.add_argument("--status-every", type=positive_float, default=5.0, metavar="S",
+                   help="print a status line every S seconds (default 5; --no-progress: none)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Open the camera, join the DDS domain and publish until the source ends or Ctrl-C."""
+    import sys
+
+    from ..io import load_rig
+    from ..live.cameras import camera_kind, open_camera
+    from ..live.dds import Bus
+    from ..live.node import Node
+
+    rig = load_rig(args.rig)
+    rig.robot(args.robot)  # an unknown robot: one line, before the camera opens
+    domain = live_domain(args)
+
+    def say(line: str) -> None:
+        print(f"mutloc node: {line}", file=sys.stderr, flush=True)
+
+    # A device, stream or recording is opened before joining DDS: a bad one fails at once.
+    bus = Bus(domain, loopback=loopback_wanted(args)) if camera_kind(args.camera) == "ros" else None
+    source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic, loop=args.loop,
+                         rig_camera=rig.robot(args.robot).camera)
+    bus = bus or Bus(domain, loopback=loopback_wanted(args))
+    try:
+        node = Node(args.rig, args.robot, source, bus, diagnostics=args.diagnostics, report=say)
+        say(f"robot {args.robot}, camera {source.name}, publishing on {node.topic} (DDS domain {domain}"
+            f"{', loopback' if loopback_wanted(args) else ''})")
+        try:
+            stats = node.run(duration=args.duration, status_every=args.status_every if args.progress else None)
+        except KeyboardInterrupt:
+            print(f"interrupted: {node.stats.summary()}", file=sys.stderr, flush=True)
+            return 130
+        print(stats.summary(), flush=True)
+        return 0
+    finally:
+        bus.close()

@@ -1,0 +1,455 @@
+"""A node's camera: live sources that always hand on the newest frame.
+
+``mutloc node --camera SOURCE`` (SPEC "Live operation") takes
+
+- a camera device (``/dev/video0`` or ``0``: V4L2 through OpenCV),
+- a GStreamer pipeline (``... ! appsink``) or a stream URL (``rtsp://...``)
+  that OpenCV opens,
+- a ROS 2 image topic over DDS (``ros:/p/image_raw``: ``sensor_msgs/msg/Image``;
+  ``ros:/p/image_raw/compressed``: ``CompressedImage``), or
+- a recording (video file, image folder, bag with ``topic``: the readers of
+  :mod:`mutloc.track.sources`) replayed at its own rate (``realtime``).
+
+Every source runs in a background thread and keeps only the newest frame
+(:class:`LatestFrame`): a frame the detector had no time for is replaced by
+the next one and counted as dropped, never queued, so the node's delay stays
+one frame whatever the detector's speed.  Frames are stamped with the
+wall-clock time at which they were captured (a ROS image: its header stamp);
+a replayed frame's own time in the recording travels as ``source_time``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import cv2
+import numpy as np
+
+from .._extras import require
+from ..core.camera import Camera
+from ..errors import InputError
+from ..track.sources import Frame, camera_from_info, image_from_message, open_source
+
+__all__ = ["LiveFrame", "LatestFrame", "CameraSource", "CaptureSource", "ReplaySource", "RosImageSource",
+           "open_camera", "camera_kind", "camera_info_topic", "compare_cameras", "RECORDING_NEEDS_REALTIME"]
+
+RECORDING_NEEDS_REALTIME = "a recording is replayed as a camera only with --realtime (frames released at their " \
+                           "own rate, stamped when released)"
+
+
+@dataclass
+class LiveFrame(Frame):
+    """A captured frame: ``t`` the wall-clock capture time (seconds since the
+    epoch), ``index`` the source's own frame number (gaps: frames dropped
+    before they reached the node), ``source_time`` a replayed frame's own
+    time in the recording (else 0)."""
+
+    source_time: float = 0.0
+    #: Decodes ``image`` when the node takes the frame (ROS messages: only the frames processed are decoded).
+    decode: Callable[[], np.ndarray] | None = None
+
+
+class LatestFrame:
+    """A one-frame slot between a capture thread and the node: :meth:`put`
+    replaces a frame not yet taken (counted in :attr:`dropped`), :meth:`take`
+    waits for the newest one."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._frame: LiveFrame | None = None
+        self.captured = 0
+        self.dropped = 0
+        self.ended = False
+        self.error: str | None = None
+
+    def put(self, frame: LiveFrame, skipped: int = 0) -> None:
+        """Hand on ``frame`` (``skipped``: frames the source itself dropped for it, counted too)."""
+        with self._cond:
+            self.captured += 1 + skipped
+            self.dropped += skipped + (self._frame is not None)
+            self._frame = frame
+            self._cond.notify_all()
+
+    def end(self, error: str | None = None) -> None:
+        """No frame will come after the one waiting (``error``: why, when it is a failure)."""
+        with self._cond:
+            self.ended = True
+            self.error = self.error or error
+            self._cond.notify_all()
+
+    def take(self, timeout: float | None = None) -> LiveFrame | None:
+        """The newest frame, waiting up to ``timeout`` seconds; None when there
+        is none (timed out, or the source ended: see :attr:`finished`)."""
+        with self._cond:
+            if self._frame is None and not self.ended:
+                self._cond.wait(timeout)
+            frame, self._frame = self._frame, None
+            return frame
+
+    def discard(self) -> None:
+        """Drop the frame waiting, if any (counted): the node stops."""
+        with self._cond:
+            self.dropped += self._frame is not None
+            self._frame = None
+
+    @property
+    def finished(self) -> bool:
+        """The source ended and its last frame was taken."""
+        with self._cond:
+            return self.ended and self._frame is None
+
+
+class CameraSource:
+    """A live source of :class:`LiveFrame`: :meth:`start` its thread,
+    :meth:`take` the newest frame, :meth:`close` it.  ``fps`` is its nominal
+    rate (None: unknown), ``camera`` a calibration it announces (ROS
+    camera_info), ``notes`` what the node should tell its user."""
+
+    name = "camera"
+    fps: float | None = None
+    #: Whether the source waits for frames forever (a ROS topic whose publisher may start later).
+    patient = False
+
+    def __init__(self) -> None:
+        self.slot = LatestFrame()
+        self.camera: Camera | None = None
+        self.notes: list[str] = []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "CameraSource":
+        self._thread = threading.Thread(target=self._guarded, name=f"mutloc camera {self.name}", daemon=True)
+        self._thread.start()
+        return self
+
+    def _guarded(self) -> None:
+        try:
+            self._run()
+        except Exception as exc:  # noqa: BLE001 -- the node reports it (one line) and stops
+            self.slot.end(" ".join(str(exc).split()) or type(exc).__name__)
+        else:
+            self.slot.end()
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def take(self, timeout: float | None = None) -> LiveFrame | None:
+        frame = self.slot.take(timeout)
+        if frame is not None and frame.decode is not None:
+            try:
+                frame.image = frame.decode()
+            except Exception as exc:  # noqa: BLE001 -- a bad image message is a corrupt frame, not an end
+                frame.image, frame.status = None, f"undecodable image: {' '.join(str(exc).split())}"
+            frame.decode = None
+        return frame
+
+    @property
+    def finished(self) -> bool:
+        return self.slot.finished
+
+    @property
+    def error(self) -> str | None:
+        return self.slot.error
+
+    @property
+    def captured(self) -> int:
+        return self.slot.captured
+
+    @property
+    def dropped(self) -> int:
+        return self.slot.dropped
+
+    def close(self) -> None:
+        """Stop the thread; a frame left waiting counts as dropped."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        self.slot.discard()
+
+
+@contextlib.contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """OpenCV's and FFmpeg's own warnings silenced while a capture opens
+    (the node says what went wrong in one line)."""
+    import cv2.utils.logging as cvlog
+
+    level = cvlog.getLogLevel()
+    cvlog.setLogLevel(cvlog.LOG_LEVEL_SILENT)
+    saved = None
+    try:
+        saved = os.dup(2)
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+    except OSError:
+        saved = None
+    try:
+        yield
+    finally:
+        if saved is not None:
+            os.dup2(saved, 2)
+            os.close(saved)
+        cvlog.setLogLevel(level)
+
+
+def _has_gstreamer() -> bool:
+    for line in cv2.getBuildInformation().splitlines():
+        if line.strip().startswith("GStreamer:"):
+            return "YES" in line.split(":", 1)[1]
+    return False
+
+
+class CaptureSource(CameraSource):
+    """A V4L2 device, a GStreamer pipeline or a stream URL, through OpenCV's
+    VideoCapture, read continuously in the background (the driver's queue
+    never fills with old frames), each frame stamped with the wall-clock
+    time its read returned."""
+
+    def __init__(self, spec: str, *, max_failures: int = 5) -> None:
+        super().__init__()
+        self.name = spec
+        kind = camera_kind(spec)
+        if kind == "device":
+            target: Any = int(spec) if spec.isdigit() else spec
+            if isinstance(target, str) and not Path(target).exists():
+                raise InputError(f"camera {spec}: no such device")
+            api = cv2.CAP_V4L2
+        elif kind == "pipeline":
+            if not _has_gstreamer():
+                raise InputError(f"camera {spec!r}: a GStreamer pipeline, but this OpenCV is built without "
+                                 "GStreamer (give a device, a stream URL, or publish the images on a ROS topic)")
+            target, api = spec, cv2.CAP_GSTREAMER
+        else:
+            target, api = spec, cv2.CAP_ANY
+        with _quiet_stderr():
+            cap = cv2.VideoCapture(target, api)
+            if cap.isOpened():
+                cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
+        if not cap.isOpened():
+            what = {"device": "device", "pipeline": "pipeline"}.get(kind, "stream")
+            raise InputError(f"camera {spec}: the {what} cannot be opened (busy, absent, or not a camera)")
+        self._cap = cap
+        rate = cap.get(cv2.CAP_PROP_FPS)
+        self.fps = float(rate) if rate and math.isfinite(rate) and 0 < rate < 1000 else None
+        self._max_failures = max_failures
+
+    def _run(self) -> None:
+        failures, index = 0, 0
+        try:
+            while not self._stop.is_set():
+                ok, image = self._cap.read()
+                t = time.time()
+                if not ok or image is None:
+                    failures += 1
+                    if failures >= self._max_failures:
+                        raise InputError(f"camera {self.name}: stopped delivering frames")
+                    time.sleep(0.01)
+                    continue
+                failures = 0
+                self.slot.put(LiveFrame(index, t, image))
+                index += 1
+        finally:
+            self._cap.release()
+
+
+class ReplaySource(CameraSource):
+    """A recording (video file, image folder, or ``topic`` of a bag) played
+    as a camera: frame k is released ``(t_k - t_0) / speed`` seconds after
+    the first, stamped with the wall-clock time of its release, its own time
+    in the recording as ``source_time``.  Images are decoded before their
+    release time (a camera's readout), so the stamps keep the recording's
+    spacing while decoding keeps up.  ``loop``: play it again and again (frame
+    numbers and ``source_time`` going on from one pass to the next)."""
+
+    def __init__(self, spec: str | Path, *, speed: float = 1.0, topic: str | None = None,
+                 fps: float | None = None, loop: bool = False) -> None:
+        super().__init__()
+        p = Path(spec)
+        self._open = lambda: open_source(p, fps=fps, topic=topic)
+        self.loop = loop
+        if topic is None and (p.suffix in (".bag", ".mcap", ".db3") or (p / "metadata.yaml").exists()):
+            raise InputError(f"{p}: a ROS bag needs the image topic (--topic TOPIC)")
+        if not (math.isfinite(speed) and speed > 0):
+            raise InputError(f"replay speed must be a finite number > 0, got {speed}")
+        self.stream = self._open()
+        self.name = self.stream.name
+        self.fps = self.stream.fps  # the recording's rate: the clock its detectors run on (source_time)
+        self.speed = float(speed)
+
+    def _run(self) -> None:
+        start = t0 = None
+        stream, shift, index = self.stream, 0.0, 0
+        while True:
+            first = last = None
+            for f in stream:
+                if self._stop.is_set():
+                    return
+                t = f.t + shift
+                if start is None:
+                    start, t0 = time.monotonic(), t
+                delay = start + (t - t0) / self.speed - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
+                self.slot.put(LiveFrame(index + f.index, time.time(), f.image, f.status, source_time=t))
+                first, last = first or f, f
+            if not self.loop or last is None:
+                return
+            # Played again from the start, its times going on one frame after the last one's.
+            shift += last.t - first.t + 1.0 / (self.stream.fps or 30.0)
+            index += last.index + 1
+            stream = self._open()
+
+
+def camera_info_topic(image_topic: str) -> str:
+    """The camera_info topic beside an image topic, as ROS camera drivers name
+    it: ``/p/image_raw`` and ``/p/image_raw/compressed`` -> ``/p/camera_info``."""
+    topic = image_topic[: -len("/compressed")] if image_topic.endswith("/compressed") else image_topic
+    return topic.rpartition("/")[0] + "/camera_info"
+
+
+def compare_cameras(announced: Camera, rig_camera: Camera, where: str) -> str | None:
+    """None when a camera_info's calibration agrees with the rig's (K to
+    1e-6 relative, the same size and distortion where both give them), else one
+    line saying how they differ."""
+    diffs = []
+    if not np.allclose(announced.K, rig_camera.K, rtol=1e-6, atol=1e-9):
+        fmt = lambda K: f"fx={K[0, 0]:g} fy={K[1, 1]:g} cx={K[0, 2]:g} cy={K[1, 2]:g}"  # noqa: E731
+        diffs.append(f"K {fmt(announced.K)} vs the rig's {fmt(rig_camera.K)}")
+    if announced.size is not None and rig_camera.size is not None and tuple(announced.size) != tuple(rig_camera.size):
+        diffs.append(f"size {announced.size[0]}x{announced.size[1]} vs the rig's "
+                     f"{rig_camera.size[0]}x{rig_camera.size[1]}")
+    if not np.allclose(announced.dist, rig_camera.dist, rtol=1e-6, atol=1e-9):
+        diffs.append("distortion differs")
+    if not diffs:
+        return None
+    return f"{where} differs from the rig's camera: {'; '.join(diffs)} (detections and the localizer use the " \
+           "rig's; fix the rig file if the camera_info is right)"
+
+
+class RosImageSource(CameraSource):
+    """A ROS 2 image topic received over DDS (``sensor_msgs/msg/Image`` in
+    rgb8, bgr8, mono8 and the other encodings :func:`mutloc.track.sources.image_from_message`
+    reads, or ``CompressedImage`` jpeg/png when the topic ends in
+    ``/compressed``), read with sensor-data QoS.  Each frame is stamped with
+    its header's stamp (the driver's capture time; the receive time when the
+    stamp is zero).  The first message of the camera_info topic beside it is
+    checked against ``rig_camera``: a difference is a note for the user and
+    :attr:`camera` holds what it announced."""
+
+    patient = True
+
+    def __init__(self, bus: Any, topic: str, *, rig_camera: Camera | None = None) -> None:
+        super().__init__()
+        from .messages import ros_types
+
+        T = ros_types()
+        if not topic.startswith("/"):
+            topic = "/" + topic
+        self.topic = topic
+        self.name = f"ros:{topic}"
+        self.compressed = topic.endswith("/compressed")
+        self.info_topic = camera_info_topic(topic)
+        self._reader = bus.reader(topic, T.CompressedImage if self.compressed else T.Image, sensor=True)
+        self._info = bus.reader(self.info_topic, T.CameraInfo, sensor=True)
+        self._participant = bus.participant
+        self._rig_camera = rig_camera
+
+    @property
+    def malformed(self) -> int:
+        """Samples on the topics that could not be decoded."""
+        return self._reader.malformed + self._info.malformed
+
+    def _check_info(self) -> None:
+        if self.camera is not None:
+            return
+        for sample in self._info.take():
+            try:
+                self.camera = camera_from_info(sample)
+            except Exception:  # noqa: BLE001 -- a camera_info with no valid K: said, not fatal
+                self.notes.append(f"camera_info on {self.info_topic} holds no valid calibration")
+                self.camera = self._rig_camera
+                return
+            if self._rig_camera is not None:
+                note = compare_cameras(self.camera, self._rig_camera, f"camera_info on {self.info_topic}")
+                if note:
+                    self.notes.append(note)
+            return
+
+    def _run(self) -> None:
+        require("cyclonedds", "a ROS image topic as the camera")
+        from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
+        from cyclonedds.util import duration
+
+        waitset = WaitSet(self._participant)
+        waitset.attach(ReadCondition(self._reader.native, SampleState.Any | ViewState.Any | InstanceState.Any))
+        index = 0
+        while not self._stop.is_set():
+            waitset.wait(duration(milliseconds=100))
+            self._check_info()
+            samples = self._reader.take()
+            if not samples:
+                continue
+            now = time.time()
+            msg = samples[-1]
+            st = msg.header.stamp
+            t = st.sec + st.nanosec * 1e-9 if (st.sec or st.nanosec) else now
+            index += len(samples)
+            self.slot.put(LiveFrame(index - 1, t, None, decode=lambda m=msg: image_from_message(m)),
+                          skipped=len(samples) - 1)
+
+
+def camera_kind(spec: str) -> str:
+    """What ``--camera SOURCE`` names: ``"ros"`` (``ros:/topic``), ``"device"``
+    (``/dev/...`` or a number), ``"pipeline"`` (GStreamer, holds ``!``),
+    ``"url"`` (``scheme://...``) or ``"recording"`` (a file or folder)."""
+    spec = str(spec)
+    if spec.startswith("ros:"):
+        return "ros"
+    if spec.isdigit() or spec.startswith("/dev/"):
+        return "device"
+    if "!" in spec:
+        return "pipeline"
+    if re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", spec):
+        return "url"
+    return "recording"
+
+
+def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, topic: str | None = None,
+                loop: bool = False, rig_camera: Camera | None = None) -> CameraSource:
+    """The :class:`CameraSource` ``spec`` names (see the module docstring),
+    not started.  ``realtime``: the replay speed of a recording (1: its own
+    rate; required for a recording); ``loop``: replay it again and again;
+    ``topic``: a bag's image topic; ``bus``:
+    the :class:`mutloc.live.dds.Bus` a ROS topic is read on; ``rig_camera``:
+    the calibration a camera_info is checked against.  InputError (one line)
+    when the source cannot be opened."""
+    kind = camera_kind(spec)
+    if kind != "recording" and topic is not None:
+        raise InputError("--topic names the image topic of a bag; for a live ROS topic give --camera ros:TOPIC")
+    if kind == "ros":
+        name = spec[len("ros:"):]
+        if not name.strip("/"):
+            raise InputError(f"--camera {spec!r}: give the image topic, e.g. ros:/p/image_raw")
+        if bus is None:
+            raise InputError("a ROS image topic is read over DDS: a bus is needed")
+        return RosImageSource(bus, name, rig_camera=rig_camera)
+    if kind == "recording":
+        if realtime is None:
+            p = Path(spec)
+            if not p.exists():
+                raise InputError(f"--camera {spec}: no such device, stream, ROS topic (ros:/...) or recording")
+            raise InputError(f"--camera {spec}: {RECORDING_NEEDS_REALTIME}")
+        return ReplaySource(spec, speed=realtime, topic=topic, loop=loop)
+    if loop:
+        raise InputError(f"--loop replays a recording again and again; --camera {spec} is live")
+    if realtime is not None:
+        raise InputError(f"--realtime replays a recording; --camera {spec} is live")
+    return CaptureSource(spec)

@@ -1,0 +1,244 @@
+"""``mutloc node``: one robot's detector on the wire (SPEC "Live operation").
+
+A node takes the newest frame of its camera (:mod:`mutloc.live.cameras`),
+finds the other robots' markers in it with the detectors ``track`` uses
+(:class:`mutloc.track.tracker.ObserverDetector`: every marker kind of the
+rig, blinking-light trackers keeping their state from frame to frame) and
+publishes one ``mutloc_msgs/msg/Observations`` message per processed frame
+on ``/mutloc/NAME/observations`` -- also when nothing was seen -- stamped
+with the frame's capture time.  Frames it has no time for are dropped at the
+camera (never queued) and counted.
+
+>>> from mutloc.live.dds import Bus
+>>> from mutloc.live.cameras import open_camera
+>>> bus = Bus(7, loopback=True)                                     # doctest: +SKIP
+>>> node = Node("rig.yaml", "p", open_camera("sim/p", realtime=1.0), bus)  # doctest: +SKIP
+>>> stats = node.run()                                              # doctest: +SKIP
+>>> print(stats.summary())                                          # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..api import load_rig
+from ..core.rig import Rig
+from ..errors import InputError
+from ..track.frames import expanded_rig
+from ..track.sources import Frame
+from ..track.tracker import DEFAULT_FPS, ObserverDetector
+from .cameras import CameraSource, LiveFrame, ReplaySource
+from .messages import (DIAGNOSTICS_TOPIC, OK, WARN, RobotStatus, diagnostics_message, observations_message,
+                       observations_topic, rig_id as rig_file_id, ros_types)
+
+__all__ = ["Node", "NodeStats", "percentile_ms", "LATENCY_WINDOW"]
+
+#: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
+LATENCY_WINDOW = 108_000
+
+
+def percentile_ms(values: Any, q: float) -> float:
+    """The ``q``-th percentile of ``values`` (seconds) in milliseconds (NaN when empty)."""
+    return float(np.percentile(np.asarray(values, float), q) * 1e3) if len(values) else float("nan")
+
+
+@dataclass
+class NodeStats:
+    """What a node did: frames captured by its camera, processed (one
+    message published each), dropped (replaced by a newer frame before the
+    detector was free), corrupt (unreadable, not published), out of order
+    (a stamp not after the previous frame's, not published); ``latencies``:
+    capture -> publish of the published messages, seconds (the last
+    :data:`LATENCY_WINDOW`)."""
+
+    robot: str
+    source: str
+    topic: str
+    captured: int = 0
+    processed: int = 0
+    dropped: int = 0
+    corrupt: int = 0
+    out_of_order: int = 0
+    markers_seen: int = 0  # in the last processed frame
+    latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    started: float = field(default_factory=time.monotonic)
+
+    @property
+    def fps(self) -> float:
+        """Processed frames per second since the start."""
+        dt = time.monotonic() - self.started
+        return self.processed / dt if dt > 0 else 0.0
+
+    def _latency(self) -> str:
+        if not self.latencies:
+            return ""
+        recent = list(self.latencies)[-300:]
+        return f", capture->publish p50 {percentile_ms(recent, 50):.1f} ms p99 {percentile_ms(recent, 99):.1f} ms"
+
+    def status_line(self) -> str:
+        """One line for the periodic status."""
+        return (f"node {self.robot}: {self.captured} captured, {self.processed} processed ({self.fps:.1f}/s), "
+                f"{self.dropped} dropped{self._latency()}, {self.markers_seen} markers in the last frame")
+
+    def summary(self) -> str:
+        """The line printed at exit."""
+        extra = "".join(f", {n} {what}" for n, what in ((self.corrupt, "corrupt"), (self.out_of_order, "out of order"))
+                        if n)
+        lat = ""
+        if self.latencies:
+            lat = (f"; capture->publish p50 {percentile_ms(self.latencies, 50):.1f} ms, "
+                   f"p99 {percentile_ms(self.latencies, 99):.1f} ms")
+        return (f"node {self.robot}: {self.captured} frames captured from {self.source}, {self.processed} processed "
+                f"(published on {self.topic}), {self.dropped} dropped{extra}{lat}")
+
+
+class Node:
+    """Robot ``robot``'s node: detections of ``source``'s frames published on ``bus``.
+
+    ``rig``: the rig file (or a Rig, then ``rig_id`` must be given: the
+    SPEC's id of the rig file the localizer loads); ``fps``: the rate the
+    blinking-light trackers assume (default the source's, else 30);
+    ``diagnostics``: also publish the node's own ``/diagnostics`` status once
+    a second; ``report(line)``: where status lines and notes go."""
+
+    def __init__(self, rig: Any, robot: str, source: CameraSource, bus: Any, *, rig_id: str | None = None,
+                 fps: float | None = None, diagnostics: bool = False,
+                 report: Callable[[str], None] | None = None) -> None:
+        if rig_id is None:
+            if not isinstance(rig, (str, Path)):
+                raise InputError("a node given a loaded rig needs its rig_id (of the rig file the localizer reads)")
+            rig_id = rig_file_id(rig)
+        self.rig: Rig = expanded_rig(load_rig(rig))
+        self.rig.robot(robot)
+        self.others = [r for r in self.rig.robots if r != robot]
+        if not self.others:
+            raise InputError(f"robot {robot!r} is alone in the rig: no other robot's markers to look for")
+        self.robot, self.rig_id, self.source, self.bus = robot, rig_id, source, bus
+        self.detector_fps = float(fps or source.fps or DEFAULT_FPS)
+        self.detector = ObserverDetector(self.rig, robot, self.others, self.detector_fps)
+        self.topic = observations_topic(robot)
+        T = ros_types()
+        self.writer = bus.writer(self.topic, T.Observations)
+        self.diagnostics = bus.writer(DIAGNOSTICS_TOPIC, T.DiagnosticArray) if diagnostics else None
+        self.report = report or (lambda line: None)
+        self.stats = NodeStats(robot, source.name, self.topic)
+        self._last_t = -np.inf
+        self._said: set[str] = set()
+
+    def warm_up(self) -> None:
+        """Run a throwaway copy of the detectors on a blank and a noise image:
+        loads their compiled kernels before the first frame, which would
+        otherwise be late by a quarter of a second and push the next ones out."""
+        w, h = self.rig.robot(self.robot).camera.size or (640, 480)
+        spare = ObserverDetector(self.rig, self.robot, self.others, self.detector_fps)
+        noise = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        for k, image in enumerate((np.zeros((h, w, 3), np.uint8), noise)):
+            frame = Frame(k, k / self.detector_fps, image)
+            spare.feed(frame)
+            spare.detect(frame)
+
+    def subscribers(self) -> int:
+        """How many readers the observations topic has now."""
+        return int(self.writer.get_publication_matched_status().current_count)
+
+    def wait_for_subscriber(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` seconds for a reader of the observations topic."""
+        deadline = time.monotonic() + timeout
+        while self.subscribers() == 0:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.02)
+        return True
+
+    def process(self, frame: LiveFrame) -> Any:
+        """Detect, publish and return the ``Observations`` message of ``frame``
+        (None for a frame that is not published: corrupt, or out of order)."""
+        s = self.stats
+        if frame.image is None:
+            s.corrupt += 1
+            return None
+        if not frame.t > self._last_t:
+            s.out_of_order += 1
+            return None
+        self._last_t = frame.t
+        # A replayed frame's detectors run on the recording's own clock (the blink trackers' timing).
+        seen = Frame(frame.index, frame.source_time if isinstance(self.source, ReplaySource) else frame.t,
+                     frame.image)
+        self.detector.feed(seen)
+        found = self.detector.detect(seen)
+        obs = found.observations(self.robot, frame.t)
+        msg = observations_message(self.robot, self.rig_id, frame.index, frame.t, obs, frame.source_time)
+        self.writer.write(msg)
+        s.latencies.append(time.time() - frame.t)
+        s.processed += 1
+        s.markers_seen = len(msg.observations)
+        return msg
+
+    def _publish_diagnostics(self) -> None:
+        s = self.stats
+        notes = list(self.source.notes)
+        level = WARN if notes or (s.captured > 10 and s.dropped > s.captured / 2) else OK
+        message = notes[0] if notes else ("running" if s.processed else "waiting for frames")
+        values = {"captured": s.captured, "processed": s.processed, "dropped": s.dropped, "corrupt": s.corrupt,
+                  "fps": f"{s.fps:.2f}", "source": s.source, "topic": s.topic}
+        if s.latencies:
+            values["latency_p50_ms"] = f"{percentile_ms(list(s.latencies)[-300:], 50):.1f}"
+        self.diagnostics.write(diagnostics_message(time.time(), [RobotStatus(self.robot, level, message, values)],
+                                                   name="mutloc node"))
+
+    def run(self, *, stop: threading.Event | None = None, duration: float | None = None,
+            status_every: float | None = 5.0, first_frame_timeout: float = 5.0,
+            subscriber_timeout: float = 3.0) -> NodeStats:
+        """Process frames until the source ends (a replay), ``stop`` is set,
+        ``duration`` seconds passed, or Ctrl-C (``KeyboardInterrupt`` goes on,
+        :attr:`stats` holds what was done).  A replay starts once the
+        observations topic has a reader (or after ``subscriber_timeout`` s),
+        so a recording is not half played to nobody.  InputError (one line)
+        when the camera delivers no frame within ``first_frame_timeout``
+        seconds (a ROS topic waits), fails, or gives images of another size
+        than the rig's calibration."""
+        s = self.stats
+        self.warm_up()
+        if isinstance(self.source, ReplaySource):
+            self.wait_for_subscriber(subscriber_timeout)
+        self.source.start()
+        s.started = begin = time.monotonic()
+        next_status = begin + status_every if status_every else float("inf")
+        next_diag = begin
+        try:
+            while not (stop is not None and stop.is_set()):
+                now = time.monotonic()
+                if duration is not None and now - begin >= duration:
+                    break
+                frame = self.source.take(timeout=0.1)
+                s.captured, s.dropped = self.source.captured, self.source.dropped
+                if frame is not None:
+                    self.process(frame)
+                elif self.source.finished:
+                    if self.source.error:
+                        raise InputError(self.source.error)
+                    break
+                elif s.captured == 0 and not self.source.patient and now - begin > first_frame_timeout:
+                    raise InputError(f"camera {self.source.name}: no frame in {first_frame_timeout:g} s")
+                for note in self.source.notes:
+                    if note not in self._said:
+                        self._said.add(note)
+                        self.report(f"warning: {note}")
+                now = time.monotonic()
+                if self.diagnostics is not None and now >= next_diag:
+                    self._publish_diagnostics()
+                    next_diag = now + 1.0
+                if now >= next_status:
+                    self.report(s.status_line())
+                    next_status = now + status_every
+        finally:
+            self.source.close()
+            s.captured, s.dropped = self.source.captured, self.source.dropped
+        return s

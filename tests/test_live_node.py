@@ -1,0 +1,367 @@
+"""``mutloc node`` (SPEC "Live operation"): a simulated camera replayed in
+real time, or images on a ROS 2 topic, give one Observations message per
+processed frame, and each message holds what offline detection finds in the
+same frame (the independent check: the log ``track --observations-out``
+writes for the same images).  The nodes run as robot q: in this scene p's
+camera sees one of q's balls partly hidden, which a pair track measures a
+second time where the pose from both images puts it (its log holds that);
+a node has one image only and sends what its detector found.  A detector slower than the camera drops frames
+(counted), never queues them.  Bad cameras and robots: one line, non-zero.
+
+DDS stays on the loopback interface, in domains derived from the pid; every
+child runs in its own process group, killed in a ``finally``.
+"""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
+
+from mutloc.cli.main import main  # noqa: E402
+from mutloc.live.cameras import CaptureSource, LatestFrame, LiveFrame, ReplaySource, RosImageSource  # noqa: E402
+from mutloc.live.dds import Bus  # noqa: E402
+from mutloc.live.messages import DIAGNOSTICS_TOPIC, observations_topic, rig_id, ros_types, stamp, stamp_of  # noqa: E402
+from mutloc.live.node import Node  # noqa: E402
+from mutloc.sim.scenario import write_simulation  # noqa: E402
+from mutloc.track.sources import open_streams  # noqa: E402
+from mutloc.track.tracker import track  # noqa: E402
+
+N_FRAMES = 10
+#: Four domains of this run (1..100: clear of the ephemeral ports), one per test that joins DDS.
+BASE_DOMAIN = 1 + (os.getpid() % 25) * 4
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    """A small simulated sequence and the offline detections of its frames
+    (``track --observations-out``'s log): ``{frame: {marker: (u, v)}}`` per robot."""
+    out = tmp_path_factory.mktemp("sim")
+    write_simulation(out, frames=N_FRAMES, size=(480, 270), focal=400.0)
+    log = out / "offline.jsonl"
+    track(out / "rig.yaml", open_streams({"p": out / "p", "q": out / "q"}), observations_out=log, progress=False)
+    offline = {"p": {}, "q": {}}
+    for k, line in enumerate(log.read_text().splitlines()):
+        entry = json.loads(line)
+        for robot in offline:
+            offline[robot][k] = {m: tuple(uv) for m, uv in entry["observations"].get(robot, {}).items()}
+    assert all(len(offline["q"][k]) >= 2 for k in range(N_FRAMES)), "the offline detections must not be trivial"
+    times = [float(line.split(",")[1]) for line in (out / "frames.csv").read_text().splitlines()[1:]]
+    return out, offline, times
+
+
+def _ours(messages, out):
+    """The messages of this test's rig (another test run could share a domain id, never the rig)."""
+    rid = rig_id(out / "rig.yaml")
+    return [m for m in messages if m.rig_id == rid]
+
+
+def _seen(msg):
+    return {o.marker: (o.u, o.v) for o in msg.observations}
+
+
+def _child(args):
+    cmd = [sys.executable, "-m", "mutloc", "node", *args]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def _kill(child):
+    if child.poll() is None:
+        try:
+            os.killpg(child.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        child.wait(timeout=10)
+
+
+def _summary_counts(text):
+    m = re.search(r"(\d+) frames captured .*?, (\d+) processed .*?, (\d+) dropped", text)
+    assert m, text
+    return tuple(int(x) for x in m.groups())
+
+
+def test_replayed_folder_publishes_what_offline_detection_finds(sim):
+    out, offline, times = sim
+    domain = BASE_DOMAIN
+    T = ros_types()
+    bus = Bus(domain, loopback=True)
+    reader = bus.reader(observations_topic("q"), T.Observations)
+    start = time.time()
+    child = _child(["--rig", str(out / "rig.yaml"), "--robot", "q", "--camera", str(out / "q"), "--realtime",
+                    "--loopback", "--domain", str(domain), "--no-progress"])
+    got = []
+    try:
+        deadline = time.monotonic() + 120
+        while child.poll() is None:
+            assert time.monotonic() < deadline, "the node did not end with its recording"
+            got += reader.take()
+            time.sleep(0.01)
+        stdout, stderr = child.communicate(timeout=10)
+        end = time.time()
+        for _ in range(20):
+            got += reader.take()
+            time.sleep(0.01)
+    finally:
+        _kill(child)
+        bus.close()
+    assert child.returncode == 0, stderr
+    got = _ours(got, out)
+    captured, processed, dropped = _summary_counts(stdout)
+    assert captured == N_FRAMES and processed + dropped == N_FRAMES
+    assert processed >= N_FRAMES // 2, stdout  # a 480x270 frame takes a few ms of a 33 ms period
+    assert len(got) == processed, "every processed frame is published, reliably, on loopback"
+    frames = [m.frame for m in got]
+    assert frames == sorted(set(frames))
+    rid = rig_id(out / "rig.yaml")
+    for m in got:
+        assert (m.robot, m.header.frame_id, m.rig_id) == ("q", "q", rid)
+        assert m.source_time == pytest.approx(times[m.frame], abs=1e-9)
+        assert start <= stamp_of(m.header) <= end  # stamped with the wall clock at release
+        assert _seen(m) == offline["q"][m.frame], f"frame {m.frame}"
+    stamps = np.array([stamp_of(m.header) for m in got])
+    source = np.array([m.source_time for m in got])
+    # released at the recording's own rate: the stamps keep its spacing (to scheduling jitter)
+    assert np.all(np.diff(stamps) > 0)
+    assert np.max(np.abs((stamps - stamps[0]) - (source - source[0]))) < 0.15  # 0.3 s if released at once
+
+
+class _SlowDetector:
+    """The node's detector taking ``delay`` seconds longer per frame."""
+
+    def __init__(self, detector, delay):
+        self.detector, self.delay = detector, delay
+
+    def feed(self, frame):
+        self.detector.feed(frame)
+
+    def detect(self, frame):
+        time.sleep(self.delay)
+        return self.detector.detect(frame)
+
+
+def test_a_detector_slower_than_the_camera_drops_frames_and_takes_the_newest(sim):
+    out, offline, _ = sim
+    T = ros_types()
+    bus = Bus(BASE_DOMAIN + 1, loopback=True)
+    try:
+        reader = bus.reader(observations_topic("q"), T.Observations)
+        node = Node(out / "rig.yaml", "q", ReplaySource(out / "q", speed=1.0), bus)
+        node.detector = _SlowDetector(node.detector, 0.1)  # three camera periods per frame
+        stats = node.run(status_every=None, subscriber_timeout=5.0)
+        time.sleep(0.2)
+        got = _ours(reader.take(), out)
+    finally:
+        bus.close()
+    assert stats.captured == N_FRAMES
+    assert stats.dropped > 0 and stats.processed + stats.dropped == N_FRAMES
+    assert len(got) == stats.processed == len(stats.latencies)
+    frames = [m.frame for m in got]
+    assert frames[0] == 0
+    # Never queued: after each slow frame the node takes the newest, about three frames on.
+    assert np.mean(np.diff(frames)) >= 2.0, frames
+    for m in got:
+        assert _seen(m) == offline["q"][m.frame]
+
+
+def test_a_looped_replay_goes_on_in_frame_numbers_and_time(sim):
+    out, _, times = sim
+    source = ReplaySource(out / "q", speed=10.0, loop=True).start()
+    taken = []
+    try:
+        while len(taken) < 3 * N_FRAMES // 2:
+            frame = source.take(5.0)
+            assert frame is not None
+            taken.append(frame)
+            time.sleep(0.001)
+    finally:
+        source.close()
+    period = times[1] - times[0]
+    for f in taken:
+        k, rounds = f.index % N_FRAMES, f.index // N_FRAMES
+        assert f.source_time == pytest.approx(times[k] + rounds * N_FRAMES * period, abs=1e-6)
+        assert np.array_equal(f.image, cv2.imread(str(out / "q" / f"{k:06d}.png")))
+    assert any(f.index >= N_FRAMES for f in taken)
+
+
+def test_latest_frame_keeps_only_the_newest():
+    slot = LatestFrame()
+    for k in range(5):
+        slot.put(LiveFrame(k, float(k), None))
+    assert slot.take(0).index == 4
+    assert (slot.captured, slot.dropped) == (5, 4)
+    assert slot.take(0.01) is None and not slot.finished
+    slot.put(LiveFrame(5, 5.0, None), skipped=2)  # a ROS batch: two older messages skipped for it
+    slot.end()
+    assert slot.take(0).index == 5 and slot.finished
+    assert (slot.captured, slot.dropped) == (8, 6)
+
+
+@pytest.mark.parametrize("camera, says", [
+    ("/dev/video97", "no such device"),
+    ("97", "cannot be opened"),
+    ("rtsp://127.0.0.1:9/none", "cannot be opened"),
+    ("videotestsrc ! videoconvert ! appsink", "GStreamer"),
+    ("/no/such/recording", "no such device, stream, ROS topic"),
+    ("FOLDER", "--realtime"),
+    ("ros:/", "give the image topic"),
+])
+def test_a_camera_that_cannot_be_opened_is_one_line_and_non_zero(sim, capsys, camera, says):
+    out, _, _ = sim
+    camera = str(out / "q") if camera == "FOLDER" else camera
+    status = main(["node", "--rig", str(out / "rig.yaml"), "--robot", "q", "--camera", camera, "--loopback",
+                   "--domain", str(BASE_DOMAIN + 3)])
+    err = capsys.readouterr().err.strip()
+    assert status == 2
+    assert len(err.splitlines()) == 1 and err.startswith("mutloc: error:") and says in err, err
+
+
+def test_an_unknown_robot_is_one_line_and_non_zero(sim):
+    out, _, _ = sim
+    child = _child(["--rig", str(out / "rig.yaml"), "--robot", "zz", "--camera", "0", "--loopback"])
+    try:
+        _, err = child.communicate(timeout=60)
+    finally:
+        _kill(child)
+    assert child.returncode == 2
+    assert err.strip().splitlines() == [err.strip()] and "unknown robot 'zz'" in err, err
+
+
+def _image_message(T, image, t, encoding):
+    h, w = image.shape[:2]
+    data = {"rgb8": image[:, :, ::-1], "bgr8": image, "mono8": cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)}[encoding]
+    return T.Image(header=T.Header(stamp=stamp(t), frame_id="q_camera"), height=h, width=w, encoding=encoding,
+                   step=data.strides[0], data=np.ascontiguousarray(data).tobytes())
+
+
+def _wait_matched(writer, timeout=30.0):
+    deadline = time.monotonic() + timeout
+    while writer.get_publication_matched_status().current_count == 0:
+        assert time.monotonic() < deadline, "the node never subscribed"
+        time.sleep(0.02)
+
+
+def test_a_ros_image_topic_is_a_camera_and_ctrl_c_ends_the_node_cleanly(sim):
+    out, offline, _ = sim
+    T = ros_types()
+    domain = BASE_DOMAIN + 2
+    bus = Bus(domain, loopback=True)
+    reader = bus.reader(observations_topic("q"), T.Observations)
+    images = bus.writer("/q/image_raw", T.Image)
+    info = bus.writer("/q/camera_info", T.CameraInfo)
+    child = _child(["--rig", str(out / "rig.yaml"), "--robot", "q", "--camera", "ros:/q/image_raw", "--loopback",
+                    "--domain", str(domain), "--status-every", "0.2"])
+    sent, got = {}, []
+    try:
+        _wait_matched(images)
+        _wait_matched(info)
+        # A camera_info whose focal length is not the rig's: the node says so (once).
+        info.write(T.CameraInfo(header=T.Header(stamp=stamp(time.time()), frame_id="q_camera"), height=270,
+                                width=480, distortion_model="plumb_bob", d=[0.0] * 5,
+                                k=[410.0, 0, 239.5, 0, 410.0, 134.5, 0, 0, 1]))
+        deadline = time.monotonic() + 60
+        while not reader.take() and time.monotonic() < deadline:  # warm-up done when a first frame comes back
+            images.write(_image_message(T, cv2.imread(str(out / "q" / "000000.png")), time.time(), "bgr8"))
+            time.sleep(0.2)
+        for k, encoding in zip(range(1, N_FRAMES), ["rgb8", "bgr8"] * N_FRAMES):
+            t = time.time()
+            sent[round(t, 6)] = k
+            images.write(_image_message(T, cv2.imread(str(out / "q" / f"{k:06d}.png")), t, encoding))
+            time.sleep(0.1)
+            got += reader.take()
+        time.sleep(0.3)
+        got += reader.take()
+        os.killpg(child.pid, signal.SIGINT)
+        _, stderr = child.communicate(timeout=30)
+    finally:
+        _kill(child)
+        bus.close()
+    mine = [m for m in _ours(got, out) if round(stamp_of(m.header), 6) in sent]
+    assert len(mine) >= (N_FRAMES - 1) // 2, (len(mine), stderr)
+    for m in mine:
+        assert _seen(m) == offline["q"][sent[round(stamp_of(m.header), 6)]]  # stamped with the header's stamp
+    assert child.returncode == 130, stderr
+    lines = stderr.strip().splitlines()
+    assert lines[-1].startswith("interrupted: node q:") and "Traceback" not in stderr, stderr
+    warned = [ln for ln in lines if "camera_info on /q/camera_info differs" in ln]
+    assert len(warned) == 1 and "fx=410" in warned[0] and "fx=400" in warned[0], stderr
+    assert any(re.search(r"node q: \d+ captured, \d+ processed", ln) for ln in lines), stderr  # the status line
+
+
+def test_compressed_images_on_a_ros_topic(sim):
+    """CompressedImage (png: lossless, so the detections are offline's)
+    through the library, in this process; an undecodable one is a corrupt
+    frame, counted, not published, and the node goes on."""
+    out, offline, _ = sim
+    T = ros_types()
+    bus = Bus(BASE_DOMAIN + 3, loopback=True)
+    stop = threading.Event()
+    try:
+        reader = bus.reader(observations_topic("q"), T.Observations)
+        diagnostics = bus.reader(DIAGNOSTICS_TOPIC, T.DiagnosticArray)
+        packed = bus.writer("/q/image_raw/compressed", T.CompressedImage)
+        source = RosImageSource(bus, "/q/image_raw/compressed")
+        node = Node(out / "rig.yaml", "q", source, bus, diagnostics=True)
+        runner = threading.Thread(target=node.run, kwargs=dict(stop=stop, status_every=None))
+        runner.start()
+        _wait_matched(packed)
+        sent = {}
+        for k in range(3):
+            t = time.time()
+            ok, png = cv2.imencode(".png", cv2.imread(str(out / "q" / f"{k:06d}.png")))
+            sent[round(t, 6)] = k
+            packed.write(T.CompressedImage(header=T.Header(stamp=stamp(t), frame_id="q"), format="png",
+                                           data=png.tobytes()))
+            time.sleep(0.3)
+        packed.write(T.CompressedImage(header=T.Header(stamp=stamp(time.time()), frame_id="q"), format="jpeg",
+                                       data=b"not an image"))
+        time.sleep(1.1)
+        got = _ours(reader.take(), out)
+        status = [s for d in diagnostics.take() for s in d.status if s.name == "mutloc node: q"]
+    finally:
+        stop.set()
+        runner.join(timeout=10)
+        bus.close()
+    assert [sent[round(stamp_of(m.header), 6)] for m in got] == [0, 1, 2]
+    for m in got:
+        assert _seen(m) == offline["q"][sent[round(stamp_of(m.header), 6)]]
+    assert node.stats.corrupt == 1 and node.stats.processed == 3
+    # the node's own /diagnostics, once a second: its counts as key-values
+    last = {kv.key: kv.value for kv in status[-1].values}
+    assert status[-1].hardware_id == "q" and last["processed"] == "3" and last["corrupt"] == "1"
+
+
+def test_an_opencv_capture_is_read_in_the_background_keeping_the_newest_frame(sim, tmp_path):
+    """A capture OpenCV opens (here a video file, as a stream would be) is read
+    as fast as it delivers; a slow consumer gets the newest frame, the others
+    are counted as dropped; a capture that stops delivering is an error."""
+    out, _, _ = sim
+    video = tmp_path / "camera.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (480, 270))
+    for k in range(30):
+        writer.write(cv2.imread(str(out / "q" / f"{k % N_FRAMES:06d}.png")))
+    writer.release()
+    source = CaptureSource(str(video)).start()
+    taken = []
+    try:
+        deadline = time.monotonic() + 30
+        while not source.finished and time.monotonic() < deadline:
+            frame = source.take(0.5)
+            if frame is not None:
+                taken.append(frame)
+                time.sleep(0.05)  # a detector slower than the capture
+    finally:
+        source.close()
+    assert source.error is not None and "stopped delivering frames" in source.error
+    assert source.captured == 30 and len(taken) < 30 and source.dropped == 30 - len(taken)
+    assert [f.index for f in taken] == sorted({f.index for f in taken})
+    assert all(f.image.shape == (270, 480, 3) for f in taken)
+    assert np.all(np.diff([f.t for f in taken]) > 0) and abs(taken[0].t - time.time()) < 60
