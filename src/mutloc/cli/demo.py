@@ -21,11 +21,27 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--frames", type=int_in_range(1, None, "frames"), default=30, metavar="N",
                    help="frames of the sequence (default 30)")
     p.add_argument("--fps", type=positive_float, default=10.0, help="frame rate of the sequence (default 10)")
+    live = p.add_argument_group("live (--live)")
+    live.add_argument("--live", action="store_true",
+                      help="instead: run two `mutloc node`s replaying rendered cameras in real time and a `mutloc "
+                           "localizer`, over DDS on this machine's loopback interface, and report the poses a "
+                           "subscriber receives, their error and latency (needs the live extra)")
+    live.add_argument("--seconds", type=positive_float, default=10.0, metavar="S",
+                      help="with --live: seconds of camera replayed (default 10)")
+    live.add_argument("--domain", type=int, default=None, metavar="N",
+                      help="with --live: the DDS domain id (default: one from 100-199 chosen by the process id)")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
+    if args.live:
+        from ..live.demo import format_live_summary, run_live_demo
+
+        summary = run_live_demo(args.out, seconds=args.seconds, fps=args.fps, seed=args.seed, domain=args.domain,
+                                progress=args.progress)
+        print(format_live_summary(summary))
+        return 0
     from ..sim.demo import format_summary, run_demo
 
     summary = run_demo(args.out, seed=args.seed, frames=args.frames, fps=args.fps, progress=args.progress)

@@ -28,6 +28,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="replay a recording as a camera: frames released at their own rate (times SPEED, default 1), "
                         "stamped with the wall-clock time of their release")
     p.add_argument("--loop", action="store_true", help="with --realtime: play the recording again and again")
+    p.add_argument("--start-at", type=float, metavar="UNIX_TIME",
+                   help="with --realtime: release the first frame at this wall-clock time (seconds since 1970), so "
+                        "that the replays of several robots run in step")
     p.add_argument("--topic", metavar="TOPIC", help="the image topic of a recorded bag")
     p.add_argument("--diagnostics", action="store_true",
                    help="also publish the node's own status on /diagnostics once a second")
@@ -56,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     # A device, stream or recording is opened before joining DDS: a bad one fails at once.
     bus = Bus(domain, loopback=loopback_wanted(args)) if camera_kind(args.camera) == "ros" else None
     source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic, loop=args.loop,
-                         rig_camera=rig.robot(args.robot).camera)
+                         rig_camera=rig.robot(args.robot).camera, start_at=args.start_at)
     bus = bus or Bus(domain, loopback=loopback_wanted(args))
     try:
         node = Node(args.rig, args.robot, source, bus, diagnostics=args.diagnostics, report=say)

@@ -267,10 +267,13 @@ class ReplaySource(CameraSource):
     in the recording as ``source_time``.  Images are decoded before their
     release time (a camera's readout), so the stamps keep the recording's
     spacing while decoding keeps up.  ``loop``: play it again and again (frame
-    numbers and ``source_time`` going on from one pass to the next)."""
+    numbers and ``source_time`` going on from one pass to the next).
+    ``start_at``: the wall-clock time (UNIX seconds) at which the first
+    frame is released, so that several replays (one per robot) run in step;
+    default: as soon as the source starts."""
 
     def __init__(self, spec: str | Path, *, speed: float = 1.0, topic: str | None = None,
-                 fps: float | None = None, loop: bool = False) -> None:
+                 fps: float | None = None, loop: bool = False, start_at: float | None = None) -> None:
         super().__init__()
         p = Path(spec)
         self._open = lambda: open_source(p, fps=fps, topic=topic)
@@ -283,6 +286,10 @@ class ReplaySource(CameraSource):
         self.name = self.stream.name
         self.fps = self.stream.fps  # the recording's rate: the clock its detectors run on (source_time)
         self.speed = float(speed)
+        if start_at is not None and not math.isfinite(start_at):
+            raise InputError(f"--start-at must be a finite UNIX time, got {start_at}")
+        self.start_at = start_at
+        self.patient = start_at is not None  # waits for its start time
 
     def _run(self) -> None:
         start = t0 = None
@@ -295,6 +302,8 @@ class ReplaySource(CameraSource):
                 t = f.t + shift
                 if start is None:
                     start, t0 = time.monotonic(), t
+                    if self.start_at is not None:
+                        start += self.start_at - time.time()
                 delay = start + (t - t0) / self.speed - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return
@@ -423,13 +432,14 @@ def camera_kind(spec: str) -> str:
 
 
 def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, topic: str | None = None,
-                loop: bool = False, rig_camera: Camera | None = None) -> CameraSource:
+                loop: bool = False, rig_camera: Camera | None = None, start_at: float | None = None) -> CameraSource:
     """The :class:`CameraSource` ``spec`` names (see the module docstring),
     not started.  ``realtime``: the replay speed of a recording (1: its own
     rate; required for a recording); ``loop``: replay it again and again;
     ``topic``: a bag's image topic; ``bus``:
     the :class:`mutloc.live.dds.Bus` a ROS topic is read on; ``rig_camera``:
-    the calibration a camera_info is checked against.  InputError (one line)
+    the calibration a camera_info is checked against; ``start_at``: a
+    replay's first frame at that wall-clock time.  InputError (one line)
     when the source cannot be opened."""
     kind = camera_kind(spec)
     if kind != "recording" and topic is not None:
@@ -447,7 +457,9 @@ def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, to
             if not p.exists():
                 raise InputError(f"--camera {spec}: no such device, stream, ROS topic (ros:/...) or recording")
             raise InputError(f"--camera {spec}: {RECORDING_NEEDS_REALTIME}")
-        return ReplaySource(spec, speed=realtime, topic=topic, loop=loop)
+        return ReplaySource(spec, speed=realtime, topic=topic, loop=loop, start_at=start_at)
+    if start_at is not None:
+        raise InputError(f"--start-at times a replay; --camera {spec} is live")
     if loop:
         raise InputError(f"--loop replays a recording again and again; --camera {spec} is live")
     if realtime is not None:
