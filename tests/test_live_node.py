@@ -192,6 +192,27 @@ def test_a_looped_replay_goes_on_in_frame_numbers_and_time(sim):
     assert any(f.index >= N_FRAMES for f in taken)
 
 
+def test_replays_started_at_one_time_run_in_step(sim):
+    """Two replays given one --start-at release their frame k at
+    start + (t_k - t_0) on the wall clock (a few ms of scheduling apart),
+    not when each was started."""
+    out, _, times = sim
+    start_at = time.time() + 0.4
+    sources = [ReplaySource(out / r, speed=2.0, start_at=start_at) for r in ("p", "q")]
+    sources[0].start()
+    time.sleep(0.15)  # the second one starts later
+    sources[1].start()
+    try:
+        for src in sources:
+            f = src.take(5.0)
+            assert f is not None
+            due = start_at + (times[f.index] - times[0]) / 2.0
+            assert 0.0 <= f.t - due < 0.03, (f.index, f.t - due)
+    finally:
+        for src in sources:
+            src.close()
+
+
 def test_latest_frame_keeps_only_the_newest():
     slot = LatestFrame()
     for k in range(5):
