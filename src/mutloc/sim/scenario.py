@@ -193,6 +193,9 @@ def _camera_times(frames: int, fps: float, camera_fps: dict[str, float] | None,
     return _Stamps([(t, tuple(times[t])) for t in sorted(times)], rates, offset, True)
 
 
+#: The loops of fast simulated robots (``--speed``/``--turn-rate``): radius (m) and heading swing (deg).
+FAST_TEAM = {"amplitude": 0.3, "yaw_deg": 15.0}
+
 # y-down world of mutloc.sim.team -> z-up world of the renderer
 _Y_DOWN_TO_Z_UP = Pose(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]), np.zeros(3))
 
@@ -224,7 +227,8 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     :func:`write_simulation`: each camera at its own times (each folder its
     own ``frames.csv``; ``truth.json`` per capture instant, with the
     ``cameras`` capturing then).  ``speed`` (m/s) and ``turn_rate`` (deg/s):
-    fast robots, each driving a small circle and swinging its heading
+    fast robots, each driving a circle of 0.3 m radius about its place and
+    swinging its heading by 15 degrees either way
     (:func:`mutloc.sim.team.team_motion`).
     """
     from .render import project_markers, render, room_around
@@ -249,7 +253,9 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     names = scene.names
     sequence = frames > 1
     capture = _camera_times(frames, fps, camera_fps, camera_offset, sequence, tuple(names))
-    motion = team_motion(scene, seed=seed, speed=speed, turn_rate=turn_rate) if sequence else (lambda t: scene.world)
+    fast = FAST_TEAM if speed is not None or turn_rate is not None else {}
+    motion = (team_motion(scene, seed=seed, speed=speed, turn_rate=turn_rate, **fast) if sequence
+              else (lambda t: scene.world))
 
     def pose_fn(n: str):
         return lambda t: _Y_DOWN_TO_Z_UP @ motion(t)[n]
