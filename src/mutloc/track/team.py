@@ -273,12 +273,8 @@ class TeamTracker:
     def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> None:
         f = self.filter
         f.predict(t)
-        for r in list(self.tracks):
-            why = lost_reason(_Cov(f.covariance(r)), self.options)
-            if why:
-                self._drop(r)
-                rows[r].reason = f"track lost: {why}"
         if obs is None or len(obs) == 0:
+            self._coast(rows, set())
             for r, row in rows.items():
                 self._unobserved(r, row, "no frame" if obs is None else "no markers seen")
             return
@@ -286,6 +282,7 @@ class TeamTracker:
             problem, names, markers = team_problem(self.rig, obs)
         except MutlocError as exc:
             why = " ".join(str(exc).split())
+            self._coast(rows, set())
             for r, row in rows.items():
                 if r in self.tracks:
                     self._unobserved(r, row, why)
@@ -330,6 +327,7 @@ class TeamTracker:
                 self._drop(r)
                 notes[r].append(f"track dropped: {why}" if tr.confirmed else
                                 "tentative track dropped: a record contradicted it")
+        self._coast(rows, {r for r in self.tracks if used[touch[r]].any()})
         # 3. every robot's row
         held = self._held(problem, used)
         for r, row in rows.items():
@@ -337,9 +335,8 @@ class TeamTracker:
                 row.reason = _join(row.reason, "; ".join(notes[r]))
             mine = touch[r]
             if r in started:
-                # a new track is tentative: nothing but this record holds it yet
-                row.status = FrameStatus.UNVERIFIED
-                row.reason = _join(row.reason, f"{started[r]}; tentative until a later record confirms it")
+                row.status = FrameStatus.UNVERIFIED if self.tracks[r].three else FrameStatus.SOLVED
+                row.reason = _join(row.reason, started[r])
                 row.estimate = self._estimate(r, problem, markers, used, mine, test)
             elif r in self.tracks and r in rejected:
                 row.status = FrameStatus.REJECTED
@@ -351,9 +348,9 @@ class TeamTracker:
                 if not tr.confirmed and self._confirms(tr, problem, names, markers, used & mine):
                     tr.confirmed = True
                     row.reason = _join(row.reason, f"track confirmed by {n} observations")
-                if not tr.confirmed:
+                if tr.three and not tr.confirmed:
                     row.status = FrameStatus.UNVERIFIED
-                    row.reason = _join(row.reason, "tentative track, not yet confirmed by a later record")
+                    row.reason = _join(row.reason, "tentative track started on three observations, not yet confirmed")
                 elif r in held:
                     row.status = FrameStatus.SOLVED
                 else:
@@ -424,7 +421,9 @@ class TeamTracker:
         self.joint_solves += 1
         team, status, reason = self._solve(obs, self.reference)
         guesses: dict[str, tuple[Pose, bool]] = {}
+        outliers = set()  # observations the joint solve dropped: left out of the update too
         if team is not None:
+            outliers |= {(d["observer"], d["marker"]) for d in team.rejected}
             for r in candidates:
                 if r in team.poses:
                     guesses[r] = (team.poses[r], r in team.unverified or team.status != "solved")
@@ -435,6 +434,7 @@ class TeamTracker:
             a = anchors[0]
             other, st2, why2 = self._solve(obs, a)
             if other is not None:
+                outliers |= {(d["observer"], d["marker"]) for d in other.rejected}
                 Ta = f.pose(a)
                 for r in missing:
                     if r in other.poses:
@@ -461,6 +461,9 @@ class TeamTracker:
             if (r not in self.tracks and r not in new) or r in rejected:
                 known &= ~touch[r]
         rows = rows[known[rows]]
+        if outliers:
+            rows = np.array([j for j in rows.tolist() if (names[problem.cam[j]], markers[j]) not in outliers],
+                            dtype=np.int64)
         upd = f.update(problem.take(rows)) if len(rows) else None
         started = {}
         if upd is not None and upd.accepted:
@@ -509,6 +512,17 @@ class TeamTracker:
                     seen.add(b)
                     todo.append(b)
         return {self.filter.robots[i] for i in seen} - {self.reference}
+
+    def _coast(self, rows: dict[str, TrackRow], observed: set[str]) -> None:
+        """Drop the tracks that the record did not update and whose
+        predicted sigma is beyond the options' limits (coasted too long)."""
+        for r in list(self.tracks):
+            if r in observed:
+                continue
+            why = lost_reason(_Cov(self.filter.covariance(r)), self.options)
+            if why:
+                self._drop(r)
+                rows[r].reason = _join(rows[r].reason, f"track lost: {why}")
 
     def _drop(self, r: str) -> None:
         if self.filter.is_tracked(r):
