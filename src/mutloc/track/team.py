@@ -220,6 +220,17 @@ class TeamTracker:
                     row.reason = _join(row.reason, f"{note} (localized from the others' views)")
         return rows
 
+    def relative(self, a: str, b: str) -> Estimate | None:
+        """``T_ba`` (robot ``a`` in ``b``'s frame; either may be the
+        reference) now, with its covariance from the joint filter (their
+        correlation included); None unless both are tracked."""
+        if a == b or any(r != self.reference and r not in self.tracks for r in (a, b)):
+            return None
+        pose, cov = self.filter.relative(a, b)
+        return Estimate(source=a, target=b, pose=pose, covariance=cov, pixel_sigma=self.pixel_sigma,
+                        reprojection_rms_px=0.0, markers_used=[], candidates=Pose.concatenate([pose]),
+                        consistency=None, extra={"filter": "cv", "team_reference": self.reference})
+
     # -- without the filter: every record on its own ---------------------------
 
     def _per_record(self, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> None:
