@@ -157,7 +157,11 @@ class _Track:
     start: frozenset
     three: bool = False
     confirmed: bool = False
+    #: per camera: its records of the robot rejected in a row, and whether
+    #: since the first of them another camera's record solved the robot
+    #: (placed it on its own, consistent with the track).
     contradicted: dict = field(default_factory=dict)
+    held_by_others: dict = field(default_factory=dict)
 
 
 class TeamTracker:
@@ -312,11 +316,17 @@ class TeamTracker:
             cams = {names[c] for c in problem.cam[touch[r]].tolist()}
             for c in cams:
                 tr.contradicted[c] = tr.contradicted.get(c, 0) + 1
-            cam, streak = max(tr.contradicted.items(), key=lambda kv: kv[1])
+                if tr.contradicted[c] == 1:
+                    tr.held_by_others[c] = False
+            cam, streak = _worst(tr)
             if not tr.confirmed:
                 restart[r] = "a record contradicted the tentative track"
             elif streak >= self.options.reinit_after:
                 restart[r] = f"{cam}'s last {streak} records inconsistent with the track"
+            elif tr.contradicted and max(tr.contradicted.values()) >= self.options.reinit_after:
+                c = max(tr.contradicted, key=tr.contradicted.get)
+                notes[r].append(f"{c}'s last {tr.contradicted[c]} records of it inconsistent with the track that "
+                                "the other cameras' records hold")
         for r in self.tracks:
             if r not in rejected and used[touch[r]].any():
                 for c in {names[c] for c in problem.cam[touch[r] & used].tolist()}:
@@ -333,7 +343,7 @@ class TeamTracker:
             if r in started:
                 continue
             tr = self.tracks[r]
-            cam, streak = max(tr.contradicted.items(), key=lambda kv: kv[1])
+            cam, streak = _worst(tr)
             if not tr.confirmed or streak >= 2 * self.options.reinit_after:
                 self._drop(r)
                 notes[r].append(f"track dropped: {why}" if tr.confirmed else
@@ -341,6 +351,12 @@ class TeamTracker:
         self._coast(rows, {r for r in self.tracks if used[touch[r]].any()})
         # 3. every robot's row
         held = self._held(problem, used)
+        cams = {names[c] for c in problem.cam[used].tolist()}
+        for r in held & set(self.tracks):
+            tr = self.tracks[r]
+            for c in tr.held_by_others:
+                if c not in cams:
+                    tr.held_by_others[c] = True
         for r, row in rows.items():
             if notes[r]:
                 row.reason = _join(row.reason, "; ".join(notes[r]))
@@ -439,7 +455,8 @@ class TeamTracker:
                 if r in team.poses:
                     guesses[r] = (team.poses[r], r in team.unverified or team.status != "solved")
         missing = [r for r in candidates if r not in guesses]
-        anchors = sorted((a for a in self.tracks if a not in restart and a not in candidates and touch[a].any()),
+        anchors = sorted((a for a in self.tracks if a not in restart and a not in candidates and a not in rejected
+                          and touch[a].any()),
                          key=lambda a: -int(touch[a].sum()))
         if missing and anchors:
             a = anchors[0]
@@ -460,6 +477,7 @@ class TeamTracker:
         if not guesses:
             return {}, failed
         before = set(self.tracks)
+        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), list(f.tracked), dict(self.tracks))
         for r, (pose, three) in guesses.items():
             if r in self.tracks:
                 self._drop(r)
@@ -489,9 +507,9 @@ class TeamTracker:
                     note = f"{note}: {restart[r]}"
                 started[r] = note
             return started, failed
-        for r in new:  # the record's observations of them contradict the track of the others: not started
-            f.drop(r)
-            self.tracks.pop(r, None)
+        # the record's observations of them contradict the others' tracks: not started (tracks restarting kept)
+        f.R, f.t, f.vel, f.P, f.tracked, self.tracks = saved
+        for r in new:
             if r not in restart:
                 failed[r] = (FrameStatus.REJECTED, "its joint solve is inconsistent with the tracked robots" +
                              (f" ({upd.reason})" if upd is not None else ""))
@@ -562,6 +580,18 @@ class TeamTracker:
                         pixel_sigma=self.pixel_sigma, reprojection_rms_px=rms, markers_used=names,
                         candidates=Pose.concatenate([pose]), consistency=test,
                         extra={"velocity": vel.tolist(), "filter": "cv"})
+
+
+def _worst(tr: _Track) -> tuple[str, int]:
+    """The camera whose records of the robot the track keeps rejecting
+    while no other camera's record solved the robot since (those can
+    expose a wrong track: then the camera is the one at odds), and its
+    streak; ("", 0) if none."""
+    open_ = {c: n for c, n in tr.contradicted.items() if n and not tr.held_by_others.get(c, False)}
+    if not open_:
+        return "", 0
+    c = max(open_, key=open_.get)
+    return c, open_[c]
 
 
 @dataclass
