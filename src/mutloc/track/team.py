@@ -432,6 +432,10 @@ class TeamTracker:
                 if alt.accepted:
                     used[keep[alt.used]] = True
                     return {r}, alt.test, reason
+        # one robot in every observation (a single camera's view of the others) is the one at odds
+        common = [r for r in involved if touch[r][rows].all()]
+        if len(common) == 1:
+            return {common[0]}, None, reason
         return set(involved), None, reason
 
     def _start(self, obs: ObservationSet, problem: TeamProblem, names: list[str], markers: list[str],
