@@ -27,10 +27,16 @@ Per record and robot (not the reference):
   ``predicted`` without observations (until its predicted sigma passes the
   options' ``lost_sigma_t``/``lost_sigma_r_deg``: the track is lost);
   ``rejected`` when its observations fail the gate (the row carries the
-  filter's pose, the update made without them).  Rejections are counted
-  per camera: after ``reinit_after`` records of one camera in a row
-  inconsistent with the track, a record whose joint solve places the robot
-  restarts it; after twice that many the track is dropped.
+  filter's pose, the update made without them: when a record's
+  observations fail the gate, the robot whose observations left out let the
+  rest pass is the one rejected; a single camera's view that nothing
+  separates, its observer).  Rejections are counted per camera: after
+  ``reinit_after`` records of one camera in a row inconsistent with the
+  track, a record whose joint solve places the robot restarts it; after
+  twice that many the track is dropped -- unless another camera's record
+  solved the robot (placed it on its own, consistent with the track) since
+  that camera's first rejection: then that camera is the one at odds, and
+  its records of the robot keep being rejected.
 
 ``filter="none"``: every record's joint estimate on its own.
 """
