@@ -315,7 +315,11 @@ class TeamTracker:
         used = np.zeros(len(problem.cam), dtype=bool)
         notes: dict[str, list[str]] = {r: [] for r in self.robots}
         # 1. the tracked robots: one update with every observation among them and the reference
-        rejected, test, why_rejected = self._update_tracked(problem, touch, used)
+        rejected, test, why_rejected, dropped = self._update_tracked(problem, touch, used)
+        for r in self.robots:
+            for j in dropped.tolist():
+                if touch[r][j]:
+                    notes[r].append(f"dropped {names[problem.cam[j]]} saw {markers[j]} (inconsistent with the track)")
         restart: dict[str, str] = {}
         for r in rejected:
             tr = self.tracks[r]
@@ -406,12 +410,13 @@ class TeamTracker:
                                    "(three are needed)")
 
     def _update_tracked(self, problem: TeamProblem, touch: Mapping[str, np.ndarray], used: np.ndarray
-                        ) -> tuple[set[str], Any, str]:
+                        ) -> tuple[set[str], Any, str, np.ndarray]:
         """Update the filter with the record's observations among tracked
         robots and the reference; when they fail the gate, without each
         involved robot in turn (the one whose observations contradict the
         track).  Marks the rows used; returns the robots whose observations
-        were rejected, the accepted test and the rejection's reason."""
+        were rejected, the accepted test, the rejection's reason and the
+        single observation the gate dropped (if any)."""
         f = self.filter
         known = np.ones(len(problem.cam), dtype=bool)
         for r in self.robots:
@@ -419,12 +424,13 @@ class TeamTracker:
                 known &= ~touch[r]
         rows = np.flatnonzero(known)
         involved = [r for r in self.tracks if touch[r][rows].any()]
+        none = np.empty(0, dtype=np.int64)
         if len(rows) == 0:
-            return set(), None, ""
+            return set(), None, "", none
         upd = f.update(problem.take(rows))
         if upd.accepted:
             used[rows[upd.used]] = True
-            return set(), upd.test, _dropped_rows(upd)
+            return set(), upd.test, "", rows[upd.dropped]
         reason = upd.reason
         if len(involved) > 1:
             # blame one robot: the record without its observations passes
@@ -437,12 +443,12 @@ class TeamTracker:
                 alt = f.update(problem.take(keep))
                 if alt.accepted:
                     used[keep[alt.used]] = True
-                    return {r}, alt.test, reason
+                    return {r}, alt.test, reason, keep[alt.dropped]
         # one robot in every observation (a single camera's view of the others) is the one at odds
         common = [r for r in involved if touch[r][rows].all()]
         if len(common) == 1:
-            return {common[0]}, None, reason
-        return set(involved), None, reason
+            return {common[0]}, None, reason, none
+        return set(involved), None, reason, none
 
     def _start(self, obs: ObservationSet, problem: TeamProblem, names: list[str], markers: list[str],
                touch: Mapping[str, np.ndarray], used: np.ndarray, candidates: list[str], restart: Mapping[str, str],
@@ -614,10 +620,6 @@ class _Cov:
 def _reprojection(problem: TeamProblem, f: TeamFilter) -> np.ndarray:
     """Each observation's reprojection error (px) at the filter's poses."""
     return residual_norms(problem, f.R, f.t)
-
-
-def _dropped_rows(upd: Any) -> str:
-    return f"dropped {len(upd.dropped)} observation(s) inconsistent with the track" if len(upd.dropped) else ""
 
 
 def _dropped(team: TeamEstimate) -> str:
