@@ -230,3 +230,26 @@ def test_a_camera_at_odds_is_rejected_and_a_moved_robot_restarts():
     assert 2.0 <= r1[restart].t < 2.2, r1[restart].t
     _consistent(r3, worlds, "r3")
     _consistent(r1, worlds, "r1", skip=(2.0, r1[restart].t))  # (carried away: the track contradicted until restarted)
+
+
+def test_fast_team_motion_and_its_options(tmp_path, capsys):
+    """--speed 1.25 --turn-rate 75: every robot drives at a constant 1.0-1.5
+    m/s and turns at up to 70-80 deg/s (finite differences of the truth
+    motion); the options move a team only (one line otherwise)."""
+    from mutloc.sim.scenario import FAST_TEAM
+    from mutloc.sim.team import random_team, team_motion
+
+    scene = random_team(3, np.random.default_rng(0), kind="tags")
+    at = team_motion(scene, seed=2, speed=1.25, turn_rate=75.0, **FAST_TEAM)
+    ts = np.arange(0.0, 2.0, 0.002)
+    poses = [at(t) for t in ts]
+    for r in scene.names:
+        p = np.array([P[r].t for P in poses])
+        speed = np.linalg.norm(np.diff(p, axis=0), axis=1) / 0.002
+        turn = np.degrees([np.linalg.norm(so3_log(b[r].R @ a[r].R.T)) for a, b in zip(poses, poses[1:])]) / 0.002
+        assert 1.0 <= speed.min() and speed.max() <= 1.5 and speed.max() - speed.min() < 0.01
+        assert 70.0 <= turn.max() <= 80.0
+    assert main(["simulate", "--out", str(tmp_path / "pair"), "--frames", "2", "--speed", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mutloc: error:") and "--robots" in err and err.count("\n") == 1
+    assert not (tmp_path / "pair").exists()
