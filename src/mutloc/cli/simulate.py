@@ -78,6 +78,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "and truth_NAME.tum per robot)")
     p.add_argument("--no-images", dest="images", action="store_false",
                    help="with --robots: geometry only (rig, observations, truth), no rendering")
+    p.add_argument("--speed", type=positive_float, metavar="M/S",
+                   help="with --robots: fast robots, each driving a small circle at about this speed (0.8-1.2 times)")
+    p.add_argument("--turn-rate", type=positive_float, metavar="DEG/S",
+                   help="with --robots: each robot's heading swings at about this peak rate (0.93-1.07 times)")
     return p
 
 
@@ -95,8 +99,13 @@ def run(args: argparse.Namespace) -> int:
                                     size=args.size, focal=args.focal, k1=args.k1, room=not args.no_room,
                                     images=args.images, progress=args.progress,
                                     camera_fps=_numbers(args.camera_fps, "--camera-fps"),
-                                    camera_offset=_numbers(args.camera_offset, "--camera-offset")))
+                                    camera_offset=_numbers(args.camera_offset, "--camera-offset"),
+                                    speed=args.speed, turn_rate=args.turn_rate))
         return 0
+    if args.speed is not None or args.turn_rate is not None:
+        from ..errors import InputError
+
+        raise InputError("--speed/--turn-rate move a team: use them with --robots 3 or more")
     summary = write_simulation(
         args.out, markers=args.markers, distance=args.distance, frames=args.frames, fps=args.fps,
         seed=args.seed, noise=args.noise, jpeg=args.jpeg, blur=args.blur, k1=args.k1, size=args.size,

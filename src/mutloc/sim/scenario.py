@@ -193,6 +193,9 @@ def _camera_times(frames: int, fps: float, camera_fps: dict[str, float] | None,
     return _Stamps([(t, tuple(times[t])) for t in sorted(times)], rates, offset, True)
 
 
+#: The loops of fast simulated robots (``--speed``/``--turn-rate``): radius (m) and heading swing (deg).
+FAST_TEAM = {"amplitude": 0.3, "yaw_deg": 15.0}
+
 # y-down world of mutloc.sim.team -> z-up world of the renderer
 _Y_DOWN_TO_Z_UP = Pose(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]), np.zeros(3))
 
@@ -202,7 +205,8 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
                           size: tuple[int, int] = (960, 540), focal: float = 800.0, k1: float = 0.0,
                           room: bool = True, images: bool = True, progress: bool = False,
                           camera_fps: dict[str, float] | None = None,
-                          camera_offset: dict[str, float] | None = None) -> str:
+                          camera_offset: dict[str, float] | None = None, speed: float | None = None,
+                          turn_rate: float | None = None) -> str:
     """A team of ``robots`` robots in a room (:func:`mutloc.sim.team.random_team`)
     carrying ``markers``: "balls" (four coloured balls each, every ball its
     own colour) or "tags" (two printed AprilTags each, distinct ids; the
@@ -222,7 +226,10 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     ``trajectory_NAME.tum``.  ``camera_fps``/``camera_offset`` as
     :func:`write_simulation`: each camera at its own times (each folder its
     own ``frames.csv``; ``truth.json`` per capture instant, with the
-    ``cameras`` capturing then).
+    ``cameras`` capturing then).  ``speed`` (m/s) and ``turn_rate`` (deg/s):
+    fast robots, each driving a circle of 0.3 m radius about its place and
+    swinging its heading by 15 degrees either way
+    (:func:`mutloc.sim.team.team_motion`).
     """
     from .render import project_markers, render, room_around
     from .team import TEAM_KINDS, random_team, team_motion
@@ -246,7 +253,9 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     names = scene.names
     sequence = frames > 1
     capture = _camera_times(frames, fps, camera_fps, camera_offset, sequence, tuple(names))
-    motion = team_motion(scene, seed=seed) if sequence else (lambda t: scene.world)
+    fast = FAST_TEAM if speed is not None or turn_rate is not None else {}
+    motion = (team_motion(scene, seed=seed, speed=speed, turn_rate=turn_rate, **fast) if sequence
+              else (lambda t: scene.world))
 
     def pose_fn(n: str):
         return lambda t: _Y_DOWN_TO_Z_UP @ motion(t)[n]

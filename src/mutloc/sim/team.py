@@ -190,22 +190,41 @@ def chain_team(n: int, rng: np.random.Generator, *, spacing: float = 1.5, focal:
 
 
 def team_motion(scene: TeamScene, *, amplitude: float = 0.25, yaw_deg: float = 8.0, period: float = 6.0,
-                seed: int = 0):
+                seed: int = 0, speed: float | None = None, turn_rate: float | None = None):
     """``T_world_r(t)`` for every robot of ``scene``: each sways about its
     place in the scene on a smooth loop (``amplitude`` metres, its own phase)
     and turns its heading by up to ``yaw_deg``; periodic in ``period`` s.
     Returns a function ``t -> {robot: Pose}`` (at t = 0 the scene's poses
-    moved by the loop's start)."""
+    moved by the loop's start).
+
+    Fast robots: with ``speed`` (m/s) each robot instead drives a circle of
+    radius ``amplitude`` about its place at a constant speed between 0.8 and
+    1.2 times ``speed`` (its own, drawn from ``seed``), and with
+    ``turn_rate`` (deg/s) its heading swings by ``yaw_deg`` at a peak rate
+    between 0.93 and 1.07 times ``turn_rate`` (its own)."""
+    from ..errors import positive_number
+
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 515])
     phases = {n: rng.uniform(0, 2 * np.pi, 3) for n in scene.names}
     w = 2 * np.pi / period
+    if speed is not None:
+        positive_number(speed, "speed")
+    if turn_rate is not None:
+        positive_number(turn_rate, "turn_rate")
+    fast = {n: (w if speed is None else speed * rng.uniform(0.8, 1.2) / amplitude,
+                w if turn_rate is None else np.radians(turn_rate * rng.uniform(0.93, 1.07)) / np.radians(yaw_deg))
+            for n in scene.names}
 
     def at(t: float) -> dict[str, Pose]:
         out = {}
         for n, T in scene.world.items():
             a, b, c = phases[n]
-            d = amplitude * np.array([np.sin(w * t + a), 0.0, 0.6 * np.sin(2 * w * t + b)])
-            yaw = np.radians(yaw_deg) * np.sin(w * t + c)
+            wd, wy = fast[n]
+            if speed is None:
+                d = amplitude * np.array([np.sin(w * t + a), 0.0, 0.6 * np.sin(2 * w * t + b)])
+            else:  # a circle at constant speed
+                d = amplitude * np.array([np.sin(wd * t + a) - np.sin(a), 0.0, np.cos(wd * t + a) - np.cos(a)])
+            yaw = np.radians(yaw_deg) * np.sin(wy * t + c)
             turn = so3_exp([0.0, yaw, 0.0])
             out[n] = Pose(turn @ T.R, T.t + d)
         return out

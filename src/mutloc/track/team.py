@@ -2,36 +2,48 @@
 (SPEC "Filtered tracking": with more than two robots one
 ``trajectory_NAME.csv`` / ``trajectory_NAME.tum`` per robot).
 
-Each frame's observations of the whole team are localized **jointly**
-(:func:`mutloc.localize_team`, warm-started from the filters' predictions),
-then every robot's pose ``T_ref_r`` is filtered on its own:
+One joint filter of the whole team (:class:`mutloc.core.team_filter.
+TeamFilter`: every tracked robot's pose and velocity relative to the
+reference, with their correlations) takes every record at its own time:
+the frames of the cameras within ``tolerance`` of each other make one
+record, any other frame is a record of its own camera (cameras need not be
+synchronized); a log's record may hold any subset of the robots' cameras.
+Per record and robot (not the reference):
 
-- one constant-velocity filter per robot (:class:`mutloc.core.filter.
-  ConstantVelocityFilter`, the pair tracker's), whose measurement is the
-  joint estimate's pose of that robot with its 6x6 covariance block
-  (:meth:`~mutloc.core.filter.ConstantVelocityFilter.update_pose`, gated
-  with 6 degrees of freedom).  The correlations between robots in the joint
-  covariance are not carried from frame to frame: each robot's filter is
-  independent (the simplest honest generalisation; the per-frame joint
-  estimate keeps them).
-- a robot the joint problem cannot place this frame (one or two
-  observations tie it) but whose track runs is updated on its **pixels**
-  through the pair filter: for each localized robot ``s`` it shares
-  observations with, the state is moved into ``s``'s frame (``T_s_ref``
-  from the joint estimate, taken as exact), updated by the observations
-  between ``r`` and ``s`` as a pair track would be, and moved back: status
-  ``partial``.
-- no observations: ``predicted``; a joint pose inconsistent with the track:
-  ``rejected`` (the row carries the prediction).
+- a robot not tracked starts when the record's joint solve
+  (:func:`mutloc.localize_team`, in the reference's frame or in that of a
+  tracked robot the record observes) places it with four or more
+  observations and passes its chi-square test: it enters the filter with a
+  wide prior about that pose and the record's observations of it update
+  the filter (its covariance and correlations are theirs); ``solved``.
+  Placed by exactly three, its track starts tentatively and its rows are
+  ``unverified`` until a later record confirms it (four observations, or
+  three with one not among those that started it).  Every new track is
+  tentative until a later record's observations of it are accepted: a
+  record that contradicts it first drops it (and may start it again).
+- a tracked robot whose observations the filter accepts is ``solved`` when
+  the record's observations tie it to the reference on their own (a chain
+  of robots each pair tied by three or more), else ``partial``;
+  ``predicted`` without observations (until its predicted sigma passes the
+  options' ``lost_sigma_t``/``lost_sigma_r_deg``: the track is lost);
+  ``rejected`` when its observations fail the gate (the row carries the
+  filter's pose, the update made without them: when a record's
+  observations fail the gate, the robot whose observations left out let the
+  rest pass is the one rejected; a single camera's view that nothing
+  separates, its observer).  Rejections are counted per camera: after
+  ``reinit_after`` records of one camera in a row inconsistent with the
+  track, a record whose joint solve places the robot restarts it; after
+  twice that many the track is dropped -- unless another camera's record
+  solved the robot (placed it on its own, consistent with the track) since
+  that camera's first rejection: then that camera is the one at odds, and
+  its records of the robot keep being rejected.
 
-A track starts from a frame in which the joint estimate of the robot is
-``solved`` (four or more observations tie it and the team passes its
-chi-square test), as a pair track does.
+``filter="none"``: every record's joint estimate on its own.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
@@ -40,15 +52,15 @@ from tqdm import tqdm
 
 from ..api import Estimate, load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
-from ..core.filter import ConstantVelocityFilter, FilterState
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
-from ..core.team import MIN_TIES
+from ..core.team import MIN_TIES, TeamProblem, residual_norms
+from ..core.team_filter import TeamFilter
 from ..errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
 from ..io.logs import ObservationLogWriter
-from ..team import TeamEstimate, localize_team
-from .filtering import FilterOptions, lost_reason, pair_problem
+from ..team import TeamEstimate, localize_team, team_problem
+from .filtering import FilterOptions, lost_reason
 from .frames import expanded_rig, observations_of
 from .sources import Frame
 from .status import FrameStatus
@@ -130,15 +142,42 @@ def _robot_estimate(team: TeamEstimate, r: str, pose: Pose, cov: np.ndarray, ext
                     candidates=Pose.concatenate([pose]), consistency=team.consistency, extra=dict(extra or {}))
 
 
+#: A robot entering the joint filter does so with this wide prior (1-sigma:
+#: radians, metres) about its pose from the record's joint solve, then the
+#: record's observations of it update the filter: its covariance and its
+#: correlations with the robots already tracked come from those
+#: observations (the prior adds about 1e-3 of their information).
+START_SIGMA_R, START_SIGMA_T = 0.3, 0.5
+#: ... and with this velocity (1-sigma: rad/s, m/s): one record says nothing
+#: of it, and relative to the reference a robot moves fast whenever the
+#: reference turns (0.5 rad/s at 4 m is 2 m/s): its next records measure it.
+START_SIGMA_W, START_SIGMA_V = 5.0, 5.0
+
+
+@dataclass
+class _Track:
+    """A robot's track in the joint filter: tentative until a later record
+    confirms it (``start``: the observations that started it; ``three``: it
+    started from exactly three), and its rejections per camera."""
+
+    start: frozenset
+    three: bool = False
+    confirmed: bool = False
+    #: per camera: its records of the robot rejected in a row, and whether
+    #: since the first of them another camera's record solved the robot
+    #: (placed it on its own, consistent with the track).
+    contradicted: dict = field(default_factory=dict)
+    held_by_others: dict = field(default_factory=dict)
+
+
 class TeamTracker:
-    """Turns each frame of team observations into one row per robot (see the module docstring)."""
+    """Turns each record of team observations into one row per robot (see the module docstring)."""
 
     def __init__(self, rig: Rig, reference: str | None = None, *, pixel_sigma: float = 1.0,
                  confidence: float = DEFAULT_CONFIDENCE, options: FilterOptions | None = None) -> None:
         names = list(rig.robots)
-        if len(names) < 3:
-            raise ObservationError(f"a team tracker needs three or more robots; the rig has {len(names)} "
-                                   "(track a pair with --source/--target)")
+        if len(names) < 2:
+            raise ObservationError(f"a team tracker needs two or more robots; the rig has {len(names)}")
         if reference is None:
             reference = names[0]
         if not isinstance(reference, str) or reference not in rig.robots:
@@ -151,72 +190,78 @@ class TeamTracker:
         if self.options.smooth_lag:
             raise InputError("smoothing (--smooth-lag) is not available for teams yet: "
                              "teams report the causal filter (smooth_lag=0)")
-        self.filters = {r: ConstantVelocityFilter(self.options.noise, pixel_sigma, confidence) for r in self.robots}
-        self.rejections = {r: 0 for r in self.robots}
+        self.filter = TeamFilter(names, reference, self.options.noise, pixel_sigma, confidence)
+        self.tracks: dict[str, _Track] = {}
         self.last_time: float | None = None
-        self.warm_starts = 0
+        self.joint_solves = 0  #: records solved on their own to start (or restart) a robot
 
     @property
     def filtering(self) -> bool:
         return self.options.kind == "cv"
 
-    # -- one frame ----------------------------------------------------------
+    # -- one record -----------------------------------------------------------
 
     def step(self, t: float, observations: ObservationSet | None, times: Mapping[str, float | None] | None = None,
              problems: Mapping[str, tuple[FrameStatus, str]] | None = None) -> dict[str, TrackRow]:
-        """One row per robot (not the reference) for the frame at ``t``.
+        """One row per robot (not the reference) for the record at ``t``: its
+        observations (any cameras', taken at ``t``) fused at ``t``.
 
-        ``times``: each robot's own frame time (``t_source``; the
-        reference's is ``t_target``); ``problems``: per robot an input
-        status (``unpaired``, ``corrupt``) and reason for its own frame.
-        ``observations`` None: no frame at all (every row takes ``problems``
-        or ``unpaired``)."""
+        ``times``: each robot's own frame time in the record (``t_source``;
+        the reference's is ``t_target``; None: the record holds no frame of
+        that camera); ``problems``: per robot an input status (``unpaired``,
+        ``corrupt``) and reason for its own frame.  ``observations`` None: no
+        frame at all."""
         if self.last_time is not None and t < self.last_time:
             raise InputError(f"frame at {t} s comes before the previous one ({self.last_time} s)")
         self.last_time = t
-        problems = problems or {}
         rows = {r: TrackRow(t, t if times is None else times.get(r), t if times is None else times.get(self.reference),
                             FrameStatus.SOLVED, observations=observations) for r in self.robots}
-        predicted: dict[str, FilterState] = {}
         if self.filtering:
-            for r in self.robots:
-                f = self.filters[r]
-                if f.state is None:
-                    continue
-                state = f.predict(t)
-                why = lost_reason(state, self.options)
-                if why:
-                    f.state = None
-                    rows[r].reason = f"track lost: {why}"
+            self._filtered(t, observations, rows)
+        else:
+            self._per_record(observations, rows)
+        for r, row in rows.items():
+            if problems and r in problems:
+                status, note = problems[r]
+                if row.estimate is None:
+                    row.status = status
+                    row.reason = _join(note, row.reason)
                 else:
-                    predicted[r] = state
-        team, status, reason = (None, FrameStatus.UNPAIRED, "no frame") if observations is None else \
-            self._solve(observations, predicted)
-        for r in self.robots:
-            row = rows[r]
-            self._robot_row(row, r, team, status, reason, predicted.get(r), observations)
-            if r in problems and row.estimate is None:
-                row.status, note = problems[r]
-                row.reason = f"{note}; {row.reason}" if row.reason else note
-            elif r in problems:
-                row.reason = f"{problems[r][1]} (localized from the others' views); {row.reason}".rstrip("; ")
+                    row.reason = _join(row.reason, f"{note} (localized from the others' views)")
         return rows
 
-    def _solve(self, obs: ObservationSet, predicted: Mapping[str, FilterState]
-               ) -> tuple[TeamEstimate | None, FrameStatus, str]:
-        """The frame's joint estimate (warm-started from the predictions
-        when they cover every robot seen), or None with a status and reason."""
-        opts = dict(pixel_sigma=self.pixel_sigma, confidence=self.confidence)
-        initial = self._warm_start(obs, predicted)
-        if initial is not None:
-            try:
-                team = localize_team(self.rig, obs, self.reference, initial=initial, **opts)
-                self.warm_starts += 1
-                return team, FrameStatus.SOLVED, ""
-            except MutlocError:
-                pass  # a cold start decides (and says why if it fails too)
+    def relative(self, a: str, b: str) -> Estimate | None:
+        """``T_ba`` (robot ``a`` in ``b``'s frame; either may be the
+        reference) now, with its covariance from the joint filter (their
+        correlation included); None unless both are tracked."""
+        if a == b or any(r != self.reference and r not in self.tracks for r in (a, b)):
+            return None
+        pose, cov = self.filter.relative(a, b)
+        return Estimate(source=a, target=b, pose=pose, covariance=cov, pixel_sigma=self.pixel_sigma,
+                        reprojection_rms_px=0.0, markers_used=[], candidates=Pose.concatenate([pose]),
+                        consistency=None, extra={"filter": "cv", "team_reference": self.reference})
+
+    # -- without the filter: every record on its own ---------------------------
+
+    def _per_record(self, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> None:
+        if obs is None:
+            for row in rows.values():
+                row.status, row.reason = FrameStatus.UNPAIRED, "no frame"
+            return
+        team, status, reason = self._solve(obs, self.reference)
+        for r, row in rows.items():
+            if team is not None and r in team.poses:
+                row.estimate = _robot_estimate(team, r, team.poses[r], team.covariance(r))
+                row.status = FrameStatus.UNVERIFIED if r in team.unverified else FrameStatus.SOLVED
+                row.reason = _dropped(team)
+            else:
+                row.status, row.reason = self._not_localized(r, team, status, reason, obs)
+
+    def _solve(self, obs: ObservationSet, reference: str) -> tuple[TeamEstimate | None, FrameStatus, str]:
+        """The record's joint estimate in ``reference``'s frame, or None with a status and reason."""
         try:
-            return localize_team(self.rig, obs, self.reference, **opts), FrameStatus.SOLVED, ""
+            return (localize_team(self.rig, obs, reference, pixel_sigma=self.pixel_sigma, confidence=self.confidence),
+                    FrameStatus.SOLVED, "")
         except InconsistentObservationsError as exc:
             return None, FrameStatus.REJECTED, " ".join(str(exc).split())
         except ObservationError as exc:
@@ -225,189 +270,356 @@ class TeamTracker:
         except MutlocError as exc:
             return None, FrameStatus.FAILED, " ".join(str(exc).split())
 
-    def _warm_start(self, obs: ObservationSet, predicted: Mapping[str, FilterState]) -> dict[str, Pose] | None:
-        """The predicted poses of the robots the frame's observations tie
-        (three or more observations among robots with a prediction), or None
-        when some robot seen has no prediction (the pair solvers must start it)."""
-        if not predicted or len(obs) == 0:
-            return None
-        owner = self.rig.owner
-        try:
-            ends = [(o, owner(m)) for o, m in zip(obs.observer, obs.marker) if m is not None]
-        except MutlocError:
-            return None  # bad input: the cold start reports it
-        seen = {x for e in ends for x in e} - {self.reference}
-        if not seen <= set(predicted):
-            return None
-        keep = set(seen)
-        while True:  # drop robots with too few ties to the others kept (their block would be singular)
-            ties = {r: sum(1 for a, b in ends if r in (a, b) and {a, b} <= keep | {self.reference}) for r in keep}
-            weak = {r for r, n in ties.items() if n < MIN_TIES}
-            if not weak:
-                break
-            keep -= weak
-        return {r: predicted[r].pose for r in keep} or None
-
-    def _robot_row(self, row: TrackRow, r: str, team: TeamEstimate | None, status: FrameStatus, reason: str,
-                   prior: FilterState | None, obs: ObservationSet | None) -> None:
-        localized = team is not None and r in team.poses
-        if not self.filtering:
-            if localized:
-                assert team is not None
-                row.estimate = _robot_estimate(team, r, team.poses[r], team.covariance(r))
-                row.status = FrameStatus.UNVERIFIED if r in team.unverified else FrameStatus.SOLVED
-                row.reason = _dropped(team)
-            else:
-                row.status, row.reason = self._not_localized(r, team, status, reason, obs)
-            return
-        f = self.filters[r]
-        if prior is None:  # no track: a solved joint estimate starts it
-            if localized:
-                assert team is not None
-                z, C = team.poses[r], team.covariance(r)
-                row.estimate = _robot_estimate(team, r, z, C)
-                if r in team.unverified or team.status != "solved":
-                    row.status = FrameStatus.UNVERIFIED
-                    row.reason = _join(row.reason, "three observations tie it to the team (unverified)")
-                else:
-                    f.reset(row.t, z, C)
-                    self.rejections[r] = 0
-                    row.status = FrameStatus.SOLVED
-                    row.reason = _join(row.reason, _dropped(team))
-            else:
-                row.status, why = self._not_localized(r, team, status, reason, obs)
-                row.reason = _join(row.reason, why)
-            return
-        if localized:
-            assert team is not None
-            upd = f.update_pose(team.poses[r], team.covariance(r))
-            if upd.accepted:
-                self.rejections[r] = 0
-                row.status = FrameStatus.SOLVED
-                row.estimate = _robot_estimate(team, r, upd.state.pose, upd.state.pose_covariance,
-                                               {"velocity": upd.state.velocity.tolist(), "filter": "cv"})
-                row.reason = _join(row.reason, _dropped(team))
-                return
-            self.rejections[r] += 1
-            if self.rejections[r] >= self.options.reinit_after and r not in team.unverified \
-                    and team.status == "solved":
-                z, C = team.poses[r], team.covariance(r)
-                f.reset(row.t, z, C)
-                self.rejections[r] = 0
-                row.status, row.estimate = FrameStatus.SOLVED, _robot_estimate(team, r, z, C)
-                row.reason = _join(row.reason, f"track restarted: {self.options.reinit_after} frames in a row "
-                                               "inconsistent with the track")
-                return
-            row.status = FrameStatus.REJECTED
-            row.reason = _join(row.reason, f"joint {upd.reason}")
-            row.estimate = self._predicted(r, prior)
-            return
-        if team is not None and obs is not None:
-            done = self._partial(row, r, team, obs)
-            if done:
-                return
-        row.status = FrameStatus.PREDICTED if status != FrameStatus.REJECTED else FrameStatus.REJECTED
-        _, why = self._not_localized(r, team, status, reason, obs)
-        row.reason = _join(row.reason, why)
-        row.estimate = self._predicted(r, f.state if f.state is not None else prior)
-
-    def _partial(self, row: TrackRow, r: str, team: TeamEstimate, obs: ObservationSet) -> bool:
-        """Pixel updates of r's track from its observations with localized
-        robots (each in that robot's frame); True when it set the row."""
-        f = self.filters[r]
-        used: list[str] = []
-        rejected: list[str] = []
-        for s in [self.reference, *[n for n in team.robots if n != r]]:
-            try:
-                pair = obs.pair(self.rig, r, s)
-            except MutlocError:
-                continue
-            if len(pair.rows) == 0:
-                continue
-            problem = pair_problem(pair)
-            A = team.poses[s].inverse()  # T_s_ref
-            prior = f.state
-            moved = _moved(prior, A, None if s == self.reference else team.relative(self.reference, s).covariance)
-            f.state = moved
-            upd = f.update(problem)
-            f.state = _pulled_back(prior, moved, f.state, A) if upd.accepted else prior
-            if upd.accepted:
-                used += [problem.labels[k] for k in upd.used.tolist()]
-            else:
-                rejected.append(upd.reason)
-        if not used and not rejected:
-            return False
-        s = f.state
-        if used:
-            row.status = FrameStatus.PARTIAL
-            row.reason = _join(row.reason, f"{len(used)} observation(s) tie it to localized robots: updated through "
-                                           "the filter")
-            self.rejections[r] = 0
-        else:
-            row.status = FrameStatus.REJECTED
-            row.reason = _join(row.reason, "; ".join(rejected))
-        row.estimate = Estimate(source=r, target=self.reference, pose=s.pose, covariance=s.pose_covariance.copy(),
-                                pixel_sigma=self.pixel_sigma, reprojection_rms_px=0.0,
-                                markers_used=[u.rsplit(" saw ", 1)[-1] for u in used],
-                                candidates=Pose.concatenate([s.pose]), consistency=None,
-                                extra={"velocity": s.velocity.tolist(), "filter": "cv"})
-        return True
-
-    def _predicted(self, r: str, state: FilterState) -> Estimate:
-        return Estimate(source=r, target=self.reference, pose=state.pose, covariance=state.pose_covariance.copy(),
-                        pixel_sigma=self.pixel_sigma, reprojection_rms_px=0.0, markers_used=[],
-                        candidates=Pose.concatenate([state.pose]), consistency=None,
-                        extra={"velocity": state.velocity.tolist(), "filter": "cv"})
-
     def _not_localized(self, r: str, team: TeamEstimate | None, status: FrameStatus, reason: str,
                        obs: ObservationSet | None) -> tuple[FrameStatus, str]:
-        """Status and reason of a robot without a joint pose this frame."""
-        if team is None:
-            if status == FrameStatus.SOLVED:
-                status = FrameStatus.FAILED
-            return status, reason
+        """Status and reason of a robot without a joint pose this record."""
         n = 0
         if obs is not None:
             owner = self.rig.owner
-            n = sum(1 for o, m in zip(obs.observer, obs.marker) if m is not None and (o == r or owner(m) == r))
+            try:
+                n = sum(1 for o, m in zip(obs.observer, obs.marker) if m is not None and (o == r or owner(m) == r))
+            except MutlocError:
+                n = -1
         if n == 0:
-            return FrameStatus.TOO_FEW if not self.filtering else FrameStatus.PREDICTED, "no markers seen"
-        return FrameStatus.TOO_FEW, (f"{n} observation{'s' if n != 1 else ''} involve it: too few to tie it to "
-                                     f"{self.reference!r} (three are needed)")
+            return FrameStatus.TOO_FEW, "no markers seen"
+        if team is None:
+            return (FrameStatus.FAILED if status == FrameStatus.SOLVED else status), reason
+        if n < MIN_TIES:
+            return FrameStatus.TOO_FEW, (f"{n} observation{'s' if n != 1 else ''} involve it: too few to tie it to "
+                                         f"{self.reference!r} (three are needed)")
+        return FrameStatus.TOO_FEW, f"its {n} observations do not tie it to {self.reference!r}"
+
+    # -- the joint filter -------------------------------------------------------
+
+    def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> None:
+        f = self.filter
+        f.predict(t)
+        if obs is None or len(obs) == 0:
+            self._coast(rows, set())
+            for r, row in rows.items():
+                self._unobserved(r, row, "no frame" if obs is None else "no markers seen")
+            return
+        try:
+            problem, names, markers = team_problem(self.rig, obs)
+        except MutlocError as exc:
+            why = " ".join(str(exc).split())
+            self._coast(rows, set())
+            for r, row in rows.items():
+                if r in self.tracks:
+                    self._unobserved(r, row, why)
+                else:
+                    row.status, row.reason = FrameStatus.FAILED, why
+            return
+        index = {n: i for i, n in enumerate(names)}
+        touch = {r: (problem.cam == index[r]) | (problem.own == index[r]) for r in self.robots}
+        used = np.zeros(len(problem.cam), dtype=bool)
+        notes: dict[str, list[str]] = {r: [] for r in self.robots}
+        # 1. the tracked robots: one update with every observation among them and the reference
+        rejected, test, why_rejected, dropped = self._update_tracked(problem, touch, used)
+        for r in self.robots:
+            for j in dropped.tolist():
+                if touch[r][j]:
+                    notes[r].append(f"dropped {names[problem.cam[j]]} saw {markers[j]} (inconsistent with the track)")
+        restart: dict[str, str] = {}
+        for r in rejected:
+            tr = self.tracks[r]
+            cams = {names[c] for c in problem.cam[touch[r]].tolist()}
+            for c in cams:
+                tr.contradicted[c] = tr.contradicted.get(c, 0) + 1
+                if tr.contradicted[c] == 1:
+                    tr.held_by_others[c] = False
+            cam, streak = _worst(tr)
+            if not tr.confirmed:
+                restart[r] = "a record contradicted the tentative track"
+            elif streak >= self.options.reinit_after:
+                restart[r] = f"{cam}'s last {streak} records inconsistent with the track"
+            elif tr.contradicted and max(tr.contradicted.values()) >= self.options.reinit_after:
+                c = max(tr.contradicted, key=tr.contradicted.get)
+                notes[r].append(f"{c}'s last {tr.contradicted[c]} records of it inconsistent with the track that "
+                                "the other cameras' records hold")
+        for r in self.tracks:
+            if r not in rejected and used[touch[r]].any():
+                for c in {names[c] for c in problem.cam[touch[r] & used].tolist()}:
+                    self.tracks[r].contradicted[c] = 0
+        # 2. robots not tracked (or to restart) that the record places on its own
+        candidates = [r for r in self.robots if (r not in self.tracks or r in restart)
+                      and int(touch[r].sum()) >= MIN_TIES]
+        started: dict[str, str] = {}
+        failed: dict[str, tuple[FrameStatus, str]] = {}
+        if candidates:
+            started, failed = self._start(obs, problem, names, markers, touch, used, candidates, restart,
+                                          rejected - set(restart))
+        for r, why in restart.items():
+            if r in started:
+                continue
+            tr = self.tracks[r]
+            cam, streak = _worst(tr)
+            if not tr.confirmed or streak >= 2 * self.options.reinit_after:
+                self._drop(r)
+                notes[r].append(f"track dropped: {why}" if tr.confirmed else
+                                "tentative track dropped: a record contradicted it")
+        self._coast(rows, {r for r in self.tracks if used[touch[r]].any()})
+        # 3. every robot's row
+        held = self._held(problem, used)
+        cams = {names[c] for c in problem.cam[used].tolist()}
+        for r in held & set(self.tracks):
+            tr = self.tracks[r]
+            for c in tr.held_by_others:
+                if c not in cams:
+                    tr.held_by_others[c] = True
+        for r, row in rows.items():
+            if notes[r]:
+                row.reason = _join(row.reason, "; ".join(notes[r]))
+            mine = touch[r]
+            if r in started:
+                row.status = FrameStatus.UNVERIFIED if self.tracks[r].three else FrameStatus.SOLVED
+                row.reason = _join(row.reason, started[r])
+                row.estimate = self._estimate(r, problem, markers, used, mine, test)
+            elif r in self.tracks and r in rejected:
+                row.status = FrameStatus.REJECTED
+                row.reason = _join(row.reason, why_rejected)
+                row.estimate = self._estimate(r, problem, markers, np.zeros_like(used), mine, None)
+            elif r in self.tracks and (used & mine).any():
+                n = int((used & mine).sum())
+                tr = self.tracks[r]
+                if not tr.confirmed and self._confirms(tr, problem, names, markers, used & mine):
+                    tr.confirmed = True
+                    row.reason = _join(row.reason, f"track confirmed by {n} observations")
+                if tr.three and not tr.confirmed:
+                    row.status = FrameStatus.UNVERIFIED
+                    row.reason = _join(row.reason, "tentative track started on three observations, not yet confirmed")
+                elif r in held:
+                    row.status = FrameStatus.SOLVED
+                else:
+                    row.status = FrameStatus.PARTIAL
+                    row.reason = _join(row.reason, f"{n} observation(s) tie it to the team: updated through the filter")
+                row.estimate = self._estimate(r, problem, markers, used, mine, test)
+            elif r in self.tracks:
+                self._unobserved(r, row, "no markers seen" if not mine.any() else "observations not used")
+            elif r in rejected:  # (its track dropped)
+                row.status = FrameStatus.REJECTED
+                row.reason = _join(row.reason, why_rejected)
+            elif r in failed:
+                row.status, why = failed[r]
+                row.reason = _join(row.reason, why)
+            else:
+                n = int(mine.sum())
+                row.status = FrameStatus.TOO_FEW
+                row.reason = _join(row.reason, "no markers seen" if n == 0 else
+                                   f"{n} observation{'s' if n != 1 else ''} involve it: too few to start its track "
+                                   "(three are needed)")
+
+    def _update_tracked(self, problem: TeamProblem, touch: Mapping[str, np.ndarray], used: np.ndarray
+                        ) -> tuple[set[str], Any, str, np.ndarray]:
+        """Update the filter with the record's observations among tracked
+        robots and the reference; when they fail the gate, without each
+        involved robot in turn (the one whose observations contradict the
+        track).  Marks the rows used; returns the robots whose observations
+        were rejected, the accepted test, the rejection's reason and the
+        single observation the gate dropped (if any)."""
+        f = self.filter
+        known = np.ones(len(problem.cam), dtype=bool)
+        for r in self.robots:
+            if r not in self.tracks:
+                known &= ~touch[r]
+        rows = np.flatnonzero(known)
+        involved = [r for r in self.tracks if touch[r][rows].any()]
+        none = np.empty(0, dtype=np.int64)
+        if len(rows) == 0:
+            return set(), None, "", none
+        upd = f.update(problem.take(rows))
+        if upd.accepted:
+            used[rows[upd.used]] = True
+            return set(), upd.test, "", rows[upd.dropped]
+        reason = upd.reason
+        if len(involved) > 1:
+            # blame one robot: the record without its observations passes
+            share = {r: float(np.sum(upd.residuals_px[touch[r][rows[upd.dropped]]] ** 2)) for r in involved} \
+                if len(upd.residuals_px) == len(upd.dropped) else {r: 0.0 for r in involved}
+            for r in sorted(involved, key=lambda x: -share[x]):
+                keep = rows[~touch[r][rows]]
+                if len(keep) == 0:
+                    continue
+                alt = f.update(problem.take(keep))
+                if alt.accepted:
+                    used[keep[alt.used]] = True
+                    return {r}, alt.test, reason, keep[alt.dropped]
+        # one robot in every observation (a single camera's view of the others) is the one at odds
+        common = [r for r in involved if touch[r][rows].all()]
+        if len(common) == 1:
+            return {common[0]}, None, reason, none
+        return set(involved), None, reason, none
+
+    def _start(self, obs: ObservationSet, problem: TeamProblem, names: list[str], markers: list[str],
+               touch: Mapping[str, np.ndarray], used: np.ndarray, candidates: list[str], restart: Mapping[str, str],
+               rejected: set[str]) -> tuple[dict[str, str], dict[str, tuple[FrameStatus, str]]]:
+        """Place ``candidates`` from the record's joint solve (in the
+        reference's frame, or in a tracked robot's it observed) and add those
+        it places with four or more ties and a passing test (three: a
+        tentative track, ``unverified``) to the filter: each enters with a
+        wide prior about the solved pose, then the record's observations of
+        it update the filter.  Returns the robots started (with the row's
+        note) and the others' statuses."""
+        f = self.filter
+        self.joint_solves += 1
+        team, status, reason = self._solve(obs, self.reference)
+        guesses: dict[str, tuple[Pose, bool]] = {}
+        outliers = set()  # observations the joint solve dropped: left out of the update too
+        if team is not None:
+            outliers |= {(d["observer"], d["marker"]) for d in team.rejected}
+            for r in candidates:
+                if r in team.poses:
+                    guesses[r] = (team.poses[r], r in team.unverified or team.status != "solved")
+        missing = [r for r in candidates if r not in guesses]
+        anchors = sorted((a for a in self.tracks if a not in restart and a not in candidates and a not in rejected
+                          and touch[a].any()),
+                         key=lambda a: -int(touch[a].sum()))
+        if missing and anchors:
+            a = anchors[0]
+            other, st2, why2 = self._solve(obs, a)
+            if other is not None:
+                outliers |= {(d["observer"], d["marker"]) for d in other.rejected}
+                Ta = f.pose(a)
+                for r in missing:
+                    if r in other.poses:
+                        guesses[r] = (Ta @ other.poses[r], r in other.unverified or other.status != "solved")
+            elif team is None:
+                status, reason = st2, why2
+        failed = {}
+        for r in candidates:
+            if r not in guesses and r not in restart:
+                failed[r] = (status if team is None and status != FrameStatus.SOLVED else FrameStatus.TOO_FEW,
+                             reason if team is None else f"its observations do not tie it to {self.reference!r}")
+        if not guesses:
+            return {}, failed
+        before = set(self.tracks)
+        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), list(f.tracked), dict(self.tracks))
+        for r, (pose, three) in guesses.items():
+            if r in self.tracks:
+                self._drop(r)
+            f.add(r, pose, np.diag([START_SIGMA_R**2] * 3 + [START_SIGMA_T**2] * 3),
+                  velocity_covariance=np.diag([START_SIGMA_W**2] * 3 + [START_SIGMA_V**2] * 3))
+        new = set(guesses)
+        rows = np.flatnonzero(np.any([touch[r] for r in new], axis=0) & ~used)
+        known = np.ones(len(problem.cam), dtype=bool)
+        for r in self.robots:
+            if (r not in self.tracks and r not in new) or r in rejected:
+                known &= ~touch[r]
+        rows = rows[known[rows]]
+        if outliers:
+            rows = np.array([j for j in rows.tolist() if (names[problem.cam[j]], markers[j]) not in outliers],
+                            dtype=np.int64)
+        upd = f.update(problem.take(rows)) if len(rows) else None
+        started = {}
+        if upd is not None and upd.accepted:
+            used[rows[upd.used]] = True
+            for r, (pose, three) in guesses.items():
+                mine = touch[r][rows[upd.used]]
+                keys = frozenset((names[problem.cam[j]], markers[j]) for j in rows[upd.used][mine].tolist())
+                self.tracks[r] = _Track(keys, three=three or len(keys) <= MIN_TIES)
+                what = "restarted" if r in before else "started"
+                note = f"track {what} from the record's joint solve ({len(keys)} observations)"
+                if r in restart:
+                    note = f"{note}: {restart[r]}"
+                started[r] = note
+            return started, failed
+        # the record's observations of them contradict the others' tracks: not started (tracks restarting kept)
+        f.R, f.t, f.vel, f.P, f.tracked, self.tracks = saved
+        for r in new:
+            if r not in restart:
+                failed[r] = (FrameStatus.REJECTED, "its joint solve is inconsistent with the tracked robots" +
+                             (f" ({upd.reason})" if upd is not None else ""))
+        return {}, failed
+
+    def _confirms(self, tr: _Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray
+                  ) -> bool:
+        """Whether a later record's accepted observations of a tentative track confirm it:
+        three or more (four, or one not among those that started it, after a start on three)."""
+        n = int(rows.sum())
+        if not tr.three:
+            return n >= MIN_TIES
+        keys = {(names[problem.cam[j]], markers[j]) for j in np.flatnonzero(rows).tolist()}
+        return n > MIN_TIES or (n == MIN_TIES and bool(keys - tr.start))
+
+    def _held(self, problem: TeamProblem, used: np.ndarray) -> set[str]:
+        """Robots the record's used observations tie to the reference on
+        their own: a chain of robots each pair tied by three or more."""
+        n = problem.n_robots
+        C = np.zeros((n, n), dtype=np.int64)
+        np.add.at(C, (problem.cam[used], problem.own[used]), 1)
+        C = C + C.T
+        ref = self.filter.index(self.reference)
+        seen, todo = {ref}, [ref]
+        while todo:
+            a = todo.pop()
+            for b in np.flatnonzero(C[a] >= MIN_TIES).tolist():
+                if b not in seen:
+                    seen.add(b)
+                    todo.append(b)
+        return {self.filter.robots[i] for i in seen} - {self.reference}
+
+    def _coast(self, rows: dict[str, TrackRow], observed: set[str]) -> None:
+        """Drop the tracks that the record did not update and whose
+        predicted sigma is beyond the options' limits (coasted too long)."""
+        for r in list(self.tracks):
+            if r in observed:
+                continue
+            why = lost_reason(_Cov(self.filter.covariance(r)), self.options)
+            if why:
+                self._drop(r)
+                rows[r].reason = _join(rows[r].reason, f"track lost: {why}")
+
+    def _drop(self, r: str) -> None:
+        if self.filter.is_tracked(r):
+            self.filter.drop(r)
+        self.tracks.pop(r, None)
+
+    def _unobserved(self, r: str, row: TrackRow, why: str) -> None:
+        """A row without observations of ``r``: the prediction of a robot tracked, else nothing."""
+        if r in self.tracks:
+            row.status = FrameStatus.PREDICTED
+            row.estimate = self._estimate(r, None, [], None, None, None)
+        else:
+            row.status = FrameStatus.TOO_FEW
+        row.reason = _join(row.reason, why)
+
+    def _estimate(self, r: str, problem: TeamProblem | None, markers: list[str], used: np.ndarray | None,
+                  mine: np.ndarray | None, test: Any) -> Estimate:
+        f = self.filter
+        pose, vel = f.pose(r), f.velocity(r)
+        names, rms = [], 0.0
+        if problem is not None and used is not None and mine is not None and (used & mine).any():
+            rows = np.flatnonzero(used & mine)
+            names = sorted({markers[j] for j in rows.tolist()})
+            rms = float(np.sqrt(np.mean(_reprojection(problem.take(rows), f) ** 2)))
+        return Estimate(source=r, target=self.reference, pose=pose, covariance=f.covariance(r),
+                        pixel_sigma=self.pixel_sigma, reprojection_rms_px=rms, markers_used=names,
+                        candidates=Pose.concatenate([pose]), consistency=test,
+                        extra={"velocity": vel.tolist(), "filter": "cv"})
 
 
-def _moved(state: FilterState, A: Pose, cov_A: np.ndarray | None = None) -> FilterState:
-    """The state of ``T`` as the state of ``A @ T``: pose, velocity and the
-    error state's covariance rotated into A's frame, plus (first order) A's
-    own covariance ``cov_A`` (SPEC order) on the pose block."""
-    G = np.kron(np.eye(4), A.R)
-    P = G @ state.covariance @ G.T
-    pose = A @ state.pose
-    if cov_A is not None:
-        J = np.eye(6)
-        tx = pose.t - A.t  # = R_A t: translation of the moved pose by A's rotation
-        J[3:, :3] = -np.array([[0.0, -tx[2], tx[1]], [tx[2], 0.0, -tx[0]], [-tx[1], tx[0], 0.0]])
-        P[:6, :6] += J @ cov_A @ J.T
-    return FilterState(state.time, pose, np.r_[A.R @ state.velocity[:3], A.R @ state.velocity[3:]], P)
+def _worst(tr: _Track) -> tuple[str, int]:
+    """The camera whose records of the robot the track keeps rejecting
+    while no other camera's record solved the robot since (those can
+    expose a wrong track: then the camera is the one at odds), and its
+    streak; ("", 0) if none."""
+    open_ = {c: n for c, n in tr.contradicted.items() if n and not tr.held_by_others.get(c, False)}
+    if not open_:
+        return "", 0
+    c = max(open_, key=open_.get)
+    return c, open_[c]
 
 
-def _pulled_back(prior: FilterState, moved: FilterState, posterior: FilterState, A: Pose) -> FilterState:
-    """The update of ``prior`` (state of ``T``) implied by the update of its
-    moved state ``moved`` (of ``A @ T``, with A's uncertainty) to
-    ``posterior``: linear-Gaussian conditioning through the cross-covariance
-    ``P G^T`` (G the rotation of the move), so A's error stays measurement
-    noise and never becomes information about T.  With A exact this is the
-    inverse move."""
-    from ..core.geometry import so3_exp, so3_log
+@dataclass
+class _Cov:
+    """What :func:`~mutloc.track.solving.lost_reason` reads of a state."""
 
-    G = np.kron(np.eye(4), A.R)
-    m = np.r_[so3_log(posterior.pose.R @ moved.pose.R.T), posterior.pose.t - moved.pose.t,
-              posterior.velocity - moved.velocity]
-    gain = np.linalg.solve(moved.covariance, G @ prior.covariance).T  # P G^T P'^-1
-    dx = gain @ m
-    P = prior.covariance - gain @ (moved.covariance - posterior.covariance) @ gain.T
-    pose = Pose(so3_exp(dx[:3]) @ prior.pose.R, prior.pose.t + dx[3:6])
-    return FilterState(prior.time, pose, prior.velocity + dx[6:], 0.5 * (P + P.T))
+    pose_covariance: np.ndarray
+
+
+def _reprojection(problem: TeamProblem, f: TeamFilter) -> np.ndarray:
+    """Each observation's reprojection error (px) at the filter's poses."""
+    return residual_norms(problem, f.R, f.t)
 
 
 def _dropped(team: TeamEstimate) -> str:
@@ -505,7 +717,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             for r in rig.robots:
                 fr = group.get(r)
                 if fr is None:
-                    problems[r] = (FrameStatus.UNPAIRED, f"no {r} frame within {tolerance} s")
+                    continue  # a record of the other cameras: fused at its own time
                 elif fr.image is None:
                     problems[r] = (FrameStatus.CORRUPT, fr.status)
                 else:
@@ -519,6 +731,8 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                 for row in out.values():
                     row.reason = _join(row.reason, f"reference {problems[reference][1]}")
             for r, row in out.items():
+                if r not in group:
+                    row.reason = _join(row.reason, f"no {r} frame in this record")
                 row.detections = {o: d for o, d in detections.items()}
                 rows[r].append(row)
                 if sink is not None:
