@@ -19,7 +19,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from ..errors import InputError, positive_number
 from ..io import save_rig
 from .messages import observations_topic, pose_topic, ros_types, stamp_of
 
-__all__ = ["run_live_demo", "format_live_summary"]
+__all__ = ["run_live_demo", "run_live_pair", "format_live_summary"]
 
 SOURCE, TARGET = "p", "q"
 #: Seconds between starting the processes and the first frame (DDS discovery, Numba's first call).
@@ -98,15 +98,13 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
     subscriber received: poses, error against the truth, latency.  Writes
     ``out_dir/live/`` (the images, the localizer's ``--out`` files, each
     process's log, ``live_summary.json``)."""
-    from ..sim.render import moving_world
+    from ..sim.render import moving_world, relative_pose
     from ..sim.world import standard_rig
-    from .dds import Bus, check_domain
 
     seconds = positive_number(seconds, "seconds")
     fps = positive_number(fps, "fps")
     if seconds * fps < 10:
         raise InputError(f"--seconds x --fps must give at least 10 frames, got {seconds * fps:g}")
-    domain = check_domain(domain if domain is not None else 100 + os.getpid() % 100)
     out = Path(out_dir).expanduser() / "live"
     out.mkdir(parents=True, exist_ok=True)
     rig = standard_rig("balls")
@@ -116,25 +114,49 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
     times = _render(out / "cameras", seconds, fps, seed, progress)
     render_s = time.perf_counter() - t0
     world = moving_world(rig, seed=seed, source=SOURCE, target=TARGET)
+    summary = run_live_pair(rig_file, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, out, seconds=seconds,
+                            truth=lambda t: relative_pose(world, SOURCE, TARGET, t), domain=domain)
+    summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s)
+    (out / "live_summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+    return summary
 
+
+def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, seconds: float,
+                  truth: Callable[[float], Any] | None = None, domain: int | None = None,
+                  lead_in: float = LEAD_IN) -> dict[str, Any]:
+    """Run a ``mutloc localizer`` and one ``mutloc node`` per robot of
+    ``folders`` (replaying that recording in real time, all released in step
+    ``lead_in`` s from now) as separate processes on loopback DDS for
+    ``seconds``; listen to the pose of the rig's first robot in its second's
+    frame like any subscriber.  Returns the poses received, their latency
+    (capture -> arrival here) and, with ``truth`` (time in the recording ->
+    the true pose), their error.  Each process's output goes to
+    ``out/NAME.log``, the localizer's files to ``out/localizer``."""
+    from ..io import load_rig
+    from .dds import Bus, check_domain
+
+    domain = check_domain(domain if domain is not None else 100 + os.getpid() % 100)
+    names = list(load_rig(rig_file).robots)
+    source, target = names[0], names[1]
     T = ros_types()
     bus = Bus(domain, loopback=True)
-    readers = {"pose": bus.reader(pose_topic(SOURCE, TARGET), T.PoseWithCovarianceStamped),
-               **{r: bus.reader(observations_topic(r), T.Observations) for r in (SOURCE, TARGET)}}
+    readers = {"pose": bus.reader(pose_topic(source, target), T.PoseWithCovarianceStamped),
+               **{r: bus.reader(observations_topic(r), T.Observations) for r in folders}}
     exe = [sys.executable, "-m", "mutloc.cli.main"]
     common = ["--rig", str(rig_file), "--domain", str(domain), "--loopback"]
-    start_at = time.time() + LEAD_IN
-    run_for = LEAD_IN + seconds + 2.0
+    start_at = time.time() + lead_in
+    run_for = lead_in + seconds + 2.0
     procs: list[subprocess.Popen] = []
     logs = []
     received: list[tuple[float, float, Any]] = []  # (arrival wall time, stamp, message)
-    source_time: dict[tuple[str, int], float] = {}  # (robot, stamp ns) -> time in the recording
+    source_time: dict[int, float] = {}  # stamp ns -> time in the recording
+    labels = ["localizer", *folders]
     try:
         commands = [exe + ["localizer", *common, "--out", str(out / "localizer"), "--duration", f"{run_for + 1:g}"]]
-        commands += [exe + ["node", *common, "--robot", r, "--camera", str(out / "cameras" / r), "--realtime",
+        commands += [exe + ["node", *common, "--robot", r, "--camera", str(f), "--realtime",
                             "--start-at", f"{start_at:.6f}", "--duration", f"{run_for:g}", "--no-progress"]
-                     for r in (SOURCE, TARGET)]
-        for name, cmd in zip(("localizer", SOURCE, TARGET), commands):
+                     for r, f in folders.items()]
+        for name, cmd in zip(labels, commands):
             log = open(out / f"{name}.log", "w", encoding="utf-8")
             logs.append(log)
             procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
@@ -145,65 +167,63 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
             now = time.time()
             for m in readers["pose"].take():
                 received.append((now, stamp_of(m.header), m))
-            for r in (SOURCE, TARGET):
+            for r in folders:
                 for m in readers[r].take():
-                    source_time[(r, _ns(stamp_of(m.header)))] = float(m.source_time)
+                    source_time[_ns(stamp_of(m.header))] = float(m.source_time)
             time.sleep(0.002)
     finally:
         _stop(procs)
         for log in logs:
             log.close()
         bus.close()
-    failed = [(n, p.returncode) for n, p in zip(("localizer", SOURCE, TARGET), procs)
-              if p.returncode not in (0, 130, -signal.SIGINT)]
+    failed = [(n, p.returncode) for n, p in zip(labels, procs) if p.returncode not in (0, 130, -signal.SIGINT)]
     if failed:
         name = failed[0][0]
         tail = (out / f"{name}.log").read_text(encoding="utf-8").strip().splitlines()[-1:] or ["(no output)"]
         raise InputError(f"the {name} process stopped (exit {failed[0][1]}): {tail[0]}")
-    return _summary(out, received, source_time, world, times, seconds, fps, domain, render_s)
+    summary = _summary(out, received, source_time, truth, seconds, domain)
+    summary["start_at"] = start_at  # the wall-clock time of every recording's first frame
+    return summary
 
 
 def _ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
-def _summary(out: Path, received: list, source_time: dict, world: Any, times: list[float], seconds: float,
-             fps: float, domain: int, render_s: float) -> dict[str, Any]:
+def _summary(out: Path, received: list, source_time: dict, truth: Callable[[float], Any] | None, seconds: float,
+             domain: int) -> dict[str, Any]:
     from ..core.geometry import matrix_from_quaternion_xyzw, rotation_error_deg
-    from ..sim.render import relative_pose
 
     err_t, err_r, latency = [], [], []
     unmatched = 0
     for arrival, stamp, m in received:
         latency.append(arrival - stamp)
-        key = _ns(stamp)
-        st = source_time.get((SOURCE, key), source_time.get((TARGET, key)))
+        st = source_time.get(_ns(stamp))
+        if truth is None:
+            continue
         if st is None:
             unmatched += 1
             continue
-        truth = relative_pose(world, SOURCE, TARGET, st)
+        true = truth(st)
         p = m.pose.pose
         est_t = np.array([p.position.x, p.position.y, p.position.z])
         R = matrix_from_quaternion_xyzw(np.array([p.orientation.x, p.orientation.y, p.orientation.z,
                                                   p.orientation.w]))
-        err_t.append(float(np.linalg.norm(est_t - truth.t)))
-        err_r.append(float(rotation_error_deg(R, truth.R)))
-    messages = len(source_time)
+        err_t.append(float(np.linalg.norm(est_t - true.t)))
+        err_r.append(float(rotation_error_deg(R, true.R)))
 
     def pct(v: list[float], q: float, scale: float = 1.0) -> float | None:
         return float(np.percentile(v, q) * scale) if v else None
 
-    summary = {
-        "seconds": seconds, "fps": fps, "frames_per_camera": len(times), "dds_domain": domain,
-        "observation_messages": messages, "poses_received": len(received),
-        "poses_per_second": len(received) / seconds,
-        "translation_error_cm": {"median": pct(err_t, 50, 100), "p90": pct(err_t, 90, 100), "max": pct(err_t, 100, 100)},
+    return {
+        "seconds": seconds, "dds_domain": domain, "observation_messages": len(source_time),
+        "poses_received": len(received), "poses_per_second": len(received) / seconds,
+        "translation_error_cm": {"median": pct(err_t, 50, 100), "p90": pct(err_t, 90, 100),
+                                 "max": pct(err_t, 100, 100)},
         "rotation_error_deg": {"median": pct(err_r, 50), "max": pct(err_r, 100)},
         "latency_ms": {"p50": pct(latency, 50, 1e3), "p99": pct(latency, 99, 1e3), "max": pct(latency, 100, 1e3)},
-        "poses_without_a_known_frame": unmatched, "render_seconds": render_s, "folder": str(out),
+        "poses_without_a_known_frame": unmatched, "folder": str(out),
     }
-    (out / "live_summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    return summary
 
 
 def format_live_summary(s: dict[str, Any]) -> str:
