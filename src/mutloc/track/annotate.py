@@ -85,12 +85,13 @@ TEAM_LINE = 26
 def team_layout(sizes: dict[str, tuple[int, int]], robots: int) -> tuple[int, int, int, int]:
     """A team view's grid for cameras of ``sizes`` (``(width, height)`` per
     robot) and ``robots`` status lines: ``(columns, cell width, cell
-    height, frame height)`` (up to three cameras a row)."""
+    height, frame height)`` (up to three cameras a row; under them the
+    record's time and the robots' lines)."""
     cols = min(len(sizes), 3)
     rows = -(-len(sizes) // cols)
     w = max(s[0] for s in sizes.values())
     h = max(s[1] for s in sizes.values())
-    return cols, w, h, rows * h + robots * TEAM_LINE + 8
+    return cols, w, h, rows * h + (robots + 1) * TEAM_LINE + 8
 
 
 def draw_team(images: dict[str, tuple[np.ndarray | None, float | None]], rows: dict[str, Any], reference: str,
@@ -126,8 +127,8 @@ def draw_team(images: dict[str, tuple[np.ndarray | None, float | None]], rows: d
                   (255, 255, 255) if fresh else (160, 160, 160))
         frame[y:y + h, x:x + w] = canvas
     y0 = n_rows * ch + TEAM_LINE - 6
-    label(frame, f"record t={t_rec:.3f}s", (cols * cw - 170, y0 - TEAM_LINE), (255, 255, 255), 0.5)
-    for j, (robot, row) in enumerate(rows.items()):
+    label(frame, f"record t={t_rec:.3f}s (poses in {reference}'s frame)", (10, y0), (255, 255, 255), 0.5)
+    for j, (robot, row) in enumerate(rows.items(), start=1):
         text, colour = _pose_text(row, robot, reference)
         if row.reason:
             text += f"  | {row.reason[:110]}"
