@@ -38,6 +38,12 @@ Per record and robot (not the reference):
   that camera's first rejection: then that camera is the one at odds, and
   its records of the robot keep being rejected.
 
+With the options' ``smooth_lag`` (default as for a pair) each row's pose,
+covariance and velocity are then replaced by the fixed-lag smoothed ones of
+the joint state (:mod:`mutloc.core.team_smoother`) once the ``smooth_lag``
+records after it have come (:meth:`TeamTracker.finalize`); statuses and
+reasons are the causal filter's.
+
 ``filter="none"``: every record's joint estimate on its own.
 """
 
