@@ -51,12 +51,7 @@ from mutloc.core.geometry import so3_log  # noqa: E402
 from mutloc.errors import MutlocError  # noqa: E402
 from mutloc.io.trajectory import read_trajectory_csv, read_tum  # noqa: E402
 from mutloc.sim.team import random_team, team_sequence  # noqa: E402
-from mutloc.api import load_rig  # noqa: E402
-from mutloc.core.filter import MotionNoise  # noqa: E402
-from mutloc.core.observations import ObservationSet  # noqa: E402
-from mutloc.io.logs import iter_observation_log  # noqa: E402
 from mutloc.track.filtering import DEFAULT_SMOOTH_LAG, FilterOptions  # noqa: E402
-from mutloc.track.frames import expanded_rig  # noqa: E402
 from mutloc.track.team import TeamTracker, track_team_log  # noqa: E402
 
 
@@ -140,7 +135,8 @@ def _rendered_track(sim: Path, out: Path, lag: str) -> dict:
 
 def fast_team(frames: int) -> dict:
     """The fast team of tests/test_team_unsync.py: filtered against smoothed."""
-    from test_team_unsync import ROBOTS, _nees, _truth  # noqa: E402 (the test's truth interpolation)
+    # the test's scene, truth interpolation and tracking
+    from test_team_unsync import ROBOTS, _nees, _truth, filtered_and_smoothed
 
     with tempfile.TemporaryDirectory() as tmp:
         sim, apart = Path(tmp) / "sim", Path(tmp) / "apart"
@@ -153,16 +149,7 @@ def fast_team(frames: int) -> dict:
                      "--linear-noise", "2", "--tolerance", "0.001", "--observations-out", str(apart / "log.jsonl"),
                      "--out", str(apart), "--no-progress"]) == 0
         truth = _truth(sim)
-        rig = expanded_rig(load_rig(sim / "rig.yaml"))
-        rng = np.random.default_rng(7)
-        records = [(t, ObservationSet(o.observer, o.marker, o.uv + rng.normal(0.0, 0.3, o.uv.shape), t))
-                   for t, o in iter_observation_log(apart / "log.jsonl")]
-    rows = {}
-    for lag in (0, DEFAULT_SMOOTH_LAG):
-        tracker = TeamTracker(rig, "r0", pixel_sigma=0.3,
-                              options=FilterOptions(noise=MotionNoise(angular=2.0, linear=2.0), smooth_lag=lag))
-        rows[lag] = [tracker.step(t, o) for t, o in records]
-        tracker.finalize(end=True)
+        records, rows, _ = filtered_and_smoothed(sim, apart / "log.jsonl")
     res = {"records": len(records)}
     for r in ("r1", "r2"):
         keep = [k for k in range(len(records)) if rows[0][k][r].status.value in ("solved", "partial")]

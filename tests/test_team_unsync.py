@@ -103,6 +103,35 @@ def test_free_running_cameras_on_fast_robots_give_no_wrong_solved_pose(fast_team
         assert sum(row["status"] == "solved" for row in late) >= 10, r
 
 
+def noisy_records(log, seed=7):
+    """The log's records with 0.3 px Gaussian noise added to every detection."""
+    rng = np.random.default_rng(seed)
+    return [(t, ObservationSet(obs.observer, obs.marker, obs.uv + rng.normal(0.0, 0.3, obs.uv.shape), t))
+            for t, obs in iter_observation_log(log)]
+
+
+def track_records(rig, records, lag):
+    """The team tracker (agile motion noise, 0.3 px) over ``records``: the tracker and each record's rows."""
+    tracker = TeamTracker(rig, "r0", pixel_sigma=0.3,
+                          options=FilterOptions(noise=MotionNoise(angular=2.0, linear=2.0), smooth_lag=lag))
+    return tracker, [tracker.step(t, obs) for t, obs in records]
+
+
+def filtered_and_smoothed(sim, log):
+    """The noisy records of ``log`` tracked with smooth_lag 0 and the
+    default lag: the records, each lag's rows per record, and what
+    ``finalize(end=True)`` returned for each."""
+    from mutloc.track.filtering import DEFAULT_SMOOTH_LAG
+
+    rig = expanded_rig(load_rig(sim / "rig.yaml"))
+    records = noisy_records(log)
+    rows, final = {}, {}
+    for lag in (0, DEFAULT_SMOOTH_LAG):
+        tracker, rows[lag] = track_records(rig, records, lag)
+        final[lag] = tracker.finalize(end=True)
+    return records, rows, final
+
+
 def test_sigmas_and_the_joint_covariance_are_consistent(fast_team):
     """The records of every frame at its own time, with 0.3 px Gaussian
     noise added to every detection (the rendered corners are far more exact
@@ -268,17 +297,8 @@ def test_smoothing_the_joint_state_lowers_the_error_and_stays_consistent(fast_te
 
     sim, _, out = fast_team
     truth = _truth(sim)
-    rig = expanded_rig(load_rig(sim / "rig.yaml"))
-    rng = np.random.default_rng(7)
-    records = [(t, ObservationSet(obs.observer, obs.marker, obs.uv + rng.normal(0.0, 0.3, obs.uv.shape), t))
-               for t, obs in iter_observation_log(out / "log.jsonl")]
-    got = {}
-    for lag in (0, DEFAULT_SMOOTH_LAG):
-        tracker = TeamTracker(rig, "r0", pixel_sigma=0.3,
-                              options=FilterOptions(noise=MotionNoise(angular=2.0, linear=2.0), smooth_lag=lag))
-        rows = [tracker.step(t, obs) for t, obs in records]
-        assert tracker.finalize(end=True) == (len(records) if lag else 0)
-        got[lag] = rows
+    records, got, final = filtered_and_smoothed(sim, out / "log.jsonl")
+    assert final == {0: 0, DEFAULT_SMOOTH_LAG: len(records)}
     for r in ("r1", "r2"):
         err, nees = {0: [], DEFAULT_SMOOTH_LAG: []}, {0: [], DEFAULT_SMOOTH_LAG: []}
         for k, (t, _) in enumerate(records):
