@@ -168,3 +168,20 @@ def test_a_robot_dropped_within_the_window_is_smoothed_by_what_came_before():
         assert all(np.allclose(so3_log(R), 0.0) for R in got.R)
     # and the smoothing did something: r2 before the drop moved by r1's later measurements through the correlation
     assert np.linalg.norm(sm.smoothed(0).t[1] - full["m"][0][STATE_DIM + 3:STATE_DIM + 6]) > 1e-4
+
+
+def test_the_kernel_rotation_log_is_the_geometry_one():
+    """The smoother's compiled rotation log against mutloc.core.geometry.so3_log:
+    small, ordinary and near-180-degree rotations."""
+    from mutloc.core.team_smoother import _so3_log
+
+    rng = np.random.default_rng(0)
+    out = np.empty(3)
+    for scale in (1e-9, 1e-4, 0.5, 2.0, np.pi - 1e-4, np.pi - 1e-6):
+        for _ in range(20):
+            axis = rng.normal(size=3)
+            w = scale * axis / np.linalg.norm(axis)
+            R = so3_exp(w)
+            _so3_log(R, out)
+            assert np.allclose(out, so3_log(R), atol=1e-9), (scale, out, so3_log(R))
+            assert np.allclose(so3_exp(out), R, atol=1e-9)

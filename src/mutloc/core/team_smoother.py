@@ -32,9 +32,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .filter import STATE_DIM, cv_transition
-from .geometry import so3_exp, so3_log
+from .refine import so3_exp_left
 from .team_filter import TeamSnapshot
 
 __all__ = ["TeamSmoother", "team_rts_step"]
@@ -86,14 +87,67 @@ def _gain(post: TeamSnapshot, prior: TeamSnapshot, nxt_post: TeamSnapshot) -> _G
                  np.array([nxt_post.position(post.tracked[x]) for x in carried], np.int64))
 
 
-def _error(a: TeamSnapshot, ia: np.ndarray, b: TeamSnapshot, ib: np.ndarray) -> np.ndarray:
-    """``a (-) b`` on the error state, over robots at positions ``ia`` of ``a`` and ``ib`` of ``b``."""
-    out = np.empty((len(ia), STATE_DIM))
-    for n, (x, y) in enumerate(zip(ia.tolist(), ib.tolist())):
-        out[n, :3] = so3_log(a.R[x] @ b.R[y].T)
-        out[n, 3:6] = a.t[x] - b.t[y]
-        out[n, 6:] = a.vel[x] - b.vel[y]
-    return out.ravel()
+@njit(cache=True)
+def _so3_log(M, out):
+    """``out`` = the rotation vector of ``M`` (as :func:`mutloc.core.geometry.so3_log`)."""
+    c = min(max((M[0, 0] + M[1, 1] + M[2, 2] - 1.0) / 2.0, -1.0), 1.0)
+    v0, v1, v2 = M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]
+    s = 0.5 * np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    th = np.arctan2(s, c)
+    if th < 1e-6:
+        f = 0.5 * (1.0 + th * th / 6.0)
+        out[0], out[1], out[2] = f * v0, f * v1, f * v2
+        return
+    if th < np.pi - 1e-3:
+        f = th / (2.0 * np.sin(th))
+        out[0], out[1], out[2] = f * v0, f * v1, f * v2
+        return
+    # Near pi the antisymmetric part vanishes: read the axis off R + R^T.
+    B = 0.5 * (M + M.T)
+    for i in range(3):
+        B[i, i] -= c
+    k = 0
+    for i in range(1, 3):
+        if B[i, i] > B[k, k]:
+            k = i
+    a = B[:, k] / np.sqrt(max(B[k, k], 1e-300))
+    a = a / np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if a[0] * v0 + a[1] * v1 + a[2] * v2 < 0.0:
+        a = -a
+    out[0], out[1], out[2] = th * a[0], th * a[1], th * a[2]
+
+
+@njit(cache=True)
+def _smoothed_mean(G, at_post, at_next, Rp, tp, vp, Rq, tq, vq, Rn, tn, vn, R_out, t_out, v_out):
+    """The RTS step's mean: ``x_k (+) G (x_k+1^s (-) x_k+1^-)`` (``p``: record
+    ``k``'s posterior, ``q``: the prediction to ``k + 1``, ``n``: ``k + 1``
+    smoothed; ``at_post``/``at_next``: the carried robots' places)."""
+    m = at_post.shape[0]
+    d = np.empty(STATE_DIM * m)
+    M = np.empty((3, 3))
+    r = np.empty(3)
+    for n in range(m):
+        x, y = at_post[n], at_next[n]
+        for i in range(3):
+            for j in range(3):
+                M[i, j] = Rn[y, i, 0] * Rq[x, j, 0] + Rn[y, i, 1] * Rq[x, j, 1] + Rn[y, i, 2] * Rq[x, j, 2]
+        _so3_log(M, r)
+        o = STATE_DIM * n
+        for i in range(3):
+            d[o + i] = r[i]
+            d[o + 3 + i] = tn[y, i] - tq[x, i]
+        for i in range(6):
+            d[o + 6 + i] = vn[y, i] - vq[x, i]
+    e = G @ d
+    w = np.empty(3)
+    for x in range(Rp.shape[0]):
+        o = STATE_DIM * x
+        for i in range(3):
+            w[i] = e[o + i]
+            t_out[x, i] = tp[x, i] + e[o + 3 + i]
+        for i in range(6):
+            v_out[x, i] = vp[x, i] + e[o + 6 + i]
+        so3_exp_left(w, Rp[x], R_out[x])
 
 
 def team_rts_step(post: TeamSnapshot, prior: TeamSnapshot, smooth_next: TeamSnapshot,
@@ -105,14 +159,17 @@ def team_rts_step(post: TeamSnapshot, prior: TeamSnapshot, smooth_next: TeamSnap
     g = gain if gain is not None else _gain(post, prior, nxt_post if nxt_post is not None else smooth_next)
     if g.G is None:
         return post
-    d = _error(smooth_next, g.at_next, prior, g.at_post)
-    e = (g.G @ d).reshape(-1, STATE_DIM)
-    R, t, vel = post.R.copy(), post.t + e[:, 3:6], post.vel + e[:, 6:]
-    for x in range(len(R)):
-        R[x] = so3_exp(e[x, :3]) @ post.R[x]
-    post_rows, next_rows = g.post, g.nxt
-    D = smooth_next.P[np.ix_(next_rows, next_rows)] - prior.P[np.ix_(post_rows, post_rows)]
-    P = post.P + g.G @ D @ g.G.T
+    R, t, vel = np.empty_like(post.R), np.empty_like(post.t), np.empty_like(post.vel)
+    _smoothed_mean(g.G, g.at_post, g.at_next, post.R, post.t, post.vel, prior.R, prior.t, prior.vel,
+                   smooth_next.R, smooth_next.t, smooth_next.vel, R, t, vel)
+    k = len(post.tracked)
+    if len(g.at_post) == k == len(smooth_next.tracked) and (g.at_post == g.at_next).all() \
+            and (g.at_post == np.arange(k)).all():
+        D = smooth_next.P - prior.P  # every robot carried, in the same order (the common case)
+    else:
+        post_rows, next_rows = g.post, g.nxt
+        D = smooth_next.P[np.ix_(next_rows, next_rows)] - prior.P[np.ix_(post_rows, post_rows)]
+    P = post.P + (g.G @ D) @ g.G.T
     return TeamSnapshot(post.time, post.tracked, post.serial, R, t, vel, 0.5 * (P + P.T))
 
 
