@@ -37,7 +37,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="frames of the robots closer in time than this are one record (default 0.005 s); every other "
                         "frame is fused at its own time (cameras need not be synchronized)")
     p.add_argument("--out", required=True, metavar="DIR", help="writes DIR/trajectory.tum and DIR/trajectory.csv")
-    p.add_argument("--annotate", metavar="VIDEO", help="also write a side-by-side annotated video (mp4)")
+    p.add_argument("--annotate", metavar="VIDEO", help="also write an annotated video (mp4): the cameras side by side "
+                   "(a team: tiled, one status line per robot) with the detections, statuses and poses")
     p.add_argument("--bag", metavar="DIR", help="also write the poses with covariance as a ROS 2 bag (a new folder): "
                    "geometry_msgs/PoseWithCovarianceStamped on /mutloc/SOURCE_in_TARGET and tf2_msgs/TFMessage on /tf")
     p.add_argument("--mcap", metavar="FILE", help="the same messages as an MCAP file")
@@ -80,15 +81,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--observations-out writes what is detected in images: with --observations the log "
                          "is already there")
     team = team_mode(rig, args)
-    # Teams report the causal filter: the default lag applies to pairs only; an explicit one is refused.
-    lag = 0 if team and args.smooth_lag is None else args.smooth_lag
     options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
-                            smooth_lag=lag)
+                            smooth_lag=args.smooth_lag)
+    if args.observations and args.annotate:
+        raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
     if team:
         return _run_team(args, rig, options, out)
     if args.observations:
-        if args.annotate:
-            raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
 
         def work(sink):
             return track_log(rig, iter_observation_log(args.observations), args.source, args.target,
@@ -169,15 +168,12 @@ def _run_team(args, rig, options, out) -> int:
     every row so far written, and said)."""
     import sys
 
-    from ..errors import InputError
     from ..io.logs import iter_observation_log
     from ..track.outputs import TrackOutputs
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.team import require_streams, track_team, track_team_log
     from ..track.tracker import BaseFrames
 
-    if args.annotate:
-        raise InputError("--annotate is not available for a team track yet (pairs only)")
     reference = args.reference if args.reference is not None else next(iter(rig.robots))
     robots = [r for r in rig.robots if r != reference]
     base = rig if args.frames == "base" else None
@@ -214,7 +210,7 @@ def _run_team(args, rig, options, out) -> int:
                 traj = track_team(rig, open_streams(paths, fps=args.fps, topics=robot_map(args.topic, "--topic")),
                                   args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
                                   confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
-                                  progress=args.progress, filter=options, sink=sink)
+                                  progress=args.progress, filter=options, annotate=args.annotate, sink=sink)
         except KeyboardInterrupt:
             outputs.close()
             if viz is not None:

@@ -44,7 +44,7 @@ from .pose import Pose
 from .team import TeamProblem
 from .team_kernels import team_iekf, team_predict
 
-__all__ = ["TeamFilter", "TeamUpdate"]
+__all__ = ["TeamFilter", "TeamUpdate", "TeamSnapshot"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,26 @@ class TeamUpdate:
     dropped: np.ndarray
     residuals_px: np.ndarray
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class TeamSnapshot:
+    """The filter's state at one time, kept for smoothing: ``tracked`` the
+    robots' indices in state order, ``serial`` each one's track (a robot
+    started again is a new track), their poses ``R``/``t`` and velocities
+    ``vel`` (one row each, in state order) and the joint covariance ``P``."""
+
+    time: float
+    tracked: tuple[int, ...]
+    serial: tuple[int, ...]
+    R: np.ndarray
+    t: np.ndarray
+    vel: np.ndarray
+    P: np.ndarray
+
+    def position(self, robot: int) -> int:
+        """``robot``'s place in the state (-1: not tracked)."""
+        return self.tracked.index(robot) if robot in self.tracked else -1
 
 
 class TeamFilter:
@@ -90,6 +110,9 @@ class TeamFilter:
         #: Tracked robots' indices, in state order, and the joint covariance.
         self.tracked: list[int] = []
         self.P = np.zeros((0, 0))
+        #: Each robot's track: a new number whenever it enters the state (see :class:`TeamSnapshot`).
+        self.serial = np.zeros(n, np.int64)
+        self._serials = 0
 
     # -- the state ----------------------------------------------------------
 
@@ -166,6 +189,8 @@ class TeamFilter:
         P[STATE_DIM * k:, STATE_DIM * k:] = B
         self.P = P
         self.tracked.append(i)
+        self._serials += 1
+        self.serial[i] = self._serials
         self.R[i], self.t[i] = pose.R, pose.t
         self.vel[i] = 0.0 if velocity is None else np.asarray(velocity, float)
 
@@ -193,6 +218,13 @@ class TeamFilter:
             for y, b in enumerate(names):
                 sa, sb = self._block(a), self._block(b)
                 self.P[sa.start:sa.start + 6, sb.start:sb.start + 6] = C[6 * x:6 * x + 6, 6 * y:6 * y + 6]
+
+    def snapshot(self) -> TeamSnapshot:
+        """A copy of the state now (see :class:`TeamSnapshot`)."""
+        idx = np.asarray(self.tracked, np.int64)
+        return TeamSnapshot(-math.inf if self.time is None else self.time, tuple(self.tracked),
+                            tuple(int(s) for s in self.serial[idx]), self.R[idx].copy(), self.t[idx].copy(),
+                            self.vel[idx].copy(), self.P.copy())
 
     # -- motion ---------------------------------------------------------------
 

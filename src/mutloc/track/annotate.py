@@ -1,5 +1,6 @@
 """Annotated views: both robots' images side by side with the detections,
-the status and the pose, as a video (``mutloc track --annotate``) or a still."""
+the status and the pose, as a video (``mutloc track --annotate``) or a
+still; for a team, every robot's camera tiled with one status line per robot."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import cv2
 import numpy as np
 
 
-__all__ = ["draw_pair", "label", "Annotator", "STATUS_COLOURS"]
+__all__ = ["draw_pair", "draw_team", "label", "Annotator", "STATUS_COLOURS"]
 
 
 #: Colour (BGR) of each frame status in the annotated views: green when the
@@ -42,17 +43,21 @@ def draw_pair(img_s: np.ndarray, img_t: np.ndarray, row: Any, source: str, targe
     views = []
     for robot, img in ((source, img_s), (target, img_t)):
         canvas = img.copy()
-        det = row.detections.get(robot)
-        if det is not None:
-            for name, d in det.detections.items():
-                u, v = float(d.uv[0]), float(d.uv[1])
-                cv2.circle(canvas, (int(round(u)), int(round(v))), 8, (0, 255, 255), 2, cv2.LINE_AA)
-                label(canvas, name, (int(u) + 10, int(v) - 10), (0, 255, 255), 0.45)
+        _draw_detections(canvas, row.detections.get(robot))
         label(canvas, f"{robot}  t={row.t:.3f}s", (10, 22), (255, 255, 255))
         views.append(canvas)
     h = max(v.shape[0] for v in views)
     views = [cv2.copyMakeBorder(v, 0, h - v.shape[0], 0, 0, cv2.BORDER_CONSTANT) for v in views]
     frame = np.hstack(views)
+    text, colour = _pose_text(row, source, target)
+    if row.reason:
+        label(frame, row.reason[:160], (10, h - 40), colour, 0.5)
+    label(frame, text, (10, h - 12), colour, 0.6, 2)
+    return frame
+
+
+def _pose_text(row: Any, source: str, target: str) -> tuple[str, tuple[int, int, int]]:
+    """A row's status line (upper-case status, pose, rms) and its colour."""
     status = str(row.status)
     text = status.upper()
     if row.estimate is not None:
@@ -61,10 +66,73 @@ def draw_pair(img_s: np.ndarray, img_t: np.ndarray, row: Any, source: str, targe
         rms = getattr(row.estimate, "reprojection_rms_px", None)
         if rms is not None and np.isfinite(rms) and status in ("solved", "unverified"):
             text += f"  rms {rms:.2f}px"
-    colour = STATUS_COLOURS.get(status, _NO_POSE_COLOUR)
-    if row.reason:
-        label(frame, row.reason[:160], (10, h - 40), colour, 0.5)
-    label(frame, text, (10, h - 12), colour, 0.6, 2)
+    return text, STATUS_COLOURS.get(status, _NO_POSE_COLOUR)
+
+
+def _draw_detections(canvas: np.ndarray, det: Any) -> None:
+    if det is None:
+        return
+    for name, d in det.detections.items():
+        u, v = float(d.uv[0]), float(d.uv[1])
+        cv2.circle(canvas, (int(round(u)), int(round(v))), 8, (0, 255, 255), 2, cv2.LINE_AA)
+        label(canvas, name, (int(u) + 10, int(v) - 10), (0, 255, 255), 0.45)
+
+
+#: Height (px) of one robot's status line under a team's tiled views.
+TEAM_LINE = 26
+
+
+def team_layout(sizes: dict[str, tuple[int, int]], robots: int) -> tuple[int, int, int, int]:
+    """A team view's grid for cameras of ``sizes`` (``(width, height)`` per
+    robot) and ``robots`` status lines: ``(columns, cell width, cell
+    height, frame height)`` (up to three cameras a row; under them the
+    record's time and the robots' lines)."""
+    cols = min(len(sizes), 3)
+    rows = -(-len(sizes) // cols)
+    w = max(s[0] for s in sizes.values())
+    h = max(s[1] for s in sizes.values())
+    return cols, w, h, rows * h + (robots + 1) * TEAM_LINE + 8
+
+
+def draw_team(images: dict[str, tuple[np.ndarray | None, float | None]], rows: dict[str, Any], reference: str,
+              sizes: dict[str, tuple[int, int]]) -> np.ndarray:
+    """One annotated record of a team: every robot's camera (``images``:
+    per robot its latest image and that frame's time, None before its
+    first; ``sizes``: each camera's ``(width, height)``) in a grid, with the
+    detections of the cameras whose frame is in the record, and under it one
+    line per robot of ``rows`` (:class:`~mutloc.track.tracker.TrackRow` per
+    robot but the reference): its status (coloured: :data:`STATUS_COLOURS`),
+    its pose in the reference's frame and the reason."""
+    cols, cw, ch, H = team_layout(sizes, len(rows))
+    n_rows = -(-len(sizes) // cols)
+    frame = np.zeros((H, cols * cw, 3), np.uint8)
+    any_row = next(iter(rows.values()), None)
+    detections = getattr(any_row, "detections", None) or {}
+    t_rec = any_row.t if any_row is not None else 0.0
+    for k, robot in enumerate(sizes):
+        x, y = (k % cols) * cw, (k // cols) * ch
+        w, h = sizes[robot]
+        img, t = images.get(robot, (None, None))
+        if img is None:
+            canvas = np.full((h, w, 3), 40, np.uint8)
+            label(canvas, f"{robot}  no frame yet", (10, 22), (160, 160, 160))
+        else:
+            canvas = img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+            canvas = canvas.copy() if canvas.shape[:2] == (h, w) else cv2.resize(canvas, (w, h))
+            fresh = robot in detections
+            if fresh:
+                _draw_detections(canvas, detections[robot])
+            what = f"t={t:.3f}s" if fresh else f"last frame t={t:.3f}s"
+            label(canvas, f"{robot}  {what}" + ("  (reference)" if robot == reference else ""), (10, 22),
+                  (255, 255, 255) if fresh else (160, 160, 160))
+        frame[y:y + h, x:x + w] = canvas
+    y0 = n_rows * ch + TEAM_LINE - 6
+    label(frame, f"record t={t_rec:.3f}s (poses in {reference}'s frame)", (10, y0), (255, 255, 255), 0.5)
+    for j, (robot, row) in enumerate(rows.items(), start=1):
+        text, colour = _pose_text(row, robot, reference)
+        if row.reason:
+            text += f"  | {row.reason[:110]}"
+        label(frame, text, (10, y0 + j * TEAM_LINE), colour, 0.5, 1)
     return frame
 
 
@@ -79,7 +147,14 @@ class Annotator:
         self.vw: Any = None
 
     def write(self, img_s: np.ndarray, img_t: np.ndarray, row: Any, source: str, target: str) -> None:
-        frame = draw_pair(img_s, img_t, row, source, target)
+        self._write(draw_pair(img_s, img_t, row, source, target))
+
+    def write_team(self, images: dict[str, tuple[np.ndarray | None, float | None]], rows: dict[str, Any],
+                   reference: str, sizes: dict[str, tuple[int, int]]) -> None:
+        """One record of a team (see :func:`draw_team`)."""
+        self._write(draw_team(images, rows, reference, sizes))
+
+    def _write(self, frame: np.ndarray) -> None:
         if self.vw is None:
             from ..io.video import VideoWriter
 

@@ -38,12 +38,18 @@ Per record and robot (not the reference):
   that camera's first rejection: then that camera is the one at odds, and
   its records of the robot keep being rejected.
 
+With the options' ``smooth_lag`` (default as for a pair) each row's pose,
+covariance and velocity are then replaced by the fixed-lag smoothed ones of
+the joint state (:mod:`mutloc.core.team_smoother`) once the ``smooth_lag``
+records after it have come (:meth:`TeamTracker.finalize`); statuses and
+reasons are the causal filter's.
+
 ``filter="none"``: every record's joint estimate on its own.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
@@ -56,7 +62,9 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..core.team import MIN_TIES, TeamProblem, residual_norms
+from ..core.filter import STATE_DIM
 from ..core.team_filter import TeamFilter
+from ..core.team_smoother import TeamSmoother
 from ..errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
 from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
@@ -64,7 +72,7 @@ from .filtering import FilterOptions, lost_reason
 from .frames import expanded_rig, observations_of
 from .sources import Frame
 from .status import FrameStatus
-from .tracker import DEFAULT_FPS, ObserverDetector, TrackRow, Trajectory, frame_rate
+from .tracker import DEFAULT_FPS, ObserverDetector, RowEmitter, TrackRow, Trajectory, frame_rate
 
 __all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names",
            "require_streams"]
@@ -186,11 +194,12 @@ class TeamTracker:
         self.robots = [n for n in names if n != reference]
         self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
         self.confidence = confidence
-        self.options = options if options is not None else FilterOptions(smooth_lag=0)
-        if self.options.smooth_lag:
-            raise InputError("smoothing (--smooth-lag) is not available for teams yet: "
-                             "teams report the causal filter (smooth_lag=0)")
+        self.options = options if options is not None else FilterOptions()
         self.filter = TeamFilter(names, reference, self.options.noise, pixel_sigma, confidence)
+        #: With ``smooth_lag``: the joint filter's states of the records not yet
+        #: final and their rows (see :meth:`finalize`).
+        self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
+        self._unfinal: list[dict[str, TrackRow]] = []
         self.tracks: dict[str, _Track] = {}
         self.last_time: float | None = None
         self.joint_solves = 0  #: records solved on their own to start (or restart) a robot
@@ -217,7 +226,12 @@ class TeamTracker:
         rows = {r: TrackRow(t, t if times is None else times.get(r), t if times is None else times.get(self.reference),
                             FrameStatus.SOLVED, observations=observations) for r in self.robots}
         if self.filtering:
+            self.filter.predict(t)
+            prior = self.filter.snapshot() if self.smoother is not None else None
             self._filtered(t, observations, rows)
+            if self.smoother is not None:
+                self.smoother.add(prior, self.filter.snapshot())
+                self._unfinal.append(rows)
         else:
             self._per_record(observations, rows)
         for r, row in rows.items():
@@ -230,10 +244,48 @@ class TeamTracker:
                     row.reason = _join(row.reason, f"{note} (localized from the others' views)")
         return rows
 
+    @property
+    def history(self) -> TeamSmoother | None:
+        """The smoother's records (None without smoothing: every row is final at once)."""
+        return self.smoother
+
+    def finalize(self, end: bool = False) -> int:
+        """Make final the rows of the records that nothing to come can
+        change, in input order, and return how many records are final (all
+        of them without smoothing).
+
+        With ``smooth_lag``: each robot's pose, covariance and velocity in a
+        record's rows become the fixed-lag smoothed ones of the joint state
+        (the record and the ``smooth_lag`` records after it; see
+        :mod:`mutloc.core.team_smoother`) -- what a fixed-lag smoother reports
+        ``smooth_lag`` records late.  A record is final once ``smooth_lag +
+        1`` records came after it; ``end``: the input ended, every record is."""
+        sm = self.smoother
+        if sm is None:
+            return 0
+        n = len(sm)
+        limit = n if end else max(sm.first, n - sm.lag - 1)
+        for k in range(sm.first, limit):
+            state = sm.smoothed(k)
+            for r, row in self._unfinal[k - sm.first].items():
+                e = row.estimate
+                x = state.position(self.filter.index(r))
+                if e is None or x < 0 or e.extra.get("filter") != "cv":
+                    continue
+                b = slice(STATE_DIM * x, STATE_DIM * x + 6)
+                pose = Pose(state.R[x].copy(), state.t[x].copy())
+                row.estimate = replace(e, pose=pose, covariance=state.P[b, b].copy(),
+                                       candidates=Pose.concatenate([pose]),
+                                       extra=dict(e.extra, smooth_lag=sm.lag, velocity=state.vel[x].tolist()))
+        del self._unfinal[:limit - sm.first]
+        sm.forget(limit)
+        return limit
+
     def relative(self, a: str, b: str) -> Estimate | None:
         """``T_ba`` (robot ``a`` in ``b``'s frame; either may be the
         reference) now, with its covariance from the joint filter (their
-        correlation included); None unless both are tracked."""
+        correlation included; the causal filter's, not smoothed); None
+        unless both are tracked."""
         if a == b or any(r != self.reference and r not in self.tracks for r in (a, b)):
             return None
         pose, cov = self.filter.relative(a, b)
@@ -293,7 +345,6 @@ class TeamTracker:
 
     def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> None:
         f = self.filter
-        f.predict(t)
         if obs is None or len(obs) == 0:
             self._coast(rows, set())
             for r, row in rows.items():
@@ -493,7 +544,7 @@ class TeamTracker:
         if not guesses:
             return {}, failed
         before = set(self.tracks)
-        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), list(f.tracked), dict(self.tracks))
+        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), list(f.tracked), f.serial.copy(), dict(self.tracks))
         for r, (pose, three) in guesses.items():
             if r in self.tracks:
                 self._drop(r)
@@ -524,7 +575,7 @@ class TeamTracker:
                 started[r] = note
             return started, failed
         # the record's observations of them contradict the others' tracks: not started (tracks restarting kept)
-        f.R, f.t, f.vel, f.P, f.tracked, self.tracks = saved
+        f.R, f.t, f.vel, f.P, f.tracked, f.serial, self.tracks = saved
         for r in new:
             if r not in restart:
                 failed[r] = (FrameStatus.REJECTED, "its joint solve is inconsistent with the tracked robots" +
@@ -676,35 +727,69 @@ def track_team_log(rig: Any, frames: Iterable[tuple[float, ObservationSet]], ref
                    sink: Callable[[TrackRow, str], None] | None = None) -> TeamTrajectory:
     """Track a team over an observation log (``(time, ObservationSet)`` per
     frame, as :func:`mutloc.io.logs.iter_observation_log` yields them);
-    ``sink(row, robot)`` gets every robot's row as soon as it is made (a
-    team's rows are final at once: no smoothing)."""
+    ``sink(row, robot)`` gets every robot's row, in input order, as soon as
+    it is final (after the smoother's lag; see :meth:`TeamTracker.finalize`).
+    On Ctrl-C (``KeyboardInterrupt``) every record finished so far is
+    reported, as if the input ended there, before the exception goes on."""
     rig, reference = _team_setup(rig, reference, (), "log")
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
     rows: dict[str, list[TrackRow]] = {r: [] for r in tracker.robots}
-    for t, obs in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track team"):
-        for r, row in tracker.step(float(t), obs).items():
-            rows[r].append(row)
-            if sink is not None:
+
+    def final(record: dict[str, TrackRow], _: Any) -> None:
+        if sink is not None:
+            for r, row in record.items():
                 sink(row, r)
+
+    emitter = RowEmitter(tracker, final)
+    try:
+        for t, obs in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track team"):
+            record = tracker.step(float(t), obs)
+            for r, row in record.items():
+                rows[r].append(row)
+            emitter.add(record, True)
+            emitter.emit()
+        emitter.emit(end=True)
+    except KeyboardInterrupt:
+        emitter.emit(end=True)  # every record finished so far, reported as if the input ended here
+        raise
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r]) for r in tracker.robots})
 
 
 def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str | None = None, *,
                tolerance: float = 0.005, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
                fps: float | None = None, observations_out: str | Path | None = None, progress: bool = True,
-               total: int | None = None, filter: str | FilterOptions = "cv",
+               total: int | None = None, filter: str | FilterOptions = "cv", annotate: str | Path | None = None,
                sink: Callable[[TrackRow, str], None] | None = None) -> TeamTrajectory:
     """Track a team from one image stream per robot (``{robot: frames}``;
     every robot of the rig needs one).  Frames are grouped by timestamp
     (:func:`sync_streams`); each robot's image is searched for every other
     robot's markers and the group localized jointly (see the module
-    docstring).  ``sink`` as :func:`track_team_log`."""
+    docstring).  ``sink`` and Ctrl-C as :func:`track_team_log`.
+    ``annotate``: an mp4 of every record as it becomes final, every robot's
+    camera tiled (its latest image; the detections of those in the record)
+    with one status line per robot (:func:`mutloc.track.annotate.draw_team`)."""
     rig, reference = _team_setup(rig, reference, streams, "stream")
     require_streams(rig, streams)
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
     rate = frame_rate(streams, fps)
     dets = {r: ObserverDetector(rig, r, [o for o in rig.robots if o != r], rate or DEFAULT_FPS) for r in rig.robots}
     log = ObservationLogWriter(observations_out) if observations_out else None
+    writer = None
+    if annotate:
+        from .annotate import Annotator
+
+        writer = Annotator(annotate, fps=rate or DEFAULT_FPS)
+    sizes: dict[str, tuple[int, int]] = {}
+    last: dict[str, tuple[np.ndarray | None, float | None]] = {}  # each camera's latest image and its time
+
+    def final(record: dict[str, TrackRow], images: dict) -> None:
+        if writer is not None:
+            writer.write_team(images, record, reference, _camera_sizes(rig, images, sizes))
+        if sink is not None:
+            for r, row in record.items():
+                sink(row, r)
+
+    emitter = RowEmitter(tracker, final)
     rows: dict[str, list[TrackRow]] = {r: [] for r in tracker.robots}
     bar = tqdm(sync_streams(streams, tolerance), total=total, unit="frame", disable=not progress, desc="track team")
     try:
@@ -722,6 +807,8 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                     problems[r] = (FrameStatus.CORRUPT, fr.status)
                 else:
                     detections[r] = dets[r].detect(fr)
+                    if writer is not None:
+                        last[r] = (fr.image, fr.t)
             obs = observations_of(detections, t) if detections else None
             if log is not None and obs is not None:
                 log.write(t, obs)
@@ -735,14 +822,42 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                     row.reason = _join(row.reason, f"no {r} frame in this record")
                 row.detections = {o: d for o, d in detections.items()}
                 rows[r].append(row)
-                if sink is not None:
-                    sink(row, r)
+            emitter.add(out, True, dict(last) if writer is not None else None)
+            emitter.emit()
+        emitter.emit(end=True)
+    except KeyboardInterrupt:
+        emitter.emit(end=True)  # every record finished so far, reported as if the input ended here
+        raise
     finally:
         bar.close()
+        if writer is not None:
+            writer.close()
         if log is not None:
             log.close()
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate)
 
 
+def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]]
+                  ) -> dict[str, tuple[int, int]]:
+    """Each camera's tile ``(width, height)`` in the annotated video, fixed
+    with its first frame: the rig's camera size, else its first image's,
+    else (no image yet) the largest known.  ``sizes`` is filled in place."""
+    if len(sizes) < len(rig.robots):
+        for r in rig.robots:
+            if r in sizes:
+                continue
+            size = rig.robot(r).camera.size
+            img = images.get(r, (None, None))[0]
+            if size is None and img is not None:
+                size = (int(img.shape[1]), int(img.shape[0]))
+            if size is not None:
+                sizes[r] = (int(size[0]), int(size[1]))
+        known = list(sizes.values()) or [(640, 480)]
+        fill = (max(s[0] for s in known), max(s[1] for s in known))
+        for r in rig.robots:
+            sizes.setdefault(r, fill)
+    return {r: sizes[r] for r in rig.robots}
+
+
 def _options(filter: str | FilterOptions) -> FilterOptions:
-    return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter, smooth_lag=0)
+    return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter)

@@ -245,6 +245,8 @@ class _Detector:
 
 #: Public name of the per-observer detector (teams use it with several robots to look for).
 ObserverDetector = _Detector
+#: Public name of the emitter of final rows (teams hand it each record's rows, one per robot).
+RowEmitter = _Emitter
 
 
 def frame_rate(streams: Mapping[str, Any], fps: float | None) -> float | None:
