@@ -70,6 +70,7 @@ NEEDS: tuple[tuple[str, str | None, tuple[str, ...], str | None], ...] = (
     ("track", "annotate", ("av",), None),
     ("experiment", None, ("matplotlib", "pycolmap"), "experiments"),
     ("demo", None, ("matplotlib", "av"), None),
+    ("localizer", None, ("cyclonedds",), "live"),
 )
 
 

@@ -102,11 +102,17 @@ class Bus:
 
         return DataWriter(self.participant, self._topic(ros_topic, cls), qos=self.qos)
 
-    def reader(self, ros_topic: str, cls: type) -> Reader:
-        """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``."""
+    def reader(self, ros_topic: str, cls: type, depth: int = HISTORY_DEPTH) -> Reader:
+        """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``;
+        ``depth``: the samples it keeps until taken (a reader's own history:
+        a deeper one still matches ROS 2's writers, and rides out a pause)."""
+        from cyclonedds.core import Policy, Qos
         from cyclonedds.sub import DataReader
 
-        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=self.qos))
+        qos = self.qos if depth == HISTORY_DEPTH else Qos(
+            Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
+            Policy.History.KeepLast(int(depth)))
+        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos))
 
     def close(self) -> None:
         """Leave the domain (readers and writers go with the participant)."""

@@ -50,6 +50,7 @@ from typing import Any, Callable, Iterable, Sequence
 from ..api import Estimate, load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
+from ..core.pose import Pose
 from ..core.rig import Rig
 from ..errors import InputError, MutlocError, positive_number
 from ..track.filtering import FilterOptions, PairTracker
@@ -73,6 +74,8 @@ REORDER_WINDOW = 0.03
 #: Seconds between two ``/diagnostics`` messages (SPEC: at least once a second).
 DIAGNOSTICS_PERIOD = 0.5
 
+#: Observation messages a robot's reader keeps until taken (a second at 100 Hz).
+READER_DEPTH = 100
 #: Track statuses whose pose is published (``predicted`` only within ``max_coast``).
 MEASURED = (FrameStatus.SOLVED, FrameStatus.UNVERIFIED, FrameStatus.PARTIAL)
 #: Messages remembered per robot to recognise a duplicate.
@@ -222,7 +225,34 @@ class Localizer:
         self.log = log
         self._held: list[_Held] = []
         self._seq = 0
+        self._first: float | None = None  # arrival of the first message held
         self._closed = False
+
+    def warm_up(self) -> None:
+        """Run a throwaway tracker on synthetic records (the first two robots
+        2 m apart, facing each other; each camera's frames at its own time),
+        so that the compiled kernels are loaded before the first message
+        rather than while messages wait (about a second in a new process)."""
+        a, b = self.names[0], self.names[1]
+        T = Pose.from_rotvec([0.0, math.pi, 0.0], [0.0, 0.0, 2.0])  # T_ba: a in front of b, facing it
+        seen = {}
+        for observer, other, to_obs in ((a, b, T.inverse()), (b, a, T)):
+            robot, markers = self.rig.robot(other), list(self.rig.robot(other).markers)
+            uv = self.rig.robot(observer).camera.project(to_obs.apply(robot.marker_positions(markers)))
+            seen[observer] = ObservationSet([observer] * len(markers), markers, uv)
+        if len(self.names) == 2:
+            source, target = self.engine.robots[0], self.engine.reference
+            engine: Any = _PairEngine(self.rig, source, target, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
+        else:
+            engine = _TeamEngine(self.rig, a, 1.0, DEFAULT_CONFIDENCE, FilterOptions(smooth_lag=0), None)
+        try:
+            for k in range(12):
+                observer = (a, b)[k % 2]
+                engine.step(k / 60, ObservationSet.from_dict(seen[observer].to_dict(), time=k / 60))
+            engine.step(0.25, ObservationSet.concatenate([seen[a], seen[b]]))
+            engine.finish()
+        except (MutlocError, ValueError, FloatingPointError):
+            pass  # a rig this pose does not suit: the first messages pay instead
 
     # -- messages in ----------------------------------------------------------
 
@@ -268,6 +298,8 @@ class Localizer:
             c.dropped_late += 1
             return "late"
         self._seq += 1
+        if self._first is None:
+            self._first = now
         heapq.heappush(self._held, _Held(got.time, self._seq, now, robot, obs))
         return "held"
 
@@ -292,13 +324,17 @@ class Localizer:
     # -- records fused, poses out ------------------------------------------
 
     def _due(self, h: _Held, now: float) -> bool:
-        if now - h.arrival >= self.reorder:
+        if now >= h.arrival + self.reorder:  # (the same sum as next_due: no rounding between them)
             return True
         for r, c in self.counts.items():
-            if r == h.robot or c.last_stamp is None or now - c.last_stamp > self.warn_after:
-                continue  # its own messages come in order; a robot gone quiet is not waited for
-            if c.last_stamp < h.t:
+            if r == h.robot:
+                continue  # its own messages come in order
+            if c.last_stamp is None:
+                if now - self._first > self.warn_after:
+                    continue  # a robot not heard since the start is not waited for
                 return False
+            if now - c.last_stamp <= self.warn_after and c.last_stamp < h.t:
+                return False  # (a robot gone quiet is not waited for)
         return True
 
     def next_due(self) -> float | None:
@@ -460,6 +496,7 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
 
     outputs: Any = None
     log: Any = None
+    load_rig(rig)  # a wrong rig refused before anything is joined or written
     if out is not None:
         from ..io import writable_path
         from ..io.logs import ObservationLogWriter
@@ -477,6 +514,7 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
         run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path])
+        loc.warm_up()
         _serve(bus, loc, duration, ready, clock,
                (ros_types, observations_topic, pose_topic, TF_TOPIC, DIAGNOSTICS_TOPIC, diagnostics_message))
     except KeyboardInterrupt:
@@ -503,7 +541,8 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
 
     ros_types, observations_topic, pose_topic, tf_topic, diag_topic, diagnostics_message = names
     T = ros_types()
-    readers = {r: bus.reader(observations_topic(r), T.Observations) for r in loc.names}
+    # A second of messages kept per robot (ROS 2's default keeps 10) until the loop takes them.
+    readers = {r: bus.reader(observations_topic(r), T.Observations, depth=READER_DEPTH) for r in loc.names}
     poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped) for r in loc.tracked}
     tf = bus.writer(tf_topic, T.TFMessage)
     diag = bus.writer(diag_topic, T.DiagnosticArray)
