@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
+from .._extras import require
 from ..api import Estimate, load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
@@ -537,7 +538,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
 
 def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Localizer], None] | None,
            clock: Callable[[], float], names: Sequence[Any]) -> None:
-    from cyclonedds.core import ReadCondition, SampleState, ViewState, InstanceState, WaitSet
+    require("cyclonedds", "the localizer over DDS")
+    from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 
     ros_types, observations_topic, pose_topic, tf_topic, diag_topic, diagnostics_message = names
     T = ros_types()
