@@ -130,6 +130,10 @@ def test_poses_match_offline_track_and_the_truth(setup, tmp_path):
     # one pose per fused message, stamped with its capture time, in time order
     stamps = [p.t for _, p in poses]
     assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+    sent = {(m.header.stamp.sec, m.header.stamp.nanosec) for _, m, _ in msgs}
+    for _, p in poses:  # the message's own stamp, to the nanosecond
+        pm, tf = p.messages()
+        assert (pm.header.stamp.sec, pm.header.stamp.nanosec) in sent and tf.transforms[0].header.stamp == pm.header.stamp
     live, ref = errors(setup, poses[15:]), [r for r in offline(setup, msgs).rows[15:] if r.estimate is not None]
     ref_err = np.array([np.linalg.norm(r.estimate.t - truth_at(setup, r.t).t) for r in ref])
     assert rms(live) <= 1.1 * rms(ref_err) + 1e-4, (rms(live), rms(ref_err))

@@ -92,12 +92,20 @@ class LivePose:
     t: float
     status: FrameStatus
     estimate: Estimate
+    #: The fused message's stamp in nanoseconds, exactly (``t`` is it in seconds, as a float).
+    stamp_ns: int | None = None
 
     def messages(self) -> tuple[Any, Any]:
-        """``(PoseWithCovarianceStamped, TFMessage)`` as ``track --bag`` writes them."""
-        from .messages import pose_messages
+        """``(PoseWithCovarianceStamped, TFMessage)`` as ``track --bag`` writes them,
+        stamped with the fused message's own stamp."""
+        from .messages import pose_messages, ros_types
 
-        return pose_messages(self.t, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+        pose, tf = pose_messages(self.t, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+        if self.stamp_ns is not None:
+            st = ros_types().Time(sec=self.stamp_ns // 1_000_000_000, nanosec=self.stamp_ns % 1_000_000_000)
+            pose.header.stamp = st
+            tf.transforms[0].header.stamp = st
+        return pose, tf
 
 
 @dataclass
@@ -131,6 +139,7 @@ class _Held:
     t: float
     seq: int
     arrival: float = field(compare=False)
+    ns: int = field(compare=False)
     robot: str = field(compare=False)
     observations: ObservationSet = field(compare=False)
 
@@ -286,7 +295,8 @@ class Localizer:
         except MutlocError as exc:
             c.refused_malformed += 1
             return "refused: " + " ".join(str(exc).split())
-        key = (got.frame, round(got.time * 1e9))
+        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        key = (got.frame, ns)
         if key in c.seen:
             c.duplicates += 1
             return "duplicate"
@@ -301,7 +311,7 @@ class Localizer:
         self._seq += 1
         if self._first is None:
             self._first = now
-        heapq.heappush(self._held, _Held(got.time, self._seq, now, robot, obs))
+        heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs))
         return "held"
 
     def malformed(self, robot: str, n: int = 1) -> None:
@@ -385,7 +395,7 @@ class Localizer:
                       and row.t - rc.last_measured <= self.max_coast):
                 continue
             rc.poses += 1
-            out.append(LivePose(robot, self.reference, h.t, row.status, e))
+            out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns))
         return out
 
     def finish(self) -> list[LivePose]:
@@ -435,8 +445,13 @@ class Localizer:
         """``612 records fused; 598 poses published; refused 3, late 0, duplicates 1``."""
         cs = self.counts.values()
         refused = sum(c.refused for c in cs) + self.unattributed
-        return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}, "
-                f"late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}")
+        kinds = [f"{what} {n}" for what, n in (
+            ("rig_id", sum(c.refused_rig_id for c in cs)), ("malformed", sum(c.refused_malformed for c in cs)
+                                                            + self.unattributed),
+            ("clock", sum(c.refused_clock for c in cs))) if n]
+        return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
+                + (f" ({', '.join(kinds)})" if kinds else "")
+                + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}")
 
 
 def _robot_of(msg: Any, counts: dict) -> str | None:
@@ -576,9 +591,10 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
         now = clock()
         for r, rd in readers.items():
             for sample in rd.take():
-                loc.receive(sample, now, r)
+                loc.receive(sample, clock(), r)  # (its own arrival: taking many may take a while)
             loc.malformed(r, rd.malformed - malformed[r])
             malformed[r] = rd.malformed
+        now = clock()
         publish(loc.poll(now))
         if now >= next_diag:
             diag.write(diagnostics_message(now, loc.diagnostics(now)))
