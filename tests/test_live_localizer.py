@@ -148,9 +148,9 @@ def test_poses_match_offline_track_and_the_truth(setup, tmp_path):
 
 def test_a_team_is_fused_and_replayed_the_same(tmp_path):
     """Three robots (the team tracker), each camera at its own phase: a
-    pose of every tracked robot per message, in the first robot's frame,
-    near the truth; the trajectory files equal those of track_team_log on
-    the received log."""
+    pose per message of every tracked robot it is about (its observer, the
+    robots it saw), in the first robot's frame, near the truth; the
+    trajectory files equal those of track_team_log on the received log."""
     rng = np.random.default_rng(2)
     scene = random_team(3, rng, one_way=0.0)
     path = tmp_path / "team.yaml"
@@ -172,7 +172,14 @@ def test_a_team_is_fused_and_replayed_the_same(tmp_path):
         return (world["r0"].inverse() @ world[p.robot]).t
 
     err = [np.linalg.norm(p.estimate.t - truth(p)) for _, p in poses if p.t > T0 + 0.3]
-    assert len(err) > 1.5 * len(recs) and rms(err) < 0.05
+    about = [{a, *(scene.rig.owner(m) for m in obs.marker)} - {"r0"} for t, a, _, obs in recs]
+    published = [set() for _ in recs]
+    for _, p in poses:
+        published[int(np.argmin(np.abs(times - (p.t - T0))))].add(p.robot)
+    assert all(pub <= ab for pub, ab in zip(published, about))  # only robots the message is about ...
+    late = [k for k, t in enumerate(times) if t > 0.3]
+    assert sum(published[k] == about[k] for k in late) >= 0.95 * len(late)  # ... and all of them
+    assert rms(err) < 0.05
     with TrackOutputs(tmp_path / "replay", ["r1", "r2"], "r0") as outputs:
         track_team_log(path, iter_observation_log(tmp_path / "live" / "log.jsonl"), progress=False,
                        sink=outputs.write)
