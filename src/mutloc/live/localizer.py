@@ -391,9 +391,14 @@ class Localizer:
         if h.t < self.fused_until:  # (a message the buffer let through too early for it)
             c.dropped_late += 1
             return []
+        try:
+            rows = self.engine.step(h.t, h.observations)
+        except (MutlocError, ArithmeticError, ValueError):
+            # Input the checks let through and the tracker cannot take: refused, never a stop.
+            c.refused_malformed += 1
+            return []
         if self.log is not None:
             self.log.write(h.t, h.observations)
-        rows = self.engine.step(h.t, h.observations)
         self.fused_until = h.t
         self.records += 1
         c.fused += 1
