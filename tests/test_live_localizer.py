@@ -189,6 +189,25 @@ def test_a_team_is_fused_and_replayed_the_same(tmp_path):
             assert (tmp_path / "live" / name).read_bytes() == (tmp_path / "replay" / name).read_bytes()
 
 
+def test_candidates_and_unnamed_detections_are_fused_as_the_log_holds_them(setup, tmp_path):
+    """Several candidates for one marker: the best-scored one is fused and
+    logged (the log's form holds one per marker); a detection without a name
+    beside named ones is left out (the filter needs names, the log cannot
+    mix them) -- so the replay fuses exactly what the localizer fused."""
+    T = M.ros_types()
+    msg = M.observations_message("p", setup.rid, 1, T0, None)
+    msg.observations = [T.Observation("M1", 100.0, 200.0, 0.4), T.Observation("M1", 130.0, 200.0, 0.9),
+                        T.Observation("", 300.0, 100.0, 1.0), T.Observation("M2", 400.0, 210.0, 1.0)]
+    log = ObservationLogWriter(tmp_path / "log.jsonl")
+    loc = Localizer(setup.path, log=log)
+    assert loc.receive(msg, T0 + 0.01, "p") == "held"
+    loc.finish()
+    log.close()
+    ((t, obs),) = list(iter_observation_log(tmp_path / "log.jsonl"))
+    assert t == M.stamp_of(msg.header) and obs.marker == ("M1", "M2")
+    assert obs.uv.tolist() == [[130.0, 200.0], [400.0, 210.0]]
+
+
 # -- a node stops, both stop, both come back ------------------------------------------------------
 
 

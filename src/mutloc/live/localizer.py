@@ -485,6 +485,9 @@ def _as_logged(obs: ObservationSet, t: float) -> ObservationSet:
     each observer's best candidate per marker; an observer's unnamed
     detections only when it named none): what the localizer fuses is what
     replaying its log fuses."""
+    if all(m is not None for m in obs.marker) and len(set(zip(obs.observer, obs.marker))) == len(obs):
+        # One entry per named marker: the log's form already (ObservationSet.from_dict builds the same).
+        return ObservationSet.trusted(obs.observer, obs.marker, obs.uv, time=t)
     best = obs.best()
     keep = [i for i, (o, m) in enumerate(zip(best.observer, best.marker))
             if m is not None or all(n is None for p, n in zip(best.observer, best.marker) if p == o)]
@@ -511,8 +514,10 @@ class LocalizerRun:
     interrupted: bool = False
 
     def summary(self) -> str:
-        wrote = f"; wrote {', '.join(str(p) for p in self.paths)}" if self.paths else ""
-        return self.localizer.summary() + wrote
+        """The localizer's :meth:`~Localizer.summary` and the files written (those that exist: the
+        trajectory files are opened with their first row)."""
+        written = [str(p) for p in self.paths if p.exists()]
+        return self.localizer.summary() + (f"; wrote {', '.join(written)}" if written else "; no files written")
 
 
 def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int = 0, out: str | Path | None = None,
