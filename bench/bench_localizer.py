@@ -160,7 +160,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
 
 
 def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed: int = 0) -> dict:
-    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, pose messages)."""
+    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, the poses' CDR)."""
     from mutloc.live.localizer import Localizer
 
     rig, frames = streams(robots, seconds, rate, seed)
@@ -188,7 +188,7 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     c0 = time.process_time()
     for t, r, b in raw:
         for p in loc.feed(T.Observations.deserialize(b), 1000.0 + t + 0.005, r):
-            p.messages()[0].serialize()
+            p.cdr()
             poses += 1
     total = time.process_time() - c0
     n = len(raw)

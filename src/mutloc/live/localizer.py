@@ -113,6 +113,13 @@ class LivePose:
             tf.transforms[0].header.stamp = st
         return pose, tf
 
+    def cdr(self) -> tuple[bytes, bytes]:
+        """The same two messages as CDR bytes (:func:`~mutloc.live.messages.pose_cdr`: what is published)."""
+        from .messages import pose_cdr
+
+        ns = self.stamp_ns if self.stamp_ns is not None else int(round(self.t * 1e9))
+        return pose_cdr(ns, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+
 
 @dataclass
 class RobotCounts:
@@ -583,6 +590,8 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 
     ros_types, observations_topic, pose_topic, tf_topic, diag_topic, diagnostics_message = names
+    from .messages import raw_sample
+
     T = ros_types()
     # A second of messages kept per robot (ROS 2's default keeps 10) until the loop takes them.
     readers = {r: bus.reader(observations_topic(r), T.Observations, depth=READER_DEPTH) for r in loc.names}
@@ -603,9 +612,9 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
 
     def publish(out: Iterable[LivePose]) -> None:
         for p in out:
-            pm, tfm = p.messages()
-            poses[p.robot].write(pm)
-            tf.write(tfm)
+            pm, tfm = p.cdr()
+            poses[p.robot].write(raw_sample(T.PoseWithCovarianceStamped, pm))
+            tf.write(raw_sample(T.TFMessage, tfm))
 
     while True:
         now = clock()
