@@ -125,7 +125,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 take()
                 time.sleep(0.0005)
             if cpu0 is None and t >= warm:
-                cpu0, wall0, n0 = _cpu_seconds(child.pid), time.time(), len(arrivals)
+                cpu0, wall0 = _cpu_seconds(child.pid), time.time()
             stamp = start + t
             msg = M.observations_message(robot, rid, k, stamp, obs)
             published[round(M.stamp_of(msg.header) * 1e6)] = time.time()

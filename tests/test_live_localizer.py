@@ -18,7 +18,6 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -272,7 +271,6 @@ def _malformed(setup, rng, n_fuzz=500, n_bad=500):
     """``(kind, object or bytes)``: fuzzed bytes of a message (of another
     rig, so that nothing fuzzed can pass for one of ours), and messages a
     node of this rig would never send."""
-    T = M.ros_types()
     obs = ObservationSet.from_dict({"p": {"M1": [612.25, 281.5], "M2": [701.0, 280.4]}})
     template = bytes(M.observations_message("p", "ffffffffffffffff", 7, T0 + 1.0, obs).serialize())
     out = []
@@ -534,7 +532,6 @@ def test_over_dds(setup, tmp_path):
     poses within 1 s; Ctrl-C: exit 130, the files named, and replaying the
     received log with track gives the trajectory file it wrote."""
     from cyclonedds.core import Policy, Qos
-    from cyclonedds.domain import DomainParticipant  # noqa: F401  (the bus's participant is reused)
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
 
