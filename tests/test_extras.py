@@ -107,7 +107,8 @@ def test_track_options_of_an_extra_fail_in_one_line_before_the_work(scene, optio
 
 
 @pytest.mark.parametrize("argv, extra", [(["experiment", "noise", "--quick", "--out", "exp"], "experiments"),
-                                         (["demo", "--out", "demo"], "viz")])
+                                         (["demo", "--out", "demo"], "viz"),
+                                         (["localizer", "--rig", "rig.yaml", "--out", "live"], "live")])
 def test_commands_of_an_extra_fail_in_one_line(scene, argv, extra):
     d, _ = scene
     out = _run(d, ["-m", "mutloc", *argv])

@@ -133,3 +133,18 @@ def test_the_ros_package_is_shipped():
     assert (M.MSG_PACKAGE / "package.xml").is_file() and (M.MSG_PACKAGE / "CMakeLists.txt").is_file()
     text = (M.MSG_PACKAGE / "msg" / "Observations.msg").read_text()
     assert "mutloc_msgs/Observation[] observations" in text
+
+
+@pytest.mark.parametrize("names", [("p", "q"), ("robot_one", "r"), ("ab", "abcdefg"), ("x" * 9, "y" * 3)])
+def test_pose_cdr_is_the_serialised_pose_messages(names):
+    """The localizer's packed poses are byte for byte the messages' CDR, whatever the names' lengths (padding)."""
+    source, target = names
+    for k in range(5):
+        pose = Pose.from_rotvec(RNG.normal(size=3), RNG.normal(size=3))
+        A = RNG.normal(size=(6, 6))
+        ns = int(RNG.integers(0, 2**31 * 10**9))
+        pm, tf = M.pose_messages(0.0, pose, A @ A.T if k else None, source, target)
+        st = M.ros_types().Time(sec=ns // 10**9, nanosec=ns % 10**9)
+        pm.header.stamp = tf.transforms[0].header.stamp = st
+        assert M.pose_cdr(ns, pose, A @ A.T if k else None, source, target) == (bytes(pm.serialize()),
+                                                                                  bytes(tf.serialize()))

@@ -73,6 +73,7 @@ NEEDS: tuple[tuple[str, str | None, tuple[str, ...], str | None], ...] = (
     ("demo", "live", ("cyclonedds",), "live"),
     ("node", None, ("cyclonedds",), "live"),
     ("node", "topic", ("rosbags",), None),  # a recorded bag replayed as the camera
+    ("localizer", None, ("cyclonedds",), "live"),
 )
 
 

@@ -102,15 +102,23 @@ class Bus:
 
         return DataWriter(self.participant, self._topic(ros_topic, cls), qos=self.qos)
 
-    def reader(self, ros_topic: str, cls: type, *, sensor: bool = False) -> Reader:
+    def reader(self, ros_topic: str, cls: type, *, sensor: bool = False, depth: int = HISTORY_DEPTH) -> Reader:
         """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``.
         ``sensor``: ROS 2's sensor-data QoS (best effort, keep-last 5), which
-        matches camera drivers' best-effort writers as well as reliable ones."""
+        matches camera drivers' best-effort writers as well as reliable ones;
+        ``depth``: the samples a reliable reader keeps until taken (its own
+        history: a deeper one still matches ROS 2's writers, and rides out a
+        pause)."""
         from cyclonedds.core import Policy, Qos
         from cyclonedds.sub import DataReader
 
-        qos = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5)) \
-            if sensor else self.qos
+        if sensor:
+            qos = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5))
+        elif depth == HISTORY_DEPTH:
+            qos = self.qos
+        else:
+            qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
+                      Policy.History.KeepLast(int(depth)))
         return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos))
 
     def close(self) -> None:

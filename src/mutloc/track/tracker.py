@@ -37,7 +37,7 @@ from .sources import Frame
 from .rows import TrackRow
 from .status import FrameStatus
 
-__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "check_streams", "frame_rate", "DEFAULT_FPS",
+__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "RecordStepper", "check_streams", "frame_rate", "DEFAULT_FPS",
            "CSV_EXTRA", "ObserverDetector"]
 
 #: Frame rate assumed when neither the caller nor the streams say.
@@ -182,6 +182,31 @@ class _Emitter:
             self.queue.popleft()
             self.done += filtered
             self.sink(row, payload)
+
+
+class RecordStepper:
+    """Records fed one at a time to a :class:`PairTracker`, as
+    :func:`track_log` feeds a log's lines (the live localizer feeds its
+    messages the same way): :meth:`step` makes the record's row (its pose
+    the causal filter's at once) and hands every row to ``sink(row)`` in
+    input order once its report is final; :meth:`finish` when the input ends."""
+
+    def __init__(self, tracker: PairTracker, sink: Callable[[TrackRow], None] | None = None) -> None:
+        self.tracker = tracker
+        self._emitter = _Emitter(tracker, lambda row, _: None if sink is None else sink(row))
+
+    def step(self, t: float, observations: ObservationSet) -> TrackRow:
+        """The row of one record at time ``t`` (not before the previous record's)."""
+        row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=observations)
+        before = self.tracker.rows_filtered
+        self.tracker.step(row)
+        self._emitter.add(row, self.tracker.rows_filtered > before)
+        self._emitter.emit()
+        return row
+
+    def finish(self) -> None:
+        """The input ended: every row still held is final and handed on."""
+        self._emitter.emit(end=True)
 
 
 def pair_streams(a: Iterator[Frame], b: Iterator[Frame], tolerance: float) -> Iterator[tuple[Frame | None, Frame | None]]:
@@ -384,13 +409,13 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
                           options=_options(filter))
     viz = _rerun_writer(rerun, source, target)
 
-    def final(row: TrackRow, _: Any) -> None:
+    def final(row: TrackRow) -> None:
         if viz is not None:
             _rerun_row(viz, row)
         if sink is not None:
             sink(row)
 
-    emitter = _Emitter(tracker, final)
+    stepper = RecordStepper(tracker, final)
     rows: list[TrackRow] = []
     try:
         for item in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
@@ -399,15 +424,10 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
                 t, obs = (float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)), item
             else:
                 t, obs = float(item[0]), item[1]
-            row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
-            before = tracker.rows_filtered
-            tracker.step(row)
-            rows.append(row)
-            emitter.add(row, tracker.rows_filtered > before)
-            emitter.emit()
-        emitter.emit(end=True)
+            rows.append(stepper.step(t, obs))
+        stepper.finish()
     except KeyboardInterrupt:
-        emitter.emit(end=True)
+        stepper.finish()
         raise
     finally:
         if viz is not None:

@@ -1,0 +1,221 @@
+#!/usr/bin/env python
+"""The live localizer's cost and latency over DDS (issue 25: ten robots'
+observations at 30 Hz each, the localizer <= 30% of one core).
+
+    python bench/bench_localizer.py                        # 10 robots, then 2, 30 Hz, 10 s each
+    python bench/bench_localizer.py --robots 10 --seconds 5
+
+For each team size: ``mutloc localizer --loopback`` runs as its own process
+on a DDS domain of this run; this process publishes every robot's
+``Observations`` as its node would (simulated free-running cameras at
+``--rate`` frames/s, each camera at its own phase; stamps are the wall-clock
+time of capture, each message published at its stamp) and subscribes to
+every pose topic.  Measured:
+
+- the localizer's CPU time (user + system, /proc) over the streaming window,
+  as a share of one core;
+- message-in -> pose-out latency: a pose's arrival here minus the
+  publication of the message it was fused from (same stamp): DDS both ways,
+  the reorder buffer's wait, the fusion and the publication;
+- poses received against the poses expected (one per message per tracked
+  robot it is about: its observer, the robots it saw), and whether a
+  backlog grew (latency over the last second);
+- in-process, without DDS: CPU per message of the tracker and of the rest
+  of the localizer (decode, checks, pose messages).
+
+Writes bench/results/localizer_results.json (with the machine and its load).
+Functions :func:`over_dds` and :func:`in_process` are what bench_live.py may call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mutloc.io import save_rig
+from mutloc.live import messages as M
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _machine import machine, result_file  # noqa: E402
+
+
+def streams(robots: int, seconds: float, rate: float, seed: int = 0):
+    """``(rig, [(time, robot, ObservationSet)])``: every camera at ``rate`` at its own phase."""
+    if robots == 2:
+        from mutloc.sim.tracking import camera_records
+        from mutloc.sim.world import standard_rig
+
+        rig = standard_rig()
+        recs = camera_records(rig, duration=seconds, rates={"p": rate, "q": rate}, offsets={"q": 0.5 / rate},
+                              pixel_sigma=1.0, seed=seed)
+        return rig, [(float(t), c[0], obs) for t, obs, c in zip(recs.times, recs.frames, recs.cameras)]
+    from mutloc.sim.team import random_team, team_camera_records
+
+    scene = random_team(robots, np.random.default_rng(seed), one_way=0.0)
+    recs = team_camera_records(scene, seconds, fps=rate, sigma=1.0, seed=seed)
+    return scene.rig, [(float(t), a, obs) for t, a, _, obs in recs]
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0) -> dict:
+    """One run of ``mutloc localizer`` over DDS loopback (see the module docstring)."""
+    from cyclonedds.core import Policy, Qos
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from mutloc.live.dds import Bus
+
+    rig, frames = streams(robots, seconds + 1.0, rate, seed)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_localizer_"))
+    path = tmp / "rig.yaml"
+    save_rig(rig, path)
+    rid = M.rig_id(path)
+    names = list(rig.robots)
+    reference = names[1] if robots == 2 else names[0]
+    tracked = [n for n in names if n != reference]
+    domain = 150 + os.getpid() % 50
+    cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
+           "--duration", str(seconds + 30)]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        line = child.stderr.readline()
+        if not line.startswith("localizer:"):
+            raise RuntimeError(line + child.stderr.read())
+        bus = Bus(domain, loopback=True)
+        T = M.ros_types()
+        writers = {r: bus.writer(M.observations_topic(r), T.Observations) for r in names}
+
+        qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
+                  Policy.History.KeepLast(10000))
+        readers = {r: DataReader(bus.participant, Topic(bus.participant, f"rt/mutloc/{r}_in_{reference}",
+                                                        T.PoseWithCovarianceStamped), qos=qos) for r in tracked}
+        deadline = time.time() + 20
+        while time.time() < deadline and not all(w.get_matched_subscriptions() for w in writers.values()):
+            time.sleep(0.05)
+        time.sleep(0.5)
+        published: dict[tuple[str, int], float] = {}
+        arrivals: list[tuple[float, float]] = []  # (pose arrival, its message's publication)
+
+        def take() -> None:
+            now = time.time()
+            for rd in readers.values():
+                for s in rd.take(N=1000):
+                    if hasattr(s, "header"):
+                        key = round(M.stamp_of(s.header) * 1e6)
+                        arrivals.append((now, published.get(key, np.nan)))
+
+        start = time.time() + 0.3
+        warm = 1.0  # the first second: the tracks start; not measured
+        cpu0 = wall0 = None
+        sent = expected = 0
+        for k, (t, robot, obs) in enumerate(frames):
+            while time.time() < start + t:
+                take()
+                time.sleep(0.0005)
+            if cpu0 is None and t >= warm:
+                cpu0, wall0 = _cpu_seconds(child.pid), time.time()
+            stamp = start + t
+            msg = M.observations_message(robot, rid, k, stamp, obs)
+            published[round(M.stamp_of(msg.header) * 1e6)] = time.time()
+            writers[robot].write(msg)
+            if t >= warm:
+                sent += 1
+                expected += 1 if robots == 2 else len({robot, *(rig.owner(m) for m in obs.marker)} - {reference})
+        cpu1, wall1 = _cpu_seconds(child.pid), time.time()
+        end = time.time()
+        while time.time() < end + 1.0:
+            take()
+            time.sleep(0.005)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, 2)
+            try:
+                child.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(child.pid, 9)
+                child.wait()
+    summary = (child.stderr.read() or "").strip().splitlines()[-1:]
+    measured = [(a, p) for a, p in arrivals if p >= wall0 and np.isfinite(p)]
+    lat = np.array([a - p for a, p in measured]) * 1000
+    last = np.array([a - p for a, p in measured if p > wall1 - 1.0]) * 1000
+    return {"robots": robots, "rate_hz": rate, "seconds": round(wall1 - wall0, 2), "messages": sent,
+            "cpu_share_of_one_core": round((cpu1 - cpu0) / (wall1 - wall0), 3),
+            "latency_ms_p50": round(float(np.percentile(lat, 50)), 1) if len(lat) else None,
+            "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if len(lat) else None,
+            "latency_ms_p50_last_second": round(float(np.percentile(last, 50)), 1) if len(last) else None,
+            "poses_received": len(measured), "poses_expected": expected,
+            "localizer_said": summary[0] if summary else ""}
+
+
+def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed: int = 0) -> dict:
+    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, the poses' CDR)."""
+    from mutloc.live.localizer import Localizer
+
+    rig, frames = streams(robots, seconds, rate, seed)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_localizer_"))
+    path = tmp / "rig.yaml"
+    save_rig(rig, path)
+    rid = M.rig_id(path)
+    loc = Localizer(path)
+    loc.warm_up()
+    step = loc.engine.step
+    spent = [0.0]
+
+    def timed(t, obs):
+        c = time.process_time()
+        try:
+            return step(t, obs)
+        finally:
+            spent[0] += time.process_time() - c
+
+    loc.engine.step = timed
+    raw = [(t, r, bytes(M.observations_message(r, rid, k, 1000.0 + t, obs).serialize()))
+           for k, (t, r, obs) in enumerate(frames)]
+    T = M.ros_types()
+    poses = 0
+    c0 = time.process_time()
+    for t, r, b in raw:
+        for p in loc.feed(T.Observations.deserialize(b), 1000.0 + t + 0.005, r):
+            p.cdr()
+            poses += 1
+    total = time.process_time() - c0
+    n = len(raw)
+    return {"robots": robots, "messages": n, "poses": poses, "cpu_ms_per_message": round(1000 * total / n, 3),
+            "tracker_ms_per_message": round(1000 * spent[0] / n, 3),
+            "rest_ms_per_message": round(1000 * (total - spent[0]) / n, 3),
+            "cpu_share_at_rate": round(total / n * robots * rate, 3)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--robots", type=int, nargs="*", default=[10, 2])
+    ap.add_argument("--rate", type=float, default=30.0)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--out", default=result_file("localizer_results.json"))
+    args = ap.parse_args()
+    results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
+    for n in args.robots:
+        run = {"in_process": in_process(n, args.rate, min(args.seconds, 5.0)),
+               "over_dds": over_dds(n, args.rate, args.seconds)}
+        run["load_average_after"] = list(os.getloadavg())
+        print(json.dumps(run), flush=True)
+        results["runs"].append(run)
+    Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,638 @@
+"""The live localizer (SPEC "Live operation"): every robot's ``Observations``
+messages in, each fused at its own capture time, a pose per tracked robot out.
+
+:class:`Localizer` is the logic, without DDS: it is fed the messages with
+their arrival (wall-clock) time and returns the poses to publish, so it is
+tested and benchmarked on recorded or simulated logs.  :func:`run_localizer`
+puts it on the wire (the ``live`` extra).
+
+Each accepted message is one record of the track, fused exactly as ``track
+--observations`` fuses a log's line (two robots: the pair tracker of
+:mod:`mutloc.track.filtering` through :class:`~mutloc.track.tracker.RecordStepper`;
+more: the team tracker of :mod:`mutloc.track.team`); what it fuses is what it
+logs (``--out DIR``: ``DIR/log.jsonl``, each observer's best candidate per
+marker, SPEC "Observation logs"), so replaying the log offline gives the same
+rows.  The pose published at once is the causal filter's; the trajectory
+files hold the rows as ``track`` reports them (smoothed over the tracker's
+lag, for a pair).
+
+Messages are refused and counted, per robot, when they cannot be taken: not
+decodable or not what a node sends (``refused_malformed``: an unknown robot,
+a robot on another's topic, a non-finite pixel, a marker not in the rig, a
+pixel far outside the image), of another rig (``refused_rig_id``), or
+stamped in the future by more than ``max_clock_skew`` (``refused_clock``).
+A message seen before (robot, frame and stamp) is a ``duplicate`` and
+ignored.  Accepted messages wait in a short reorder buffer so that records
+are fused in time order: one leaves it once every other live robot has sent
+a later stamp (none of theirs can come before it: DDS delivers each
+writer's messages in order) or ``reorder`` seconds after it arrived; a
+message stamped before the last record fused is ``dropped_late``.
+
+Each fused message gives a pose of every tracked robot it is about: with
+two robots the pair's, with a team its observer's and those of the robots
+whose markers it saw (the others' rows are the motion model's prediction
+alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
+them a second).
+
+A robot whose last observation (its capture time) is older than
+``warn_after`` (0.5 s) is WARN in the diagnostics, older than
+``max_coast`` STALE (dropped).  A robot's pose is published only while its
+track is current: the row of the fused record ``solved``, ``unverified``,
+``partial``, or ``predicted`` no longer than ``max_coast`` after its last
+measured row -- never a stale pose as current.  A robot that comes back is
+re-acquired by its track (the tracker restarts a track it lost).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+from .._extras import require
+from ..api import Estimate, load_rig
+from ..core.consistency import DEFAULT_CONFIDENCE
+from ..core.observations import ObservationSet
+from ..core.pose import Pose
+from ..core.rig import Rig
+from ..errors import InputError, MutlocError, positive_number
+from ..track.filtering import FilterOptions, PairTracker
+from ..track.frames import expanded_rig
+from ..track.rows import TrackRow
+from ..track.status import FrameStatus
+from ..track.tracker import RecordStepper
+from .messages import OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, rig_id as rig_id_of
+
+__all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
+           "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD"]
+
+#: Seconds a robot's track may coast on its motion model before its pose is no longer published (``--max-coast``).
+MAX_COAST = 1.0
+#: Seconds a message may be stamped ahead of the localizer's clock (``--max-clock-skew``).
+MAX_CLOCK_SKEW = 0.05
+#: A robot whose last observation is older than this (s) is WARN.
+WARN_AFTER = 0.5
+#: Seconds a message may wait for earlier ones from the other robots (``--reorder``).
+REORDER_WINDOW = 0.03
+#: Seconds between two ``/diagnostics`` messages (SPEC: at least once a second).
+DIAGNOSTICS_PERIOD = 0.5
+
+#: Observation messages a robot's reader keeps until taken (a second at 100 Hz).
+READER_DEPTH = 100
+#: Track statuses whose pose is published (``predicted`` only within ``max_coast``).
+MEASURED = (FrameStatus.SOLVED, FrameStatus.UNVERIFIED, FrameStatus.PARTIAL)
+#: Messages remembered per robot to recognise a duplicate.
+_SEEN = 512
+
+
+@dataclass(frozen=True)
+class LivePose:
+    """A pose to publish: ``robot`` in ``reference``'s frame at capture time ``t``."""
+
+    robot: str
+    reference: str
+    t: float
+    status: FrameStatus
+    estimate: Estimate
+    #: The fused message's stamp in nanoseconds, exactly (``t`` is it in seconds, as a float).
+    stamp_ns: int | None = None
+
+    def messages(self) -> tuple[Any, Any]:
+        """``(PoseWithCovarianceStamped, TFMessage)`` as ``track --bag`` writes them,
+        stamped with the fused message's own stamp."""
+        from .messages import pose_messages, ros_types
+
+        pose, tf = pose_messages(self.t, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+        if self.stamp_ns is not None:
+            st = ros_types().Time(sec=self.stamp_ns // 1_000_000_000, nanosec=self.stamp_ns % 1_000_000_000)
+            pose.header.stamp = st
+            tf.transforms[0].header.stamp = st
+        return pose, tf
+
+    def cdr(self) -> tuple[bytes, bytes]:
+        """The same two messages as CDR bytes (:func:`~mutloc.live.messages.pose_cdr`: what is published)."""
+        from .messages import pose_cdr
+
+        ns = self.stamp_ns if self.stamp_ns is not None else int(round(self.t * 1e9))
+        return pose_cdr(ns, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+
+
+@dataclass
+class RobotCounts:
+    """What one robot's observation topic brought (the diagnostics' key-values)."""
+
+    received: int = 0
+    fused: int = 0
+    dropped_late: int = 0
+    duplicates: int = 0
+    refused_rig_id: int = 0
+    refused_malformed: int = 0
+    refused_clock: int = 0
+    poses: int = 0
+    #: Newest capture time among its messages taken (None: none yet).
+    last_stamp: float | None = None
+    #: Its track's status at the last record (robots whose pose is published).
+    status: str = ""
+    #: Time of its track's last measured row (solved, unverified or partial).
+    last_measured: float | None = None
+    seen: set = field(default_factory=set, repr=False)
+    order: deque = field(default_factory=deque, repr=False)
+
+    @property
+    def refused(self) -> int:
+        return self.refused_rig_id + self.refused_malformed + self.refused_clock
+
+
+@dataclass(order=True)
+class _Held:
+    t: float
+    seq: int
+    arrival: float = field(compare=False)
+    ns: int = field(compare=False)
+    robot: str = field(compare=False)
+    observations: ObservationSet = field(compare=False)
+
+
+class _PairEngine:
+    """Two robots: the pair tracker, each record a row (as ``track_log``)."""
+
+    def __init__(self, rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float,
+                 options: FilterOptions, sink: Callable[[TrackRow, str], None] | None) -> None:
+        self.robots, self.reference = [source], target
+        tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
+        self.stepper = RecordStepper(tracker, None if sink is None else (lambda row: sink(row, source)))
+
+    def step(self, t: float, obs: ObservationSet) -> dict[str, TrackRow]:
+        return {self.robots[0]: self.stepper.step(t, obs)}
+
+    def involved(self, observer: str, obs: ObservationSet) -> list[str]:
+        return self.robots  # every record is about the pair
+
+    def finish(self) -> None:
+        self.stepper.finish()
+
+
+class _TeamEngine:
+    """Three robots or more: the team tracker, each record one row per robot (as ``track_team_log``)."""
+
+    def __init__(self, rig: Rig, reference: str, pixel_sigma: float, confidence: float, options: FilterOptions,
+                 sink: Callable[[TrackRow, str], None] | None) -> None:
+        from ..track.team import TeamTracker
+
+        self.tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
+        self.robots, self.reference = list(self.tracker.robots), reference
+        self.sink = sink
+
+    def step(self, t: float, obs: ObservationSet) -> dict[str, TrackRow]:
+        rows = self.tracker.step(t, obs)
+        if self.sink is not None:
+            for r, row in rows.items():
+                self.sink(row, r)
+        return rows
+
+    def involved(self, observer: str, obs: ObservationSet) -> list[str]:
+        """The robots a record is about: its observer and the robots whose markers it saw."""
+        owner = self.tracker.rig.owner
+        seen = {observer, *(owner(m) for m in set(obs.marker) if m is not None)}
+        return [r for r in self.robots if r in seen]
+
+    def finish(self) -> None:
+        pass
+
+
+class Localizer:
+    """Fuses every robot's observation messages (see the module docstring).
+
+    ``rig``: a rig file (its bytes give the expected ``rig_id``) or a
+    :class:`~mutloc.core.rig.Rig` with ``rig_id`` given; ``reference``: the
+    frame of the poses (two robots: the second of the rig, as ``track``;
+    more: the first); ``pixel_sigma``, ``confidence``, ``filter`` as
+    ``track``'s; ``sink(row, robot)``: every row once final (what
+    ``TrackOutputs.write`` takes); ``log``: an
+    :class:`~mutloc.io.logs.ObservationLogWriter` of every fused record.
+    Times are seconds of the robots' clock (the wall clock: stamps are
+    capture times).
+    """
+
+    def __init__(self, rig: Any, *, rig_id: str | None = None, reference: str | None = None,
+                 pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
+                 filter: FilterOptions | None = None, max_coast: float = MAX_COAST,
+                 max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
+                 reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
+                 log: Any = None) -> None:
+        if rig_id is None:
+            if not isinstance(rig, (str, Path)):
+                raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
+            rig_id = rig_id_of(rig)
+        self.rig_id = str(rig_id)
+        self.rig = expanded_rig(load_rig(rig))
+        names = list(self.rig.robots)
+        if len(names) < 2:
+            raise InputError(f"the localizer needs two robots or more; the rig has {len(names)}")
+        if reference is not None and reference not in self.rig.robots:
+            raise InputError(f"unknown reference robot {reference!r} (rig has {sorted(self.rig.robots)})")
+        self.max_coast = positive_number(max_coast, "max_coast")
+        self.max_clock_skew = _nonnegative(max_clock_skew, "max_clock_skew")
+        self.warn_after = positive_number(warn_after, "warn_after")
+        self.reorder = _nonnegative(reorder, "reorder")
+        self.names = names
+        if len(names) == 2:
+            source, target = self.rig.default_pair(None, reference)
+            self.engine: Any = _PairEngine(self.rig, source, target, pixel_sigma, confidence,
+                                           filter if filter is not None else FilterOptions(), sink)
+        else:
+            self.engine = _TeamEngine(self.rig, reference if reference is not None else names[0], pixel_sigma,
+                                      confidence, filter if filter is not None else FilterOptions(smooth_lag=0), sink)
+        #: The robots whose poses are published, and the frame they are in.
+        self.tracked: list[str] = list(self.engine.robots)
+        self.reference: str = self.engine.reference
+        self.counts = {r: RobotCounts() for r in names}
+        self.unattributed = 0  #: refused messages that named no robot of the rig
+        self.records = 0  #: records fused
+        self.fused_until = -math.inf  #: capture time of the last record fused
+        self.log = log
+        self._held: list[_Held] = []
+        self._seq = 0
+        self._first: float | None = None  # arrival of the first message held
+        self._closed = False
+
+    def warm_up(self) -> None:
+        """Run a throwaway tracker on synthetic records (the first two robots
+        2 m apart, facing each other; each camera's frames at its own time),
+        so that the compiled kernels are loaded before the first message
+        rather than while messages wait (about a second in a new process)."""
+        a, b = self.names[0], self.names[1]
+        T = Pose.from_rotvec([0.0, math.pi, 0.0], [0.0, 0.0, 2.0])  # T_ba: a in front of b, facing it
+        seen = {}
+        for observer, other, to_obs in ((a, b, T.inverse()), (b, a, T)):
+            robot, markers = self.rig.robot(other), list(self.rig.robot(other).markers)
+            uv = self.rig.robot(observer).camera.project(to_obs.apply(robot.marker_positions(markers)))
+            seen[observer] = ObservationSet([observer] * len(markers), markers, uv)
+        if len(self.names) == 2:
+            source, target = self.engine.robots[0], self.engine.reference
+            engine: Any = _PairEngine(self.rig, source, target, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
+        else:
+            engine = _TeamEngine(self.rig, a, 1.0, DEFAULT_CONFIDENCE, FilterOptions(smooth_lag=0), None)
+        try:
+            for k in range(12):
+                observer = (a, b)[k % 2]
+                engine.step(k / 60, ObservationSet.from_dict(seen[observer].to_dict(), time=k / 60))
+            engine.step(0.25, ObservationSet.concatenate([seen[a], seen[b]]))
+            engine.finish()
+        except (MutlocError, ValueError, FloatingPointError):
+            pass  # a rig this pose does not suit: the first messages pay instead
+
+    # -- messages in ----------------------------------------------------------
+
+    def receive(self, msg: Any, now: float, topic: str | None = None) -> str:
+        """Take one ``Observations`` message arrived at ``now`` on robot
+        ``topic``'s observation topic (None: trust the message's robot);
+        returns what became of it: ``held``, ``duplicate``, ``late``, or
+        ``refused: <why>``.  Never raises for the message's content."""
+        who = topic if topic in self.counts else None
+        try:
+            got = observations_from_message(msg, self.names)
+        except MessageError as exc:
+            return self._refuse(who or _robot_of(msg, self.counts), "refused_malformed", str(exc))
+        except Exception as exc:  # noqa: BLE001 -- anything on the topic is input: counted, never raised
+            return self._refuse(who or _robot_of(msg, self.counts), "refused_malformed",
+                                f"not an Observations message ({type(exc).__name__})")
+        robot = got.robot
+        if topic is not None and robot != topic:
+            return self._refuse(who, "refused_malformed", f"robot {robot!r} on the topic of {topic!r}")
+        c = self.counts[robot]
+        c.received += 1
+        if got.rig_id != self.rig_id:
+            c.refused_rig_id += 1
+            return f"refused: rig_id {got.rig_id!r}, expected {self.rig_id!r}"
+        if got.time > now + self.max_clock_skew:
+            c.refused_clock += 1
+            return f"refused: stamped {got.time - now:.3f} s in the future"
+        try:
+            obs = _as_logged(got.observations.check(self.rig), got.time)
+        except MutlocError as exc:
+            c.refused_malformed += 1
+            return "refused: " + " ".join(str(exc).split())
+        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        key = (got.frame, ns)
+        if key in c.seen:
+            c.duplicates += 1
+            return "duplicate"
+        c.seen.add(key)
+        c.order.append(key)
+        if len(c.order) > _SEEN:
+            c.seen.discard(c.order.popleft())
+        c.last_stamp = got.time if c.last_stamp is None else max(c.last_stamp, got.time)
+        if got.time < self.fused_until:
+            c.dropped_late += 1
+            return "late"
+        self._seq += 1
+        if self._first is None:
+            self._first = now
+        heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs))
+        return "held"
+
+    def malformed(self, robot: str, n: int = 1) -> None:
+        """Count ``n`` samples of ``robot``'s topic that could not even be decoded."""
+        if n > 0:
+            if robot in self.counts:
+                self.counts[robot].received += n
+                self.counts[robot].refused_malformed += n
+            else:
+                self.unattributed += n
+
+    def _refuse(self, robot: str | None, what: str, why: str) -> str:
+        if robot is None:
+            self.unattributed += 1
+        else:
+            c = self.counts[robot]
+            c.received += 1
+            setattr(c, what, getattr(c, what) + 1)
+        return "refused: " + " ".join(why.split())
+
+    # -- records fused, poses out ------------------------------------------
+
+    def _due(self, h: _Held, now: float) -> bool:
+        if now >= h.arrival + self.reorder:  # (the same sum as next_due: no rounding between them)
+            return True
+        for r, c in self.counts.items():
+            if r == h.robot:
+                continue  # its own messages come in order
+            if c.last_stamp is None:
+                if now - self._first > self.warn_after:
+                    continue  # a robot not heard since the start is not waited for
+                return False
+            if now - c.last_stamp <= self.warn_after and c.last_stamp < h.t:
+                return False  # (a robot gone quiet is not waited for)
+        return True
+
+    def next_due(self) -> float | None:
+        """The arrival-clock time at which the oldest held message leaves the buffer at the latest."""
+        return self._held[0].arrival + self.reorder if self._held else None
+
+    def poll(self, now: float) -> list[LivePose]:
+        """Fuse the held messages that are due, oldest first; the poses to publish."""
+        out: list[LivePose] = []
+        while self._held and self._due(self._held[0], now):
+            out += self._fuse(heapq.heappop(self._held))
+        return out
+
+    def feed(self, msg: Any, now: float, topic: str | None = None) -> list[LivePose]:
+        """:meth:`receive` then :meth:`poll`."""
+        self.receive(msg, now, topic)
+        return self.poll(now)
+
+    def flush(self) -> list[LivePose]:
+        """Fuse every held message now (the input ends)."""
+        out: list[LivePose] = []
+        while self._held:
+            out += self._fuse(heapq.heappop(self._held))
+        return out
+
+    def _fuse(self, h: _Held) -> list[LivePose]:
+        c = self.counts[h.robot]
+        if h.t < self.fused_until:  # (a message the buffer let through too early for it)
+            c.dropped_late += 1
+            return []
+        try:
+            rows = self.engine.step(h.t, h.observations)
+        except (MutlocError, ArithmeticError, ValueError):
+            # Input the checks let through and the tracker cannot take: refused, never a stop.
+            c.refused_malformed += 1
+            return []
+        if self.log is not None:
+            self.log.write(h.t, h.observations)
+        self.fused_until = h.t
+        self.records += 1
+        c.fused += 1
+        out = []
+        involved = self.engine.involved(h.robot, h.observations)
+        for robot, row in rows.items():
+            rc = self.counts[robot]
+            rc.status = str(row.status)
+            e = row.estimate
+            if e is None or robot not in involved:
+                continue
+            if row.status in MEASURED:
+                rc.last_measured = row.t
+            elif not (row.status == FrameStatus.PREDICTED and rc.last_measured is not None
+                      and row.t - rc.last_measured <= self.max_coast):
+                continue
+            rc.poses += 1
+            out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns))
+        return out
+
+    def finish(self) -> list[LivePose]:
+        """The run ends: every held message fused, every row made final (to ``sink``); the last poses."""
+        if self._closed:
+            return []
+        out = self.flush()
+        self.engine.finish()
+        self._closed = True
+        return out
+
+    # -- diagnostics ----------------------------------------------------------
+
+    def level(self, robot: str, now: float) -> int:
+        """OK, WARN (last observation older than ``warn_after``) or STALE (older than ``max_coast``, or none)."""
+        c = self.counts[robot]
+        if c.last_stamp is None:
+            return STALE
+        age = now - c.last_stamp
+        return OK if age <= self.warn_after else WARN if age <= self.max_coast else STALE
+
+    def diagnostics(self, now: float) -> list[RobotStatus]:
+        """One :class:`~mutloc.live.messages.RobotStatus` per robot of the rig, in rig order."""
+        out = []
+        for r in self.names:
+            c = self.counts[r]
+            level = self.level(r, now)
+            age = None if c.last_stamp is None else now - c.last_stamp
+            track = "reference" if r == self.reference else (c.status or "none")
+            if age is None:
+                message = "no observations received"
+            elif level == OK:
+                message = f"observations {age:.2f} s old" + ("" if r == self.reference else f"; track {track}")
+            elif level == WARN:
+                message = f"no observations for {age:.2f} s"
+            else:
+                message = f"dropped: no observations for {age:.2f} s"
+            values = {"status": track, "age_s": "none" if age is None else f"{age:.3f}", "received": c.received,
+                      "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates,
+                      "refused": c.refused, "refused_rig_id": c.refused_rig_id,
+                      "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
+                      "poses_published": c.poses}
+            out.append(RobotStatus(r, level, message, values))
+        return out
+
+    def summary(self) -> str:
+        """``612 records fused; 598 poses published; refused 3, late 0, duplicates 1``."""
+        cs = self.counts.values()
+        refused = sum(c.refused for c in cs) + self.unattributed
+        kinds = [f"{what} {n}" for what, n in (
+            ("rig_id", sum(c.refused_rig_id for c in cs)), ("malformed", sum(c.refused_malformed for c in cs)
+                                                            + self.unattributed),
+            ("clock", sum(c.refused_clock for c in cs))) if n]
+        return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
+                + (f" ({', '.join(kinds)})" if kinds else "")
+                + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}")
+
+
+def _robot_of(msg: Any, counts: dict) -> str | None:
+    robot = getattr(msg, "robot", None)
+    return robot if isinstance(robot, str) and robot in counts else None
+
+
+def _as_logged(obs: ObservationSet, t: float) -> ObservationSet:
+    """The record as an observation log holds it (SPEC "Observation logs":
+    each observer's best candidate per marker; an observer's unnamed
+    detections only when it named none): what the localizer fuses is what
+    replaying its log fuses."""
+    if all(m is not None for m in obs.marker) and len(set(zip(obs.observer, obs.marker))) == len(obs):
+        # One entry per named marker: the log's form already (ObservationSet.from_dict builds the same).
+        return ObservationSet.trusted(obs.observer, obs.marker, obs.uv, time=t)
+    best = obs.best()
+    keep = [i for i, (o, m) in enumerate(zip(best.observer, best.marker))
+            if m is not None or all(n is None for p, n in zip(best.observer, best.marker) if p == o)]
+    if len(keep) < len(best):
+        best = best.take(keep)
+    return ObservationSet.from_dict(best.to_dict(), time=t)
+
+
+def _nonnegative(x: Any, what: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x >= 0):
+        raise InputError(f"{what} must be a number of seconds >= 0, got {x!r}")
+    return float(x)
+
+
+# -- on the wire ----------------------------------------------------------------
+
+
+@dataclass
+class LocalizerRun:
+    """What :func:`run_localizer` did: the localizer (its counts) and the files written."""
+
+    localizer: Localizer
+    paths: list[Path]
+    interrupted: bool = False
+
+    def summary(self) -> str:
+        """The localizer's :meth:`~Localizer.summary` and the files written (those that exist: the
+        trajectory files are opened with their first row)."""
+        written = [str(p) for p in self.paths if p.exists()]
+        return self.localizer.summary() + (f"; wrote {', '.join(written)}" if written else "; no files written")
+
+
+def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int = 0, out: str | Path | None = None,
+                  max_coast: float = MAX_COAST, max_clock_skew: float = MAX_CLOCK_SKEW,
+                  reorder: float = REORDER_WINDOW, pixel_sigma: float = 1.0,
+                  confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
+                  ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time
+                  ) -> LocalizerRun:
+    """Run the localizer on DDS domain ``domain`` until ``duration`` seconds
+    passed (None: until Ctrl-C, which ends it like the end of ``duration``
+    and is raised on after the files are complete: ``KeyboardInterrupt`` with
+    the run as its argument).  Subscribes to ``/mutloc/NAME/observations`` of
+    every robot of the rig; publishes ``/mutloc/NAME_in_REF``, ``/tf`` and
+    ``/diagnostics`` (every :data:`DIAGNOSTICS_PERIOD` s).  ``out``: a folder
+    for the trajectory files and ``log.jsonl`` (see the module docstring)."""
+    from .dds import Bus
+    from .messages import DIAGNOSTICS_TOPIC, TF_TOPIC, diagnostics_message, observations_topic, pose_topic, ros_types
+
+    outputs: Any = None
+    log: Any = None
+    load_rig(rig)  # a wrong rig refused before anything is joined or written
+    if out is not None:
+        from ..io import writable_path
+        from ..io.logs import ObservationLogWriter
+        from ..track.outputs import TrackOutputs
+
+        out = writable_path(out, "--out", folder=True)
+    bus = Bus(domain, loopback=loopback)
+    run = None
+    try:
+        if out is not None:
+            log = ObservationLogWriter(Path(out) / "log.jsonl")
+        loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
+                        max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder,
+                        sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log)
+        if out is not None:
+            outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
+        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path])
+        loc.warm_up()
+        _serve(bus, loc, duration, ready, clock,
+               (ros_types, observations_topic, pose_topic, TF_TOPIC, DIAGNOSTICS_TOPIC, diagnostics_message))
+    except KeyboardInterrupt:
+        if run is None:
+            raise
+        run.interrupted = True
+    finally:
+        try:
+            if run is not None:
+                run.localizer.finish()
+        finally:
+            for w in (outputs, log):
+                if w is not None:
+                    w.close()
+            bus.close()
+    if run.interrupted:
+        raise KeyboardInterrupt(run)
+    return run
+
+
+def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Localizer], None] | None,
+           clock: Callable[[], float], names: Sequence[Any]) -> None:
+    require("cyclonedds", "the localizer over DDS")
+    from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+
+    ros_types, observations_topic, pose_topic, tf_topic, diag_topic, diagnostics_message = names
+    from .messages import raw_sample
+
+    T = ros_types()
+    # A second of messages kept per robot (ROS 2's default keeps 10) until the loop takes them.
+    readers = {r: bus.reader(observations_topic(r), T.Observations, depth=READER_DEPTH) for r in loc.names}
+    poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped) for r in loc.tracked}
+    tf = bus.writer(tf_topic, T.TFMessage)
+    diag = bus.writer(diag_topic, T.DiagnosticArray)
+    waitset = WaitSet(bus.participant)
+    mask = SampleState.Any | ViewState.Any | InstanceState.Any
+    conditions = [ReadCondition(rd.native, mask) for rd in readers.values()]
+    for cond in conditions:
+        waitset.attach(cond)
+    malformed = {r: 0 for r in readers}
+    start = clock()
+    end = math.inf if duration is None else start + duration
+    next_diag = start
+    if ready is not None:
+        ready(loc)
+
+    def publish(out: Iterable[LivePose]) -> None:
+        for p in out:
+            pm, tfm = p.cdr()
+            poses[p.robot].write(raw_sample(T.PoseWithCovarianceStamped, pm))
+            tf.write(raw_sample(T.TFMessage, tfm))
+
+    while True:
+        now = clock()
+        if now >= end:
+            break
+        due = loc.next_due()
+        wake = min(end, next_diag, due if due is not None else math.inf, now + 0.1)
+        waitset.wait(max(0, int((wake - now) * 1e9)))
+        now = clock()
+        for r, rd in readers.items():
+            for sample in rd.take():
+                loc.receive(sample, clock(), r)  # (its own arrival: taking many may take a while)
+            loc.malformed(r, rd.malformed - malformed[r])
+            malformed[r] = rd.malformed
+        now = clock()
+        publish(loc.poll(now))
+        if now >= next_diag:
+            diag.write(diagnostics_message(now, loc.diagnostics(now)))
+            next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)
+    publish(loc.finish())
+    diag.write(diagnostics_message(clock(), loc.diagnostics(clock())))
