@@ -3,7 +3,8 @@ replaying rendered cameras in real time and a ``mutloc localizer`` process,
 on DDS over the loopback interface.  A subscriber written here with
 cyclonedds and its OWN type definitions (not mutloc's) receives the poses:
 at least 90% of those expected, with errors against the rendered truth
-within the noise of offline ``track`` on the same images."""
+those of offline ``track`` on the same images (the filter without the
+smoother's lag, as a live pose is published at once)."""
 
 import os
 import threading
@@ -24,11 +25,12 @@ from mutloc.core.geometry import matrix_from_quaternion_xyzw, rotation_error_deg
 from mutloc.live.dds import LOOPBACK_CONFIG
 from mutloc.live.demo import run_live_pair
 from mutloc.sim.scenario import write_simulation
+from mutloc.track.filtering import FilterOptions
 from mutloc.track.sources import open_streams
 from mutloc.track.tracker import track
 
-FPS = 10.0
-FRAMES = 40  # 4 s
+FPS = 30.0
+FRAMES = 75  # 2.5 s
 
 
 # The subscriber's own definitions of the ROS 2 types it listens to.
@@ -78,7 +80,6 @@ class PoseCovStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCova
 
 
 def _listen(domain, stop, got):
-    Domain(domain, LOOPBACK_CONFIG)
     dp = DomainParticipant(domain)
     qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
               Policy.History.KeepLast(10))
@@ -99,11 +100,13 @@ def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path)
     truth = _truth(sim / "truth.tum")
 
     # offline, the same images
-    offline = track(sim / "rig.yaml", open_streams({"p": sim / "p", "q": sim / "q"}), progress=False)
+    offline = track(sim / "rig.yaml", open_streams({"p": sim / "p", "q": sim / "q"}), progress=False,
+                    filter=FilterOptions(smooth_lag=0))
     off_err = [np.linalg.norm(r.estimate.t - truth[round(r.t * FPS)][1]) for r in offline.rows
                if r.estimate is not None]
 
     domain = 101 + os.getpid() % 100
+    loopback = Domain(domain, LOOPBACK_CONFIG)  # noqa: F841 -- this process's domain: on the loopback interface
     stop, got = threading.Event(), []
     listener = threading.Thread(target=_listen, args=(domain, stop, got), daemon=True)
     listener.start()
@@ -113,10 +116,10 @@ def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path)
     finally:
         stop.set()
         listener.join(5.0)
-    # one pose per observation message fused (two cameras: two per frame time) while tracked
-    expected = summary["observation_messages"]
-    assert expected >= 0.9 * 2 * len(times)
-    assert len(got) >= 0.9 * expected, (len(got), expected)
+    # both cameras' messages arrive; the simulated cameras are synchronized, so the
+    # localizer fuses the two of each frame time as one record (as track pairs them): one pose each
+    assert summary["observation_messages"] >= 0.9 * 2 * len(times)
+    assert len(got) >= 0.9 * len(times), (len(got), len(times))
     # each pose against the truth of its capture: frame k was released at start_at + k / FPS
     errs = []
     for m in got:
@@ -126,7 +129,8 @@ def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path)
         R = matrix_from_quaternion_xyzw(np.array([q.x, q.y, q.z, q.w]))
         errs.append(np.linalg.norm(np.array([pos.x, pos.y, pos.z]) - truth[k][1]))
         assert rotation_error_deg(R, truth[k][0]) < 2.0
-    assert np.median(errs) <= 2.0 * np.median(off_err) + 0.002, (np.median(errs), np.median(off_err))
+    # the same as offline causal tracking of the same images (measured: equal to 1e-6 m)
+    assert np.median(errs) <= 1.25 * np.median(off_err) + 0.0002, (np.median(errs), np.median(off_err))
     assert max(errs) < 0.05
 
 

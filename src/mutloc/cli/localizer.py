@@ -3,27 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import os
 
-from ._common import NOISE, RIG, nonnegative_float, positive_float
+from ._common import LIVE, NOISE, RIG, live_domain, loopback_wanted, nonnegative_float, positive_float
 
 ORDER = 36
-
-
-def _domain(text: str) -> int:
-    from ..errors import InputError
-    from ..live.dds import check_domain
-
-    try:
-        return check_domain(text)
-    except InputError as exc:
-        raise argparse.ArgumentTypeError(str(exc).replace("--domain ", "")) from None
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``localizer``."""
     p = subparsers.add_parser(
-        "localizer", parents=[RIG, NOISE],
+        "localizer", parents=[RIG, LIVE, NOISE],
         help="live: fuse every robot's observations (from mutloc node, over DDS) and publish the poses",
         description="Subscribes to /mutloc/NAME/observations of every robot of the rig, fuses each message at its "
         "own capture time and publishes /mutloc/NAME_in_REF (geometry_msgs/PoseWithCovarianceStamped), /tf and "
@@ -33,8 +22,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--reference", metavar="NAME",
                    help="the frame of the poses (default: with two robots the second robot of the rig, as track; "
                         "with more, the first)")
-    p.add_argument("--domain", type=_domain, default=None, metavar="N",
-                   help="DDS domain (ROS_DOMAIN_ID; default: $ROS_DOMAIN_ID, else 0)")
     p.add_argument("--out", metavar="DIR",
                    help="also write what track writes (trajectory files) and the observations received "
                         "(DIR/log.jsonl: replay with mutloc track --observations DIR/log.jsonl)")
@@ -46,8 +33,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--reorder", type=nonnegative_float, default=0.03, metavar="S",
                    help="a message waits at most S seconds for earlier ones of the other robots (default 0.03); "
                         "one stamped before a record already fused is dropped as late")
-    p.add_argument("--loopback", action="store_true",
-                   help="DDS on this machine only (the loopback interface): tests and demos")
+    p.add_argument("--tolerance", type=nonnegative_float, default=0.005, metavar="S",
+                   help="messages of different robots stamped within S seconds make one record at their mean time, "
+                        "as track pairs two cameras' frames (default 0.005; 0: every message its own record)")
     p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
     return p
 
@@ -56,14 +44,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the localizer until --duration or Ctrl-C."""
     import sys
 
-    from ..live.dds import check_domain
     from ..live.localizer import run_localizer
 
-    domain = args.domain if args.domain is not None else check_domain(os.environ.get("ROS_DOMAIN_ID", "0") or "0")
+    domain = live_domain(args)
     try:
         result = run_localizer(args.rig, reference=args.reference, domain=domain, out=args.out,
                                max_coast=args.max_coast, max_clock_skew=args.max_clock_skew, reorder=args.reorder,
-                               pixel_sigma=args.pixel_sigma, confidence=args.confidence, loopback=args.loopback,
+                               tolerance=args.tolerance,
+                               pixel_sigma=args.pixel_sigma, confidence=args.confidence, loopback=loopback_wanted(args),
                                duration=args.duration, ready=lambda loc: _started(loc, domain))
     except KeyboardInterrupt as exc:
         done = exc.args[0] if exc.args else None

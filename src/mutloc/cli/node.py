@@ -26,7 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "rig), or a recorded video, image folder or bag (with --realtime)")
     p.add_argument("--realtime", nargs="?", const=1.0, type=positive_float, metavar="SPEED",
                    help="replay a recording as a camera: frames released at their own rate (times SPEED, default 1), "
-                        "stamped with the wall-clock time of their release")
+                        "stamped with the wall-clock time of their scheduled release")
     p.add_argument("--loop", action="store_true", help="with --realtime: play the recording again and again")
     p.add_argument("--start-at", type=float, metavar="UNIX_TIME",
                    help="with --realtime: release the first frame at this wall-clock time (seconds since 1970), so "

@@ -263,8 +263,10 @@ class CaptureSource(CameraSource):
 class ReplaySource(CameraSource):
     """A recording (video file, image folder, or ``topic`` of a bag) played
     as a camera: frame k is released ``(t_k - t_0) / speed`` seconds after
-    the first, stamped with the wall-clock time of its release, its own time
-    in the recording as ``source_time``.  Images are decoded before their
+    the first, stamped with the wall-clock time it is due (the first frame's
+    release plus that; a camera stamps its exposure, not the moment its
+    driver hands the frame on), its own time in the recording as
+    ``source_time``.  Images are decoded before their
     release time (a camera's readout), so the stamps keep the recording's
     spacing while decoding keeps up.  ``loop``: play it again and again (frame
     numbers and ``source_time`` going on from one pass to the next).
@@ -301,13 +303,16 @@ class ReplaySource(CameraSource):
                     return
                 t = f.t + shift
                 if start is None:
-                    start, t0 = time.monotonic(), t
+                    start, wall, t0 = time.monotonic(), time.time(), t
                     if self.start_at is not None:
-                        start += self.start_at - time.time()
-                delay = start + (t - t0) / self.speed - time.monotonic()
+                        start, wall = start + self.start_at - wall, self.start_at
+                due = (t - t0) / self.speed
+                delay = start + due - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return
-                self.slot.put(LiveFrame(index + f.index, time.time(), f.image, f.status, source_time=t))
+                # stamped with the instant it is due, as a camera stamps its exposure (the thread's
+                # scheduling delay is the transfer's, not the capture's)
+                self.slot.put(LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t))
                 first, last = first or f, f
             if not self.loop or last is None:
                 return

@@ -82,7 +82,14 @@ class Bus:
         from cyclonedds.domain import Domain, DomainParticipant
 
         self.domain_id = check_domain(domain)
-        self._domain = Domain(self.domain_id, LOOPBACK_CONFIG) if loopback else None
+        self._domain = None
+        if loopback:
+            from cyclonedds.core import DDSException
+
+            try:
+                self._domain = Domain(self.domain_id, LOOPBACK_CONFIG)
+            except DDSException:
+                pass  # this process made the domain already (another Bus or participant on it): shared
         self.participant = DomainParticipant(self.domain_id)
         self.qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
                        Policy.History.KeepLast(HISTORY_DEPTH))

@@ -136,6 +136,8 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     from .dds import Bus, check_domain
 
     domain = check_domain(domain if domain is not None else 100 + os.getpid() % 100)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     names = list(load_rig(rig_file).robots)
     source, target = names[0], names[1]
     T = ros_types()
@@ -150,6 +152,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     logs = []
     received: list[tuple[float, float, Any]] = []  # (arrival wall time, stamp, message)
     source_time: dict[int, float] = {}  # stamp ns -> time in the recording
+    messages = 0
     labels = ["localizer", *folders]
     try:
         commands = [exe + ["localizer", *common, "--out", str(out / "localizer"), "--duration", f"{run_for + 1:g}"]]
@@ -170,6 +173,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
             for r in folders:
                 for m in readers[r].take():
                     source_time[_ns(stamp_of(m.header))] = float(m.source_time)
+                    messages += 1
             time.sleep(0.002)
     finally:
         _stop(procs)
@@ -182,6 +186,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
         tail = (out / f"{name}.log").read_text(encoding="utf-8").strip().splitlines()[-1:] or ["(no output)"]
         raise InputError(f"the {name} process stopped (exit {failed[0][1]}): {tail[0]}")
     summary = _summary(out, received, source_time, truth, seconds, domain)
+    summary["observation_messages"] = messages
     summary["start_at"] = start_at  # the wall-clock time of every recording's first frame
     return summary
 

@@ -6,7 +6,9 @@ their arrival (wall-clock) time and returns the poses to publish, so it is
 tested and benchmarked on recorded or simulated logs.  :func:`run_localizer`
 puts it on the wire (the ``live`` extra).
 
-Each accepted message is one record of the track, fused exactly as ``track
+Each accepted message is one record of the track -- with the messages of
+other robots stamped within ``tolerance`` (5 ms) of it, at their mean time,
+as ``track`` pairs two cameras' frames -- fused exactly as ``track
 --observations`` fuses a log's line (two robots: the pair tracker of
 :mod:`mutloc.track.filtering` through :class:`~mutloc.track.tracker.RecordStepper`;
 more: the team tracker of :mod:`mutloc.track.team`); what it fuses is what it
@@ -28,7 +30,7 @@ a later stamp (none of theirs can come before it: DDS delivers each
 writer's messages in order) or ``reorder`` seconds after it arrived; a
 message stamped before the last record fused is ``dropped_late``.
 
-Each fused message gives a pose of every tracked robot it is about: with
+Each fused record gives a pose of every tracked robot it is about: with
 two robots the pair's, with a team its observer's and those of the robots
 whose markers it saw (the others' rows are the motion model's prediction
 alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
@@ -49,7 +51,7 @@ import heapq
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -78,6 +80,9 @@ MAX_CLOCK_SKEW = 0.05
 WARN_AFTER = 0.5
 #: Seconds a message may wait for earlier ones from the other robots (``--reorder``).
 REORDER_WINDOW = 0.03
+#: Messages of different robots stamped within this many seconds make one
+#: record, at their mean time (as ``track`` pairs the frames of two cameras).
+TOLERANCE = 0.005
 #: Seconds between two ``/diagnostics`` messages (SPEC: at least once a second).
 DIAGNOSTICS_PERIOD = 0.5
 
@@ -182,17 +187,26 @@ class _TeamEngine:
     def __init__(self, rig: Rig, reference: str, pixel_sigma: float, confidence: float, options: FilterOptions,
                  sink: Callable[[TrackRow, str], None] | None) -> None:
         from ..track.team import TeamTracker
+        from ..track.tracker import RowEmitter
 
         self.tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
         self.robots, self.reference = list(self.tracker.robots), reference
-        self.sink = sink
+
+        def final(record: dict[str, TrackRow], _: Any) -> None:
+            if sink is not None:
+                for r, row in record.items():
+                    sink(row, r)
+
+        # rows handed to ``sink`` once final (after the smoother's lag), as track_team_log does
+        self._emitter = RowEmitter(self.tracker, final)
 
     def step(self, t: float, obs: ObservationSet) -> dict[str, TrackRow]:
+        """The record's rows, their poses the causal filter's (published at once)."""
         rows = self.tracker.step(t, obs)
-        if self.sink is not None:
-            for r, row in rows.items():
-                self.sink(row, r)
-        return rows
+        live = {r: replace(row) for r, row in rows.items()}  # the smoother may revise the rows later
+        self._emitter.add(rows, True)
+        self._emitter.emit()
+        return live
 
     def involved(self, observer: str, obs: ObservationSet) -> list[str]:
         """The robots a record is about: its observer and the robots whose markers it saw."""
@@ -201,7 +215,7 @@ class _TeamEngine:
         return [r for r in self.robots if r in seen]
 
     def finish(self) -> None:
-        pass
+        self._emitter.emit(end=True)
 
 
 class Localizer:
@@ -223,7 +237,7 @@ class Localizer:
                  filter: FilterOptions | None = None, max_coast: float = MAX_COAST,
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
-                 log: Any = None) -> None:
+                 log: Any = None, tolerance: float = TOLERANCE) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
@@ -239,6 +253,7 @@ class Localizer:
         self.max_clock_skew = _nonnegative(max_clock_skew, "max_clock_skew")
         self.warn_after = positive_number(warn_after, "warn_after")
         self.reorder = _nonnegative(reorder, "reorder")
+        self.tolerance = _nonnegative(tolerance, "tolerance")
         self.names = names
         if len(names) == 2:
             source, target = self.rig.default_pair(None, reference)
@@ -246,7 +261,7 @@ class Localizer:
                                            filter if filter is not None else FilterOptions(), sink)
         else:
             self.engine = _TeamEngine(self.rig, reference if reference is not None else names[0], pixel_sigma,
-                                      confidence, filter if filter is not None else FilterOptions(smooth_lag=0), sink)
+                                      confidence, filter if filter is not None else FilterOptions(), sink)
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
@@ -276,7 +291,7 @@ class Localizer:
             source, target = self.engine.robots[0], self.engine.reference
             engine: Any = _PairEngine(self.rig, source, target, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
         else:
-            engine = _TeamEngine(self.rig, a, 1.0, DEFAULT_CONFIDENCE, FilterOptions(smooth_lag=0), None)
+            engine = _TeamEngine(self.rig, a, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
         try:
             for k in range(12):
                 observer = (a, b)[k % 2]
@@ -378,7 +393,7 @@ class Localizer:
         """Fuse the held messages that are due, oldest first; the poses to publish."""
         out: list[LivePose] = []
         while self._held and self._due(self._held[0], now):
-            out += self._fuse(heapq.heappop(self._held))
+            out += self._fuse(self._group())
         return out
 
     def feed(self, msg: Any, now: float, topic: str | None = None) -> list[LivePose]:
@@ -390,27 +405,48 @@ class Localizer:
         """Fuse every held message now (the input ends)."""
         out: list[LivePose] = []
         while self._held:
-            out += self._fuse(heapq.heappop(self._held))
+            out += self._fuse(self._group())
         return out
 
-    def _fuse(self, h: _Held) -> list[LivePose]:
-        c = self.counts[h.robot]
-        if h.t < self.fused_until:  # (a message the buffer let through too early for it)
-            c.dropped_late += 1
+    def _group(self) -> list[_Held]:
+        """The oldest held message and the held messages of other robots
+        stamped within ``tolerance`` of it: one record."""
+        group = [heapq.heappop(self._held)]
+        while (self._held and self._held[0].t - group[0].t <= self.tolerance
+               and self._held[0].robot not in {h.robot for h in group}):
+            group.append(heapq.heappop(self._held))
+        return group
+
+    def _fuse(self, group: list[_Held]) -> list[LivePose]:
+        late = [h for h in group if h.t < self.fused_until]  # (let through too early for them)
+        for h in late:
+            self.counts[h.robot].dropped_late += 1
+        group = [h for h in group if h not in late]
+        if not group:
             return []
+        if len(group) == 1:
+            h = group[0]
+            t, ns, obs = h.t, h.ns, h.observations
+        else:
+            t = sum(h.t for h in group) / len(group)
+            ns = round(sum(h.ns for h in group) / len(group))
+            obs = ObservationSet.concatenate([h.observations for h in group])
         try:
-            rows = self.engine.step(h.t, h.observations)
+            rows = self.engine.step(t, obs)
         except (MutlocError, ArithmeticError, ValueError):
             # Input the checks let through and the tracker cannot take: refused, never a stop.
-            c.refused_malformed += 1
+            for h in group:
+                self.counts[h.robot].refused_malformed += 1
             return []
         if self.log is not None:
-            self.log.write(h.t, h.observations)
-        self.fused_until = h.t
+            self.log.write(t, obs)
+        self.fused_until = max(h.t for h in group)
         self.records += 1
-        c.fused += 1
+        involved: set[str] = set()
+        for h in group:
+            self.counts[h.robot].fused += 1
+            involved.update(self.engine.involved(h.robot, h.observations))
         out = []
-        involved = self.engine.involved(h.robot, h.observations)
         for robot, row in rows.items():
             rc = self.counts[robot]
             rc.status = str(row.status)
@@ -423,7 +459,7 @@ class Localizer:
                       and row.t - rc.last_measured <= self.max_coast):
                 continue
             rc.poses += 1
-            out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns))
+            out.append(LivePose(robot, self.reference, t, row.status, e, ns))
         return out
 
     def finish(self) -> list[LivePose]:
@@ -529,7 +565,7 @@ class LocalizerRun:
 
 def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int = 0, out: str | Path | None = None,
                   max_coast: float = MAX_COAST, max_clock_skew: float = MAX_CLOCK_SKEW,
-                  reorder: float = REORDER_WINDOW, pixel_sigma: float = 1.0,
+                  reorder: float = REORDER_WINDOW, tolerance: float = TOLERANCE, pixel_sigma: float = 1.0,
                   confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
                   ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time
                   ) -> LocalizerRun:
@@ -558,7 +594,7 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         if out is not None:
             log = ObservationLogWriter(Path(out) / "log.jsonl")
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
-                        max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder,
+                        max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
                         sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log)
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
