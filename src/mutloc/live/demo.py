@@ -30,8 +30,10 @@ from .messages import observations_topic, pose_topic, ros_types, stamp_of
 __all__ = ["run_live_demo", "run_live_pair", "format_live_summary"]
 
 SOURCE, TARGET = "p", "q"
-#: Seconds between starting the processes and the first frame (DDS discovery, Numba's first call).
-LEAD_IN = 6.0
+#: Seconds between starting the nodes and their first frame (DDS discovery, loading the detectors).
+LEAD_IN = 4.0
+#: Seconds the localizer may take to start listening.
+READY_TIMEOUT = 60.0
 
 
 def _render_frame(args: tuple) -> tuple[str, int]:
@@ -142,11 +144,10 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     source, target = names[0], names[1]
     T = ros_types()
     bus = Bus(domain, loopback=True)
-    readers = {"pose": bus.reader(pose_topic(source, target), T.PoseWithCovarianceStamped),
+    readers = {"pose": bus.reader(pose_topic(source, target), T.PoseWithCovarianceStamped, depth=100),
                **{r: bus.reader(observations_topic(r), T.Observations) for r in folders}}
     exe = [sys.executable, "-m", "mutloc.cli.main"]
     common = ["--rig", str(rig_file), "--domain", str(domain), "--loopback"]
-    start_at = time.time() + lead_in
     run_for = lead_in + seconds + 2.0
     procs: list[subprocess.Popen] = []
     logs = []
@@ -154,15 +155,24 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     source_time: dict[int, float] = {}  # stamp ns -> time in the recording
     messages = 0
     labels = ["localizer", *folders]
+    def launch(name: str, cmd: list[str]) -> None:
+        log = open(out / f"{name}.log", "w", encoding="utf-8")
+        logs.append(log)
+        procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
+
     try:
-        commands = [exe + ["localizer", *common, "--out", str(out / "localizer"), "--duration", f"{run_for + 1:g}"]]
-        commands += [exe + ["node", *common, "--robot", r, "--camera", str(f), "--realtime",
-                            "--start-at", f"{start_at:.6f}", "--duration", f"{run_for:g}", "--no-progress"]
-                     for r, f in folders.items()]
-        for name, cmd in zip(labels, commands):
-            log = open(out / f"{name}.log", "w", encoding="utf-8")
-            logs.append(log)
-            procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
+        launch("localizer", exe + ["localizer", *common, "--out", str(out / "localizer"), "--duration",
+                                   f"{run_for + READY_TIMEOUT:g}"])
+        # the nodes' replays start once the localizer listens (it says so when ready)
+        deadline = time.monotonic() + READY_TIMEOUT
+        while "localizer: rig_id" not in (out / "localizer.log").read_text(encoding="utf-8"):
+            if procs[0].poll() is not None or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        start_at = time.time() + lead_in
+        for r, f in folders.items():
+            launch(r, exe + ["node", *common, "--robot", r, "--camera", str(f), "--realtime", "--start-at",
+                             f"{start_at:.6f}", "--duration", f"{run_for:g}", "--no-progress"])
         end = start_at + seconds + 1.5
         while time.time() < end:
             if any(p.poll() not in (None, 0) for p in procs):
