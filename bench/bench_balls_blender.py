@@ -69,7 +69,9 @@ def pose_row(rig, imgs, truth) -> dict:
     try:
         res = localize_images(rig, imgs)
     except MutlocError as exc:
-        return {"status": "none", "cm": float("inf"), "sigmas": None, "why": type(exc).__name__, "final": []}
+        missed = [{"observer": o, "marker": m, "hidden": b["hidden"], "radius_px": b["radius_px"], "err_px": None,
+                   "why": "no pose"} for o, bs in truth["balls"].items() for m, b in bs.items()]
+        return {"status": "none", "cm": float("inf"), "sigmas": None, "why": type(exc).__name__, "final": missed}
     est = res.estimate
     e = np.asarray(est.t) - t_true
     C = np.asarray(est.covariance)[3:, 3:]

@@ -2,7 +2,8 @@
 """Render the fixed Blender ball set (issue 28): each scene by Cycles and by mutloc's own renderer.
 
     MUTLOC_BLENDER_PYTHON=.venv-render/bin/python python bench/make_blender_set.py [--out bench/blender_set]
-        [--frames 4] [--samples 4] [--only hard,dim]
+        [--frames 3] [--samples 4] [--only hard,dim]
+    python bench/make_blender_set.py --export-test tests/data/blender --scenes pole_00,box_01,...
 
 (``.venv-render``: ``python3.11 -m venv .venv-render && .venv-render/bin/pip install bpy`` -- bpy 5.0 pins
 numpy < 2, so it lives in a virtual environment of its own; see mutloc.sim.blender.)
@@ -115,14 +116,49 @@ def make(out: Path, cond: str, i: int, rig, samples: int, python: str | None) ->
     return truth
 
 
+def export_crops(out: Path, dest: Path, scenes: list[str], margin: float = 24.0) -> None:
+    """The test subset: per scene and observer, the Blender image cropped around the observed robot's
+    balls (PNG) and ``truth.json`` with each ball's true centre in crop pixels, its hidden share and the
+    crop's intrinsics (the principal point moved by the crop's corner)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    rig = standard_rig("balls")
+    index = {}
+    for name in scenes:
+        truth = json.loads((out / name / "truth.json").read_text())
+        for obs, balls in truth["balls"].items():
+            img = cv2.imread(str(out / name / f"blender_{obs}.png"))
+            H, W = img.shape[:2]
+            us = [b["u"] for b in balls.values()]
+            vs = [b["v"] for b in balls.values()]
+            r = max(b["radius_px"] for b in balls.values())
+            x0, x1 = int(max(0, min(us) - 3 * r - margin)), int(min(W, max(us) + 3 * r + margin + 1))
+            y0, y1 = int(max(0, min(vs) - 3 * r - margin)), int(min(H, max(vs) + 3 * r + margin + 1))
+            key = f"{name}_{obs}"
+            cv2.imwrite(str(dest / f"{key}.png"), img[y0:y1, x0:x1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
+            K = np.array(rig.robot(obs).camera.K, float)
+            K[0, 2] -= x0
+            K[1, 2] -= y0
+            index[key] = {"scene": name, "condition": truth["condition"], "observer": obs, "corner": [x0, y0],
+                          "size": [x1 - x0, y1 - y0], "K": K.tolist(),
+                          "balls": {m: {**b, "u": b["u"] - x0, "v": b["v"] - y0} for m, b in balls.items()}}
+    (dest / "truth.json").write_text(json.dumps(index, indent=1))
+    print(f"{len(index)} crops -> {dest}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "blender_set")
-    ap.add_argument("--frames", type=int, default=4, help="scenes per condition")
+    ap.add_argument("--frames", type=int, default=3, help="scenes per condition")
     ap.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel (denoised)")
     ap.add_argument("--only", default=None, help="comma-separated conditions")
     ap.add_argument("--python", default=None, help="the interpreter with bpy (default $MUTLOC_BLENDER_PYTHON)")
+    ap.add_argument("--export-test", type=Path, default=None, metavar="DIR",
+                    help="write crops of --scenes (already rendered) with their truth to DIR, render nothing")
+    ap.add_argument("--scenes", default="", help="comma-separated scene names for --export-test")
     args = ap.parse_args()
+    if args.export_test is not None:
+        export_crops(args.out, args.export_test, [s for s in args.scenes.split(",") if s])
+        return
     conds = args.only.split(",") if args.only else list(CONDITIONS)
     bad = [c for c in conds if c not in CONDITIONS]
     if bad:
