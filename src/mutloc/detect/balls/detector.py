@@ -12,7 +12,8 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
-from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored
+from .choose import (Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored,
+                     worst_pair_error)
 from .fit import CameraModel, Fit, ellipse_info, fit_rim
 from .cues import encoded_hue_chroma
 from .light import light_gains, lut_gains
@@ -202,7 +203,8 @@ def detect_balls(
         # Per robot, the combination of blobs (or none) that best agrees
         # with the rig: balls of one robot keep their mutual distances.
         picked, consistent = choose_consistent(group, per_marker, params)
-        if not consistent:
+        if not consistent or (any(skipped[g.name] for g in group)
+                              and worst_pair_error(picked) > params.recheck_pair_error):
             # Something does not fit: the blobs passed over may hold the
             # right ball, and a ball left out may be partly hidden.
             kept = {c.search.name: c for c in picked}
