@@ -126,7 +126,10 @@ def detect_balls(
         if c.score < params.min_score:
             reject(s.name, 1, f"rejected: its best blob scores {c.score:.2f}, below min_score {params.min_score}")
             return None
+        source[id(c)] = blob
         return c
+
+    source: dict[int, Blob] = {}  # id of a candidate -> the blob it was refined from
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
@@ -213,6 +216,20 @@ def detect_balls(
                 if g.name not in kept and later[g.name]:
                     per_marker[g.name] += rescue(g, list(kept.values()), whole=False)
             picked, _ = choose_consistent(group, per_marker, params)
+        # A chosen ball whose rim was cut (an occluder) and whose size is off its whole mate's: the
+        # first fit may have taken the occluder's edge for rim; its circle found again from the
+        # visible outline competes with it.
+        whole = [c.radius_px for c in picked if float(c.info["rim_fraction"]) >= 0.9]
+        if whole:
+            extra = False
+            for c in picked:
+                b = source.get(id(c))
+                if (b is not None and any(b is x for x in cut) and abs(c.radius_px / np.median(whole) - 1.0) > params.cut_size_tolerance
+                        and (c2 := refine(c.search, b, True)) is not None):
+                    per_marker[c.search.name].append(c2)
+                    extra = True
+            if extra:
+                picked, _ = choose_consistent(group, per_marker, params)
         chosen.extend(picked)
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
 
