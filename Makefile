@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DOCS_STAMP := $(VENV)/.docs-installed
 
-.PHONY: demo test bench docs install clean
+.PHONY: demo test bench docs install clean render-venv
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,15 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
+
+# Blender (the bpy wheel) for bench/make_blender_set.py, in a venv of its own: bpy 5.0 pins numpy<2.
+# Then: MUTLOC_BLENDER_PYTHON=.venv-render/bin/python .venv/bin/python bench/make_blender_set.py
+.venv-render/.installed:
+	$(PYTHON) -m venv .venv-render
+	.venv-render/bin/python -m pip install --quiet "bpy>=5.0"
+	touch $@
+
+render-venv: .venv-render/.installed
 
 # The manual, into site/ (open site/index.html); --strict fails on a broken link or API reference.
 $(DOCS_STAMP): $(STAMP)

@@ -62,6 +62,7 @@ __all__ = [
     "pixel_bearings",
     "render_linear",
     "room_around",
+    "scene_primitives",
     "linear_to_srgb",
     "moving_world",
     "project_markers",
@@ -1375,3 +1376,44 @@ def ball_visibility(world: World, observer: str, marker: str, t: float = 0.0, *,
     k = np.where(key >= 0, key // _KEY_STRIDE, -1)
     hit = np.array([kk >= 0 and scene.owner[kk] == (owner, marker) for kk in k])
     return float(hit.mean())
+
+
+def scene_primitives(world: World, t: float = 0.0) -> list[dict[str, Any]]:
+    """Every object this renderer draws of ``world`` at time ``t``, as plain data (world frame,
+    metres; colours linear RGB in 0..1): what another renderer needs to draw the same scene
+    (:mod:`mutloc.sim.blender`).
+
+    Each item has ``kind`` (``"sphere"``, ``"quad"``, ``"box"``, ``"cylinder"``), ``robot`` and
+    ``marker`` (the owner; ``""`` and None for the room, ``"#prop"`` for a prop), and its
+    geometry: a sphere ``centre, radius, color, emission, specular, shininess``; a quad
+    ``centre, u, v, half_u, half_v, color`` and ``surface`` (the room surface whose texture
+    :func:`~mutloc.sim.world.room_textures` gives) or ``tag``; a box ``centre, R`` (columns: its
+    axes) ``, half, color``; a capped cylinder ``centre, axis, radius, half_length, bands``
+    (one linear RGB colour per band, top first) and ``cap``.
+    """
+    scene, (_tex, _tinfo, ids) = _compile(world, _check_time(t))
+    tex_name = {v: k for k, v in ids.items()}
+    rgb = lambda bgr: [float(bgr[2]), float(bgr[1]), float(bgr[0])]  # noqa: E731
+    out: list[dict[str, Any]] = []
+    for k, (f, (typ, i1, i2)) in enumerate(zip(scene.pf, scene.pi)):
+        robot, marker = scene.owner[k]
+        d: dict[str, Any] = {"robot": robot, "marker": marker, "centre": [float(x) for x in f[:3]]}
+        if typ == _SPHERE:
+            d.update(kind="sphere", radius=float(f[3]), color=rgb(f[4:7]), emission=rgb(f[7:10]),
+                     specular=float(f[10]), shininess=float(f[11]))
+        elif typ == _QUAD:
+            d.update(kind="quad", u=f[3:6].tolist(), v=f[6:9].tolist(), half_u=float(f[12]), half_v=float(f[13]),
+                     color=rgb(f[14:17]))
+            name = tex_name.get(int(i1))
+            if name is not None and name[0] == "room":
+                d["surface"] = name[1]
+            elif name is not None:
+                d["tag"] = list(name[1:])
+        elif typ == _BOX:
+            d.update(kind="box", R=f[3:12].reshape(3, 3).tolist(), half=f[12:15].tolist(), color=rgb(f[15:18]))
+        else:
+            bits = scene.codes_arr[int(i1): int(i1) + int(i2)]
+            d.update(kind="cylinder", axis=f[3:6].tolist(), radius=float(f[6]), half_length=float(f[7]),
+                     bands=[rgb(f[8:11]) if b else rgb(f[11:14]) for b in bits], cap=rgb(f[14:17]))
+        out.append(d)
+    return out

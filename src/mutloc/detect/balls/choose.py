@@ -29,6 +29,8 @@ __all__ = [
     "Candidate",
     "assign",
     "choose_consistent",
+    "pair_error",
+    "worst_pair_error",
     "range_sigma",
     "rig_mates",
     "same_blob",
@@ -162,6 +164,24 @@ def rig_mates(searches: Iterable[BallSearch]) -> dict[str, list[BallSearch]]:
     return out
 
 
+def pair_error(ci: Candidate, cj: Candidate) -> float | None:
+    """Normalised error of two balls' distance in the camera frame against their distance on the robot:
+    -inf when both are one blob, None when they sit at one place on the robot (nothing to check)."""
+    if same_blob(ci, cj):
+        return -math.inf
+    L = float(np.linalg.norm(ci.search.position - cj.search.position))  # type: ignore[operator]
+    if L < 1e-6:
+        return None
+    return (float(np.linalg.norm(ci.xyz - cj.xyz)) - L) / (0.01 + range_sigma(ci) + range_sigma(cj))
+
+
+def worst_pair_error(picked: list[Candidate]) -> float:
+    """The largest ``|pair_error|`` among the chosen balls of one robot (0 for fewer than two)."""
+    zs = [abs(z) for a, b in itertools.combinations(picked, 2) if a.xyz is not None and b.xyz is not None
+          and (z := pair_error(a, b)) is not None]
+    return max(zs, default=0.0)
+
+
 def choose_consistent(
     group: list[BallSearch], per_marker: Mapping[str, list[Candidate]], params: BallParams
 ) -> tuple[list[Candidate], bool]:
@@ -193,12 +213,7 @@ def choose_consistent(
         """Normalised error of the pair's distance; -inf when one blob; None when nothing to check."""
         key = (i, j, id(ci), id(cj))
         if key not in pairs:
-            z: float | None = -math.inf
-            if not same_blob(ci, cj):
-                L = float(np.linalg.norm(group[i].position - group[j].position))  # type: ignore[operator]
-                z = None if L < 1e-6 else (  # same place on the robot: nothing to check
-                    (float(np.linalg.norm(ci.xyz - cj.xyz)) - L) / (0.01 + range_sigma(ci) + range_sigma(cj)))
-            pairs[key] = z
+            pairs[key] = pair_error(ci, cj)
         return pairs[key]
 
     for combo in itertools.product(*options):

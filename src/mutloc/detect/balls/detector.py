@@ -12,7 +12,8 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
-from .choose import Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored
+from .choose import (Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored,
+                     worst_pair_error)
 from .fit import CameraModel, Fit, ellipse_info, fit_rim
 from .cues import encoded_hue_chroma
 from .light import light_gains, lut_gains
@@ -125,7 +126,10 @@ def detect_balls(
         if c.score < params.min_score:
             reject(s.name, 1, f"rejected: its best blob scores {c.score:.2f}, below min_score {params.min_score}")
             return None
+        source[id(c)] = blob
         return c
+
+    source: dict[int, Blob] = {}  # id of a candidate -> the blob it was refined from
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
@@ -202,7 +206,8 @@ def detect_balls(
         # Per robot, the combination of blobs (or none) that best agrees
         # with the rig: balls of one robot keep their mutual distances.
         picked, consistent = choose_consistent(group, per_marker, params)
-        if not consistent:
+        if not consistent or (any(skipped[g.name] for g in group)
+                              and worst_pair_error(picked) > params.recheck_pair_error):
             # Something does not fit: the blobs passed over may hold the
             # right ball, and a ball left out may be partly hidden.
             kept = {c.search.name: c for c in picked}
@@ -211,6 +216,20 @@ def detect_balls(
                 if g.name not in kept and later[g.name]:
                     per_marker[g.name] += rescue(g, list(kept.values()), whole=False)
             picked, _ = choose_consistent(group, per_marker, params)
+        # A chosen ball whose rim was cut (an occluder) and whose size is off its whole mate's: the
+        # first fit may have taken the occluder's edge for rim; its circle found again from the
+        # visible outline competes with it.
+        whole = [c.radius_px for c in picked if float(c.info["rim_fraction"]) >= 0.9]
+        if whole:
+            extra = False
+            for c in picked:
+                b = source.get(id(c))
+                if (b is not None and any(b is x for x in cut) and abs(c.radius_px / np.median(whole) - 1.0) > params.cut_size_tolerance
+                        and (c2 := refine(c.search, b, True)) is not None):
+                    per_marker[c.search.name].append(c2)
+                    extra = True
+            if extra:
+                picked, _ = choose_consistent(group, per_marker, params)
         chosen.extend(picked)
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
 

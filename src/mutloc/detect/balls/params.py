@@ -93,6 +93,17 @@ class BallParams:
     #: ... and gives up (keeping each marker's best) beyond this many
     #: combinations.
     max_joint_combos: int = 5000
+    #: When the rig check's choice holds, but a pair of its balls is off
+    #: the robot's distance by more than this (in allowed errors; 3 fails the
+    #: check), the blobs passed over as smaller than an early good fit are
+    #: refined too and the choice made again: a poster's disc of a ball's
+    #: colour can outscore the ball and still pass at a distance.
+    recheck_pair_error: float = 0.5
+    #: A chosen ball whose rim was cut (an occluder) and whose radius is off
+    #: its whole mate's by more than this share has its circle found again
+    #: from the visible outline (:mod:`.occlusion`), in competition with its
+    #: first fit: that fit may have taken the occluder's edge for rim.
+    cut_size_tolerance: float = 0.08
     #: Once a blob of a marker scores this well, only bigger blobs of that
     #: marker are still refined.
     good_enough: float = 0.85
@@ -155,7 +166,8 @@ class BallParams:
         _positive_int("max_candidates", self.max_candidates)
         if self.downscale is not None:
             _positive_int("downscale", self.downscale)
-        for what in ("mix_gamma", "step_px", "local_half_window_px", "max_axis_ratio", "fallback_max_radius_px"):
+        for what in ("mix_gamma", "step_px", "local_half_window_px", "max_axis_ratio", "fallback_max_radius_px",
+                     "recheck_pair_error", "cut_size_tolerance"):
             _positive(what, getattr(self, what))
         _positive_int("max_joint_options", self.max_joint_options)
         _positive_int("max_joint_combos", self.max_joint_combos)

@@ -1,0 +1,143 @@
+#!/usr/bin/env python
+"""The ball detector on the Blender set and on the same scenes from mutloc's own renderer (issue 28).
+
+    python bench/make_blender_set.py                 # once: renders bench/blender_set/ (see there)
+    python bench/bench_balls_blender.py [--set bench/blender_set] [--json OUT.json] [--renderer blender]
+
+Per scene and renderer (``blender_*.png``: Cycles; ``mutloc_*.png``: mutloc.sim.render, same world):
+
+- ball centres: :func:`mutloc.detect.balls.detect_balls` on each image with the camera (the first look),
+  every found ball's distance in pixels to the true projected centre of the sphere; ``hidden`` balls
+  are those with more than 5 % of their disc covered (truth by ray casting);
+- pose: :func:`mutloc.track.localize_images` (first look, solve, second look at partly hidden balls),
+  translation error in cm against the true T_qp, and the error's Mahalanobis distance under the
+  estimate's own translation covariance (pixel_sigma 1 px): "beyond 5 sigma" when it exceeds 5.
+
+Prints per condition and renderer: ball-centre error median / p90 (px) of the first look ("1st",
+a wrong blob taken counts with its distance), then of the balls localize_images kept (all, and the
+hidden balls alone), balls it left missing, pose error median / p90 (cm, a scene without a pose counted
+infinite), and how many scenes are beyond 5 sigma; writes the per-scene rows to ``--json``
+(default bench/results/balls_blender_results.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mutloc.detect.balls import detect_balls
+from mutloc.errors import MutlocError
+from mutloc.sim.world import standard_rig
+from mutloc.track import localize_images
+
+ROOT = Path(__file__).resolve().parent
+RENDERERS = ("blender", "mutloc")
+HIDDEN = 0.05
+
+
+def ball_rows(rig, imgs, truth, final=None) -> list[dict]:
+    """Every true ball's centre error (px) in the first look (``detect_balls``), or in ``final``
+    (``{observer: DetectionResult}``: what localize_images kept)."""
+    rows = []
+    for obs, other in (("p", "q"), ("q", "p")):
+        cam = rig.robot(obs).camera
+        if final is None:
+            res = detect_balls(imgs[obs], rig.robot(other).markers, camera=cam)
+        elif obs in final:
+            res = final[obs]
+        else:
+            continue
+        for m, tb in truth["balls"][obs].items():
+            d = res.detections.get(m)
+            row = {"observer": obs, "marker": m, "hidden": tb["hidden"], "radius_px": tb["radius_px"]}
+            if d is None:
+                row.update(err_px=None, why=res.missing_reasons.get(m, ""))
+            else:
+                row.update(err_px=float(np.hypot(d.uv[0] - tb["u"], d.uv[1] - tb["v"])),
+                           du=float(d.uv[0] - tb["u"]), dv=float(d.uv[1] - tb["v"]),
+                           visible=d.visible_fraction, r_err_px=float(d.info["radius_px"]) - tb["radius_px"])
+            rows.append(row)
+    return rows
+
+
+def pose_row(rig, imgs, truth) -> dict:
+    t_true = np.asarray(truth["T_qp"]["t"])
+    try:
+        res = localize_images(rig, imgs)
+    except MutlocError as exc:
+        missed = [{"observer": o, "marker": m, "hidden": b["hidden"], "radius_px": b["radius_px"], "err_px": None,
+                   "why": "no pose"} for o, bs in truth["balls"].items() for m, b in bs.items()]
+        return {"status": "none", "cm": float("inf"), "sigmas": None, "why": type(exc).__name__, "final": missed}
+    est = res.estimate
+    e = np.asarray(est.t) - t_true
+    C = np.asarray(est.covariance)[3:, 3:]
+    m = float(np.sqrt(e @ np.linalg.solve(C, e)))
+    return {"status": est.status, "cm": 100 * float(np.linalg.norm(e)), "sigmas": m,
+            "sigma_along_cm": 100 * float(np.linalg.norm(e) / max(m, 1e-12)), "used": len(est.markers_used),
+            "final": ball_rows(rig, imgs, truth, res.detections)}
+
+
+def q(x, p):
+    x = [v for v in x if v is not None]
+    return float(np.quantile(x, p, method="higher")) if x else float("nan")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", type=Path, default=ROOT / "blender_set")
+    ap.add_argument("--renderer", choices=RENDERERS, action="append", default=None)
+    ap.add_argument("--json", type=Path, default=ROOT / "results" / "balls_blender_results.json")
+    args = ap.parse_args()
+    renderers = args.renderer or list(RENDERERS)
+    rig = standard_rig("balls")
+    scenes = sorted(p.parent for p in args.set.glob("*/truth.json"))
+    if not scenes:
+        raise SystemExit(f"no scenes in {args.set}: run bench/make_blender_set.py first")
+    rows = []
+    for folder in scenes:
+        truth = json.loads((folder / "truth.json").read_text())
+        for ren in renderers:
+            imgs = {o: cv2.imread(str(folder / f"{ren}_{o}.png"), cv2.IMREAD_COLOR) for o in ("p", "q")}
+            row = {"scene": folder.name, "condition": truth["condition"], "renderer": ren,
+                   "balls": ball_rows(rig, imgs, truth), **pose_row(rig, imgs, truth)}
+            rows.append(row)
+            errs = [f"{b['marker']}{'*' if b['hidden'] > HIDDEN else ''} "
+                    + ("miss" if b["err_px"] is None else f"{b['err_px']:.2f}") for b in row["balls"]]
+            sig = "-" if row["sigmas"] is None else f"{row['sigmas']:.1f}"
+            print(f"{folder.name:12s} {ren:7s} pose {row['cm']:.3f} cm ({row['status']}, {sig} sigma); px: "
+                  + ", ".join(errs), flush=True)
+    print()
+    print(f"{'condition':10s} {'renderer':8s} {'1st med':>7s} {'1st p90':>7s} {'px med':>7s} {'px p90':>7s} "
+          f"{'hid med':>7s} {'hid p90':>7s} {'missed':>6s} {'cm med':>7s} {'cm p90':>7s} {'>5sig':>6s}")
+    conds = list(dict.fromkeys(r["condition"] for r in rows))
+    summary = {}
+    for c in conds + ["all"]:
+        for ren in renderers:
+            sel = [r for r in rows if r["renderer"] == ren and (c == "all" or r["condition"] == c)]
+            if not sel:
+                continue
+            first = [b["err_px"] for r in sel for b in r["balls"]]
+            balls = [b for r in sel for b in r["final"]]
+            e_all = [b["err_px"] for b in balls]
+            e_hid = [b["err_px"] for b in balls if b["hidden"] > HIDDEN]
+            missed = sum(b["err_px"] is None for b in balls)
+            cm = [r["cm"] for r in sel]
+            beyond = sum(r["sigmas"] is None or r["sigmas"] > 5 for r in sel)
+            s = {"first_px_median": q(first, 0.5), "first_px_p90": q(first, 0.9), "px_median": q(e_all, 0.5),
+                 "px_p90": q(e_all, 0.9), "hidden_px_median": q(e_hid, 0.5), "hidden_px_p90": q(e_hid, 0.9),
+                 "missed": missed, "balls": len(balls), "cm_median": q(cm, 0.5), "cm_p90": q(cm, 0.9),
+                 "beyond_5_sigma": beyond, "scenes": len(sel)}
+            summary[f"{c}/{ren}"] = s
+            print(f"{c:10s} {ren:8s} {s['first_px_median']:7.3f} {s['first_px_p90']:7.3f} {s['px_median']:7.3f} "
+                  f"{s['px_p90']:7.3f} {s['hidden_px_median']:7.3f} {s['hidden_px_p90']:7.3f} {missed:3d}/{len(balls):<2d} "
+                  f"{s['cm_median']:7.3f} {s['cm_p90']:7.3f} {beyond:2d}/{len(sel):<3d}")
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"set": str(args.set), "summary": summary, "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
