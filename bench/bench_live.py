@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Live operation benchmark (issue 25), part 1: the node.
+"""Live operation benchmark (issue 25): the node, and two nodes with a localizer end to end.
 
     python bench/bench_live.py            # 60 rendered frames per marker kind, 4 s replays
     python bench/bench_live.py --quick    # 20 frames, 2 s replays
@@ -16,6 +16,14 @@ Measured:
   :class:`~mutloc.live.cameras.ReplaySource`, the node in this process on
   DDS loopback): p50/p99 of capture -> publish (the node's own figure) and
   capture -> received by a subscriber of this process, and frames dropped.
+
+* **end to end**, per marker kind: two ``mutloc node`` processes replaying
+  each robot's camera at 30 fps in step and a ``mutloc localizer`` process,
+  DDS over loopback (:func:`mutloc.live.demo.run_live_pair`); a subscriber
+  in this process: poses received per second and capture -> pose received
+  latency p50/p99 (the pose's stamp is its frame's capture time).  The
+  rendered sequence is played again and again to ``--seconds`` (the track
+  restarts where it jumps back: latency and rate are what this measures).
 
 The machine and its load average are recorded beside the figures (the
 machine is shared: other work running changes them).  The functions
@@ -48,7 +56,7 @@ from mutloc.live.messages import observations_topic, ros_types, stamp_of  # noqa
 from mutloc.live.node import Node, percentile_ms  # noqa: E402
 from mutloc.sim.scenario import write_simulation  # noqa: E402
 from mutloc.track.frames import expanded_rig  # noqa: E402
-from mutloc.track.sources import Frame, folder_frames  # noqa: E402
+from mutloc.track.sources import folder_frames  # noqa: E402
 from mutloc.track.tracker import ObserverDetector  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -144,6 +152,18 @@ def node_latency(rig_path: Path, robot: str, folder: Path, domain: int, speed: f
             "receive_p99_ms": percentile_ms(received, 99)}
 
 
+def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
+    """Two node processes (each robot's camera looped to ``seconds``) and a
+    localizer process; what a subscriber here receives (see the module docstring)."""
+    from mutloc.live.demo import run_live_pair
+
+    loops = {r: looped_folder(folder / r, root / f"{folder.name}_e2e_{r}", seconds) for r in ("p", "q")}
+    s = run_live_pair(folder / "rig.yaml", loops, root / f"{folder.name}_e2e", seconds=seconds, domain=domain)
+    return {"poses_received": s["poses_received"], "poses_per_second": s["poses_per_second"],
+            "observation_messages": s["observation_messages"], "latency_p50_ms": s["latency_ms"]["p50"],
+            "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"]}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="20 frames per kind, 2 s replays")
@@ -172,9 +192,18 @@ def main() -> None:
             print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
                   f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
                   f"{r['receive_p99_ms']:<9.1f}")
+        print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
+        print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
+        e2e = {}
+        for k, (kind, folder) in enumerate(seqs.items()):
+            if kind == "cylinders":
+                continue  # slower than the camera on one core (see detection above)
+            r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
+            print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} "
+                  f"{r['latency_p50_ms']:>13.1f}/{r['latency_p99_ms']:.1f}/{r['latency_max_ms']:.1f}")
     info["load_average_at_end"] = list(os.getloadavg())
     result = {"machine": info, "size": list(SIZE), "camera_fps": CAMERA_FPS, "frames_per_kind": frames,
-              "replay_seconds": seconds, "detection": detection, "node_latency": latency}
+              "replay_seconds": seconds, "detection": detection, "node_latency": latency, "end_to_end": e2e}
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     print(f"\nload average at end {info['load_average_at_end']}; wrote {args.out}")
 

@@ -260,8 +260,11 @@ class Localizer:
             self.engine: Any = _PairEngine(self.rig, source, target, pixel_sigma, confidence,
                                            filter if filter is not None else FilterOptions(), sink)
         else:
+            # the published poses are the causal filter's; the team smoother (a pass over the
+            # filter's past, never fed back) only serves the files: not run without them
             self.engine = _TeamEngine(self.rig, reference if reference is not None else names[0], pixel_sigma,
-                                      confidence, filter if filter is not None else FilterOptions(), sink)
+                                      confidence, filter if filter is not None else
+                                      FilterOptions(smooth_lag=None if sink is not None else 0), sink)
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
