@@ -312,3 +312,51 @@ def test_smoothing_the_joint_state_lowers_the_error_and_stays_consistent(fast_te
         filtered, smoothed = np.median(err[0]), np.median(err[DEFAULT_SMOOTH_LAG])
         assert len(err[0]) > 40 and smoothed < 0.8 * filtered, (r, filtered, smoothed)
         assert 0.5 <= np.mean(nees[DEFAULT_SMOOTH_LAG]) <= 2.0, (r, np.mean(nees[DEFAULT_SMOOTH_LAG]))
+
+
+def test_a_team_whose_cameras_alone_place_nobody_starts_from_records_bridged():
+    """Three robots, free-running cameras, each camera seeing only two markers
+    of each other robot: no record on its own ties any robot by more than two
+    observations (nothing starts from one record), but the records of the
+    last 0.15 s together do.  The tracks start tentatively from them and
+    then follow the truth (T_r0_r from the simulated motion): after the
+    first half second every robot has a pose, median error under 2 cm
+    (robots 2-5 m apart, two markers each), with consistent covariance."""
+    from mutloc.core.observations import ObservationSet
+    from mutloc.sim.team import random_team, team_camera_records
+    from mutloc.track.frames import expanded_rig
+    from mutloc.track.team import TeamTracker
+
+    rng = np.random.default_rng(4)
+    scene = random_team(3, rng, one_way=0.0)
+    recs = team_camera_records(scene, 2.0, fps=30.0, sigma=0.5, seed=4)
+    keep = {}  # per (observer, robot) the two markers it keeps seeing
+    tracker = TeamTracker(expanded_rig(scene.rig), "r0", pixel_sigma=0.5)
+    errors, nees, alone = {r: [] for r in ("r1", "r2")}, {r: [] for r in ("r1", "r2")}, 0
+    for t, a, world, obs in recs:
+        rows = [k for k in range(len(obs)) if obs.marker[k] is not None]
+        kept = []
+        for k in rows:
+            owner = scene.rig.owner(obs.marker[k])
+            chosen = keep.setdefault((a, owner), sorted(m for m in scene.rig.robot(owner).markers)[:2])
+            if obs.marker[k] in chosen:
+                kept.append(k)
+        seen = obs.take(np.array(kept, dtype=np.int64)) if kept else ObservationSet.trusted([], [], np.zeros((0, 2)))
+        counts = {}
+        for k in range(len(seen)):
+            counts[scene.rig.owner(seen.marker[k])] = counts.get(scene.rig.owner(seen.marker[k]), 0) + 1
+        alone = max(alone, max(counts.values(), default=0))
+        out = tracker.step(t, seen)
+        if t < 0.5:
+            continue
+        ref = world["r0"].inverse()
+        for r in ("r1", "r2"):
+            e = out[r].estimate
+            assert e is not None, (t, r, out[r].status, out[r].reason)
+            d = e.t - (ref @ world[r]).t
+            errors[r].append(np.linalg.norm(d))
+            nees[r].append(d @ np.linalg.solve(e.covariance[3:, 3:], d) / 3)
+    assert alone <= 2  # (the construction: no robot tied by more than two observations in one record)
+    for r, errs in errors.items():
+        assert np.median(errs) < 0.02 and np.max(errs) < 0.1, (r, np.median(errs), np.max(errs))
+        assert 0.3 < np.mean(nees[r]) < 3.0, (r, np.mean(nees[r]))

@@ -433,7 +433,7 @@ class Localizer:
         else:
             t = sum(h.t for h in group) / len(group)
             ns = round(sum(h.ns for h in group) / len(group))
-            obs = ObservationSet.concatenate([h.observations for h in group])
+            obs = ObservationSet.concatenate([h.observations for h in group]).with_time(t)  # one record, one time
         try:
             rows = self.engine.step(t, obs)
         except (MutlocError, ArithmeticError, ValueError):

@@ -49,6 +49,7 @@ reasons are the causal filter's.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
@@ -201,6 +202,8 @@ class TeamTracker:
         self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
         self._unfinal: list[dict[str, TrackRow]] = []
         self.tracks: dict[str, _Track] = {}
+        #: The records of the last ``start_window`` seconds (a start may bridge them).
+        self._recent: deque[tuple[float, ObservationSet]] = deque()
         self.last_time: float | None = None
         self.joint_solves = 0  #: records solved on their own to start (or restart) a robot
 
@@ -229,6 +232,10 @@ class TeamTracker:
             self.filter.predict(t)
             prior = self.filter.snapshot() if self.smoother is not None else None
             self._filtered(t, observations, rows)
+            if observations is not None and len(observations):
+                self._recent.append((t, observations))
+            while self._recent and t - self._recent[0][0] > self.options.start_window:
+                self._recent.popleft()
             if self.smoother is not None:
                 self.smoother.add(prior, self.filter.snapshot())
                 self._unfinal.append(rows)
@@ -309,10 +316,12 @@ class TeamTracker:
             else:
                 row.status, row.reason = self._not_localized(r, team, status, reason, obs)
 
-    def _solve(self, obs: ObservationSet, reference: str) -> tuple[TeamEstimate | None, FrameStatus, str]:
+    def _solve(self, obs: ObservationSet, reference: str, confidence: float | None = None
+               ) -> tuple[TeamEstimate | None, FrameStatus, str]:
         """The record's joint estimate in ``reference``'s frame, or None with a status and reason."""
         try:
-            return (localize_team(self.rig, obs, reference, pixel_sigma=self.pixel_sigma, confidence=self.confidence),
+            return (localize_team(self.rig, obs, reference, pixel_sigma=self.pixel_sigma,
+                                  confidence=self.confidence if confidence is None else confidence),
                     FrameStatus.SOLVED, "")
         except InconsistentObservationsError as exc:
             return None, FrameStatus.REJECTED, " ".join(str(exc).split())
@@ -400,6 +409,12 @@ class TeamTracker:
         if candidates:
             started, failed = self._start(obs, problem, names, markers, touch, used, candidates, restart,
                                           rejected - set(restart))
+        bridge = self._bridge(obs, touch, set(started) | rejected | set(restart))
+        if bridge is not None:
+            more, _ = self._start(obs, problem, names, markers, touch, used, bridge[1], {}, rejected, bridge[0])
+            started.update(more)
+            for r in more:
+                failed.pop(r, None)
         for r, why in restart.items():
             if r in started:
                 continue
@@ -503,17 +518,23 @@ class TeamTracker:
 
     def _start(self, obs: ObservationSet, problem: TeamProblem, names: list[str], markers: list[str],
                touch: Mapping[str, np.ndarray], used: np.ndarray, candidates: list[str], restart: Mapping[str, str],
-               rejected: set[str]) -> tuple[dict[str, str], dict[str, tuple[FrameStatus, str]]]:
+               rejected: set[str], bridged: ObservationSet | None = None
+               ) -> tuple[dict[str, str], dict[str, tuple[FrameStatus, str]]]:
         """Place ``candidates`` from the record's joint solve (in the
         reference's frame, or in a tracked robot's it observed) and add those
         it places with four or more ties and a passing test (three: a
         tentative track, ``unverified``) to the filter: each enters with a
         wide prior about the solved pose, then the record's observations of
         it update the filter.  Returns the robots started (with the row's
-        note) and the others' statuses."""
+        note) and the others' statuses.  ``bridged``: the observations of
+        the last records together (see :meth:`_bridge`), solved as one for
+        the poses the filter starts about (no chi-square test: they are not
+        simultaneous; the wide prior covers their motion) -- a tentative
+        track, the current record's observations its first update."""
         f = self.filter
         self.joint_solves += 1
-        team, status, reason = self._solve(obs, self.reference)
+        solve_on, conf = (obs, None) if bridged is None else (bridged, 1.0)
+        team, status, reason = self._solve(solve_on, self.reference, conf)
         guesses: dict[str, tuple[Pose, bool]] = {}
         outliers = set()  # observations the joint solve dropped: left out of the update too
         if team is not None:
@@ -527,7 +548,7 @@ class TeamTracker:
                          key=lambda a: -int(touch[a].sum()))
         if missing and anchors:
             a = anchors[0]
-            other, st2, why2 = self._solve(obs, a)
+            other, st2, why2 = self._solve(solve_on, a, conf)
             if other is not None:
                 outliers |= {(d["observer"], d["marker"]) for d in other.rejected}
                 Ta = f.pose(a)
@@ -567,9 +588,10 @@ class TeamTracker:
             for r, (pose, three) in guesses.items():
                 mine = touch[r][rows[upd.used]]
                 keys = frozenset((names[problem.cam[j]], markers[j]) for j in rows[upd.used][mine].tolist())
-                self.tracks[r] = _Track(keys, three=three or len(keys) <= MIN_TIES)
+                self.tracks[r] = _Track(keys, three=three or (bridged is None and len(keys) <= MIN_TIES))
                 what = "restarted" if r in before else "started"
-                note = f"track {what} from the record's joint solve ({len(keys)} observations)"
+                note = f"track {what} from the record's joint solve ({len(keys)} observations)" if bridged is None \
+                    else f"tentative track started from the last {len(self._recent) + 1} records solved together"
                 if r in restart:
                     note = f"{note}: {restart[r]}"
                 started[r] = note
@@ -581,6 +603,35 @@ class TeamTracker:
                 failed[r] = (FrameStatus.REJECTED, "its joint solve is inconsistent with the tracked robots" +
                              (f" ({upd.reason})" if upd is not None else ""))
         return {}, failed
+
+    def _bridge(self, obs: ObservationSet, touch: Mapping[str, np.ndarray], skip: set[str]
+                ) -> tuple[ObservationSet, list[str]] | None:
+        """The observations of the records of the last ``start_window``
+        seconds and this one together (each camera's latest view of each
+        marker) and the robots not tracked that this record sees or is
+        seen by and that four or more of them tie to the team: a start
+        bridging records of cameras that alone place nobody (two balls per
+        robot, free-running cameras).  None when there is none."""
+        if not self._recent or self.options.start_window <= 0:
+            return None
+        want = [r for r in self.robots if r not in self.tracks and r not in skip and touch[r].any()]
+        if not want:
+            return None
+        latest: dict[tuple[str, str | None], tuple[tuple[float, float], float]] = {}
+        for _, o in [*self._recent, (None, obs)]:
+            for k in range(len(o)):
+                latest[(o.observer[k], o.marker[k])] = (tuple(o.uv[k]), float(o.score[k]))
+        keys = [k for k in latest if k[1] is not None]
+        ties = {r: 0 for r in self.rig.robots}
+        for observer, m in keys:
+            ties[observer] += 1
+            ties[self.rig.owner(m)] += 1
+        want = [r for r in want if ties[r] > MIN_TIES]
+        if not want or len(keys) <= MIN_TIES:
+            return None
+        both = ObservationSet.trusted([k[0] for k in keys], [k[1] for k in keys],
+                                      np.array([latest[k][0] for k in keys]), score=[latest[k][1] for k in keys])
+        return both, want
 
     def _confirms(self, tr: _Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray
                   ) -> bool:
