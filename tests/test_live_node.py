@@ -386,3 +386,20 @@ def test_an_opencv_capture_is_read_in_the_background_keeping_the_newest_frame(si
     assert [f.index for f in taken] == sorted({f.index for f in taken})
     assert all(f.image.shape == (270, 480, 3) for f in taken)
     assert np.all(np.diff([f.t for f in taken]) > 0) and abs(taken[0].t - time.time()) < 60
+
+
+def test_a_node_for_blinking_lights_starts_and_publishes(tmp_path):
+    """A lights rig: the node's warm-up (its detectors on blank images) must
+    not stall the blinking lights' tracker (a full-range noise image once
+    gave it a blob on every pixel to track: the node never got to its first
+    frame).  Replayed, every frame is captured and most are published."""
+    write_simulation(tmp_path, markers="lights", frames=12, size=(480, 270), focal=400.0)
+    child = _child(["--rig", str(tmp_path / "rig.yaml"), "--robot", "q", "--camera", str(tmp_path / "q"),
+                    "--realtime", "--domain", str(BASE_DOMAIN + 3), "--loopback", "--duration", "4", "--no-progress"])
+    try:
+        out, err = child.communicate(timeout=90)
+    finally:
+        _kill(child)
+    assert child.returncode == 0, err
+    captured, processed, dropped = _summary_counts(out)
+    assert captured == 12 and processed >= 6 and processed + dropped == captured

@@ -138,7 +138,9 @@ class Node:
         otherwise be late by a quarter of a second and push the next ones out."""
         w, h = self.rig.robot(self.robot).camera.size or (640, 480)
         spare = ObserverDetector(self.rig, self.robot, self.others, self.detector_fps)
-        noise = np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        # faint noise: full-range noise is a blob on every pixel, and the blinking lights' tracker
+        # would spend minutes giving each a track
+        noise = np.random.default_rng(0).integers(0, 8, (h, w, 3), dtype=np.uint8)
         for k, image in enumerate((np.zeros((h, w, 3), np.uint8), noise)):
             frame = Frame(k, k / self.detector_fps, image)
             spare.feed(frame)
