@@ -69,26 +69,25 @@ def _render(folder: Path, seconds: float, fps: float, seed: int, progress: bool)
     return times
 
 
+def _signal(p: subprocess.Popen, sig: int) -> None:
+    """``sig`` to ``p``'s process group if it still runs."""
+    if p.poll() is None:
+        try:
+            os.killpg(p.pid, sig)
+        except ProcessLookupError:
+            pass
+
+
 def _stop(procs: list[subprocess.Popen]) -> None:
-    """SIGINT every process group, then SIGKILL what is left."""
+    """SIGINT every process group, then SIGKILL what is left after 5 s."""
     for p in procs:
-        if p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGINT)
-            except ProcessLookupError:
-                pass
+        _signal(p, signal.SIGINT)
     deadline = time.monotonic() + 5.0
     for p in procs:
         try:
             p.wait(timeout=max(0.1, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
-            pass
-    for p in procs:
-        if p.poll() is None:
-            try:
-                os.killpg(p.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+            _signal(p, signal.SIGKILL)
             p.wait()
 
 
