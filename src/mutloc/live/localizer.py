@@ -30,7 +30,9 @@ a later stamp (none of theirs can come before it: DDS delivers each
 writer's messages in order) or ``reorder`` seconds after it arrived; a
 message stamped before the last record fused is ``dropped_late``.
 
-Each fused record gives a pose of every tracked robot it is about: with
+Each fused message gives a pose of every tracked robot it is about (a
+record of several messages one per message, stamped with each one's capture
+time; messages of one stamp, one pose): with
 two robots the pair's, with a team its observer's and those of the robots
 whose markers it saw (the others' rows are the motion model's prediction
 alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
@@ -428,11 +430,9 @@ class Localizer:
         if not group:
             return []
         if len(group) == 1:
-            h = group[0]
-            t, ns, obs = h.t, h.ns, h.observations
+            t, obs = group[0].t, group[0].observations
         else:
             t = sum(h.t for h in group) / len(group)
-            ns = round(sum(h.ns for h in group) / len(group))
             obs = ObservationSet.concatenate([h.observations for h in group]).with_time(t)  # one record, one time
         try:
             rows = self.engine.step(t, obs)
@@ -461,8 +461,11 @@ class Localizer:
             elif not (row.status == FrameStatus.PREDICTED and rc.last_measured is not None
                       and row.t - rc.last_measured <= self.max_coast):
                 continue
-            rc.poses += 1
-            out.append(LivePose(robot, self.reference, t, row.status, e, ns))
+            # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
+            for stamp_ns in sorted({h.ns for h in group}):
+                rc.poses += 1
+                out.append(LivePose(robot, self.reference, stamp_ns * 1e-9 if len(group) > 1 else t, row.status, e,
+                                    stamp_ns))
         return out
 
     def finish(self) -> list[LivePose]:
