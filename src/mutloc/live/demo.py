@@ -106,6 +106,10 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
     fps = positive_number(fps, "fps")
     if seconds * fps < 10:
         raise InputError(f"--seconds x --fps must give at least 10 frames, got {seconds * fps:g}")
+    from .dds import check_domain
+
+    if domain is not None:
+        domain = check_domain(domain)  # before the rendering, not after
     out = Path(out_dir).expanduser() / "live"
     out.mkdir(parents=True, exist_ok=True)
     rig = standard_rig("balls")
