@@ -149,3 +149,22 @@ def _truth(path):
 
 
 pytestmark = pytest.mark.slow
+
+
+def test_demo_live_prints_what_a_subscriber_received(tmp_path, capsys):
+    """``mutloc demo --live`` (the shortest run it takes): poses received,
+    their error against the rendered truth and the latency, in its summary
+    and live_summary.json."""
+    import json
+
+    from mutloc.cli.main import main
+
+    assert main(["demo", "--live", "--seconds", "1.5", "--fps", "10", "--out", str(tmp_path),
+                 "--domain", str(201 + os.getpid() % 32), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    summary = json.loads((tmp_path / "live" / "live_summary.json").read_text())
+    assert summary["observation_messages"] >= 0.9 * 2 * 15
+    assert summary["poses_received"] >= 10
+    assert summary["translation_error_cm"]["median"] < 0.5
+    assert f"poses of p in q received: {summary['poses_received']}" in printed
+    assert "latency capture -> pose received" in printed
