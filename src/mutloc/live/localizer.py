@@ -445,6 +445,7 @@ class Localizer:
             self.log.write(t, obs)
         self.fused_until = max(h.t for h in group)
         self.records += 1
+        stamps = list({h.ns: h for h in sorted(group, key=lambda h: h.ns)}.values())  # one message per stamp
         involved: set[str] = set()
         for h in group:
             self.counts[h.robot].fused += 1
@@ -462,10 +463,9 @@ class Localizer:
                       and row.t - rc.last_measured <= self.max_coast):
                 continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
-            for stamp_ns in sorted({h.ns for h in group}):
+            for h in stamps:
                 rc.poses += 1
-                out.append(LivePose(robot, self.reference, stamp_ns * 1e-9 if len(group) > 1 else t, row.status, e,
-                                    stamp_ns))
+                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns))
         return out
 
     def finish(self) -> list[LivePose]:
