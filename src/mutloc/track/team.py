@@ -16,9 +16,15 @@ Per record and robot (not the reference):
   observations and passes its chi-square test: it enters the filter with a
   wide prior about that pose and the record's observations of it update
   the filter (its covariance and correlations are theirs); ``solved``.
-  Placed by exactly three, its track starts tentatively and its rows are
-  ``unverified`` until a later record confirms it (four observations, or
-  three with one not among those that started it).  Every new track is
+  Placed by exactly three (which fit any one bad detection exactly), or
+  started from several records solved together (see below), its track
+  starts tentatively: its rows are ``unverified`` (``partial`` with fewer
+  than three observations) until a later record confirms it -- three or
+  more observations, every one accepted by the gate, at least one of them
+  not among those that started it and predicted sharply (within
+  ``CONFIRM_SPREAD`` pixel sigmas: where a wrong start could have missed
+  it); a record tying it to one robot by four or more that does not
+  confirm it restarts it from that record's joint solve.  Every new track is
   tentative until a later record's observations of it are accepted: a
   record that contradicts it first drops it (and may start it again).
 - a tracked robot whose observations the filter accepts is ``solved`` when
@@ -49,6 +55,7 @@ reasons are the causal filter's.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -62,7 +69,7 @@ from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
-from ..core.team import MIN_TIES, TeamProblem, residual_norms
+from ..core.team import MIN_TIES, TeamProblem, residual_norms, team_residuals
 from ..core.filter import STATE_DIM
 from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
@@ -70,6 +77,7 @@ from ..errors import InconsistentObservationsError, InputError, MutlocError, Obs
 from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
 from .filtering import FilterOptions, lost_reason
+from .solving import CONFIRM_SPREAD
 from .frames import expanded_rig, observations_of
 from .sources import Frame
 from .status import FrameStatus
@@ -172,6 +180,7 @@ class _Track:
     start: frozenset
     three: bool = False
     confirmed: bool = False
+    bridged: bool = False
     #: per camera: its records of the robot rejected in a row, and whether
     #: since the first of them another camera's record solved the robot
     #: (placed it on its own, consistent with the track).
@@ -374,6 +383,10 @@ class TeamTracker:
         touch = {r: (problem.cam == index[r]) | (problem.own == index[r]) for r in self.robots}
         used = np.zeros(len(problem.cam), dtype=bool)
         notes: dict[str, list[str]] = {r: [] for r in self.robots}
+        # Where a tentative track predicts each of its observations (before the update): a record confirms
+        # a track started on three only through observations it predicted sharply (see _confirms).
+        spread = {j: self._spread_px(problem, j) for r, tr in self.tracks.items() if tr.three and not tr.confirmed
+                  for j in np.flatnonzero(touch[r]).tolist()}
         # 1. the tracked robots: one update with every observation among them and the reference
         rejected, test, why_rejected, dropped = self._update_tracked(problem, touch, used)
         for r in self.robots:
@@ -401,6 +414,22 @@ class TeamTracker:
             if r not in rejected and used[touch[r]].any():
                 for c in {names[c] for c in problem.cam[touch[r] & used].tolist()}:
                     self.tracks[r].contradicted[c] = 0
+        # tentative tracks this record confirms; one started on three that a record of four or more
+        # observations does not confirm restarts from it (or goes, if the record does not place it)
+        confirmed: dict[str, str] = {}
+        for r, tr in self.tracks.items():
+            mine = used & touch[r]
+            if tr.confirmed or r in rejected or r in restart or not mine.any():
+                continue
+            ok, note = self._confirms(tr, problem, names, markers, mine,
+                                      spread, bool(touch[r][dropped].any()) if len(dropped) else False)
+            if ok:
+                confirmed[r] = note
+            elif tr.three and _ties_to_one(problem, self.filter.index(r)) > MIN_TIES:
+                restart[r] = "a record of four or more observations does not confirm the tentative track"
+                used[touch[r]] = False
+        for r in confirmed:
+            self.tracks[r].confirmed = True
         # 2. robots not tracked (or to restart) that the record places on its own
         candidates = [r for r in self.robots if (r not in self.tracks or r in restart)
                       and int(touch[r].sum()) >= MIN_TIES]
@@ -438,7 +467,9 @@ class TeamTracker:
                 row.reason = _join(row.reason, "; ".join(notes[r]))
             mine = touch[r]
             if r in started:
-                row.status = FrameStatus.UNVERIFIED if self.tracks[r].three else FrameStatus.SOLVED
+                tr = self.tracks[r]
+                row.status = (FrameStatus.SOLVED if not tr.three else
+                              FrameStatus.UNVERIFIED if int((used & mine).sum()) >= MIN_TIES else FrameStatus.PARTIAL)
                 row.reason = _join(row.reason, started[r])
                 row.estimate = self._estimate(r, problem, markers, used, mine, test)
             elif r in self.tracks and r in rejected:
@@ -448,12 +479,12 @@ class TeamTracker:
             elif r in self.tracks and (used & mine).any():
                 n = int((used & mine).sum())
                 tr = self.tracks[r]
-                if not tr.confirmed and self._confirms(tr, problem, names, markers, used & mine):
-                    tr.confirmed = True
-                    row.reason = _join(row.reason, f"track confirmed by {n} observations")
+                if r in confirmed:
+                    row.reason = _join(row.reason, confirmed[r])
                 if tr.three and not tr.confirmed:
-                    row.status = FrameStatus.UNVERIFIED
-                    row.reason = _join(row.reason, "tentative track started on three observations, not yet confirmed")
+                    row.status = FrameStatus.UNVERIFIED if n >= MIN_TIES else FrameStatus.PARTIAL
+                    row.reason = _join(row.reason, "tentative track not yet confirmed" + (
+                        " (started from records solved together)" if tr.bridged else " (started on three observations)"))
                 elif r in held:
                     row.status = FrameStatus.SOLVED
                 else:
@@ -588,7 +619,9 @@ class TeamTracker:
             for r, (pose, three) in guesses.items():
                 mine = touch[r][rows[upd.used]]
                 keys = frozenset((names[problem.cam[j]], markers[j]) for j in rows[upd.used][mine].tolist())
-                self.tracks[r] = _Track(keys, three=three or (bridged is None and len(keys) <= MIN_TIES))
+                # a start on three, or bridged over records (no test of its own), is confirmed the strict way
+                self.tracks[r] = _Track(keys, three=three or bridged is not None or len(keys) <= MIN_TIES,
+                                        bridged=bridged is not None)
                 what = "restarted" if r in before else "started"
                 note = f"track {what} from the record's joint solve ({len(keys)} observations)" if bridged is None \
                     else f"tentative track started from the last {len(self._recent) + 1} records solved together"
@@ -633,15 +666,56 @@ class TeamTracker:
                                       np.array([latest[k][0] for k in keys]), score=[latest[k][1] for k in keys])
         return both, want
 
-    def _confirms(self, tr: _Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray
-                  ) -> bool:
-        """Whether a later record's accepted observations of a tentative track confirm it:
-        three or more (four, or one not among those that started it, after a start on three)."""
+    def _confirms(self, tr: _Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray,
+                  spread: Mapping[int, float], dropped: bool) -> tuple[bool, str]:
+        """Whether a later record's accepted observations of a tentative track
+        confirm it, and the row's note.  Three or more; after a start on
+        exactly three (which fit any one bad detection exactly, so its pose
+        may be wrong) only where every observation of the robot in the record
+        agrees (none dropped by the gate) and the observations not among
+        those that started it -- at least one -- were predicted sharply
+        (``CONFIRM_SPREAD`` x sigma): where the track's prediction could have
+        missed them, a wrong start is exposed."""
         n = int(rows.sum())
         if not tr.three:
-            return n >= MIN_TIES
-        keys = {(names[problem.cam[j]], markers[j]) for j in np.flatnonzero(rows).tolist()}
-        return n > MIN_TIES or (n == MIN_TIES and bool(keys - tr.start))
+            return n >= MIN_TIES, f"track confirmed by {n} observations"
+        if n < MIN_TIES or dropped:
+            return False, ""
+        idx = np.flatnonzero(rows).tolist()
+        new = [j for j in idx if (names[problem.cam[j]], markers[j]) not in tr.start]
+        if not new:
+            return False, ""
+        worst = max(spread.get(j, math.inf) for j in new)
+        if worst > CONFIRM_SPREAD * self.pixel_sigma:
+            return False, ""
+        seen = ", ".join(sorted(f"{names[problem.cam[j]]} saw {markers[j]}" for j in new))
+        return True, (f"track confirmed: {seen} agree with the track started on three observations "
+                      f"(predicted within {worst:.1f} px)")
+
+    def _spread_px(self, problem: TeamProblem, j: int) -> float:
+        """1-sigma (px, largest axis) of where the filter predicts observation
+        ``j`` (its observer's and the marker owner's pose covariance, with
+        their correlation, through the projection's Jacobians)."""
+        f = self.filter
+        one = problem.take(np.array([j]))
+        res = np.empty(2)
+        Ja, Jb = np.empty((1, 2, 6)), np.empty((1, 2, 6))
+        if not team_residuals(one.cam, one.own, one.points, one.uv, one.K, one.dist, f.R, f.t, res, Ja, Jb, True):
+            return math.inf
+        blocks, jac = [], []
+        for i, J in ((int(one.cam[0]), Ja[0]), (int(one.own[0]), Jb[0])):
+            name = f.robots[i]
+            if name == self.reference:
+                continue
+            if not f.is_tracked(name):
+                return math.inf
+            blocks.append(f._block(name))
+            jac.append(J)
+        S = np.zeros((2, 2))
+        for s1, J1 in zip(blocks, jac):
+            for s2, J2 in zip(blocks, jac):
+                S += J1 @ f.P[s1, s2][:6, :6] @ J2.T
+        return float(math.sqrt(max(np.linalg.eigvalsh(0.5 * (S + S.T)).max(), 0.0)))
 
     def _held(self, problem: TeamProblem, used: np.ndarray) -> set[str]:
         """Robots the record's used observations tie to the reference on
@@ -710,6 +784,15 @@ def _worst(tr: _Track) -> tuple[str, int]:
         return "", 0
     c = max(open_, key=open_.get)
     return c, open_[c]
+
+
+def _ties_to_one(problem: TeamProblem, i: int) -> int:
+    """The most observations between robot ``i`` and any one other robot
+    (either way): four or more place it on their own, as a pair's frame does."""
+    C = problem.counts()
+    ties = C[i] + C[:, i]
+    ties[i] = 0
+    return int(ties.max()) if len(ties) else 0
 
 
 @dataclass
