@@ -66,7 +66,7 @@ def test_a_poster_taken_for_a_marker_is_rejected_or_dropped():
     rig, frames, truth = _sequence("balls", 9, fps, seed=7)
     import mutloc.track.tracker as tr
 
-    real = tr._Detector.detect
+    real = tr.ObserverDetector.detect
     count = {"n": 0}
 
     def corrupt(self, frame):
@@ -78,11 +78,11 @@ def test_a_poster_taken_for_a_marker_is_rejected_or_dropped():
             count["n"] += 1
         return res
 
-    tr._Detector.detect = corrupt
+    tr.ObserverDetector.detect = corrupt
     try:
         traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False)
     finally:
-        tr._Detector.detect = real
+        tr.ObserverDetector.detect = real
     assert count["n"] >= 3
     for i, (row, T) in enumerate(zip(traj.rows, truth)):
         if i % 3 == 0:
@@ -136,8 +136,23 @@ def _lit_sequence(seed: int, first: int, n: int, fps: float = 30.0):
     return rig, frames, [relative_pose(world, "p", "q", t) for t in times]
 
 
+def _team_log(rig, frames, **kw):
+    """The team tracker on the pair (p's rows, in q's frame): the same rules for any number of robots."""
+    from mutloc.track.team import track_team_log
+
+    return track_team_log(rig, frames, reference="q", **kw).tracks["p"]
+
+
+@pytest.fixture(params=["pair", "team"])
+def track_log(request):
+    """The lights tests run with the pair tracker and with the team tracker of the two robots."""
+    from mutloc.track.tracker import track_log as pair_log
+
+    return pair_log if request.param == "pair" else _team_log
+
+
 @pytest.mark.parametrize("first", [2, 22, 38])
-def test_three_lit_lights_start_a_tentative_track_that_a_fourth_confirms(first):
+def test_three_lit_lights_start_a_tentative_track_that_a_fourth_confirms(track_log, first):
     """Four lights blinking at 2-7.5 Hz are all on in 4 frames of 60: a
     track that waited for one would lose most three-light frames.  Three
     measured lights start a tentative track; it reports nothing until a frame
@@ -147,7 +162,6 @@ def test_three_lit_lights_start_a_tentative_track_that_a_fourth_confirms(first):
     the smoother's lag of the confirming one are then reported as the track
     does ("confirmed in hindsight"), the others keep their per-frame statuses."""
     from mutloc.track.filtering import DEFAULT_SMOOTH_LAG
-    from mutloc.track.tracker import track_log
 
     rig, frames, truth = _lit_sequence(0, first, 40)
     traj = track_log(rig, frames, progress=False)
@@ -169,13 +183,12 @@ def test_three_lit_lights_start_a_tentative_track_that_a_fourth_confirms(first):
     assert sum(traj.rows[i].status == "solved" for i in after) >= 0.95 * len(after), traj.summary()
 
 
-def test_a_wrong_three_light_start_is_never_confirmed():
+def test_a_wrong_three_light_start_is_never_confirmed(track_log):
     """One of the three lights that start a tentative track is 25 px off (a
     poster blob) in that frame and the next few: three markers fit any such
     error exactly, so the tentative pose is wrong; the next frames with a
     fourth light contradict it, and no wrong frame is ever called solved."""
     from mutloc.core.observations import ObservationSet
-    from mutloc.track.tracker import track_log
 
     rig, frames, truth = _lit_sequence(0, 2, 40)
     bad = []

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
-__all__ = ["Consistency", "chi2_quantile", "consistency", "DEFAULT_CONFIDENCE"]
+__all__ = ["Consistency", "chi2_quantile", "consistency", "DEFAULT_CONFIDENCE", "same_pose"]
 
 #: Confidence of the test: a correct estimate fails it with probability 1 - this.
 DEFAULT_CONFIDENCE = 0.99
@@ -68,3 +68,23 @@ def consistency(cost_px2: float, n_obs: int, sigma: float, confidence: float = D
     dof = 2 * n_obs - 6
     threshold = chi2_quantile(confidence, dof) if dof > 0 else math.inf
     return Consistency(float(cost_px2) / sigma**2, dof, confidence, threshold)
+
+
+def same_pose(a: Any, Pa: Any, b: Any, Pb: Any, confidence: float) -> bool:
+    """Whether two independent estimates of one pose (``a``, ``b`` with 6x6
+    covariances ``Pa``, ``Pb``, SPEC order) agree: the Mahalanobis distance
+    of their difference under the sum of their covariances within the
+    chi-square quantile with 6 degrees of freedom (always, at confidence 1)."""
+    import numpy as np
+
+    from .geometry import so3_log
+
+    if confidence >= 1.0:
+        return True
+    e = np.r_[so3_log(a.R @ b.R.T), a.t - b.t]
+    S = np.asarray(Pa, float) + np.asarray(Pb, float)
+    try:
+        m = float(e @ np.linalg.solve(0.5 * (S + S.T), e))
+    except np.linalg.LinAlgError:
+        return False
+    return m <= chi2_quantile(confidence, 6)

@@ -189,7 +189,7 @@ class _TeamEngine:
     def __init__(self, rig: Rig, reference: str, pixel_sigma: float, confidence: float, options: FilterOptions,
                  sink: Callable[[TrackRow, str], None] | None) -> None:
         from ..track.team import TeamTracker
-        from ..track.tracker import RowEmitter
+        from ..track.team import RowEmitter
 
         self.tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
         self.robots, self.reference = list(self.tracker.robots), reference

@@ -16,6 +16,7 @@ from ..detect import image_detector
 from ..detect.base import Detection, DetectionResult, as_bgr, observations_of
 from ..errors import FileFormatError, InputError, ObservationError
 from .second_look import first_solve, second_look
+from .sources import Frame
 
 __all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images", "observations_of"]
 
@@ -181,3 +182,46 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
     if est is None:
         raise error  # type: ignore[misc]
     return FrameResult(est, detections)
+
+
+#: Frame rate assumed when neither the caller nor the streams say.
+DEFAULT_FPS = 30.0
+
+
+class ObserverDetector:
+    """Per-observer detection, keeping blinking-light trackers across frames.
+    ``other``: the robot (or, for a team, the robots) whose markers are looked for."""
+
+    def __init__(self, rig: Rig, observer: str, other: str | list[str], fps: float):
+        self.rig, self.observer = rig, observer
+        self.others = [other] if isinstance(other, str) else list(other)
+        markers = {n: m for o in self.others for n, m in rig.robot(o).markers.items()}
+        self.blink = None
+        lights = {n: m for n, m in markers.items() if m.kind == MarkerKind.LIGHT}
+        if lights:
+            from ..detect.blink import BlinkTracker
+
+            # The observer's camera: a light's sphere images off its centre's projection.
+            self.blink = BlinkTracker(lights, fps, camera=rig.robot(observer).camera)
+        self.last_blink: DetectionResult | None = None
+
+    def feed(self, frame: Frame) -> None:
+        """Every frame of the stream, paired or not, drives the light tracker."""
+        if self.blink is not None and frame.image is not None:
+            self.last_blink = self.blink.update(frame.image, frame.t)
+
+    def detect(self, frame: Frame) -> DetectionResult:
+        res = detect_markers(self.rig, self.observer, frame.image, targets=self.others)
+        if self.last_blink is not None:
+            res.detections.update(self.last_blink.detections)
+            res.missing = [m for m in res.missing if m not in self.last_blink.detections]
+        return res
+
+
+def frame_rate(streams: Mapping[str, Any], fps: float | None) -> float | None:
+    """The frame rate to use: the one given, else the streams' own (the
+    slowest of them, since pairs come at the slower rate), else None."""
+    if fps is not None:
+        return float(fps)
+    rates = [float(r) for r in (getattr(s, "fps", None) for s in streams.values()) if r]
+    return min(rates) if rates else None

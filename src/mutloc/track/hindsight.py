@@ -30,9 +30,8 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from ..core.consistency import chi2_quantile
+from ..core.consistency import same_pose
 from ..core.filter import ConstantVelocityFilter
-from ..core.geometry import so3_log
 from ..core.observations import MIN_OBSERVATIONS
 from ..errors import MutlocError
 from .solving import CONFIRM_SPREAD, lost_reason, solve_row
@@ -195,7 +194,8 @@ def backward_update(tracker: Any, row: "TrackRow", later: Sequence["TrackRow"],
     markers = [_marker(label) for label in problem.labels]
     if max(tracker.spread_px(state, m) for m in markers) > CONFIRM_SPREAD * tracker.pixel_sigma:
         return None
-    if forward is not None and not _same_pose(state, forward, tracker.confidence):
+    if forward is not None and not same_pose(state.pose, state.pose_covariance, forward.pose,
+                                             forward.pose_covariance, tracker.confidence):
         return None
     upd = f.update(problem)
     if not (upd.accepted and len(upd.used) == len(markers)):
@@ -215,21 +215,6 @@ def _forward_in_time(state: "FilterState", t: float) -> "FilterState":
     return replace(state, time=t, velocity=-state.velocity, covariance=cov, gain_covariance=gain)
 
 
-
-
-def _same_pose(a: "FilterState", b: "FilterState", confidence: float) -> bool:
-    """Whether two independent estimates of one pose agree: the Mahalanobis
-    distance of their difference, under the sum of their covariances,
-    within the chi-square quantile with 6 degrees of freedom."""
-    if confidence >= 1.0:
-        return True
-    e = np.r_[so3_log(a.pose.R @ b.pose.R.T), a.pose.t - b.pose.t]
-    S = a.pose_covariance + b.pose_covariance
-    try:
-        m = float(e @ np.linalg.solve(0.5 * (S + S.T), e))
-    except np.linalg.LinAlgError:
-        return False
-    return m <= chi2_quantile(confidence, 6)
 
 
 def _problem(tracker: Any, row: "TrackRow") -> Any:

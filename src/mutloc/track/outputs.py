@@ -20,7 +20,7 @@ from typing import Any
 from ..io.ros import McapPoseWriter, Ros2BagWriter
 from ..io.trajectory import TrajectoryCsvWriter, TumWriter
 from .rows import TrackRow
-from .tracker import CSV_EXTRA, BaseFrames, csv_row, tum_comment
+from .trajectory import CSV_EXTRA, BaseFrames, csv_row, tum_comment
 
 __all__ = ["TrackOutputs"]
 

@@ -27,6 +27,18 @@ Per record and robot (not the reference):
   confirm it restarts it from that record's joint solve.  Every new track is
   tentative until a later record's observations of it are accepted: a
   record that contradicts it first drops it (and may start it again).
+  While tentative (started on three, or bridged) a row reports what its
+  record shows on its own: ``unverified`` with three or more observations;
+  with fewer, nothing after a start on three (``too_few``), the filter's
+  ``partial``/``predicted`` after a bridged start.  With smoothing, once
+  confirmed, the tentative records within the lag before the confirming one
+  are reported as the confirmed track reports them ("confirmed in
+  hindsight"), going back from it while each record of three or more is
+  verified by a filter run backward in time over the records after it
+  (independent of it: it must predict every observation sharply, agree with
+  them and with the forward prediction); the record that started the track
+  is checked the same way, and unless it is verified the others report the
+  backward filter's pose.
 - a tracked robot whose observations the filter accepts is ``solved`` when
   the record's observations tie it to the reference on their own (a chain
   of robots each pair tied by three or more), else ``partial``;
@@ -65,7 +77,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..api import Estimate, load_rig
-from ..core.consistency import DEFAULT_CONFIDENCE
+from ..core.consistency import DEFAULT_CONFIDENCE, same_pose
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
@@ -78,13 +90,14 @@ from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
 from .filtering import FilterOptions, lost_reason
 from .solving import CONFIRM_SPREAD
-from .frames import expanded_rig, observations_of
+from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, observations_of
 from .sources import Frame
 from .status import FrameStatus
-from .tracker import DEFAULT_FPS, ObserverDetector, RowEmitter, TrackRow, Trajectory, frame_rate
+from .rows import TrackRow
+from .trajectory import Trajectory
 
 __all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names",
-           "require_streams"]
+           "require_streams", "RowEmitter"]
 
 
 def team_file_names(robot: str) -> tuple[str, str]:
@@ -164,11 +177,10 @@ def _robot_estimate(team: TeamEstimate, r: str, pose: Pose, cov: np.ndarray, ext
 #: record's observations of it update the filter: its covariance and its
 #: correlations with the robots already tracked come from those
 #: observations (the prior adds about 1e-3 of their information).
+#: Its velocity starts at zero with the motion noise's ``initial_angular`` /
+#: ``initial_linear`` sigmas (:class:`~mutloc.core.filter.MotionNoise`): one
+#: record says nothing of it; its next records measure it.
 START_SIGMA_R, START_SIGMA_T = 0.3, 0.5
-#: ... and with this velocity (1-sigma: rad/s, m/s): one record says nothing
-#: of it, and relative to the reference a robot moves fast whenever the
-#: reference turns (0.5 rad/s at 4 m is 2 m/s): its next records measure it.
-START_SIGMA_W, START_SIGMA_V = 5.0, 5.0
 
 
 @dataclass
@@ -186,6 +198,35 @@ class _Track:
     #: (placed it on its own, consistent with the track).
     contradicted: dict = field(default_factory=dict)
     held_by_others: dict = field(default_factory=dict)
+    #: While tentative: its records as a confirmed track would report them (see ``_Tentative``).
+    frames: list = field(default_factory=list)
+
+
+@dataclass
+class _Tentative:
+    """A record of a tentative track as a confirmed track would report it:
+    its number and row, status, estimate and reason, and the robot's pose
+    and covariance the filter predicted before it (``start``: it started the track)."""
+
+    k: int
+    row: TrackRow
+    status: FrameStatus
+    estimate: Estimate | None
+    reason: str
+    prior: tuple
+    start: bool = False
+
+
+@dataclass
+class _Record:
+    """One input record and its rows, kept until final (a confirmation may
+    report them again, :meth:`TeamTracker._report_tentative`)."""
+
+    t: float
+    obs: ObservationSet | None
+    times: Mapping[str, float | None] | None
+    problems: Mapping[str, tuple[FrameStatus, str]] | None
+    rows: dict[str, TrackRow]
 
 
 class TeamTracker:
@@ -209,7 +250,11 @@ class TeamTracker:
         #: With ``smooth_lag``: the joint filter's states of the records not yet
         #: final and their rows (see :meth:`finalize`).
         self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
-        self._unfinal: list[dict[str, TrackRow]] = []
+        self._unfinal: list[_Record] = []
+        #: Confirmations of tentative tracks whose records may still be reported
+        #: again: (time, the records, the one that started it, its record number, robot).
+        self._confirmations: list[tuple[float, list[_Tentative], _Tentative | None, int, str]] = []
+        self._k = 0  #: the number of the record being filtered
         self.tracks: dict[str, _Track] = {}
         #: The records of the last ``start_window`` seconds (a start may bridge them).
         self._recent: deque[tuple[float, ObservationSet]] = deque()
@@ -223,7 +268,8 @@ class TeamTracker:
     # -- one record -----------------------------------------------------------
 
     def step(self, t: float, observations: ObservationSet | None, times: Mapping[str, float | None] | None = None,
-             problems: Mapping[str, tuple[FrameStatus, str]] | None = None) -> dict[str, TrackRow]:
+             problems: Mapping[str, tuple[FrameStatus, str]] | None = None,
+             rows: dict[str, TrackRow] | None = None) -> dict[str, TrackRow]:
         """One row per robot (not the reference) for the record at ``t``: its
         observations (any cameras', taken at ``t``) fused at ``t``.
 
@@ -231,34 +277,154 @@ class TeamTracker:
         the reference's is ``t_target``; None: the record holds no frame of
         that camera); ``problems``: per robot an input status (``unpaired``,
         ``corrupt``) and reason for its own frame.  ``observations`` None: no
-        frame at all."""
+        frame at all.  ``rows``: the row objects to fill (default new ones);
+        with smoothing a row may still change until :meth:`finalize` makes it final."""
         if self.last_time is not None and t < self.last_time:
             raise InputError(f"frame at {t} s comes before the previous one ({self.last_time} s)")
-        self.last_time = t
-        rows = {r: TrackRow(t, t if times is None else times.get(r), t if times is None else times.get(self.reference),
-                            FrameStatus.SOLVED, observations=observations) for r in self.robots}
-        if self.filtering:
-            self.filter.predict(t)
-            prior = self.filter.snapshot() if self.smoother is not None else None
-            self._filtered(t, observations, rows)
-            if observations is not None and len(observations):
-                self._recent.append((t, observations))
-            while self._recent and t - self._recent[0][0] > self.options.start_window:
-                self._recent.popleft()
-            if self.smoother is not None:
-                self.smoother.add(prior, self.filter.snapshot())
-                self._unfinal.append(rows)
-        else:
+        if rows is None:
+            rows = {r: TrackRow(t, t if times is None else times.get(r),
+                                t if times is None else times.get(self.reference), FrameStatus.SOLVED,
+                                observations=observations) for r in self.robots}
+        rec = _Record(float(t), observations, times, problems, rows)
+        if not self.filtering:
+            self.last_time = rec.t
             self._per_record(observations, rows)
-        for r, row in rows.items():
-            if problems and r in problems:
-                status, note = problems[r]
+            self._input_problems(rec)
+            return rows
+        self._filter_record(rec)
+        return rows
+
+    def _filter_record(self, rec: _Record) -> None:
+        """Filter one record and keep it (with smoothing) until final."""
+        sm = self.smoother
+        self.last_time = rec.t
+        self._k = len(sm) if sm is not None else 0
+        self.filter.predict(rec.t)
+        prior = self.filter.snapshot() if sm is not None else None
+        obs = rec.obs
+        self._filtered(rec.t, obs, rec.rows)
+        if obs is not None and len(obs):
+            self._recent.append((rec.t, obs))
+        while self._recent and rec.t - self._recent[0][0] > self.options.start_window:
+            self._recent.popleft()
+        if sm is not None:
+            sm.add(prior, self.filter.snapshot())
+            self._unfinal.append(rec)
+        self._input_problems(rec)
+
+    def _owner(self, marker: str) -> str | None:
+        try:
+            return self.rig.owner(marker)
+        except MutlocError:
+            return None
+
+    @staticmethod
+    def _input_problems(rec: _Record) -> None:
+        for r, row in rec.rows.items():
+            if rec.problems and r in rec.problems:
+                status, note = rec.problems[r]
                 if row.estimate is None:
                     row.status = status
                     row.reason = _join(note, row.reason)
                 else:
                     row.reason = _join(row.reason, f"{note} (localized from the others' views)")
-        return rows
+
+    # -- a tentative track's records, reported again once it is confirmed ------
+
+    def _report_tentative(self, end: bool) -> None:
+        """Report the records of each confirmed tentative track within the
+        lag before the confirming record as the confirmed track does, going
+        back from it while every record that ties the robot by three or more
+        is verified by the records after it (:meth:`_backward`).  The record
+        that started the track is checked the same way: unless verified, the
+        records verified on their own report the backward track's pose."""
+        sm = self.smoother
+        n = len(sm)
+        ripe = [c for c in self._confirmations if end or c[3] < n - sm.lag]
+        self._confirmations = [c for c in self._confirmations if c not in ripe]
+        for t, frames, start, _, r in ripe:
+            rooted = start is not None and self._backward(r, start) is not None
+            for p in reversed(frames):
+                back = None
+                if p.status == FrameStatus.SOLVED and not (rooted and p is start):
+                    back = self._backward(r, p)
+                    if back is None:
+                        break
+                elif not rooted:
+                    continue
+                note = f"confirmed in hindsight by the record at t = {t:.3f} s and the records after it"
+                p.row.status, p.row.estimate = p.status, p.estimate
+                p.row.reason = _join(note, p.reason)
+                if back is not None and not rooted:
+                    p.row.estimate = back
+
+    def _backward(self, r: str, p: _Tentative) -> Estimate | None:
+        """Robot ``r``'s estimate at record ``p`` from a filter run backward
+        in time over the ``lag`` records after it (independent of ``p`` and
+        of the records before), updated with ``p``'s observations of ``r`` --
+        if it predicted every one of them within ``CONFIRM_SPREAD`` pixel
+        sigmas and agrees with all of them, and predicts the pose the forward
+        track predicted within their joint uncertainty; else None.  It starts
+        from the last of those records whose joint solve places ``r``."""
+        sm = self.smoother
+        later = self._unfinal[p.k + 1 - sm.first:p.k + 1 + sm.lag - sm.first]
+        f = TeamFilter(self.filter.robots, self.reference, self.options.noise, self.pixel_sigma, self.confidence)
+        started = False
+        for rec in reversed(later):
+            if rec.obs is None or len(rec.obs) == 0:
+                continue
+            try:
+                problem, _, _ = team_problem(self.rig, rec.obs)
+            except MutlocError:
+                continue
+            if not started:
+                if _ties_to_one(problem, f.index(r)) < MIN_TIES:
+                    continue
+                team, _, _ = self._solve(rec.obs, self.reference)
+                if team is None or r not in team.poses:
+                    continue
+                f.reset(-rec.t, {x: team.poses[x] for x in team.robots}, team.joint_covariance)
+                started = True
+                continue
+            f.predict(-rec.t)
+            if lost_reason(_Cov(f.covariance(r)), self.options):
+                return None
+            rows = self._rows_among(problem, f)
+            if len(rows):
+                f.update(problem.take(rows))
+        if not started or p.row.observations is None:
+            return None
+        try:
+            problem, names, markers = team_problem(self.rig, p.row.observations)
+        except MutlocError:
+            return None
+        f.predict(-p.row.t)
+        i = f.index(r)
+        mine = np.flatnonzero((problem.cam == i) | (problem.own == i))
+        rows = self._rows_among(problem, f)
+        if len(mine) == 0 or not np.isin(mine, rows).all():
+            return None
+        if max(self._spread_px(problem, j, f) for j in mine.tolist()) > CONFIRM_SPREAD * self.pixel_sigma:
+            return None
+        if not same_pose(f.pose(r), f.covariance(r), p.prior[0], p.prior[1], self.confidence):
+            return None
+        upd = f.update(problem.take(mine))
+        if not (upd.accepted and len(upd.used) == len(mine)):
+            return None
+        pose, cov = f.pose(r), f.covariance(r)
+        rms = float(np.sqrt(np.mean(upd.residuals_px ** 2))) if len(upd.residuals_px) else 0.0
+        return Estimate(source=r, target=self.reference, pose=pose, covariance=cov, pixel_sigma=self.pixel_sigma,
+                        reprojection_rms_px=rms, markers_used=sorted({markers[j] for j in mine.tolist()}),
+                        candidates=Pose.concatenate([pose]), consistency=upd.test,
+                        extra={"velocity": (-f.velocity(r)).tolist(), "filter": "cv", "smooth_lag": sm.lag,
+                               "smoother": "backward"})
+
+    def _rows_among(self, problem: TeamProblem, f: TeamFilter) -> np.ndarray:
+        """The observations between robots ``f`` tracks (or its reference)."""
+        ok = np.zeros(problem.n_robots, dtype=bool)
+        ok[f.tracked] = True
+        ok[f.index(self.reference)] = True
+        return np.flatnonzero(ok[problem.cam] & ok[problem.own])
 
     @property
     def history(self) -> TeamSmoother | None:
@@ -275,18 +441,24 @@ class TeamTracker:
         (the record and the ``smooth_lag`` records after it; see
         :mod:`mutloc.core.team_smoother`) -- what a fixed-lag smoother reports
         ``smooth_lag`` records late.  A record is final once ``smooth_lag +
-        1`` records came after it; ``end``: the input ended, every record is."""
+        1`` records came after it and no confirmation of a tentative track may
+        still report it again; ``end``: the input ended, every record is."""
         sm = self.smoother
         if sm is None:
             return 0
+        self._report_tentative(end)
         n = len(sm)
         limit = n if end else max(sm.first, n - sm.lag - 1)
+        if not end:
+            for c in self._confirmations:
+                limit = min(limit, min(p.k for p in c[1]))
+            limit = max(limit, sm.first)
         for k in range(sm.first, limit):
             state = sm.smoothed(k)
-            for r, row in self._unfinal[k - sm.first].items():
+            for r, row in self._unfinal[k - sm.first].rows.items():
                 e = row.estimate
                 x = state.position(self.filter.index(r))
-                if e is None or x < 0 or e.extra.get("filter") != "cv":
+                if e is None or x < 0 or e.extra.get("filter") != "cv" or e.extra.get("smoother") == "backward":
                     continue
                 b = slice(STATE_DIM * x, STATE_DIM * x + 6)
                 pose = Pose(state.R[x].copy(), state.t[x].copy())
@@ -368,6 +540,8 @@ class TeamTracker:
             for r, row in rows.items():
                 self._unobserved(r, row, "no frame" if obs is None else "no markers seen")
             return
+        if obs.has_alternatives and self.tracks:
+            obs = self._nearest_candidates(obs)
         try:
             problem, names, markers = team_problem(self.rig, obs)
         except MutlocError as exc:
@@ -387,6 +561,7 @@ class TeamTracker:
         # a track started on three only through observations it predicted sharply (see _confirms).
         spread = {j: self._spread_px(problem, j) for r, tr in self.tracks.items() if tr.three and not tr.confirmed
                   for j in np.flatnonzero(touch[r]).tolist()}
+        prior = {r: (f.pose(r), f.covariance(r)) for r, tr in self.tracks.items() if tr.three and not tr.confirmed}
         # 1. the tracked robots: one update with every observation among them and the reference
         rejected, test, why_rejected, dropped = self._update_tracked(problem, touch, used)
         for r in self.robots:
@@ -472,6 +647,12 @@ class TeamTracker:
                               FrameStatus.UNVERIFIED if int((used & mine).sum()) >= MIN_TIES else FrameStatus.PARTIAL)
                 row.reason = _join(row.reason, started[r])
                 row.estimate = self._estimate(r, problem, markers, used, mine, test)
+                if tr.three and self.smoother is not None:
+                    n = int((used & mine).sum())
+                    on = ", ".join(sorted({markers[j] for j in np.flatnonzero(used & mine).tolist()}))
+                    tr.frames.append(_Tentative(self._k, row, FrameStatus.SOLVED if n >= MIN_TIES else
+                                                FrameStatus.PARTIAL, row.estimate, f"started the track on {on}",
+                                                (f.pose(r), f.covariance(r)), start=True))
             elif r in self.tracks and r in rejected:
                 row.status = FrameStatus.REJECTED
                 row.reason = _join(row.reason, why_rejected)
@@ -481,16 +662,17 @@ class TeamTracker:
                 tr = self.tracks[r]
                 if r in confirmed:
                     row.reason = _join(row.reason, confirmed[r])
-                if tr.three and not tr.confirmed:
-                    row.status = FrameStatus.UNVERIFIED if n >= MIN_TIES else FrameStatus.PARTIAL
-                    row.reason = _join(row.reason, "tentative track not yet confirmed" + (
-                        " (started from records solved together)" if tr.bridged else " (started on three observations)"))
-                elif r in held:
-                    row.status = FrameStatus.SOLVED
+                    self._confirmed(t, r, tr)
+                if r in held:
+                    status, why = FrameStatus.SOLVED, ""
                 else:
-                    row.status = FrameStatus.PARTIAL
-                    row.reason = _join(row.reason, f"{n} observation(s) tie it to the team: updated through the filter")
+                    status, why = FrameStatus.PARTIAL, f"{n} observation(s) tie it to the team: updated through the filter"
                 row.estimate = self._estimate(r, problem, markers, used, mine, test)
+                if tr.three and not tr.confirmed:
+                    # a tentative track reports nothing of its own yet (see _tentative)
+                    self._tentative(r, tr, row, status, _join(row.reason, why), prior.get(r), n)
+                else:
+                    row.status, row.reason = status, _join(row.reason, why)
             elif r in self.tracks:
                 self._unobserved(r, row, "no markers seen" if not mine.any() else "observations not used")
             elif r in rejected:  # (its track dropped)
@@ -505,6 +687,62 @@ class TeamTracker:
                 row.reason = _join(row.reason, "no markers seen" if n == 0 else
                                    f"{n} observation{'s' if n != 1 else ''} involve it: too few to start its track "
                                    "(three are needed)")
+
+    def _tentative(self, r: str, tr: _Track, row: TrackRow, status: FrameStatus, reason: str,
+                   prior: tuple | None, n: int) -> None:
+        """A record of a tentative track (not yet confirmed) reports what the
+        record shows on its own: ``unverified`` with three or more
+        observations of the robot; with fewer, a track bridged over records
+        reports ``partial`` (``predicted``), one started on three nothing
+        (``too_few``).  What a confirmed track would have reported is kept:
+        once confirmed, the records within the lag may report it (see
+        :meth:`_report_tentative`)."""
+        f = self.filter
+        if self.smoother is not None:
+            tr.frames.append(_Tentative(self._k, row, status, row.estimate, reason,
+                                        prior if prior is not None else (f.pose(r), f.covariance(r))))
+        note = "tentative track not yet confirmed " + ("(started from records solved together)" if tr.bridged
+                                                        else "(started on three observations)")
+        if n >= MIN_TIES:
+            row.status = FrameStatus.UNVERIFIED
+        elif tr.bridged:
+            row.status = status
+        else:
+            row.status, row.estimate = FrameStatus.TOO_FEW, None
+        row.reason = _join(row.reason if n else _join(row.reason, reason), note)
+
+    def _confirmed(self, t: float, r: str, tr: _Track) -> None:
+        """Robot ``r``'s tentative track is confirmed now: its records within
+        the lag may be reported again once the lag records after this one came."""
+        if self.smoother is None:
+            return
+        near = [p for p in tr.frames if self._k - p.k <= self.options.smooth_lag and p.estimate is not None]
+        start = next((p for p in tr.frames if p.start), None)
+        if near:
+            self._confirmations.append((t, near, start, self._k, r))
+        tr.frames = []
+
+    def _nearest_candidates(self, obs: ObservationSet) -> ObservationSet:
+        """Where a detector handed over several candidates for a marker, the
+        one nearest where the filter predicts it (the track decides, not the
+        score) when both its observer and the marker's robot are tracked (or
+        the reference); else the best scored."""
+        f = self.filter
+        known = {self.reference, *self.tracks}
+        best: dict[tuple, tuple[float, int]] = {}
+        for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
+            key = (o, m if m is not None else f"#{i}")
+            err = -float(obs.score[i])
+            owner = self._owner(m) if m is not None else None
+            if owner is not None and o in known and owner in known and o != owner:
+                try:
+                    one, _, _ = team_problem(self.rig, obs.take(np.array([i])))
+                    err = float(residual_norms(one, f.R, f.t)[0])
+                except MutlocError:
+                    pass
+            if key not in best or err < best[key][0]:
+                best[key] = (err, i)
+        return obs.take(np.array(sorted(i for _, i in best.values()), dtype=np.int64))
 
     def _update_tracked(self, problem: TeamProblem, touch: Mapping[str, np.ndarray], used: np.ndarray
                         ) -> tuple[set[str], Any, str, np.ndarray]:
@@ -601,7 +839,8 @@ class TeamTracker:
             if r in self.tracks:
                 self._drop(r)
             f.add(r, pose, np.diag([START_SIGMA_R**2] * 3 + [START_SIGMA_T**2] * 3),
-                  velocity_covariance=np.diag([START_SIGMA_W**2] * 3 + [START_SIGMA_V**2] * 3))
+                  velocity_covariance=np.diag([self.options.noise.initial_angular**2] * 3
+                                              + [self.options.noise.initial_linear**2] * 3))
         new = set(guesses)
         rows = np.flatnonzero(np.any([touch[r] for r in new], axis=0) & ~used)
         known = np.ones(len(problem.cam), dtype=bool)
@@ -688,15 +927,16 @@ class TeamTracker:
         worst = max(spread.get(j, math.inf) for j in new)
         if worst > CONFIRM_SPREAD * self.pixel_sigma:
             return False, ""
-        seen = ", ".join(sorted(f"{names[problem.cam[j]]} saw {markers[j]}" for j in new))
-        return True, (f"track confirmed: {seen} agree with the track started on three observations "
-                      f"(predicted within {worst:.1f} px)")
+        seen = ", ".join(sorted({markers[j] for j in idx}))
+        start = ", ".join(sorted({m for _, m in tr.start}))
+        return True, (f"track confirmed: {seen} agree with the track started on {start} "
+                      f"(new observations predicted within {worst:.1f} px)")
 
-    def _spread_px(self, problem: TeamProblem, j: int) -> float:
+    def _spread_px(self, problem: TeamProblem, j: int, f: TeamFilter | None = None) -> float:
         """1-sigma (px, largest axis) of where the filter predicts observation
         ``j`` (its observer's and the marker owner's pose covariance, with
-        their correlation, through the projection's Jacobians)."""
-        f = self.filter
+        their correlation, through the projection's Jacobians; ``f``: another filter)."""
+        f = self.filter if f is None else f
         one = problem.take(np.array([j]))
         res = np.empty(2)
         Ja, Jb = np.empty((1, 2, 6)), np.empty((1, 2, 6))
@@ -752,11 +992,16 @@ class TeamTracker:
 
     def _unobserved(self, r: str, row: TrackRow, why: str) -> None:
         """A row without observations of ``r``: the prediction of a robot tracked, else nothing."""
-        if r in self.tracks:
-            row.status = FrameStatus.PREDICTED
-            row.estimate = self._estimate(r, None, [], None, None, None)
-        else:
+        tr = self.tracks.get(r)
+        if tr is None:
             row.status = FrameStatus.TOO_FEW
+            row.reason = _join(row.reason, why)
+            return
+        row.estimate = self._estimate(r, None, [], None, None, None)
+        if tr.three and not tr.confirmed:
+            self._tentative(r, tr, row, FrameStatus.PREDICTED, why, None, 0)
+            return
+        row.status = FrameStatus.PREDICTED
         row.reason = _join(row.reason, why)
 
     def _estimate(self, r: str, problem: TeamProblem | None, markers: list[str], used: np.ndarray | None,
@@ -816,6 +1061,32 @@ def _dropped(team: TeamEstimate) -> str:
 
 def _join(a: str, b: str) -> str:
     return f"{a}; {b}" if a and b else (a or b)
+
+
+class RowEmitter:
+    """Hands each item (a record's rows, or a pair's row) to ``sink(item,
+    payload)`` in input order once final (see :meth:`TeamTracker.finalize`):
+    outputs written as the track runs.  ``filtered``: the item is one of the
+    tracker's records (items that are not -- an unreadable frame -- go out
+    in their turn)."""
+
+    def __init__(self, tracker: "TeamTracker", sink: Callable[[Any, Any], None]) -> None:
+        self.tracker, self.sink = tracker, sink
+        self.queue: deque[tuple[Any, bool, Any]] = deque()
+        self.done = 0  # filtered items handed on
+
+    def add(self, item: Any, filtered: bool, payload: Any = None) -> None:
+        self.queue.append((item, filtered, payload))
+
+    def emit(self, end: bool = False) -> None:
+        final = math.inf if self.tracker.history is None else self.tracker.finalize(end)
+        while self.queue:
+            item, filtered, payload = self.queue[0]
+            if filtered and self.done >= final:
+                break
+            self.queue.popleft()
+            self.done += filtered
+            self.sink(item, payload)
 
 
 # -- inputs -------------------------------------------------------------------
