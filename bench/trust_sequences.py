@@ -19,8 +19,13 @@ ones.  Lights are named by their blink, which takes a history: for them the
 ratio counts the frames after the first ``--warmup`` seconds (1 s, as the
 blink-identity figure), for balls and tags every frame.
 
+``--tracker team`` runs the team tracker on the pair (the two robots as a
+team of two, q the reference) on the detections the pair's run made (its
+observation log: the same detections, second looks included), and the
+oracle through the same tracker: the two trackers side by side.
+
     python bench/trust_sequences.py [--seeds 10] [--frames 60] [--fps 30] [--kinds balls,lights,tags]
-                                   [--seed-list 2,5,6] [--cache DIR] [--fixed-motion]
+                                   [--seed-list 2,5,6] [--cache DIR] [--fixed-motion] [--tracker pair|team]
 
 Writes bench/results/trust_results.json.
 """
@@ -30,11 +35,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from mutloc.io.logs import iter_observation_log
 from mutloc.sim.render import relative_pose, render
 from mutloc.sim.tracking import correct_detections, varied_world
 from mutloc.sim.world import standard_rig
@@ -59,8 +66,14 @@ def rendered(world, kind: str, seed: int, n: int, fps: float, cache: Path | None
     return images
 
 
+def _team_log(rig, frames, **kw):
+    from mutloc.track.team import track_team_log
+
+    return track_team_log(rig, frames, reference="q", **kw).tracks["p"]
+
+
 def run(kind: str, seed: int, n: int, fps: float, warmup: float, cache: Path | None = None,
-        vary: bool = True) -> dict:
+        vary: bool = True, tracker: str = "pair") -> dict:
     rig, world = varied_world(standard_rig(kind), seed, distance=2.0, vary=vary)
     images = rendered(world, kind, seed, n, fps, cache, vary)
     frames = {r: [Frame(i, i / fps, img) for i, img in enumerate(images[r])] for r in ("p", "q")}
@@ -70,9 +83,15 @@ def run(kind: str, seed: int, n: int, fps: float, warmup: float, cache: Path | N
         t = i / fps
         truth.append(relative_pose(world, "p", "q", t))
         oracle.append((t, correct_detections(world, t, rng)))
-    ideal = track_log(rig, oracle, progress=False)
+    log_fn = track_log if tracker == "pair" else _team_log
+    ideal = log_fn(rig, oracle, progress=False)
     solvable = [str(r.status) == "solved" and r.t >= warmup - 1e-9 for r in ideal.rows]
-    traj = track(rig, {r: Stream(iter(f), fps, r) for r, f in frames.items()}, progress=False)
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "log.jsonl"
+        traj = track(rig, {r: Stream(iter(f), fps, r) for r, f in frames.items()}, progress=False,
+                     observations_out=log)
+        if tracker == "team":
+            traj = _team_log(rig, list(iter_observation_log(log)), progress=False)
     out = {"frames": n, "statuses": {}, "solved": 0, "solved_wrong": 0, "solvable": int(sum(solvable)),
            "solvable_solved": 0, "correct_detection_statuses": {}}
     for row, ok in zip(ideal.rows, solvable):
@@ -100,14 +119,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=None, help="folder caching the rendered frames")
     ap.add_argument("--fixed-motion", action="store_true",
                     help="same motion and blink phases for every seed (only the room changes)")
-    ap.add_argument("--out", default=result_file("trust_results.json"))
+    ap.add_argument("--tracker", choices=("pair", "team"), default="pair",
+                    help="team: the team tracker on the two robots, on the pair run's detections")
+    ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = result_file("trust_results.json" if args.tracker == "pair" else "trust_results_team.json")
     cache = Path(args.cache) if args.cache else None
     seeds = [int(s) for s in args.seed_list.split(",")] if args.seed_list else list(range(args.seeds))
-    res = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "kinds": {}}
+    res = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "tracker": args.tracker, "kinds": {}}
     for kind in args.kinds.split(","):
         warmup = args.warmup if kind == "lights" else 0.0
-        per = [{"seed": s, **run(kind, s, args.frames, args.fps, warmup, cache, not args.fixed_motion)} for s in tqdm(seeds, desc=kind)]
+        per = [{"seed": s, **run(kind, s, args.frames, args.fps, warmup, cache, not args.fixed_motion, args.tracker)} for s in tqdm(seeds, desc=kind)]
         tot: dict = {k: sum(p[k] for p in per) for k in ("frames", "solved", "solved_wrong", "solvable",
                                                           "solvable_solved")}
         for key in ("statuses", "correct_detection_statuses"):

@@ -169,10 +169,11 @@ class TeamFilter:
         return pose, 0.5 * (C + C.T)
 
     def add(self, name: str, pose: Pose, covariance: np.ndarray, velocity: np.ndarray | None = None,
-            velocity_covariance: np.ndarray | None = None) -> None:
+            velocity_covariance: np.ndarray | None = None, state_covariance: np.ndarray | None = None) -> None:
         """Start tracking ``name`` at ``pose`` (6x6 ``covariance``; velocity
         zero with the noise's initial sigmas unless given), uncorrelated with
-        the robots already tracked."""
+        the robots already tracked; ``state_covariance``: instead, the full
+        12x12 covariance of pose and velocity (with their correlation)."""
         i = self.index(name)
         if name == self.reference:
             raise InputError("the reference's pose is the identity: it is not tracked")
@@ -183,6 +184,8 @@ class TeamFilter:
         B[:6, :6] = np.asarray(covariance, float)
         B[6:, 6:] = (np.asarray(velocity_covariance, float) if velocity_covariance is not None else
                      np.diag([n.initial_angular**2] * 3 + [n.initial_linear**2] * 3))
+        if state_covariance is not None:
+            B = np.array(state_covariance, float).reshape(STATE_DIM, STATE_DIM)
         k = len(self.tracked)
         P = np.zeros((STATE_DIM * (k + 1),) * 2)
         P[:STATE_DIM * k, :STATE_DIM * k] = self.P

@@ -76,19 +76,19 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 import numpy as np
 from tqdm import tqdm
 
-from ..api import Estimate, load_rig
+from ..api import Estimate, load_rig, localize
 from ..core.consistency import DEFAULT_CONFIDENCE, same_pose
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..core.team import MIN_TIES, TeamProblem, residual_norms, team_residuals
-from ..core.filter import STATE_DIM
+from ..core.filter import STATE_DIM, fit_moving_pose
 from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
 from ..errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
 from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
-from .filtering import FilterOptions, lost_reason
+from .filtering import MIN_START_DOF, FilterOptions, lost_reason, pair_problem
 from .solving import CONFIRM_SPREAD
 from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, observations_of
 from .sources import Frame
@@ -615,6 +615,14 @@ class TeamTracker:
                                           rejected - set(restart))
         bridge = self._bridge(obs, touch, set(started) | rejected | set(restart))
         if bridge is not None:
+            for r in list(bridge[1]):
+                note = self._moving_start(t, obs, r)
+                if note:  # placed by the records' observations at their own times, tested
+                    started[r] = note
+                    failed.pop(r, None)
+                    used[touch[r]] = True
+                    bridge[1].remove(r)
+        if bridge is not None and bridge[1]:
             more, _ = self._start(obs, problem, names, markers, touch, used, bridge[1], {}, rejected, bridge[0])
             started.update(more)
             for r in more:
@@ -904,6 +912,61 @@ class TeamTracker:
         both = ObservationSet.trusted([k[0] for k in keys], [k[1] for k in keys],
                                       np.array([latest[k][0] for k in keys]), score=[latest[k][1] for k in keys])
         return both, want
+
+    def _moving_start(self, t: float, obs: ObservationSet, r: str) -> str:
+        """Start robot ``r`` from the records of the last ``start_window``
+        seconds and this one when every observation of ``r`` in them is
+        between it and the reference (as for a pair): its pose at ``t`` and
+        velocity fitted to every observation at its own time
+        (:func:`~mutloc.core.filter.fit_moving_pose`), started only where the
+        records hold four or more distinct observations, the fit leaves
+        ``MIN_START_DOF`` degrees of freedom and passes its chi-square test,
+        and its uncertainty is within the track's limits -- then a confirmed
+        track.  Returns the row's note, or "" (not started)."""
+        ref = self.reference
+        problems, times, latest = [], [], {}
+        for tk, o in [*self._recent, (t, obs)]:
+            mine = []
+            for k, (a, m) in enumerate(zip(o.observer, o.marker)):
+                owner = self._owner(m) if m is not None else None
+                if a != r and owner != r:
+                    continue
+                if {a, owner} != {r, ref}:
+                    return ""  # tied to other robots too: the joint start (see _bridge)
+                mine.append(k)
+            if not mine:
+                continue
+            try:
+                pair = o.take(np.array(mine, dtype=np.int64)).pair(self.rig, r, ref)
+            except MutlocError:
+                return ""
+            if len(pair.rows) == 0:
+                continue
+            if len(set(pair.side.tolist())) > 1:
+                return ""  # a record of both cameras judges itself
+            problems.append(pair_problem(pair))
+            times.append(tk)
+            for k in pair.rows.tolist():
+                latest[(pair.parent.observer[k], pair.parent.marker[k])] = pair.parent.uv[k]
+        n = sum(len(p.side) for p in problems)
+        if len(latest) <= MIN_TIES or len(times) < 2 or 2 * n - 12 < MIN_START_DOF:
+            return ""
+        union = ObservationSet([o for o, _ in latest], [m for _, m in latest], np.array(list(latest.values())), t)
+        try:
+            first = localize(self.rig, union, r, ref, pixel_sigma=self.pixel_sigma, confidence=1.0)
+        except MutlocError:
+            return ""
+        fit = fit_moving_pose(problems, times, t, first.pose, sigma=self.pixel_sigma, confidence=self.confidence,
+                              noise=self.options.noise)
+        if fit is None or not fit.test.passed or lost_reason(fit.state, self.options):
+            return ""
+        st = fit.state
+        self._drop(r)
+        self.filter.add(r, st.pose, st.pose_covariance, velocity=st.velocity, state_covariance=st.covariance)
+        self.tracks[r] = _Track(frozenset(latest), confirmed=True)
+        span = 1000.0 * (times[-1] - times[0])
+        return (f"track started from {len(times)} records over {span:.0f} ms ({n} observations of {len(latest)} "
+                "markers; pose and velocity fitted at each record's time)")
 
     def _confirms(self, tr: _Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray,
                   spread: Mapping[int, float], dropped: bool) -> tuple[bool, str]:
