@@ -77,8 +77,10 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0) -> dict:
-    """One run of ``mutloc localizer`` over DDS loopback (see the module docstring)."""
+def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0, stalled: str = "") -> dict:
+    """One run of ``mutloc localizer`` over DDS loopback (see the module docstring).  ``stalled``
+    "stop": with another process subscribed to every pose topic and /tf (ROS 2's default QoS) that
+    stops (SIGSTOP) once matched; "idle": one that never takes a sample."""
     from cyclonedds.core import Policy, Qos
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
@@ -97,10 +99,19 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
            "--duration", str(seconds + 30)]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    children: list = []
     try:
         line = child.stderr.readline()
         if not line.startswith("localizer:"):
             raise RuntimeError(line + child.stderr.read())
+        if stalled:
+            topics = [M.pose_topic(r, reference) for r in tracked] + [M.TF_TOPIC]
+            slow = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "_stalled_subscriber.py"),
+                                     str(domain), stalled, *topics], stdout=subprocess.PIPE, text=True,
+                                    start_new_session=True)
+            children.append(slow)
+            if slow.stdout.readline().strip() != "matched":
+                raise RuntimeError("the stalled subscriber did not match the localizer's writers")
         bus = Bus(domain, loopback=True)
         T = M.ros_types()
         writers = {r: bus.writer(M.observations_topic(r), T.Observations) for r in names}
@@ -148,6 +159,9 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             take()
             time.sleep(0.005)
     finally:
+        for c in children:
+            os.killpg(c.pid, 9)
+            c.wait()
         if child.poll() is None:
             os.killpg(child.pid, 2)
             try:

@@ -635,3 +635,47 @@ def test_over_dds(setup, tmp_path):
     assert main(["track", "--rig", str(setup.path), "--observations", str(out / "log.jsonl"), "--out",
                  str(tmp_path / "replay"), "--no-progress"]) == 0
     assert (out / "trajectory.csv").read_bytes() == (tmp_path / "replay" / "trajectory.csv").read_bytes()
+
+
+#: Domains of this run's other DDS tests (1..100, as the node tests' block; these run in one process, one after the other).
+DOMAIN = 1 + (os.getpid() + 50) % 25 * 4
+
+
+def test_a_reader_takes_in_bulk_and_counts_each_undecodable_sample(setup):
+    """dds.Reader takes every waiting sample in one call: each undecodable
+    one is counted once and skipped, every valid one is returned, in order."""
+    from mutloc.live.dds import Bus
+
+    T = M.ros_types()
+    bus = Bus(DOMAIN, loopback=True)
+    try:
+        reader = bus.reader(M.observations_topic("p"), T.Observations, depth=100)
+        writer, Raw = _fuzzer(bus)
+        deadline = time.time() + 10
+        while time.time() < deadline and not writer.get_matched_subscriptions():
+            time.sleep(0.02)
+        obs = ObservationSet.from_dict({"p": {"M1": [612.25, 281.5], "M2": [701.0, 280.4]}})
+        valid = [M.observations_message("p", setup.rid, k, T0 + k / 30, obs) for k in range(30)]
+        # well-formed CDR (Cyclone's C layer refuses bytes that are not) whose marker name is not UTF-8
+        odd = ObservationSet.from_dict({"p": {"ZZ": [1.0, 2.0]}})
+        junk = [bytes(M.observations_message("p", setup.rid, 100 + k, T0, odd).serialize()).replace(
+            b"ZZ\0", bytes([0xC0 + k % 32, 0xFF, 0])) for k in range(20)]
+        for b in junk:
+            with pytest.raises(M.MessageError, match="utf-8"):
+                M.observations_from_cdr(b)
+        sent = []
+        for k, msg in enumerate(valid):
+            writer.write(msg)
+            sent.append(msg)
+            if k < len(junk):
+                raw = Raw()
+                raw.raw = junk[k]
+                writer.write(raw)
+        got, deadline = [], time.time() + 10
+        while time.time() < deadline and len(got) + reader.malformed < len(valid) + len(junk):
+            got += reader.take(limit=1000)
+            time.sleep(0.02)
+        assert reader.malformed == len(junk)
+        assert got == sent
+    finally:
+        bus.close()

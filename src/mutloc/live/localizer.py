@@ -107,6 +107,9 @@ class LivePose:
     estimate: Estimate
     #: The fused message's stamp in nanoseconds, exactly (``t`` is it in seconds, as a float).
     stamp_ns: int | None = None
+    #: Shared by the poses of one row (one estimate, several stamps): its
+    #: :func:`~mutloc.live.messages.pose_cdr_body`, made by the first :meth:`cdr` (with what it is of).
+    _body: list = field(default_factory=list, compare=False, repr=False)
 
     def messages(self) -> tuple[Any, Any]:
         """``(PoseWithCovarianceStamped, TFMessage)`` as ``track --bag`` writes them,
@@ -122,10 +125,14 @@ class LivePose:
 
     def cdr(self) -> tuple[bytes, bytes]:
         """The same two messages as CDR bytes (:func:`~mutloc.live.messages.pose_cdr`: what is published)."""
-        from .messages import pose_cdr
+        from .messages import pose_cdr, pose_cdr_body
 
         ns = self.stamp_ns if self.stamp_ns is not None else int(round(self.t * 1e9))
-        return pose_cdr(ns, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+        key = (self.estimate, self.robot, self.reference)
+        if not self._body or any(a is not b for a, b in zip(self._body[0], key)):  # (a copy made with replace())
+            self._body[:] = [key, pose_cdr_body(self.estimate.pose, self.estimate.covariance, self.robot,
+                                                self.reference)]
+        return pose_cdr(ns, None, None, self.robot, self.reference, self._body[1])
 
 
 @dataclass
@@ -463,9 +470,10 @@ class Localizer:
                       and row.t - rc.last_measured <= self.max_coast):
                 continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
+            body: list = []  # (their bytes but the stamp: made once)
             for h in stamps:
                 rc.poses += 1
-                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns))
+                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns, body))
         return out
 
     def finish(self) -> list[LivePose]:
