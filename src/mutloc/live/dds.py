@@ -21,10 +21,13 @@ from .._extras import require
 from ..errors import InputError
 from .messages import dds_topic, observations_from_cdr, ros_types
 
-__all__ = ["Bus", "Reader", "LOOPBACK_CONFIG", "HISTORY_DEPTH", "check_domain"]
+__all__ = ["Bus", "Reader", "LOOPBACK_CONFIG", "HISTORY_DEPTH", "WRITE_MAX_BLOCKING", "check_domain"]
 
 #: ROS 2's default QoS profile for topics: keep-last 10, reliable, volatile.
 HISTORY_DEPTH = 10
+#: Nanoseconds a reliable writer's ``write`` may block (never, for a keep-last writer in Cyclone DDS:
+#: only a keep-all writer waits for acknowledgements; not part of QoS matching).
+WRITE_MAX_BLOCKING = 10_000_000
 
 #: Cyclone DDS on the loopback interface only, peers found by unicast on 127.0.0.1.
 LOOPBACK_CONFIG = (
@@ -105,6 +108,14 @@ class Reader:
         return self._reader
 
 
+def _reliable(depth: int, max_blocking: int = 100_000_000) -> Any:
+    """Reliable, volatile, keep-last ``depth`` (``max_blocking``: ns a writer's ``write`` may wait)."""
+    from cyclonedds.core import Policy, Qos
+
+    return Qos(Policy.Reliability.Reliable(max_blocking_time=max_blocking), Policy.Durability.Volatile,
+               Policy.History.KeepLast(depth))
+
+
 @cache
 def _raw_take() -> tuple[Callable[..., Any] | None, int]:
     try:
@@ -120,7 +131,6 @@ class Bus:
 
     def __init__(self, domain: int = 0, *, loopback: bool = False) -> None:
         require("cyclonedds", "live operation over DDS")
-        from cyclonedds.core import Policy, Qos
         from cyclonedds.domain import Domain, DomainParticipant
 
         self.domain_id = check_domain(domain)
@@ -133,8 +143,7 @@ class Bus:
             except DDSException:
                 pass  # this process made the domain already (another Bus or participant on it): shared
         self.participant = DomainParticipant(self.domain_id)
-        self.qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
-                       Policy.History.KeepLast(HISTORY_DEPTH))
+        self.qos = _reliable(HISTORY_DEPTH)
         self._topics: dict[str, Any] = {}
 
     def _topic(self, ros_topic: str, cls: type) -> Any:
@@ -146,10 +155,18 @@ class Bus:
         return self._topics[name]
 
     def writer(self, ros_topic: str, cls: type) -> Any:
-        """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``)."""
+        """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``).
+
+        Its QoS is ROS 2's default (reliable, volatile, keep-last 10: what a
+        ROS 2 subscription matches); a keep-last writer never waits for a slow
+        reader (Cyclone DDS keeps the last 10 samples for it to repair and
+        drops older ones), and ``write`` blocks at most
+        :data:`WRITE_MAX_BLOCKING` (guide "Running on your robots", QoS).
+        """
         from cyclonedds.pub import DataWriter
 
-        return DataWriter(self.participant, self._topic(ros_topic, cls), qos=self.qos)
+        return DataWriter(self.participant, self._topic(ros_topic, cls),
+                          qos=_reliable(HISTORY_DEPTH, WRITE_MAX_BLOCKING))
 
     def reader(self, ros_topic: str, cls: type, *, sensor: bool = False, depth: int = HISTORY_DEPTH) -> Reader:
         """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``.
@@ -166,8 +183,7 @@ class Bus:
         elif depth == HISTORY_DEPTH:
             qos = self.qos
         else:
-            qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
-                      Policy.History.KeepLast(int(depth)))
+            qos = _reliable(int(depth))
         decode = observations_from_cdr if cls is ros_types().Observations else None  # (the localizer's input)
         return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos), decode)
 

@@ -147,6 +147,8 @@ class RobotCounts:
     refused_malformed: int = 0
     refused_clock: int = 0
     poses: int = 0
+    #: Its poses (or their /tf) that DDS did not take (``write`` failed).
+    unsent: int = 0
     #: Newest capture time among its messages taken (None: none yet).
     last_stamp: float | None = None
     #: Its track's status at the last record (robots whose pose is published).
@@ -372,6 +374,10 @@ class Localizer:
             else:
                 self.unattributed += n
 
+    def unsent(self, robot: str, n: int = 1) -> None:
+        """Count ``n`` messages of ``robot``'s pose that could not be published."""
+        self.counts[robot].unsent += n
+
     def _refuse(self, robot: str | None, what: str, why: str) -> str:
         if robot is None:
             self.unattributed += 1
@@ -515,7 +521,7 @@ class Localizer:
                       "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates,
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
-                      "poses_published": c.poses}
+                      "poses_published": c.poses, "poses_unsent": c.unsent}
             out.append(RobotStatus(r, level, message, values))
         return out
 
@@ -648,6 +654,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped) for r in loc.tracked}
     tf = bus.writer(tf_topic, T.TFMessage)
     diag = bus.writer(diag_topic, T.DiagnosticArray)
+    from cyclonedds.core import DDSException
     waitset = WaitSet(bus.participant)
     mask = SampleState.Any | ViewState.Any | InstanceState.Any
     conditions = [ReadCondition(rd.native, mask) for rd in readers.values()]
@@ -663,8 +670,18 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     def publish(out: Iterable[LivePose]) -> None:
         for p in out:
             pm, tfm = p.cdr()
-            poses[p.robot].write(raw_sample(T.PoseWithCovarianceStamped, pm))
-            tf.write(raw_sample(T.TFMessage, tfm))
+            for w, sample in ((poses[p.robot], raw_sample(T.PoseWithCovarianceStamped, pm)),
+                              (tf, raw_sample(T.TFMessage, tfm))):
+                try:
+                    w.write(sample)
+                except DDSException:  # (DDS refused it or timed out: counted, the loop goes on)
+                    loc.unsent(p.robot)
+
+    def say(now: float) -> None:
+        try:
+            diag.write(diagnostics_message(now, loc.diagnostics(now)))
+        except DDSException:
+            pass  # (the next one says the same, half a second later)
 
     while True:
         now = clock()
@@ -682,7 +699,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
         now = clock()
         publish(loc.poll(now))
         if now >= next_diag:
-            diag.write(diagnostics_message(now, loc.diagnostics(now)))
+            say(now)
             next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)
     publish(loc.finish())
-    diag.write(diagnostics_message(clock(), loc.diagnostics(clock())))
+    say(clock())
