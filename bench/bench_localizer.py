@@ -4,6 +4,7 @@ observations at 30 Hz each, the localizer <= 30% of one core).
 
     python bench/bench_localizer.py                        # 10 robots, then 2, 30 Hz, 10 s each
     python bench/bench_localizer.py --robots 10 --seconds 5
+    python bench/bench_localizer.py --robots 10 --stalled stop  # also with a stalled subscriber
 
 For each team size: ``mutloc localizer --loopback`` runs as its own process
 on a DDS domain of this run; this process publishes every robot's
@@ -21,7 +22,11 @@ every pose topic.  Measured:
   robot it is about: its observer, the robots it saw), and whether a
   backlog grew (latency over the last second);
 - in-process, without DDS: CPU per message of the tracker and of the rest
-  of the localizer (decode, checks, pose messages).
+  of the localizer (decode, checks, pose messages);
+- with ``--stalled stop``: the same again with another process subscribed to
+  every pose topic and /tf with ROS 2's default QoS that stops (SIGSTOP)
+  once matched (``idle``: one that never takes a sample), to show that a
+  stalled subscriber does not hold the localizer back.
 
 Writes bench/results/localizer_results.json (with the machine and its load).
 Functions :func:`over_dds` and :func:`in_process` are what bench_live.py may call.
@@ -206,11 +211,10 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     loc.engine.step = timed
     raw = [(t, r, bytes(M.observations_message(r, rid, k, 1000.0 + t, obs).serialize()))
            for k, (t, r, obs) in enumerate(frames)]
-    T = M.ros_types()
     poses = 0
     c0 = time.process_time()
     for t, r, b in raw:
-        for p in loc.feed(T.Observations.deserialize(b), 1000.0 + t + 0.005, r):
+        for p in loc.feed(M.observations_from_cdr(b), 1000.0 + t + 0.005, r):  # (as dds.Reader decodes them)
             p.cdr()
             poses += 1
     total = time.process_time() - c0
@@ -226,12 +230,18 @@ def main() -> int:
     ap.add_argument("--robots", type=int, nargs="*", default=[10, 2])
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--stalled", choices=["stop", "idle"], default="",
+                    help="also run with a stalled subscriber to every pose topic and /tf (ROS 2's default QoS): "
+                         "a process stopped (SIGSTOP) once matched, or one that never takes a sample")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
     args = ap.parse_args()
     results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
     for n in args.robots:
         run = {"in_process": in_process(n, args.rate, min(args.seconds, 5.0)),
                "over_dds": over_dds(n, args.rate, args.seconds)}
+        if args.stalled:
+            run["over_dds_with_stalled_subscriber"] = {"stalled": args.stalled,
+                                                       **over_dds(n, args.rate, args.seconds, stalled=args.stalled)}
         run["load_average_after"] = list(os.getloadavg())
         print(json.dumps(run), flush=True)
         results["runs"].append(run)
