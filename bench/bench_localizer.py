@@ -4,7 +4,7 @@ observations at 30 Hz each, the localizer <= 30% of one core).
 
     python bench/bench_localizer.py                        # 10 robots, then 2, 30 Hz, 10 s each
     python bench/bench_localizer.py --robots 10 --seconds 5
-    python bench/bench_localizer.py --robots 10 --stalled stop  # also with a stalled subscriber
+    python bench/bench_localizer.py --robots 10 --stalled stop idle  # also with a stalled subscriber
 
 For each team size: ``mutloc localizer --loopback`` runs as its own process
 on a DDS domain of this run; this process publishes every robot's
@@ -23,10 +23,11 @@ every pose topic.  Measured:
   backlog grew (latency over the last second);
 - in-process, without DDS: CPU per message of the tracker and of the rest
   of the localizer (decode, checks, pose messages);
-- with ``--stalled stop``: the same again with another process subscribed to
-  every pose topic and /tf with ROS 2's default QoS that stops (SIGSTOP)
-  once matched (``idle``: one that never takes a sample), to show that a
-  stalled subscriber does not hold the localizer back.
+- with ``--stalled stop idle``: the same again with another process
+  subscribed to every pose topic and /tf with ROS 2's default QoS that stops
+  (SIGSTOP) once matched (``stop``), or that never takes a sample
+  (``idle``: its DDS threads still receive and acknowledge), and that
+  process's own CPU.
 
 Writes bench/results/localizer_results.json (with the machine and its load).
 Functions :func:`over_dds` and :func:`in_process` are what bench_live.py may call.
@@ -151,6 +152,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 time.sleep(0.0005)
             if cpu0 is None and t >= warm:
                 cpu0, wall0 = _cpu_seconds(child.pid), time.time()
+                slow_cpu0 = _cpu_seconds(children[0].pid) if stalled else 0.0
             stamp = start + t
             msg = M.observations_message(robot, rid, k, stamp, obs)
             published[round(M.stamp_of(msg.header) * 1e6)] = time.time()
@@ -159,6 +161,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 sent += 1
                 expected += 1 if robots == 2 else len({robot, *(rig.owner(m) for m in obs.marker)} - {reference})
         cpu1, wall1 = _cpu_seconds(child.pid), time.time()
+        slow_cpu = _cpu_seconds(children[0].pid) - slow_cpu0 if stalled else None
         end = time.time()
         while time.time() < end + 1.0:
             take()
@@ -184,6 +187,8 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if len(lat) else None,
             "latency_ms_p50_last_second": round(float(np.percentile(last, 50)), 1) if len(last) else None,
             "poses_received": len(measured), "poses_expected": expected,
+            **({"stalled_subscriber": stalled, "its_cpu_share_of_one_core": round(slow_cpu / (wall1 - wall0), 3)}
+               if stalled else {}),
             "localizer_said": summary[0] if summary else ""}
 
 
@@ -230,7 +235,7 @@ def main() -> int:
     ap.add_argument("--robots", type=int, nargs="*", default=[10, 2])
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--seconds", type=float, default=10.0)
-    ap.add_argument("--stalled", choices=["stop", "idle"], default="",
+    ap.add_argument("--stalled", choices=["stop", "idle"], nargs="*", default=[],
                     help="also run with a stalled subscriber to every pose topic and /tf (ROS 2's default QoS): "
                          "a process stopped (SIGSTOP) once matched, or one that never takes a sample")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
@@ -239,9 +244,8 @@ def main() -> int:
     for n in args.robots:
         run = {"in_process": in_process(n, args.rate, min(args.seconds, 5.0)),
                "over_dds": over_dds(n, args.rate, args.seconds)}
-        if args.stalled:
-            run["over_dds_with_stalled_subscriber"] = {"stalled": args.stalled,
-                                                       **over_dds(n, args.rate, args.seconds, stalled=args.stalled)}
+        for how in args.stalled:
+            run[f"over_dds_with_{how}_subscriber"] = over_dds(n, args.rate, args.seconds, stalled=how)
         run["load_average_after"] = list(os.getloadavg())
         print(json.dumps(run), flush=True)
         results["runs"].append(run)
