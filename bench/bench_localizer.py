@@ -4,6 +4,7 @@ observations at 30 Hz each, the localizer <= 30% of one core).
 
     python bench/bench_localizer.py                        # 10 robots, then 2, 30 Hz, 10 s each
     python bench/bench_localizer.py --robots 10 --seconds 5
+    python bench/bench_localizer.py --robots 10 --stalled stop idle  # also with a stalled subscriber
 
 For each team size: ``mutloc localizer --loopback`` runs as its own process
 on a DDS domain of this run; this process publishes every robot's
@@ -21,7 +22,12 @@ every pose topic.  Measured:
   robot it is about: its observer, the robots it saw), and whether a
   backlog grew (latency over the last second);
 - in-process, without DDS: CPU per message of the tracker and of the rest
-  of the localizer (decode, checks, pose messages).
+  of the localizer (decode, checks, pose messages);
+- with ``--stalled stop idle``: the same again with another process
+  subscribed to every pose topic and /tf with ROS 2's default QoS that stops
+  (SIGSTOP) once matched (``stop``), or that never takes a sample
+  (``idle``: its DDS threads still receive and acknowledge), and that
+  process's own CPU.
 
 Writes bench/results/localizer_results.json (with the machine and its load).
 Functions :func:`over_dds` and :func:`in_process` are what bench_live.py may call.
@@ -77,8 +83,10 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0) -> dict:
-    """One run of ``mutloc localizer`` over DDS loopback (see the module docstring)."""
+def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0, stalled: str = "") -> dict:
+    """One run of ``mutloc localizer`` over DDS loopback (see the module docstring).  ``stalled``
+    "stop": with another process subscribed to every pose topic and /tf (ROS 2's default QoS) that
+    stops (SIGSTOP) once matched; "idle": one that never takes a sample."""
     from cyclonedds.core import Policy, Qos
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
@@ -97,10 +105,19 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
            "--duration", str(seconds + 30)]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    children: list = []
     try:
         line = child.stderr.readline()
         if not line.startswith("localizer:"):
             raise RuntimeError(line + child.stderr.read())
+        if stalled:
+            topics = [M.pose_topic(r, reference) for r in tracked] + [M.TF_TOPIC]
+            slow = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "_stalled_subscriber.py"),
+                                     str(domain), stalled, *topics], stdout=subprocess.PIPE, text=True,
+                                    start_new_session=True)
+            children.append(slow)
+            if slow.stdout.readline().strip() != "matched":
+                raise RuntimeError("the stalled subscriber did not match the localizer's writers")
         bus = Bus(domain, loopback=True)
         T = M.ros_types()
         writers = {r: bus.writer(M.observations_topic(r), T.Observations) for r in names}
@@ -135,6 +152,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 time.sleep(0.0005)
             if cpu0 is None and t >= warm:
                 cpu0, wall0 = _cpu_seconds(child.pid), time.time()
+                slow_cpu0 = _cpu_seconds(children[0].pid) if stalled else 0.0
             stamp = start + t
             msg = M.observations_message(robot, rid, k, stamp, obs)
             published[round(M.stamp_of(msg.header) * 1e6)] = time.time()
@@ -143,11 +161,15 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 sent += 1
                 expected += 1 if robots == 2 else len({robot, *(rig.owner(m) for m in obs.marker)} - {reference})
         cpu1, wall1 = _cpu_seconds(child.pid), time.time()
+        slow_cpu = _cpu_seconds(children[0].pid) - slow_cpu0 if stalled else None
         end = time.time()
         while time.time() < end + 1.0:
             take()
             time.sleep(0.005)
     finally:
+        for c in children:
+            os.killpg(c.pid, 9)
+            c.wait()
         if child.poll() is None:
             os.killpg(child.pid, 2)
             try:
@@ -165,6 +187,8 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if len(lat) else None,
             "latency_ms_p50_last_second": round(float(np.percentile(last, 50)), 1) if len(last) else None,
             "poses_received": len(measured), "poses_expected": expected,
+            **({"stalled_subscriber": stalled, "its_cpu_share_of_one_core": round(slow_cpu / (wall1 - wall0), 3)}
+               if stalled else {}),
             "localizer_said": summary[0] if summary else ""}
 
 
@@ -192,11 +216,10 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     loc.engine.step = timed
     raw = [(t, r, bytes(M.observations_message(r, rid, k, 1000.0 + t, obs).serialize()))
            for k, (t, r, obs) in enumerate(frames)]
-    T = M.ros_types()
     poses = 0
     c0 = time.process_time()
     for t, r, b in raw:
-        for p in loc.feed(T.Observations.deserialize(b), 1000.0 + t + 0.005, r):
+        for p in loc.feed(M.observations_from_cdr(b), 1000.0 + t + 0.005, r):  # (as dds.Reader decodes them)
             p.cdr()
             poses += 1
     total = time.process_time() - c0
@@ -212,12 +235,17 @@ def main() -> int:
     ap.add_argument("--robots", type=int, nargs="*", default=[10, 2])
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--stalled", choices=["stop", "idle"], nargs="*", default=[],
+                    help="also run with a stalled subscriber to every pose topic and /tf (ROS 2's default QoS): "
+                         "a process stopped (SIGSTOP) once matched, or one that never takes a sample")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
     args = ap.parse_args()
     results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
     for n in args.robots:
         run = {"in_process": in_process(n, args.rate, min(args.seconds, 5.0)),
                "over_dds": over_dds(n, args.rate, args.seconds)}
+        for how in args.stalled:
+            run[f"over_dds_with_{how}_subscriber"] = over_dds(n, args.rate, args.seconds, stalled=how)
         run["load_average_after"] = list(os.getloadavg())
         print(json.dumps(run), flush=True)
         results["runs"].append(run)

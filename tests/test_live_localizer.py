@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -635,3 +636,131 @@ def test_over_dds(setup, tmp_path):
     assert main(["track", "--rig", str(setup.path), "--observations", str(out / "log.jsonl"), "--out",
                  str(tmp_path / "replay"), "--no-progress"]) == 0
     assert (out / "trajectory.csv").read_bytes() == (tmp_path / "replay" / "trajectory.csv").read_bytes()
+
+
+#: Two domains of this run for the tests below (1..100, beside the node tests' blocks).
+DOMAIN = 1 + (os.getpid() + 50) % 25 * 4
+
+
+def test_a_reader_takes_in_bulk_and_counts_each_undecodable_sample(setup):
+    """dds.Reader takes every waiting sample in one call: each undecodable
+    one is counted once and skipped, every valid one is returned, in order."""
+    from mutloc.live.dds import Bus
+
+    T = M.ros_types()
+    bus = Bus(DOMAIN, loopback=True)
+    try:
+        reader = bus.reader(M.observations_topic("p"), T.Observations, depth=100)
+        writer, Raw = _fuzzer(bus)
+        deadline = time.time() + 10
+        while time.time() < deadline and not writer.get_matched_subscriptions():
+            time.sleep(0.02)
+        obs = ObservationSet.from_dict({"p": {"M1": [612.25, 281.5], "M2": [701.0, 280.4]}})
+        valid = [M.observations_message("p", setup.rid, k, T0 + k / 30, obs) for k in range(30)]
+        # well-formed CDR (Cyclone's C layer refuses bytes that are not) whose marker name is not UTF-8
+        odd = ObservationSet.from_dict({"p": {"ZZ": [1.0, 2.0]}})
+        junk = [bytes(M.observations_message("p", setup.rid, 100 + k, T0, odd).serialize()).replace(
+            b"ZZ\0", bytes([0xC0 + k % 32, 0xFF, 0])) for k in range(20)]
+        for b in junk:
+            with pytest.raises(M.MessageError, match="utf-8"):
+                M.observations_from_cdr(b)
+        sent = []
+        for k, msg in enumerate(valid):
+            writer.write(msg)
+            sent.append(msg)
+            if k < len(junk):
+                raw = Raw()
+                raw.raw = junk[k]
+                writer.write(raw)
+        got, deadline = [], time.time() + 10
+        while time.time() < deadline and len(got) + reader.malformed < len(valid) + len(junk):
+            got += reader.take(limit=1000)
+            time.sleep(0.02)
+        assert reader.malformed == len(junk)
+        assert got == sent
+    finally:
+        bus.close()
+
+
+#: A ROS 2 subscriber at its most stalled: subscribed to p's pose and /tf with ROS 2's
+#: default QoS (reliable, keep-last 10), matched, then stopped (SIGSTOP): it never acknowledges a sample.
+STALLED_SUBSCRIBER = """
+import os, signal, sys, time
+from mutloc.live import messages as M
+from mutloc.live.dds import Bus
+T = M.ros_types()
+bus = Bus(int(sys.argv[1]), loopback=True)
+readers = [bus.reader("/mutloc/p_in_q", T.PoseWithCovarianceStamped), bus.reader("/tf", T.TFMessage)]
+while not all(r.native.get_matched_publications() for r in readers):
+    time.sleep(0.02)
+print("matched", flush=True)
+os.kill(os.getpid(), signal.SIGSTOP)
+"""
+
+
+def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup):
+    """With a subscriber process that matched the localizer's writers and
+    then stopped, another subscriber still receives >= 90% of the poses (a
+    reliable keep-last writer does not wait for its slowest reader)."""
+    import select
+
+    from cyclonedds.core import Policy
+
+    from mutloc.live.dds import WRITE_MAX_BLOCKING, Bus
+
+    domain = DOMAIN + 1
+    cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
+           "--loopback", "--duration", "60"]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    stalled = None
+    bus = None
+    try:
+        line = child.stderr.readline()
+        assert line.startswith("localizer: rig_id"), line + child.stderr.read()
+        stalled = subprocess.Popen([sys.executable, "-c", STALLED_SUBSCRIBER, str(domain)], stdout=subprocess.PIPE,
+                                   text=True, start_new_session=True)
+        assert select.select([stalled.stdout], [], [], 30)[0] and stalled.stdout.readline().strip() == "matched"
+        T = M.ros_types()
+        bus = Bus(domain, loopback=True)
+        reader = bus.reader("/mutloc/p_in_q", T.PoseWithCovarianceStamped, depth=100)
+        writers = {r: bus.writer(M.observations_topic(r), T.Observations) for r in ("p", "q")}
+        deadline = time.time() + 10
+        while time.time() < deadline and not (reader.native.get_matched_publications()
+                                               and all(w.get_matched_subscriptions() for w in writers.values())):
+            time.sleep(0.02)
+        assert Path(f"/proc/{stalled.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"  # stopped
+        # the pose writer as discovered: ROS 2's default QoS (what ROS 2 subscriptions match); keep-last:
+        # Cyclone DDS never makes it wait for acknowledgements, and its write blocks 10 ms at most
+        qos = reader.native.get_matched_publication_data(reader.native.get_matched_publications()[0]).qos
+        assert qos[Policy.History] == Policy.History.KeepLast(10)
+        assert qos[Policy.Durability] == Policy.Durability.Volatile
+        assert isinstance(qos[Policy.Reliability], Policy.Reliability.Reliable)
+        assert qos[Policy.Reliability].max_blocking_time <= WRITE_MAX_BLOCKING
+        got: list = []
+        start = time.time() + 0.2
+        frames, sent = {"p": 0, "q": 0}, []
+        for t, obs, cams in zip(setup.recs.times, setup.recs.frames, setup.recs.cameras):
+            if t >= 3.0:
+                break
+            for c in cams:
+                frames[c] += 1
+                while time.time() < start + t:
+                    got += reader.take()
+                    time.sleep(0.002)
+                writers[c].write(M.observations_message(c, setup.rid, frames[c], start + t, obs))
+                sent.append(t)
+        end = time.time() + 0.6
+        while time.time() < end:
+            got += reader.take()
+            time.sleep(0.01)
+        assert Path(f"/proc/{stalled.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"  # stalled throughout
+    finally:
+        for proc in (stalled, child):
+            if proc is not None and proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        if bus is not None:
+            bus.close()
+    have = {round(M.stamp_of(s.header) - start, 4) for s in got}
+    expected = [t for t in sent if t > 0.2]
+    assert sum(1 for t in expected if round(t, 4) in have) >= 0.9 * len(expected), (len(have), len(expected))

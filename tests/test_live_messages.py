@@ -148,3 +148,65 @@ def test_pose_cdr_is_the_serialised_pose_messages(names):
         pm.header.stamp = tf.transforms[0].header.stamp = st
         assert M.pose_cdr(ns, pose, A @ A.T if k else None, source, target) == (bytes(pm.serialize()),
                                                                                   bytes(tf.serialize()))
+
+
+def _observation_messages():
+    obs = ObservationSet.from_dict({"p": {"M1": [612.25, 281.5], "M2": [701.0, 280.4], "é": [1.5, -2.0]}})
+    yield M.observations_message("p", "0123456789abcdef", 7, 12.345678901, obs, source_time=0.4)
+    yield M.observations_message("robot_one", "ab", 2**32 - 1, 1.5, None)  # nothing seen
+    cands = ObservationSet(["q", "q", "q"], ["M1", "M1", None], [[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]],
+                           score=[0.75, 0.25, 0.125])
+    yield M.observations_message("q", "", 0, 0.0, cands)  # candidates, an unnamed detection, empty strings
+
+
+@pytest.mark.parametrize("index", range(3))
+def test_observations_from_cdr_decodes_what_the_binding_decodes(index):
+    """The localizer's decoder gives the binding's message from the same
+    bytes, in either byte order, and refuses every truncation of them."""
+    from cyclonedds.idl._support import Endianness
+
+    T = M.ros_types()
+    msg = list(_observation_messages())[index]
+    for order in (Endianness.Little, Endianness.Big):
+        data = bytes(msg.serialize(endianness=order))
+        assert data[1] == (1 if order == Endianness.Little else 0)
+        got = M.observations_from_cdr(data)
+        assert got == T.Observations.deserialize(data) == msg
+        for cut in range(len(data)):  # (the last field ends the message: no padding after it)
+            with pytest.raises(M.MessageError):
+                M.observations_from_cdr(data[:cut])
+
+
+def test_observations_from_cdr_never_accepts_what_the_binding_refuses():
+    """Fuzzed bytes: what the decoder takes, the binding decodes to the same
+    message (the decoder is the stricter of the two), and it refuses with a
+    MessageError only."""
+    T = M.ros_types()
+    template = bytes(next(_observation_messages()).serialize())
+    rng = np.random.default_rng(11)
+    taken = 0
+    for i in range(3000):
+        b = bytearray(template)
+        if i % 3 == 0:
+            for k in rng.integers(0, len(b), size=rng.integers(1, 6)):
+                b[k] = rng.integers(256)
+        elif i % 3 == 1:
+            b = b[:rng.integers(0, len(b))] + bytes(rng.integers(0, 4))  # truncated, maybe padded
+        else:
+            b = bytearray(rng.integers(0, 256, rng.integers(4, 200), dtype=np.uint8).tobytes())
+            b[0], b[1] = 0, i % 2  # a plain CDR header
+        try:
+            got = M.observations_from_cdr(bytes(b))
+        except M.MessageError:
+            continue
+        taken += 1
+        assert got == T.Observations.deserialize(bytes(b))
+    assert taken > 100  # (byte flips in the numbers still decode)
+
+
+def test_pose_cdr_from_a_shared_body_is_the_same_bytes():
+    pose = Pose.from_rotvec(RNG.normal(size=3), RNG.normal(size=3))
+    A = RNG.normal(size=(6, 6))
+    body = M.pose_cdr_body(pose, A @ A.T, "robot_one", "q")
+    for ns in (0, 1, 1_800_000_000_123_456_789, 2**31 * 10**9 - 1):
+        assert M.pose_cdr(ns, None, None, "robot_one", "q", body) == M.pose_cdr(ns, pose, A @ A.T, "robot_one", "q")

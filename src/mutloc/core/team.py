@@ -1269,15 +1269,21 @@ def _marginalised(H: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, int]:
 def residual_norms(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
     """Each observation's reprojection error (pixels) at poses (Rs, ts);
     inf for a marker behind its observer."""
-    n = len(problem.cam)
-    out = np.full(n, np.inf)
+    out = np.full(len(problem.cam), np.inf)
+    _residual_norms(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist,
+                    np.ascontiguousarray(Rs, dtype=float), np.ascontiguousarray(ts, dtype=float), out)
+    return out
+
+
+@njit(cache=True)
+def _residual_norms(cam, own, pts, meas, Ks, ds, Rs, ts, out):
+    """``out[j]``: observation ``j``'s reprojection error, each on its own (one
+    behind its observer leaves its ``out[j]`` as it is)."""
     r = np.empty(2)
     J = np.empty((1, 2, 6))
-    for j in range(n):
-        sub = problem.take(np.array([j]))
-        if team_residuals(sub.cam, sub.own, sub.points, sub.uv, sub.K, sub.dist, Rs, ts, r, J, J, False):
-            out[j] = float(np.hypot(r[0], r[1]))
-    return out
+    for j in range(cam.shape[0]):
+        if team_residuals(cam[j:j + 1], own[j:j + 1], pts[j:j + 1], meas[j:j + 1], Ks, ds, Rs, ts, r, J, J, False):
+            out[j] = np.hypot(r[0], r[1])
 
 
 def relative_jacobian(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -14,16 +14,20 @@ raising: a network message is input, and bad input never stops a node.
 
 from __future__ import annotations
 
-from typing import Any
+from functools import cache
+from typing import Any, Callable
 
 from .._extras import require
 from ..errors import InputError
-from .messages import dds_topic
+from .messages import dds_topic, observations_from_cdr, ros_types
 
-__all__ = ["Bus", "Reader", "LOOPBACK_CONFIG", "HISTORY_DEPTH", "check_domain"]
+__all__ = ["Bus", "Reader", "LOOPBACK_CONFIG", "HISTORY_DEPTH", "WRITE_MAX_BLOCKING", "check_domain"]
 
 #: ROS 2's default QoS profile for topics: keep-last 10, reliable, volatile.
 HISTORY_DEPTH = 10
+#: Nanoseconds a reliable writer's ``write`` may block (never, for a keep-last writer in Cyclone DDS:
+#: only a keep-all writer waits for acknowledgements; not part of QoS matching).
+WRITE_MAX_BLOCKING = 10_000_000
 
 #: Cyclone DDS on the loopback interface only, peers found by unicast on 127.0.0.1.
 LOOPBACK_CONFIG = (
@@ -45,14 +49,45 @@ def check_domain(domain: Any) -> int:
 
 
 class Reader:
-    """A topic's reader: :meth:`take` returns decoded samples, counting the undecodable ones in :attr:`malformed`."""
+    """A topic's reader: :meth:`take` returns decoded samples, counting the undecodable ones in :attr:`malformed`.
 
-    def __init__(self, reader: Any) -> None:
+    ``decode``: bytes (CDR with its encapsulation header) to a message,
+    raising for bytes that are not one (default: the type's own
+    ``deserialize``).  The samples are taken from DDS in one call as bytes and
+    decoded here one by one, so that each undecodable sample is counted and
+    skipped while the others are kept."""
+
+    def __init__(self, reader: Any, decode: Callable[[bytes], Any] | None = None) -> None:
         self._reader = reader
+        self._decode = decode if decode is not None else reader.topic.data_type.deserialize
+        self._take_raw, self._mask = _raw_take()
         self.malformed = 0
 
     def take(self, limit: int = 256) -> list[Any]:
         """Up to ``limit`` waiting samples, oldest first (never blocks)."""
+        if self._take_raw is None:
+            return self._take_one_by_one(limit)
+        got = self._take_raw(self._reader._ref, self._mask, limit)
+        if isinstance(got, int):  # a DDS error code (not the data's fault)
+            from cyclonedds.core import DDSException
+
+            raise DDSException(got, f"Occurred while taking data in {self._reader!r}")
+        out: list[Any] = []
+        for data, info in got:
+            if not info.valid_data:
+                continue  # a writer gone or an instance disposed: no data
+            try:
+                sample = self._decode(data)
+            except Exception:  # noqa: BLE001 -- bytes that do not decode: counted, never raised
+                self.malformed += 1
+                continue
+            sample.sample_info = info
+            out.append(sample)
+        return out
+
+    def _take_one_by_one(self, limit: int) -> list[Any]:
+        # (a binding without the raw take: its own take decodes, a sample at a
+        # time so that one that fails is the only one lost)
         out: list[Any] = []
         for _ in range(limit):
             try:
@@ -73,12 +108,29 @@ class Reader:
         return self._reader
 
 
+def _reliable(depth: int, max_blocking: int = 100_000_000) -> Any:
+    """Reliable, volatile, keep-last ``depth`` (``max_blocking``: ns a writer's ``write`` may wait)."""
+    from cyclonedds.core import Policy, Qos
+
+    return Qos(Policy.Reliability.Reliable(max_blocking_time=max_blocking), Policy.Durability.Volatile,
+               Policy.History.KeepLast(depth))
+
+
+@cache
+def _raw_take() -> tuple[Callable[..., Any] | None, int]:
+    try:
+        from cyclonedds._clayer import ddspy_take
+        from cyclonedds.core import InstanceState, SampleState, ViewState
+    except ImportError:  # (the binding's internals moved: the public take, one sample at a time)
+        return None, 0
+    return ddspy_take, SampleState.Any | ViewState.Any | InstanceState.Any
+
+
 class Bus:
     """A DDS participant in ``domain`` with ROS 2 topic names and QoS."""
 
     def __init__(self, domain: int = 0, *, loopback: bool = False) -> None:
         require("cyclonedds", "live operation over DDS")
-        from cyclonedds.core import Policy, Qos
         from cyclonedds.domain import Domain, DomainParticipant
 
         self.domain_id = check_domain(domain)
@@ -91,8 +143,7 @@ class Bus:
             except DDSException:
                 pass  # this process made the domain already (another Bus or participant on it): shared
         self.participant = DomainParticipant(self.domain_id)
-        self.qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
-                       Policy.History.KeepLast(HISTORY_DEPTH))
+        self.qos = _reliable(HISTORY_DEPTH)
         self._topics: dict[str, Any] = {}
 
     def _topic(self, ros_topic: str, cls: type) -> Any:
@@ -104,10 +155,18 @@ class Bus:
         return self._topics[name]
 
     def writer(self, ros_topic: str, cls: type) -> Any:
-        """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``)."""
+        """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``).
+
+        Its QoS is ROS 2's default (reliable, volatile, keep-last 10: what a
+        ROS 2 subscription matches); a keep-last writer never waits for a slow
+        reader (Cyclone DDS keeps the last 10 samples for it to repair and
+        drops older ones), and ``write`` blocks at most
+        :data:`WRITE_MAX_BLOCKING` (guide "Running on your robots", QoS).
+        """
         from cyclonedds.pub import DataWriter
 
-        return DataWriter(self.participant, self._topic(ros_topic, cls), qos=self.qos)
+        return DataWriter(self.participant, self._topic(ros_topic, cls),
+                          qos=_reliable(HISTORY_DEPTH, WRITE_MAX_BLOCKING))
 
     def reader(self, ros_topic: str, cls: type, *, sensor: bool = False, depth: int = HISTORY_DEPTH) -> Reader:
         """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``.
@@ -124,9 +183,9 @@ class Bus:
         elif depth == HISTORY_DEPTH:
             qos = self.qos
         else:
-            qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
-                      Policy.History.KeepLast(int(depth)))
-        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos))
+            qos = _reliable(int(depth))
+        decode = observations_from_cdr if cls is ros_types().Observations else None  # (the localizer's input)
+        return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos), decode)
 
     def close(self) -> None:
         """Leave the domain (readers and writers go with the participant)."""

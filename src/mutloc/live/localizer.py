@@ -107,6 +107,9 @@ class LivePose:
     estimate: Estimate
     #: The fused message's stamp in nanoseconds, exactly (``t`` is it in seconds, as a float).
     stamp_ns: int | None = None
+    #: Shared by the poses of one row (one estimate, several stamps): its
+    #: :func:`~mutloc.live.messages.pose_cdr_body`, made by the first :meth:`cdr` (with what it is of).
+    _body: list = field(default_factory=list, compare=False, repr=False)
 
     def messages(self) -> tuple[Any, Any]:
         """``(PoseWithCovarianceStamped, TFMessage)`` as ``track --bag`` writes them,
@@ -122,10 +125,14 @@ class LivePose:
 
     def cdr(self) -> tuple[bytes, bytes]:
         """The same two messages as CDR bytes (:func:`~mutloc.live.messages.pose_cdr`: what is published)."""
-        from .messages import pose_cdr
+        from .messages import pose_cdr, pose_cdr_body
 
         ns = self.stamp_ns if self.stamp_ns is not None else int(round(self.t * 1e9))
-        return pose_cdr(ns, self.estimate.pose, self.estimate.covariance, self.robot, self.reference)
+        key = (self.estimate, self.robot, self.reference)
+        if not self._body or any(a is not b for a, b in zip(self._body[0], key)):  # (a copy made with replace())
+            self._body[:] = [key, pose_cdr_body(self.estimate.pose, self.estimate.covariance, self.robot,
+                                                self.reference)]
+        return pose_cdr(ns, None, None, self.robot, self.reference, self._body[1])
 
 
 @dataclass
@@ -140,6 +147,8 @@ class RobotCounts:
     refused_malformed: int = 0
     refused_clock: int = 0
     poses: int = 0
+    #: Its poses (or their /tf) that DDS did not take (``write`` failed).
+    unsent: int = 0
     #: Newest capture time among its messages taken (None: none yet).
     last_stamp: float | None = None
     #: Its track's status at the last record (robots whose pose is published).
@@ -365,6 +374,10 @@ class Localizer:
             else:
                 self.unattributed += n
 
+    def unsent(self, robot: str, n: int = 1) -> None:
+        """Count ``n`` messages of ``robot``'s pose that could not be published."""
+        self.counts[robot].unsent += n
+
     def _refuse(self, robot: str | None, what: str, why: str) -> str:
         if robot is None:
             self.unattributed += 1
@@ -463,9 +476,10 @@ class Localizer:
                       and row.t - rc.last_measured <= self.max_coast):
                 continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
+            body: list = []  # (their bytes but the stamp: made once)
             for h in stamps:
                 rc.poses += 1
-                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns))
+                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns, body))
         return out
 
     def finish(self) -> list[LivePose]:
@@ -507,7 +521,7 @@ class Localizer:
                       "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates,
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
-                      "poses_published": c.poses}
+                      "poses_published": c.poses, "poses_unsent": c.unsent}
             out.append(RobotStatus(r, level, message, values))
         return out
 
@@ -640,6 +654,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped) for r in loc.tracked}
     tf = bus.writer(tf_topic, T.TFMessage)
     diag = bus.writer(diag_topic, T.DiagnosticArray)
+    from cyclonedds.core import DDSException
     waitset = WaitSet(bus.participant)
     mask = SampleState.Any | ViewState.Any | InstanceState.Any
     conditions = [ReadCondition(rd.native, mask) for rd in readers.values()]
@@ -655,8 +670,18 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     def publish(out: Iterable[LivePose]) -> None:
         for p in out:
             pm, tfm = p.cdr()
-            poses[p.robot].write(raw_sample(T.PoseWithCovarianceStamped, pm))
-            tf.write(raw_sample(T.TFMessage, tfm))
+            for w, sample in ((poses[p.robot], raw_sample(T.PoseWithCovarianceStamped, pm)),
+                              (tf, raw_sample(T.TFMessage, tfm))):
+                try:
+                    w.write(sample)
+                except DDSException:  # (DDS refused it or timed out: counted, the loop goes on)
+                    loc.unsent(p.robot)
+
+    def say(now: float) -> None:
+        try:
+            diag.write(diagnostics_message(now, loc.diagnostics(now)))
+        except DDSException:
+            pass  # (the next one says the same, half a second later)
 
     while True:
         now = clock()
@@ -674,7 +699,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
         now = clock()
         publish(loc.poll(now))
         if now >= next_diag:
-            diag.write(diagnostics_message(now, loc.diagnostics(now)))
+            say(now)
             next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)
     publish(loc.finish())
-    diag.write(diagnostics_message(clock(), loc.diagnostics(clock())))
+    say(clock())
