@@ -65,6 +65,7 @@ from _machine import machine, result_file  # noqa: E402
 cv2.setNumThreads(1)
 
 KINDS = ("balls", "tags", "lights", "cylinders")
+PARTS = ("detection", "node", "e2e")
 CAMERA_FPS = 30.0
 SIZE = (960, 540)
 OBSERVER = "q"  # q's camera, looking for p's markers
@@ -161,15 +162,22 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
     # a generous lead-in: a node loads its detectors (the blinking lights' take longest) before the first frame
     s = run_live_pair(folder / "rig.yaml", loops, root / f"{folder.name}_e2e", seconds=seconds, domain=domain,
                       lead_in=12.0)
+    logs = {r: (root / f"{folder.name}_e2e" / f"{r}.log").read_text(encoding="utf-8") for r in ("p", "q", "localizer")}
     return {"poses_received": s["poses_received"], "poses_per_second": s["poses_per_second"],
             "observation_messages": s["observation_messages"], "latency_p50_ms": s["latency_ms"]["p50"],
-            "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"]}
+            "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"],
+            "stages_ms": s["stages_ms"],
+            "node_logs": {r: [ln for ln in text.splitlines() if ln.startswith(("node ", "interrupted"))]
+                          for r, text in logs.items() if r != "localizer"},
+            "localizer_log": logs["localizer"].strip().splitlines()[-1:]}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="20 frames per kind, 2 s replays")
     ap.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
+                    help="what to measure (default all): detection alone, the node alone, end to end")
     ap.add_argument("--work", help="keep the rendered sequences here (reused when present)")
     ap.add_argument("--out", default=result_file("live_results.json"))
     args = ap.parse_args()
@@ -179,31 +187,42 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.work) if args.work else Path(tmp)
         seqs = render_sequences(root, args.kinds, frames)
-        detection, latency = {}, {}
-        print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
-        print(f"{'kind':<10} {'frames/s wall':>14} {'frames/s cpu':>13} {'markers/frame':>14}")
-        for kind, folder in seqs.items():
-            r = detection[kind] = detection_rate(folder)
-            print(f"{kind:<10} {r['fps_wall']:>14.1f} {r['fps_cpu']:>13.1f} {r['markers_per_frame']:>14.2f}")
-        print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
-        print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
-              f"{'received p50/p99 ms':>20}")
-        for k, (kind, folder) in enumerate(seqs.items()):
-            loop = looped_folder(folder / OBSERVER, root / f"{kind}_loop", seconds)
-            r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, loop, 90 + (os.getpid() + k) % 10)
-            print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
-                  f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
-                  f"{r['receive_p99_ms']:<9.1f}")
-        print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
-        print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
-        e2e = {}
-        for k, (kind, folder) in enumerate(seqs.items()):
-            if kind == "cylinders":
-                continue  # slower than the camera on one core (see detection above)
-            r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
-            lat = "/".join("n/a" if r[k] is None else f"{r[k]:.1f}"
-                           for k in ("latency_p50_ms", "latency_p99_ms", "latency_max_ms"))
-            print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")
+        detection, latency, e2e = {}, {}, {}
+        if "detection" in args.parts:
+            print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
+            print(f"{'kind':<10} {'frames/s wall':>14} {'frames/s cpu':>13} {'markers/frame':>14}")
+            for kind, folder in seqs.items():
+                r = detection[kind] = detection_rate(folder)
+                print(f"{kind:<10} {r['fps_wall']:>14.1f} {r['fps_cpu']:>13.1f} {r['markers_per_frame']:>14.2f}")
+        if "node" in args.parts:
+            print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
+            print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
+                  f"{'received p50/p99 ms':>20}")
+            for k, (kind, folder) in enumerate(seqs.items()):
+                loop = looped_folder(folder / OBSERVER, root / f"{kind}_loop", seconds)
+                r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, loop, 90 + (os.getpid() + k) % 10)
+                print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
+                      f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
+                      f"{r['receive_p99_ms']:<9.1f}")
+        if "e2e" in args.parts:
+            print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
+            print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
+            for k, (kind, folder) in enumerate(seqs.items()):
+                if kind == "cylinders":
+                    continue  # slower than the camera on one core (see detection above)
+                r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
+                lat = "/".join("n/a" if r[k] is None else f"{r[k]:.1f}"
+                               for k in ("latency_p50_ms", "latency_p99_ms", "latency_max_ms"))
+                print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")
+                st = r["stages_ms"]
+                print(f"{'':<10} capture -> observations here p50/p99 {st['nodes']['p50']:.1f}/"
+                      f"{st['nodes']['p99']:.1f} ms, -> pose here {st['localizer']['p50']:.1f}/"
+                      f"{st['localizer']['p99']:.1f} ms")
+                for lines in r["node_logs"].values():
+                    for ln in lines:
+                        print(f"{'':<10} {ln}")
+                for ln in r["localizer_log"]:
+                    print(f"{'':<10} {ln}")
     info["load_average_at_end"] = list(os.getloadavg())
     result = {"machine": info, "size": list(SIZE), "camera_fps": CAMERA_FPS, "frames_per_kind": frames,
               "replay_seconds": seconds, "detection": detection, "node_latency": latency, "end_to_end": e2e}

@@ -68,8 +68,12 @@ def run(args: argparse.Namespace) -> int:
         try:
             stats = node.run(duration=args.duration, status_every=args.status_every if args.progress else None)
         except KeyboardInterrupt:
+            if node.stats.stages:
+                print(node.stats.stage_line(), file=sys.stderr, flush=True)
             print(f"interrupted: {node.stats.summary()}", file=sys.stderr, flush=True)
             return 130
+        if stats.stages:
+            print(stats.stage_line(), flush=True)
         print(stats.summary(), flush=True)
         return 0
     finally:

@@ -26,6 +26,7 @@ import os
 import re
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -124,6 +125,26 @@ class CameraSource:
         self.notes: list[str] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._handled = threading.Condition()
+        self._handled_index = -1
+
+    def handled(self, frame: LiveFrame) -> None:
+        """The consumer is done with ``frame`` (the node published it): a
+        source that has work of its own to do between frames (a replay's
+        decoding) does it now rather than while the detector runs."""
+        with self._handled:
+            self._handled_index = max(self._handled_index, frame.index)
+            self._handled.notify_all()
+
+    def _wait_handled(self, index: int, deadline: float) -> None:
+        """Wait until frame ``index`` (or a later one) was :meth:`handled`, or
+        until ``deadline`` (``time.monotonic()``), or the source stops."""
+        with self._handled:
+            while self._handled_index < index and not self._stop.is_set():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._handled.wait(min(left, 0.05))
 
     def start(self) -> "CameraSource":
         self._thread = threading.Thread(target=self._guarded, name=f"mutloc camera {self.name}", daemon=True)
@@ -170,6 +191,8 @@ class CameraSource:
     def close(self) -> None:
         """Stop the thread; a frame left waiting counts as dropped."""
         self._stop.set()
+        with self._handled:
+            self._handled.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self.slot.discard()
@@ -268,7 +291,11 @@ class ReplaySource(CameraSource):
     driver hands the frame on), its own time in the recording as
     ``source_time``.  Images are decoded before their
     release time (a camera's readout), so the stamps keep the recording's
-    spacing while decoding keeps up.  ``loop``: play it again and again (frame
+    spacing while decoding keeps up; the next image is decoded once the
+    node is done with the frame released (:meth:`~CameraSource.handled`),
+    or when its release is near, so that decoding (a PNG of 960x540 takes
+    longer than most detectors) does not take the CPU from the detector as
+    a camera's readout would not.  ``loop``: play it again and again (frame
     numbers and ``source_time`` going on from one pass to the next).
     ``start_at``: the wall-clock time (UNIX seconds) at which the first
     frame is released, so that several replays (one per robot) run in step;
@@ -296,11 +323,25 @@ class ReplaySource(CameraSource):
     def _run(self) -> None:
         start = t0 = None
         stream, shift, index = self.stream, 0.0, 0
+        period = 1.0 / ((self.fps or 30.0) * self.speed)
+        decoding: deque[float] = deque(maxlen=16)  # the recent decoding times, s
+        released: LiveFrame | None = None
         while True:
             first = last = None
-            for f in stream:
+            frames = iter(stream)
+            while True:
+                if released is not None and start is not None:
+                    # the next image decoded once the node is done with the last frame, or a bit before it is due
+                    margin = 1.5 * max(decoding, default=period) + 0.003
+                    due_next = start + (released.source_time - t0) / self.speed + period
+                    self._wait_handled(released.index, due_next - margin)
                 if self._stop.is_set():
                     return
+                c = time.monotonic()
+                f = next(frames, None)
+                decoding.append(time.monotonic() - c)
+                if f is None:
+                    break
                 t = f.t + shift
                 if start is None:
                     start, wall, t0 = time.monotonic(), time.time(), t
@@ -312,7 +353,8 @@ class ReplaySource(CameraSource):
                     return
                 # stamped with the instant it is due, as a camera stamps its exposure (the thread's
                 # scheduling delay is the transfer's, not the capture's)
-                self.slot.put(LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t))
+                released = LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t)
+                self.slot.put(released)
                 first, last = first or f, f
             if not self.loop or last is None:
                 return

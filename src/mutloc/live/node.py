@@ -68,7 +68,13 @@ class NodeStats:
     out_of_order: int = 0
     markers_seen: int = 0  # in the last processed frame
     latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    #: Per published message, seconds: ``(capture -> taken by the node, detection (wall), detection (this
+    #: thread's CPU), detected -> written)`` (the last :data:`LATENCY_WINDOW`).
+    stages: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     started: float = field(default_factory=time.monotonic)
+    #: This process's CPU time (all threads: camera, detection, DDS) at the start and at the last frame, s.
+    cpu_started: float = field(default_factory=time.process_time)
+    cpu_now: float = field(default_factory=time.process_time)
 
     @property
     def fps(self) -> float:
@@ -86,6 +92,17 @@ class NodeStats:
         """One line for the periodic status."""
         return (f"node {self.robot}: {self.captured} captured, {self.processed} processed ({self.fps:.1f}/s), "
                 f"{self.dropped} dropped{self._latency()}, {self.markers_seen} markers in the last frame")
+
+    def stage_line(self) -> str:
+        """Where capture -> publish went: p50/p99 of each stage, ms (empty before the first message)."""
+        if not self.stages:
+            return ""
+        a = np.asarray(self.stages, float)
+        parts = [f"{name} {percentile_ms(a[:, k], 50):.1f}/{percentile_ms(a[:, k], 99):.1f}"
+                 for k, name in enumerate(("waiting", "detect", "detect cpu", "publish"))]
+        cpu = (self.cpu_now - self.cpu_started) / max(1, self.captured) * 1e3
+        return (f"node {self.robot} stages p50/p99 ms: " + ", ".join(parts)
+                + f"; process cpu {cpu:.1f} ms per frame captured")
 
     def summary(self) -> str:
         """The line printed at exit."""
@@ -159,10 +176,12 @@ class Node:
             time.sleep(0.02)
         return True
 
-    def process(self, frame: LiveFrame) -> Any:
+    def process(self, frame: LiveFrame, taken: float | None = None) -> Any:
         """Detect, publish and return the ``Observations`` message of ``frame``
-        (None for a frame that is not published: corrupt, or out of order)."""
+        (None for a frame that is not published: corrupt, or out of order);
+        ``taken``: the wall-clock time the node took it from the camera (default now)."""
         s = self.stats
+        taken = time.time() if taken is None else taken
         if frame.image is None:
             s.corrupt += 1
             return None
@@ -173,12 +192,17 @@ class Node:
         # A replayed frame's detectors run on the recording's own clock (the blink trackers' timing).
         seen = Frame(frame.index, frame.source_time if isinstance(self.source, ReplaySource) else frame.t,
                      frame.image)
+        t0, c0 = time.time(), time.thread_time()
         self.detector.feed(seen)
         found = self.detector.detect(seen)
+        t1, c1 = time.time(), time.thread_time()
         obs = found.observations(self.robot, frame.t)
         msg = observations_message(self.robot, self.rig_id, frame.index, frame.t, obs, frame.source_time)
         self.writer.write(msg)
-        s.latencies.append(time.time() - frame.t)
+        done = time.time()
+        s.latencies.append(done - frame.t)
+        s.stages.append((taken - frame.t, t1 - t0, c1 - c0, done - t1))
+        s.cpu_now = time.process_time()
         s.processed += 1
         s.markers_seen = len(msg.observations)
         return msg
@@ -212,6 +236,7 @@ class Node:
             self.wait_for_subscriber(subscriber_timeout)
         self.source.start()
         s.started = begin = time.monotonic()
+        s.cpu_started = time.process_time()
         next_status = begin + status_every if status_every else float("inf")
         next_diag = begin
         try:
@@ -222,7 +247,8 @@ class Node:
                 frame = self.source.take(timeout=0.1)
                 s.captured, s.dropped = self.source.captured, self.source.dropped
                 if frame is not None:
-                    self.process(frame)
+                    self.process(frame, time.time())
+                    self.source.handled(frame)
                 elif self.source.finished:
                     if self.source.error:
                         raise InputError(self.source.error)
