@@ -1,8 +1,9 @@
 #!/usr/bin/env python
 """Live operation benchmark (issue 25): the node, and two nodes with a localizer end to end.
 
-    python bench/bench_live.py            # 60 rendered frames per marker kind, 4 s replays
-    python bench/bench_live.py --quick    # 20 frames, 2 s replays
+    python bench/bench_live.py            # 4 s replays (120 rendered frames per marker kind and robot)
+    python bench/bench_live.py --quick    # 2 s replays (60 frames)
+    python bench/bench_live.py --kinds tags lights --parts e2e --work /tmp/benchlive
 
 Measured:
 
@@ -21,9 +22,14 @@ Measured:
   each robot's camera at 30 fps in step and a ``mutloc localizer`` process,
   DDS over loopback (:func:`mutloc.live.demo.run_live_pair`); a subscriber
   in this process: poses received per second and capture -> pose received
-  latency p50/p99 (the pose's stamp is its frame's capture time).  The
-  rendered sequence is played again and again to ``--seconds`` (the track
-  restarts where it jumps back: latency and rate are what this measures).
+  latency p50/p99 (the pose's stamp is its frame's capture time), split
+  into capture -> the observation messages received here (the nodes) and
+  -> the pose received here (the localizer); the time from the first frame
+  to the first pose (blinking lights are named only after 0.7 s of blink
+  history) and poses/s from then on; each node's own stage times (its log).
+  The sequence is rendered as long as the replay (a sequence played again
+  from its start would make the robots jump back: the track restarts, and
+  the blinking lights' identities with it, every pass).
 
 The machine and its load average are recorded beside the figures (the
 machine is shared: other work running changes them).  The functions
@@ -75,7 +81,7 @@ def render_sequences(root: Path, kinds=KINDS, frames: int = 60, size=SIZE, fps: 
     """``{kind: folder}`` of a rendered two-robot sequence per marker kind (rig.yaml, p/, q/)."""
     out = {}
     for kind in kinds:
-        folder = root / kind
+        folder = root / f"{kind}_{frames}"
         if not (folder / "rig.yaml").exists():
             write_simulation(folder, markers=kind, frames=frames, size=size, fps=fps)
         out[kind] = folder
@@ -166,7 +172,8 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
     return {"poses_received": s["poses_received"], "poses_per_second": s["poses_per_second"],
             "observation_messages": s["observation_messages"], "latency_p50_ms": s["latency_ms"]["p50"],
             "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"],
-            "stages_ms": s["stages_ms"],
+            "stages_ms": s["stages_ms"], "first_pose_s": s["first_pose_s"],
+            "poses_per_second_once_tracked": s["poses_per_second_once_tracked"],
             "node_logs": {r: [ln for ln in text.splitlines() if ln.startswith(("node ", "interrupted"))]
                           for r, text in logs.items() if r != "localizer"},
             "localizer_log": logs["localizer"].strip().splitlines()[-1:]}
@@ -174,14 +181,15 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="20 frames per kind, 2 s replays")
+    ap.add_argument("--quick", action="store_true", help="2 s replays (60 frames per kind) instead of 4 s")
     ap.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                     help="what to measure (default all): detection alone, the node alone, end to end")
     ap.add_argument("--work", help="keep the rendered sequences here (reused when present)")
     ap.add_argument("--out", default=result_file("live_results.json"))
     args = ap.parse_args()
-    frames, seconds = (20, 2.0) if args.quick else (60, 4.0)
+    seconds = 2.0 if args.quick else 4.0
+    frames = int(round(seconds * CAMERA_FPS))
     info = machine()
     print(f"machine: {info['cpu']}, {info['cores']} cores, load average {info['load_average_at_start']}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -199,7 +207,7 @@ def main() -> None:
             print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
                   f"{'received p50/p99 ms':>20}")
             for k, (kind, folder) in enumerate(seqs.items()):
-                loop = looped_folder(folder / OBSERVER, root / f"{kind}_loop", seconds)
+                loop = looped_folder(folder / OBSERVER, root / f"{folder.name}_loop", seconds)
                 r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, loop, 90 + (os.getpid() + k) % 10)
                 print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
                       f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
@@ -214,10 +222,14 @@ def main() -> None:
                 lat = "/".join("n/a" if r[k] is None else f"{r[k]:.1f}"
                                for k in ("latency_p50_ms", "latency_p99_ms", "latency_max_ms"))
                 print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")
+                if r["first_pose_s"] is not None:
+                    print(f"{'':<10} first pose {r['first_pose_s']:.2f} s after the first frame; from then on "
+                          f"{r['poses_per_second_once_tracked']:.1f} poses/s")
                 st = r["stages_ms"]
-                print(f"{'':<10} capture -> observations here p50/p99 {st['nodes']['p50']:.1f}/"
-                      f"{st['nodes']['p99']:.1f} ms, -> pose here {st['localizer']['p50']:.1f}/"
-                      f"{st['localizer']['p99']:.1f} ms")
+                f = lambda v: "n/a" if v is None else f"{v:.1f}"  # noqa: E731
+                print(f"{'':<10} capture -> observations here p50/p99 {f(st['nodes']['p50'])}/"
+                      f"{f(st['nodes']['p99'])} ms, -> pose here {f(st['localizer']['p50'])}/"
+                      f"{f(st['localizer']['p99'])} ms")
                 for lines in r["node_logs"].values():
                     for ln in lines:
                         print(f"{'':<10} {ln}")

@@ -205,6 +205,11 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     summary["observation_messages"] = messages
     summary["stages_ms"] = _stages(received, arrived)
     summary["start_at"] = start_at  # the wall-clock time of every recording's first frame
+    # the first pose's capture time after the first frame, and the rate of poses from then on
+    first = min((stamp for _, stamp, _ in received), default=None)
+    summary["first_pose_s"] = None if first is None else first - start_at
+    summary["poses_per_second_once_tracked"] = (None if first is None or start_at + seconds <= first
+                                                else len(received) / (start_at + seconds - first))
     return summary
 
 

@@ -22,15 +22,17 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from ..api import load_rig
+from ..core.camera import Camera
+from ..core.observations import ObservationSet
 from ..core.rig import Rig
-from ..errors import InputError
+from ..errors import InputError, MutlocError
 from ..track.frames import expanded_rig
 from ..track.sources import Frame
 from ..track.tracker import DEFAULT_FPS, ObserverDetector
@@ -66,6 +68,7 @@ class NodeStats:
     dropped: int = 0
     corrupt: int = 0
     out_of_order: int = 0
+    unexpressed: int = 0  # detections left out: the rig's camera cannot express their ray (--camera-info use)
     markers_seen: int = 0  # in the last processed frame
     latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     #: Per published message, seconds: ``(capture -> taken by the node, detection (wall), detection (this
@@ -106,8 +109,9 @@ class NodeStats:
 
     def summary(self) -> str:
         """The line printed at exit."""
-        extra = "".join(f", {n} {what}" for n, what in ((self.corrupt, "corrupt"), (self.out_of_order, "out of order"))
-                        if n)
+        extra = "".join(f", {n} {what}" for n, what in (
+            (self.corrupt, "corrupt"), (self.out_of_order, "out of order"),
+            (self.unexpressed, "detections outside the rig's camera")) if n)
         lat = ""
         if self.latencies:
             lat = (f"; capture->publish p50 {percentile_ms(self.latencies, 50):.1f} ms, "
@@ -123,7 +127,18 @@ class Node:
     SPEC's id of the rig file the localizer loads); ``fps``: the rate the
     blinking-light trackers assume (default the source's, else 30);
     ``diagnostics``: also publish the node's own ``/diagnostics`` status once
-    a second; ``report(line)``: where status lines and notes go."""
+    a second; ``report(line)``: where status lines and notes go.
+
+    A source that announces its own camera model and asks for it to be used
+    (a ROS topic with ``--camera-info use``: ``source.use_info``) has the
+    detectors work in that camera (its intrinsics, distortion and image
+    size), and each published pixel re-expressed in the rig's camera of this
+    robot -- the pixel the rig's camera would see along the same ray -- so
+    the message stays what the SPEC says (rig pixels) and a localizer that
+    knows only the rig file gets the right bearings.  A detection whose ray
+    the rig's camera cannot express (behind it, beyond half an image outside
+    it, or where its distortion does not invert) is left out and counted
+    (:attr:`NodeStats.unexpressed`)."""
 
     def __init__(self, rig: Any, robot: str, source: CameraSource, bus: Any, *, rig_id: str | None = None,
                  fps: float | None = None, diagnostics: bool = False,
@@ -148,6 +163,9 @@ class Node:
         self.stats = NodeStats(robot, source.name, self.topic)
         self._last_t = -np.inf
         self._said: set[str] = set()
+        self.use_info = bool(getattr(source, "use_info", False))
+        #: The camera the detectors work in when it is not the rig's (``use_info``: the camera_info's).
+        self.camera: Camera | None = None
 
     def warm_up(self) -> None:
         """Run a throwaway copy of the detectors on a blank and a noise image:
@@ -189,6 +207,8 @@ class Node:
             s.out_of_order += 1
             return None
         self._last_t = frame.t
+        if self.use_info:
+            self._check_camera(frame)
         # A replayed frame's detectors run on the recording's own clock (the blink trackers' timing).
         seen = Frame(frame.index, frame.source_time if isinstance(self.source, ReplaySource) else frame.t,
                      frame.image)
@@ -197,6 +217,8 @@ class Node:
         found = self.detector.detect(seen)
         t1, c1 = time.time(), time.thread_time()
         obs = found.observations(self.robot, frame.t)
+        if self.camera is not None:
+            obs = self._in_rig_pixels(obs)
         msg = observations_message(self.robot, self.rig_id, frame.index, frame.t, obs, frame.source_time)
         self.writer.write(msg)
         done = time.time()
@@ -206,6 +228,51 @@ class Node:
         s.processed += 1
         s.markers_seen = len(msg.observations)
         return msg
+
+    def _check_camera(self, frame: LiveFrame) -> None:
+        """Detect in the camera the source announced (the first frame: the
+        detectors set up for it); InputError when the image is not its size."""
+        camera = self.source.camera
+        if camera is None:
+            raise InputError(f"camera {self.source.name}: a frame came before its camera model")
+        if self.camera is None:
+            rig_camera = self.rig.robot(self.robot).camera
+            self.camera = camera
+            robots = dict(self.rig.robots)
+            robots[self.robot] = replace(robots[self.robot], camera=camera)
+            self.detector = ObserverDetector(Rig(robots), self.robot, self.others, self.detector_fps)
+            self.report(f"camera model from {getattr(self.source, 'info_topic', self.source.name)}: {camera!r}; "
+                        f"pixels published in the rig's camera {rig_camera!r}")
+        h, w = frame.image.shape[:2]
+        if (w, h) != tuple(camera.size):
+            raise InputError(f"camera {self.source.name}: image is {w}x{h} but its camera_info says "
+                             f"{camera.size[0]}x{camera.size[1]}")
+
+    def _in_rig_pixels(self, obs: ObservationSet) -> ObservationSet:
+        """``obs`` (pixels of :attr:`camera`) as pixels of the rig's camera
+        along the same rays; detections it cannot express are left out (counted)."""
+        if not len(obs):
+            return obs
+        rig_camera = self.rig.robot(self.robot).camera
+        keep, uv = [], []
+        for i, pix in enumerate(obs.uv):
+            try:
+                ray = self.camera.pixels_to_bearings(pix)
+                out = rig_camera.project(ray)
+                back = rig_camera.pixels_to_bearings(out)
+            except MutlocError:
+                continue
+            if rig_camera.size is not None:
+                w, h = rig_camera.size
+                if not (-0.5 * w <= out[0] <= 1.5 * w and -0.5 * h <= out[1] <= 1.5 * h):
+                    continue
+            if np.all(np.isfinite(out)) and float(ray @ back) > 1.0 - 1e-9:  # the ray comes back: invertible there
+                keep.append(i)
+                uv.append(out)
+        self.stats.unexpressed += len(obs) - len(keep)
+        return ObservationSet([obs.observer[i] for i in keep], [obs.marker[i] for i in keep],
+                              np.asarray(uv, float).reshape(-1, 2), obs.time[keep] if len(keep) else None,
+                              obs.score[keep])
 
     def _publish_diagnostics(self) -> None:
         s = self.stats
