@@ -592,3 +592,29 @@ def test_camera_info_use_needs_a_ros_topic(sim, capsys):
                    "--camera-info", "use", "--loopback", "--domain", str(BASE_DOMAIN + 3)])
     err = capsys.readouterr().err.strip()
     assert status == 2 and len(err.splitlines()) == 1 and "--camera-info use" in err and "ros:/" in err, err
+
+
+@pytest.mark.parametrize("kind, at_least", [("balls", 1), ("tags", 8), ("lights", 2)])
+def test_the_warm_up_shows_the_detectors_the_markers_they_look_for(kind, at_least):
+    """A node warms its detectors up on drawn images of the other robots'
+    markers, so that the kernels a first real detection needs are loaded
+    before the first frame (bench_live.py measures the difference): the
+    detectors must find them there -- the tags' corners, the blinking
+    lights by their blink, named -- or the warm-up would not reach those kernels."""
+    from mutloc.sim.world import standard_rig
+    from mutloc.track.frames import expanded_rig
+    from mutloc.track.sources import Frame
+    from mutloc.track.tracker import ObserverDetector
+    from mutloc.live.node import warm_up_images
+
+    rig = expanded_rig(standard_rig(kind, size=(480, 270), f=400.0))
+    images = warm_up_images(rig, ["p"], (480, 270), 30.0)
+    assert all(im.shape == (270, 480, 3) for im in images)
+    detector = ObserverDetector(rig, "q", ["p"], 30.0)
+    found = set()
+    for k, image in enumerate(images):
+        frame = Frame(k, k / 30.0, image)
+        detector.feed(frame)
+        found |= set(detector.detect(frame).detections)
+    assert len(found) >= at_least and found <= set(rig.robot("p").markers), sorted(found)
+    assert len(images) == (36 if kind == "lights" else 1)  # lights: 1.2 s of blinking at 30 frames/s

@@ -19,6 +19,7 @@ camera (never queued) and counted.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
@@ -31,7 +32,7 @@ import numpy as np
 from ..api import load_rig
 from ..core.camera import Camera
 from ..core.observations import ObservationSet
-from ..core.rig import Rig
+from ..core.rig import MarkerKind, Rig
 from ..errors import InputError, MutlocError
 from ..track.frames import expanded_rig
 from ..track.sources import Frame
@@ -40,7 +41,7 @@ from .cameras import CameraSource, LiveFrame, ReplaySource
 from .messages import (DIAGNOSTICS_TOPIC, OK, WARN, RobotStatus, diagnostics_message, observations_message,
                        observations_topic, rig_id as rig_file_id, ros_types)
 
-__all__ = ["Node", "NodeStats", "percentile_ms", "LATENCY_WINDOW"]
+__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "LATENCY_WINDOW"]
 
 #: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
 LATENCY_WINDOW = 108_000
@@ -120,6 +121,58 @@ class NodeStats:
                 f"(published on {self.topic}), {self.dropped} dropped{extra}{lat}")
 
 
+def warm_up_images(rig: Rig, others: list[str], size: tuple[int, int], fps: float) -> list[np.ndarray]:
+    """Images of ``size`` (width, height) showing the markers of ``others``
+    as a camera might: coloured balls, tags (their printed pattern), blinking
+    lights switching at their rates over 1.2 s of frames at ``fps`` (their
+    tracker names a light after 0.7 s of blink history); none when there is
+    nothing to draw.  What :meth:`Node.warm_up` runs the detectors on."""
+    import cv2
+
+    markers = [m for r in others for m in rig.robot(r).markers.values()
+               if m.kind in (MarkerKind.BALL, MarkerKind.LIGHT, MarkerKind.TAG)]
+    if not markers:
+        return []
+    w, h = size
+    cell = max(24, min(w, h) // 6)  # one marker per cell of a grid
+    cols = max(1, w // cell)
+    places = [((k % cols) * cell + cell // 2, (k // cols) * cell + cell // 2) for k in range(len(markers))]
+    lights = any(m.kind == MarkerKind.LIGHT for m in markers)
+    n = int(math.ceil(1.2 * fps)) if lights else 1
+    images = []
+    for k in range(n):
+        t = k / fps
+        img = np.full((h, w, 3), 60, np.uint8)
+        for m, (x, y) in zip(markers, places):
+            if y + cell // 2 > h:
+                break  # (more markers than the grid holds: those drawn suffice)
+            bgr = tuple(int(c) for c in (m.color or (255, 255, 255))[::-1])
+            radius = max(4, cell // 5)
+            if m.kind == MarkerKind.BALL:
+                cv2.circle(img, (x, y), radius, bgr, -1, cv2.LINE_AA)
+            elif m.kind == MarkerKind.LIGHT:
+                if math.sin(2 * math.pi * float(m.blink_hz) * t) >= 0:
+                    cv2.circle(img, (x, y), radius // 2 + 1, bgr, -1, cv2.LINE_AA)
+            else:
+                from ..sim.world import tag_image
+
+                try:
+                    from ..detect.tags import tag_spec
+
+                    family, tag_id, _ = tag_spec(m)
+                    pattern = tag_image(family, tag_id)
+                except MutlocError:
+                    continue
+                side = (cell * 3 // 4) // pattern.shape[0] * pattern.shape[0]
+                if side < pattern.shape[0] * 2:
+                    continue
+                tag = cv2.resize(pattern, (side, side), interpolation=cv2.INTER_NEAREST)
+                x0, y0 = x - side // 2, y - side // 2
+                img[y0:y0 + side, x0:x0 + side] = tag[:, :, None]
+        images.append(cv2.GaussianBlur(img, (3, 3), 0.8))
+    return images
+
+
 class Node:
     """Robot ``robot``'s node: detections of ``source``'s frames published on ``bus``.
 
@@ -168,15 +221,21 @@ class Node:
         self.camera: Camera | None = None
 
     def warm_up(self) -> None:
-        """Run a throwaway copy of the detectors on a blank and a noise image:
-        loads their compiled kernels before the first frame, which would
-        otherwise be late by a quarter of a second and push the next ones out."""
+        """Run a throwaway copy of the detectors on a blank and a noise image,
+        then on drawn images of the markers they look for (balls, blinking
+        lights over a second of frames, tags): loads every compiled kernel
+        they use before the first frame.  A kernel first needed when a marker
+        is first seen costs up to half a second (Numba loading it and its
+        registries): the frame, and those behind it, would be that late, and
+        a blinking light's tracker would miss frames."""
         w, h = self.rig.robot(self.robot).camera.size or (640, 480)
         spare = ObserverDetector(self.rig, self.robot, self.others, self.detector_fps)
         # faint noise: full-range noise is a blob on every pixel, and the blinking lights' tracker
         # would spend minutes giving each a track
         noise = np.random.default_rng(0).integers(0, 8, (h, w, 3), dtype=np.uint8)
-        for k, image in enumerate((np.zeros((h, w, 3), np.uint8), noise)):
+        images = [np.zeros((h, w, 3), np.uint8), noise, *warm_up_images(self.rig, self.others, (w, h),
+                                                                         self.detector_fps)]
+        for k, image in enumerate(images):
             frame = Frame(k, k / self.detector_fps, image)
             spare.feed(frame)
             spare.detect(frame)
