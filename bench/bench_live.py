@@ -111,19 +111,31 @@ def detection_rate(folder: Path, observer: str = OBSERVER, repeats: int = 3) -> 
             "camera_fps": CAMERA_FPS}
 
 
-def looped_folder(folder: Path, out: Path, seconds: float, fps: float = CAMERA_FPS) -> Path:
-    """A folder of symbolic links playing ``folder``'s images over and over
-    for ``seconds`` at ``fps`` (its own frames.csv)."""
-    images = sorted(p for p in folder.iterdir() if p.suffix == ".png")
+def raw_copy(folder: Path, out: Path) -> Path:
+    """``folder``'s images (and frames.csv) as BMP in ``out``: a replayed frame
+    then costs its node a copy (1.5 ms per 960x540 frame here), as a camera
+    driver's frame does, not a PNG decoding (9-12 ms, more than most
+    detectors: it would be measured as the node's)."""
     out.mkdir(parents=True, exist_ok=True)
-    n = int(round(seconds * fps))
-    lines = ["frame,timestamp"]
-    for k in range(n):
-        link = out / f"{k:06d}.png"
-        if not link.exists():
-            link.symlink_to(images[k % len(images)].resolve())
-        lines.append(f"{k},{k / fps:.9f}")
-    (out / "frames.csv").write_text("\n".join(lines) + "\n")
+    for png in sorted(folder.glob("*.png")):
+        bmp = out / (png.stem + ".bmp")
+        if not bmp.exists():
+            cv2.imwrite(str(bmp), cv2.imread(str(png), cv2.IMREAD_COLOR))
+    if (folder / "frames.csv").exists():
+        (out / "frames.csv").write_text((folder / "frames.csv").read_text())
+    return out
+
+
+def replay_folders(folder: Path, fmt: str) -> Path:
+    """The sequence ``folder`` with its robots' images in ``fmt`` (``png``: as rendered; ``bmp``: :func:`raw_copy`)."""
+    if fmt == "png":
+        return folder
+    out = folder.parent / f"{folder.name}_{fmt}"
+    for r in ("p", "q"):
+        raw_copy(folder / r, out / r)
+    for name in ("rig.yaml", "frames.csv"):
+        if (folder / name).exists():
+            (out / name).write_bytes((folder / name).read_bytes())
     return out
 
 
@@ -164,7 +176,7 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
     localizer process; what a subscriber here receives (see the module docstring)."""
     from mutloc.live.demo import run_live_pair
 
-    loops = {r: looped_folder(folder / r, root / f"{folder.name}_e2e_{r}", seconds) for r in ("p", "q")}
+    loops = {r: folder / r for r in ("p", "q")}
     # a generous lead-in: a node loads its detectors (the blinking lights' take longest) before the first frame
     s = run_live_pair(folder / "rig.yaml", loops, root / f"{folder.name}_e2e", seconds=seconds, domain=domain,
                       lead_in=12.0)
@@ -174,6 +186,7 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
             "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"],
             "stages_ms": s["stages_ms"], "first_pose_s": s["first_pose_s"],
             "poses_per_second_once_tracked": s["poses_per_second_once_tracked"],
+            "pose_stamps_per_second": s["pose_stamps"] / seconds,
             "node_logs": {r: [ln for ln in text.splitlines() if ln.startswith(("node ", "interrupted"))]
                           for r, text in logs.items() if r != "localizer"},
             "localizer_log": logs["localizer"].strip().splitlines()[-1:]}
@@ -185,6 +198,9 @@ def main() -> None:
     ap.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                     help="what to measure (default all): detection alone, the node alone, end to end")
+    ap.add_argument("--replay-format", choices=("bmp", "png"), default="bmp",
+                    help="the images the nodes replay: bmp (default: a frame costs a copy, as a camera's) or the "
+                         "rendered png (a 960x540 PNG costs 9-12 ms to decode, counted as the node's)")
     ap.add_argument("--work", help="keep the rendered sequences here (reused when present)")
     ap.add_argument("--out", default=result_file("live_results.json"))
     args = ap.parse_args()
@@ -195,6 +211,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.work) if args.work else Path(tmp)
         seqs = render_sequences(root, args.kinds, frames)
+        replays = {kind: replay_folders(folder, args.replay_format) for kind, folder in seqs.items()} \
+            if {"node", "e2e"} & set(args.parts) else {}
         detection, latency, e2e = {}, {}, {}
         if "detection" in args.parts:
             print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
@@ -206,16 +224,16 @@ def main() -> None:
             print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
             print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
                   f"{'received p50/p99 ms':>20}")
-            for k, (kind, folder) in enumerate(seqs.items()):
-                loop = looped_folder(folder / OBSERVER, root / f"{folder.name}_loop", seconds)
-                r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, loop, 90 + (os.getpid() + k) % 10)
+            for k, (kind, folder) in enumerate(replays.items()):
+                r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, folder / OBSERVER,
+                                                 90 + (os.getpid() + k) % 10)
                 print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
                       f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
                       f"{r['receive_p99_ms']:<9.1f}")
         if "e2e" in args.parts:
             print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
             print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
-            for k, (kind, folder) in enumerate(seqs.items()):
+            for k, (kind, folder) in enumerate(replays.items()):
                 if kind == "cylinders":
                     continue  # slower than the camera on one core (see detection above)
                 r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
@@ -224,7 +242,8 @@ def main() -> None:
                 print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")
                 if r["first_pose_s"] is not None:
                     print(f"{'':<10} first pose {r['first_pose_s']:.2f} s after the first frame; from then on "
-                          f"{r['poses_per_second_once_tracked']:.1f} poses/s")
+                          f"{r['poses_per_second_once_tracked']:.1f} poses/s; {r['pose_stamps_per_second']:.1f} "
+                          "distinct pose stamps/s over the run")
                 st = r["stages_ms"]
                 f = lambda v: "n/a" if v is None else f"{v:.1f}"  # noqa: E731
                 print(f"{'':<10} capture -> observations here p50/p99 {f(st['nodes']['p50'])}/"
@@ -237,6 +256,7 @@ def main() -> None:
                     print(f"{'':<10} {ln}")
     info["load_average_at_end"] = list(os.getloadavg())
     result = {"machine": info, "size": list(SIZE), "camera_fps": CAMERA_FPS, "frames_per_kind": frames,
+              "replay_format": args.replay_format,
               "replay_seconds": seconds, "detection": detection, "node_latency": latency, "end_to_end": e2e}
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     print(f"\nload average at end {info['load_average_at_end']}; wrote {args.out}")

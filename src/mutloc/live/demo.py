@@ -210,6 +210,8 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     summary["first_pose_s"] = None if first is None else first - start_at
     summary["poses_per_second_once_tracked"] = (None if first is None or start_at + seconds <= first
                                                 else len(received) / (start_at + seconds - first))
+    # a record of one robot's message fused before the other's came gives a pose each: stamps counted once
+    summary["pose_stamps"] = len({_ns(stamp) for _, stamp, _ in received})
     return summary
 
 
