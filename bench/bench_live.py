@@ -12,11 +12,16 @@ Measured:
   what ``mutloc node`` runs: every marker kind of the rig, blinking-light
   trackers fed every frame) over a rendered 960x540 sequence held in
   memory; frames/s (wall and CPU) beside the camera's 30 frames/s;
-* **node capture -> publish latency** on a replayed 30 fps stream (the
-  rendered sequence looped to ``--seconds``, released at its own rate by
+* **node capture -> publish latency** on a replayed 30 fps stream (q's
+  camera, released at its own rate by
   :class:`~mutloc.live.cameras.ReplaySource`, the node in this process on
   DDS loopback): p50/p99 of capture -> publish (the node's own figure) and
   capture -> received by a subscriber of this process, and frames dropped.
+
+The nodes replay the rendered images as BMP (``--replay-format``, default
+``bmp``: a replayed frame then costs its node a copy, as a camera driver's
+frame does, not a PNG decoding of 9-12 ms that would be counted as the
+node's; ``png`` replays the rendered PNGs).
 
 * **end to end**, per marker kind: two ``mutloc node`` processes replaying
   each robot's camera at 30 fps in step and a ``mutloc localizer`` process,

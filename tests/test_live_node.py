@@ -618,3 +618,41 @@ def test_the_warm_up_shows_the_detectors_the_markers_they_look_for(kind, at_leas
         found |= set(detector.detect(frame).detections)
     assert len(found) >= at_least and found <= set(rig.robot("p").markers), sorted(found)
     assert len(images) == (36 if kind == "lights" else 1)  # lights: 1.2 s of blinking at 30 frames/s
+
+
+def test_a_replay_decodes_the_next_image_once_the_node_is_done_with_a_frame(sim):
+    """A replayed image is decoded while the node is idle -- after it said it
+    was done with the frame before (``handled``) -- not while its detector
+    runs; with no word from the node, in time for the next frame's release."""
+    out, _, times = sim
+    period = times[1] - times[0]
+    source = ReplaySource(out / "q", speed=1.0)
+    decoded = {}
+
+    def stream(frames):
+        for f in frames:
+            decoded[f.index] = time.monotonic()  # the image is read (decoded) now
+            yield f
+
+    source.stream = stream(list(source.stream))
+    source.start()
+    try:
+        handled = {}
+        for k in range(4):
+            frame = source.take(5.0)
+            assert frame is not None and frame.index == k
+            if k < 2:  # a node: busy 3 ms with the frame, then done
+                time.sleep(0.003)
+                handled[k] = time.monotonic()
+                source.handled(frame)
+            else:  # a consumer that never says it is done
+                pass
+        released = source.slot.captured
+    finally:
+        source.close()
+    assert released >= 4
+    for k in (0, 1):
+        assert decoded[k + 1] >= handled[k], k  # not while the node worked on frame k
+        assert decoded[k + 1] - handled[k] < 0.6 * period  # but at once after (not near frame k + 1's release)
+    # frame 3 without a word: decoded late in frame 2's period, and frame 3 still came (taken above)
+    assert decoded[3] - decoded[2] > 0.5 * period
