@@ -129,6 +129,9 @@ def warm_up_images(rig: Rig, others: list[str], size: tuple[int, int], fps: floa
     nothing to draw.  What :meth:`Node.warm_up` runs the detectors on."""
     import cv2
 
+    from ..detect.tags import tag_spec
+    from ..sim.world import tag_image
+
     markers = [m for r in others for m in rig.robot(r).markers.values()
                if m.kind in (MarkerKind.BALL, MarkerKind.LIGHT, MarkerKind.TAG)]
     if not markers:
@@ -154,11 +157,7 @@ def warm_up_images(rig: Rig, others: list[str], size: tuple[int, int], fps: floa
                 if math.sin(2 * math.pi * float(m.blink_hz) * t) >= 0:
                     cv2.circle(img, (x, y), radius // 2 + 1, bgr, -1, cv2.LINE_AA)
             else:
-                from ..sim.world import tag_image
-
                 try:
-                    from ..detect.tags import tag_spec
-
                     family, tag_id, _ = tag_spec(m)
                     pattern = tag_image(family, tag_id)
                 except MutlocError:
