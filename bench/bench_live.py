@@ -189,9 +189,12 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
     return {"poses_received": s["poses_received"], "poses_per_second": s["poses_per_second"],
             "observation_messages": s["observation_messages"], "latency_p50_ms": s["latency_ms"]["p50"],
             "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"],
-            "stages_ms": s["stages_ms"], "first_pose_s": s["first_pose_s"],
-            "poses_per_second_once_tracked": s["poses_per_second_once_tracked"],
-            "pose_stamps_per_second": s["pose_stamps"] / seconds,
+            # (absent from an older mutloc's run_live_pair: the benchmark can measure an older node)
+            "stages_ms": s.get("stages_ms", {"nodes": {"p50": None, "p99": None},
+                                             "localizer": {"p50": None, "p99": None}}),
+            "first_pose_s": s.get("first_pose_s"),
+            "poses_per_second_once_tracked": s.get("poses_per_second_once_tracked"),
+            "pose_stamps_per_second": s.get("pose_stamps", 0) / seconds,
             "node_logs": {r: [ln for ln in text.splitlines() if ln.startswith(("node ", "interrupted"))]
                           for r, text in logs.items() if r != "localizer"},
             "localizer_log": logs["localizer"].strip().splitlines()[-1:]}
