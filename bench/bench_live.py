@@ -1,8 +1,9 @@
 #!/usr/bin/env python
 """Live operation benchmark (issue 25): the node, and two nodes with a localizer end to end.
 
-    python bench/bench_live.py            # 60 rendered frames per marker kind, 4 s replays
-    python bench/bench_live.py --quick    # 20 frames, 2 s replays
+    python bench/bench_live.py            # 4 s replays (120 rendered frames per marker kind and robot)
+    python bench/bench_live.py --quick    # 2 s replays (60 frames)
+    python bench/bench_live.py --kinds tags lights --parts e2e --work /tmp/benchlive
 
 Measured:
 
@@ -11,19 +12,29 @@ Measured:
   what ``mutloc node`` runs: every marker kind of the rig, blinking-light
   trackers fed every frame) over a rendered 960x540 sequence held in
   memory; frames/s (wall and CPU) beside the camera's 30 frames/s;
-* **node capture -> publish latency** on a replayed 30 fps stream (the
-  rendered sequence looped to ``--seconds``, released at its own rate by
+* **node capture -> publish latency** on a replayed 30 fps stream (q's
+  camera, released at its own rate by
   :class:`~mutloc.live.cameras.ReplaySource`, the node in this process on
   DDS loopback): p50/p99 of capture -> publish (the node's own figure) and
   capture -> received by a subscriber of this process, and frames dropped.
+
+The nodes replay the rendered images as BMP (``--replay-format``, default
+``bmp``: a replayed frame then costs its node a copy, as a camera driver's
+frame does, not a PNG decoding of 9-12 ms that would be counted as the
+node's; ``png`` replays the rendered PNGs).
 
 * **end to end**, per marker kind: two ``mutloc node`` processes replaying
   each robot's camera at 30 fps in step and a ``mutloc localizer`` process,
   DDS over loopback (:func:`mutloc.live.demo.run_live_pair`); a subscriber
   in this process: poses received per second and capture -> pose received
-  latency p50/p99 (the pose's stamp is its frame's capture time).  The
-  rendered sequence is played again and again to ``--seconds`` (the track
-  restarts where it jumps back: latency and rate are what this measures).
+  latency p50/p99 (the pose's stamp is its frame's capture time), split
+  into capture -> the observation messages received here (the nodes) and
+  -> the pose received here (the localizer); the time from the first frame
+  to the first pose (blinking lights are named only after 0.7 s of blink
+  history) and poses/s from then on; each node's own stage times (its log).
+  The sequence is rendered as long as the replay (a sequence played again
+  from its start would make the robots jump back: the track restarts, and
+  the blinking lights' identities with it, every pass).
 
 The machine and its load average are recorded beside the figures (the
 machine is shared: other work running changes them).  The functions
@@ -65,6 +76,7 @@ from _machine import machine, result_file  # noqa: E402
 cv2.setNumThreads(1)
 
 KINDS = ("balls", "tags", "lights", "cylinders")
+PARTS = ("detection", "node", "e2e")
 CAMERA_FPS = 30.0
 SIZE = (960, 540)
 OBSERVER = "q"  # q's camera, looking for p's markers
@@ -74,7 +86,7 @@ def render_sequences(root: Path, kinds=KINDS, frames: int = 60, size=SIZE, fps: 
     """``{kind: folder}`` of a rendered two-robot sequence per marker kind (rig.yaml, p/, q/)."""
     out = {}
     for kind in kinds:
-        folder = root / kind
+        folder = root / f"{kind}_{frames}"
         if not (folder / "rig.yaml").exists():
             write_simulation(folder, markers=kind, frames=frames, size=size, fps=fps)
         out[kind] = folder
@@ -104,19 +116,31 @@ def detection_rate(folder: Path, observer: str = OBSERVER, repeats: int = 3) -> 
             "camera_fps": CAMERA_FPS}
 
 
-def looped_folder(folder: Path, out: Path, seconds: float, fps: float = CAMERA_FPS) -> Path:
-    """A folder of symbolic links playing ``folder``'s images over and over
-    for ``seconds`` at ``fps`` (its own frames.csv)."""
-    images = sorted(p for p in folder.iterdir() if p.suffix == ".png")
+def raw_copy(folder: Path, out: Path) -> Path:
+    """``folder``'s images (and frames.csv) as BMP in ``out``: a replayed frame
+    then costs its node a copy (1.5 ms per 960x540 frame here), as a camera
+    driver's frame does, not a PNG decoding (9-12 ms, more than most
+    detectors: it would be measured as the node's)."""
     out.mkdir(parents=True, exist_ok=True)
-    n = int(round(seconds * fps))
-    lines = ["frame,timestamp"]
-    for k in range(n):
-        link = out / f"{k:06d}.png"
-        if not link.exists():
-            link.symlink_to(images[k % len(images)].resolve())
-        lines.append(f"{k},{k / fps:.9f}")
-    (out / "frames.csv").write_text("\n".join(lines) + "\n")
+    for png in sorted(folder.glob("*.png")):
+        bmp = out / (png.stem + ".bmp")
+        if not bmp.exists():
+            cv2.imwrite(str(bmp), cv2.imread(str(png), cv2.IMREAD_COLOR))
+    if (folder / "frames.csv").exists():
+        (out / "frames.csv").write_text((folder / "frames.csv").read_text())
+    return out
+
+
+def replay_folders(folder: Path, fmt: str) -> Path:
+    """The sequence ``folder`` with its robots' images in ``fmt`` (``png``: as rendered; ``bmp``: :func:`raw_copy`)."""
+    if fmt == "png":
+        return folder
+    out = folder.parent / f"{folder.name}_{fmt}"
+    for r in ("p", "q"):
+        raw_copy(folder / r, out / r)
+    for name in ("rig.yaml", "frames.csv"):
+        if (folder / name).exists():
+            (out / name).write_bytes((folder / name).read_bytes())
     return out
 
 
@@ -157,55 +181,90 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
     localizer process; what a subscriber here receives (see the module docstring)."""
     from mutloc.live.demo import run_live_pair
 
-    loops = {r: looped_folder(folder / r, root / f"{folder.name}_e2e_{r}", seconds) for r in ("p", "q")}
+    loops = {r: folder / r for r in ("p", "q")}
     # a generous lead-in: a node loads its detectors (the blinking lights' take longest) before the first frame
     s = run_live_pair(folder / "rig.yaml", loops, root / f"{folder.name}_e2e", seconds=seconds, domain=domain,
                       lead_in=12.0)
+    logs = {r: (root / f"{folder.name}_e2e" / f"{r}.log").read_text(encoding="utf-8") for r in ("p", "q", "localizer")}
     return {"poses_received": s["poses_received"], "poses_per_second": s["poses_per_second"],
             "observation_messages": s["observation_messages"], "latency_p50_ms": s["latency_ms"]["p50"],
-            "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"]}
+            "latency_p99_ms": s["latency_ms"]["p99"], "latency_max_ms": s["latency_ms"]["max"],
+            # (absent from an older mutloc's run_live_pair: the benchmark can measure an older node)
+            "stages_ms": s.get("stages_ms", {"nodes": {"p50": None, "p99": None},
+                                             "localizer": {"p50": None, "p99": None}}),
+            "first_pose_s": s.get("first_pose_s"),
+            "poses_per_second_once_tracked": s.get("poses_per_second_once_tracked"),
+            "pose_stamps_per_second": s.get("pose_stamps", 0) / seconds,
+            "node_logs": {r: [ln for ln in text.splitlines() if ln.startswith(("node ", "interrupted"))]
+                          for r, text in logs.items() if r != "localizer"},
+            "localizer_log": logs["localizer"].strip().splitlines()[-1:]}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="20 frames per kind, 2 s replays")
+    ap.add_argument("--quick", action="store_true", help="2 s replays (60 frames per kind) instead of 4 s")
     ap.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
+                    help="what to measure (default all): detection alone, the node alone, end to end")
+    ap.add_argument("--replay-format", choices=("bmp", "png"), default="bmp",
+                    help="the images the nodes replay: bmp (default: a frame costs a copy, as a camera's) or the "
+                         "rendered png (a 960x540 PNG costs 9-12 ms to decode, counted as the node's)")
     ap.add_argument("--work", help="keep the rendered sequences here (reused when present)")
     ap.add_argument("--out", default=result_file("live_results.json"))
     args = ap.parse_args()
-    frames, seconds = (20, 2.0) if args.quick else (60, 4.0)
+    seconds = 2.0 if args.quick else 4.0
+    frames = int(round(seconds * CAMERA_FPS))
     info = machine()
     print(f"machine: {info['cpu']}, {info['cores']} cores, load average {info['load_average_at_start']}")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(args.work) if args.work else Path(tmp)
         seqs = render_sequences(root, args.kinds, frames)
-        detection, latency = {}, {}
-        print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
-        print(f"{'kind':<10} {'frames/s wall':>14} {'frames/s cpu':>13} {'markers/frame':>14}")
-        for kind, folder in seqs.items():
-            r = detection[kind] = detection_rate(folder)
-            print(f"{kind:<10} {r['fps_wall']:>14.1f} {r['fps_cpu']:>13.1f} {r['markers_per_frame']:>14.2f}")
-        print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
-        print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
-              f"{'received p50/p99 ms':>20}")
-        for k, (kind, folder) in enumerate(seqs.items()):
-            loop = looped_folder(folder / OBSERVER, root / f"{kind}_loop", seconds)
-            r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, loop, 90 + (os.getpid() + k) % 10)
-            print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
-                  f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
-                  f"{r['receive_p99_ms']:<9.1f}")
-        print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
-        print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
-        e2e = {}
-        for k, (kind, folder) in enumerate(seqs.items()):
-            if kind == "cylinders":
-                continue  # slower than the camera on one core (see detection above)
-            r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
-            lat = "/".join("n/a" if r[k] is None else f"{r[k]:.1f}"
-                           for k in ("latency_p50_ms", "latency_p99_ms", "latency_max_ms"))
-            print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")
+        replays = {kind: replay_folders(folder, args.replay_format) for kind, folder in seqs.items()} \
+            if {"node", "e2e"} & set(args.parts) else {}
+        detection, latency, e2e = {}, {}, {}
+        if "detection" in args.parts:
+            print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
+            print(f"{'kind':<10} {'frames/s wall':>14} {'frames/s cpu':>13} {'markers/frame':>14}")
+            for kind, folder in seqs.items():
+                r = detection[kind] = detection_rate(folder)
+                print(f"{kind:<10} {r['fps_wall']:>14.1f} {r['fps_cpu']:>13.1f} {r['markers_per_frame']:>14.2f}")
+        if "node" in args.parts:
+            print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
+            print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
+                  f"{'received p50/p99 ms':>20}")
+            for k, (kind, folder) in enumerate(replays.items()):
+                r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, folder / OBSERVER,
+                                                 90 + (os.getpid() + k) % 10)
+                print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
+                      f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
+                      f"{r['receive_p99_ms']:<9.1f}")
+        if "e2e" in args.parts:
+            print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
+            print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
+            for k, (kind, folder) in enumerate(replays.items()):
+                if kind == "cylinders":
+                    continue  # slower than the camera on one core (see detection above)
+                r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
+                lat = "/".join("n/a" if r[k] is None else f"{r[k]:.1f}"
+                               for k in ("latency_p50_ms", "latency_p99_ms", "latency_max_ms"))
+                print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")
+                if r["first_pose_s"] is not None:
+                    print(f"{'':<10} first pose {r['first_pose_s']:.2f} s after the first frame; from then on "
+                          f"{r['poses_per_second_once_tracked']:.1f} poses/s; {r['pose_stamps_per_second']:.1f} "
+                          "distinct pose stamps/s over the run")
+                st = r["stages_ms"]
+                f = lambda v: "n/a" if v is None else f"{v:.1f}"  # noqa: E731
+                print(f"{'':<10} capture -> observations here p50/p99 {f(st['nodes']['p50'])}/"
+                      f"{f(st['nodes']['p99'])} ms, -> pose here {f(st['localizer']['p50'])}/"
+                      f"{f(st['localizer']['p99'])} ms")
+                for lines in r["node_logs"].values():
+                    for ln in lines:
+                        print(f"{'':<10} {ln}")
+                for ln in r["localizer_log"]:
+                    print(f"{'':<10} {ln}")
     info["load_average_at_end"] = list(os.getloadavg())
     result = {"machine": info, "size": list(SIZE), "camera_fps": CAMERA_FPS, "frames_per_kind": frames,
+              "replay_format": args.replay_format,
               "replay_seconds": seconds, "detection": detection, "node_latency": latency, "end_to_end": e2e}
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     print(f"\nload average at end {info['load_average_at_end']}; wrote {args.out}")

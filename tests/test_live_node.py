@@ -27,8 +27,11 @@ import pytest
 
 pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
 
+from mutloc.api import load_rig, localize  # noqa: E402
 from mutloc.cli.main import main  # noqa: E402
-from mutloc.live.cameras import CaptureSource, LatestFrame, LiveFrame, ReplaySource, RosImageSource  # noqa: E402
+from mutloc.errors import InputError, MutlocError  # noqa: E402
+from mutloc.live.cameras import (CaptureSource, LatestFrame, LiveFrame, ReplaySource, RosImageSource,  # noqa: E402
+                                 camera_from_camera_info)
 from mutloc.live.dds import Bus  # noqa: E402
 from mutloc.live.messages import DIAGNOSTICS_TOPIC, observations_topic, rig_id, ros_types, stamp, stamp_of  # noqa: E402
 from mutloc.live.node import Node  # noqa: E402
@@ -403,3 +406,253 @@ def test_a_node_for_blinking_lights_starts_and_publishes(tmp_path):
     assert child.returncode == 0, err
     captured, processed, dropped = _summary_counts(out)
     assert captured == 12 and processed >= 6 and processed + dropped == captured
+
+
+# -- a ROS camera_info that is not the rig's camera (--camera-info) ------------------------------------------------
+
+
+def _camera_info(T, camera, t=0.0, model=None):
+    """The CameraInfo of ``camera`` (plumb_bob, 5 coefficients, unless ``model``)."""
+    w, h = camera.size
+    return T.CameraInfo(header=T.Header(stamp=stamp(t), frame_id="q_camera"), width=w, height=h,
+                        distortion_model=model or "plumb_bob", d=[float(x) for x in camera.dist[:5]],
+                        k=[float(x) for x in camera.K.ravel()])
+
+
+def _run_ros_node(domain, rig, images, info, use_info, frames=None):
+    """A node for q (``rig``) in this process on a ROS topic (``--camera-info use`` when
+    ``use_info``); ``info`` (a CameraInfo) is published beside each image of ``images``.
+    Returns (node, {stamp: frame k} of the images sent, messages received, the node's error)."""
+    T = ros_types()
+    bus = Bus(domain, loopback=True)
+    stop = threading.Event()
+    failed = []
+    try:
+        reader = bus.reader(observations_topic("q"), T.Observations)
+        raw = bus.writer("/q/image_raw", T.Image)
+        info_writer = bus.writer("/q/camera_info", T.CameraInfo)
+        source = RosImageSource(bus, "/q/image_raw", rig_camera=load_rig(rig).robot("q").camera, use_info=use_info)
+        node = Node(rig, "q", source, bus)
+
+        def run():
+            try:
+                node.run(stop=stop, status_every=None)
+            except InputError as exc:
+                failed.append(exc)
+
+        runner = threading.Thread(target=run)
+        runner.start()
+        _wait_matched(raw)
+        _wait_matched(info_writer)
+        sent, got = {}, []
+        for k in frames if frames is not None else range(len(images)):
+            t = time.time()
+            sent[round(t, 6)] = k
+            info_writer.write(info)
+            raw.write(_image_message(T, cv2.imread(str(images[k])), t, "bgr8"))
+            time.sleep(0.25)
+            got += reader.take()
+            if failed:
+                break
+        time.sleep(0.2)
+        got += reader.take()
+    finally:
+        stop.set()
+        runner.join(timeout=10)
+        bus.close()
+    return node, sent, [m for m in got if round(stamp_of(m.header), 6) in sent], (failed or [None])[0]
+
+
+@pytest.fixture(scope="module")
+def other_camera(sim, tmp_path_factory):
+    """The sim's scene rendered by another camera in q (and p): focal 450 instead
+    of 400, barrel distortion k1 = -0.15, 512x288 instead of 480x270."""
+    out = tmp_path_factory.mktemp("other_camera")
+    write_simulation(out, frames=3, size=(512, 288), focal=450.0, k1=-0.15)
+    return out
+
+
+def _pose_error(rig, sim_truth, k, q_pixels):
+    """Translation (m) and rotation (deg) error of the pose localized from p's true
+    pixels and ``q_pixels`` (rig pixels) against frame ``k``'s truth."""
+    frame = sim_truth[k]
+    est = localize(rig, {"p": frame["observations"]["p"], "q": q_pixels})
+    true_R = np.asarray(frame["T_qp"]["R"])
+    dR = est.pose.R @ true_R.T
+    angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(est.pose.t - np.asarray(frame["T_qp"]["t"]))), float(angle)
+
+
+def test_camera_info_use_detects_in_the_announced_camera_and_publishes_rig_pixels(sim, other_camera):
+    """q's images come from a camera whose camera_info differs from the rig's
+    (focal, distortion, size).  With --camera-info use the node detects in
+    that camera and publishes the pixels the rig's camera would have seen:
+    they match the rendered truth of the rig's camera, and the pose from them
+    matches the true pose.  Checked only (the default), the node warns, naming
+    the differences, and its pixels are the other camera's (the pose is off)."""
+    out, _, _ = sim
+    truth = json.loads((out / "truth.json").read_text())["frames"]
+    assert np.allclose(json.loads((other_camera / "truth.json").read_text())["frames"][1]["T_qp"]["t"],
+                       truth[1]["T_qp"]["t"]), "the same scene"
+    other = load_rig(other_camera / "rig.yaml").robot("q").camera
+    T = ros_types()
+    images = [other_camera / "q" / f"{k:06d}.png" for k in range(3)]
+    node, sent, got, error = _run_ros_node(BASE_DOMAIN, out / "rig.yaml", images, _camera_info(T, other), True)
+    assert error is None, error
+    assert node.camera is not None and node.camera.size == (512, 288)
+    assert len(got) >= 2
+    for m in got:
+        k = sent[round(stamp_of(m.header), 6)]
+        seen, exact = _seen(m), truth[k]["observations"]["q"]
+        assert set(seen) == set(exact)
+        for marker, uv in seen.items():
+            assert np.hypot(*(np.subtract(uv, exact[marker]))) < 1.0, (marker, uv, exact[marker])
+        dt, dr = _pose_error(out / "rig.yaml", truth, k, seen)
+        assert dt < 0.02 and dr < 1.0, (dt, dr)
+
+    # checked only: a warning names the differences, and images of another size than the rig's stop the node
+    node, sent, got, error = _run_ros_node(BASE_DOMAIN, out / "rig.yaml", images, _camera_info(T, other), False,
+                                           frames=[0, 0])
+    notes = node.source.notes
+    assert isinstance(error, InputError) and "image is 512x288 but robot 'q''s calibration is 480x270" in str(error)
+    assert node.camera is None and not got
+    assert len(notes) == 1 and "fx=450" in notes[0] and "fx=400" in notes[0] and "512x288" in notes[0] \
+        and "distortion differs" in notes[0] and "--camera-info use" in notes[0], notes
+
+
+def test_camera_info_checked_gives_the_other_cameras_pixels_and_a_wrong_pose(sim, other_camera):
+    """Without --camera-info use the rig's camera is assumed: the same frames
+    through a node in the library give the other camera's pixels, which the
+    truth of the rig's camera and the pose disagree with (what ``use`` fixes)."""
+    out, _, _ = sim
+    truth = json.loads((out / "truth.json").read_text())["frames"]
+    rig = load_rig(out / "rig.yaml")
+    other_rig = load_rig(other_camera / "rig.yaml")
+    # q's detections in the other camera's images, taken as rig pixels (what a checking node sends)
+    from mutloc.track.frames import detect_markers, expanded_rig
+
+    image = cv2.imread(str(other_camera / "q" / "000001.png"))
+    seen = detect_markers(expanded_rig(other_rig), "q", image, targets=["p"]).pixels()
+    exact = truth[1]["observations"]["q"]
+    assert max(np.hypot(*np.subtract(seen[m], exact[m])) for m in exact) > 10.0
+    try:
+        dt, dr = _pose_error(rig, truth, 1, seen)
+    except MutlocError:
+        return  # inconsistent: refused, also not the pose
+    assert dt > 0.05 or dr > 2.0, (dt, dr)
+
+
+@pytest.mark.parametrize("change, says", [
+    (dict(k=[0.0] * 9), "focal lengths must be positive"),
+    (dict(d=[-0.1, 0.0, 0.0]), "plumb_bob has 5 distortion coefficients, d has 3"),
+    (dict(distortion_model="equidistant", d=[0.0] * 4), "distortion model 'equidistant' is not supported"),
+    (dict(width=0, height=0), "image size 0x0"),
+    (dict(binning_x=2, binning_y=2), "binning"),
+])
+def test_a_bad_camera_info_is_one_line(sim, change, says):
+    out, _, _ = sim
+    T = ros_types()
+    info = _camera_info(T, load_rig(out / "rig.yaml").robot("q").camera)
+    for key, value in change.items():
+        setattr(info, key, value)
+    with pytest.raises(InputError) as err:
+        camera_from_camera_info(info, "camera_info on /q/camera_info")
+    text = str(err.value)
+    assert text.startswith("camera_info on /q/camera_info: ") and says in text and "\n" not in text, text
+
+
+def test_a_node_using_a_bad_camera_info_stops_with_one_line(sim, other_camera):
+    """--camera-info use: a camera_info with no focal length, or images of
+    another size than it says, stop the node with a one-line InputError;
+    checked only, the bad camera_info is a warning and the rig's camera is used."""
+    out, _, _ = sim
+    T = ros_types()
+    images = [other_camera / "q" / "000000.png"]
+    zero = _camera_info(T, load_rig(other_camera / "rig.yaml").robot("q").camera)
+    zero.k = [0.0] * 9
+    _, _, got, error = _run_ros_node(BASE_DOMAIN + 1, out / "rig.yaml", images, zero, True, frames=[0, 0, 0])
+    assert isinstance(error, InputError) and not got
+    assert "camera_info on /q/camera_info: focal lengths must be positive" in str(error)
+    assert "\n" not in str(error)
+    # the rig's camera (480x270) announced, 512x288 images sent
+    rig_info = _camera_info(T, load_rig(out / "rig.yaml").robot("q").camera)
+    _, _, got, error = _run_ros_node(BASE_DOMAIN + 1, out / "rig.yaml", images, rig_info, True, frames=[0, 0])
+    assert isinstance(error, InputError) and not got
+    assert str(error) == "camera ros:/q/image_raw: image is 512x288 but its camera_info says 480x270"
+    node, _, _, error = _run_ros_node(BASE_DOMAIN + 1, out / "rig.yaml", [out / "q" / "000000.png"], zero, False,
+                                      frames=[0, 0])
+    assert error is None and node.camera is None
+    assert node.source.notes == ["camera_info on /q/camera_info: focal lengths must be positive and finite, got fx=0 "
+                                 "fy=0 (an uncalibrated camera?) (the rig's camera is used)"]
+
+
+def test_camera_info_use_needs_a_ros_topic(sim, capsys):
+    out, _, _ = sim
+    status = main(["node", "--rig", str(out / "rig.yaml"), "--robot", "q", "--camera", str(out / "q"), "--realtime",
+                   "--camera-info", "use", "--loopback", "--domain", str(BASE_DOMAIN + 3)])
+    err = capsys.readouterr().err.strip()
+    assert status == 2 and len(err.splitlines()) == 1 and "--camera-info use" in err and "ros:/" in err, err
+
+
+@pytest.mark.parametrize("kind, at_least", [("balls", 1), ("tags", 8), ("lights", 2)])
+def test_the_warm_up_shows_the_detectors_the_markers_they_look_for(kind, at_least):
+    """A node warms its detectors up on drawn images of the other robots'
+    markers, so that the kernels a first real detection needs are loaded
+    before the first frame (bench_live.py measures the difference): the
+    detectors must find them there -- the tags' corners, the blinking
+    lights by their blink, named -- or the warm-up would not reach those kernels."""
+    from mutloc.sim.world import standard_rig
+    from mutloc.track.frames import expanded_rig
+    from mutloc.track.sources import Frame
+    from mutloc.track.tracker import ObserverDetector
+    from mutloc.live.node import warm_up_images
+
+    rig = expanded_rig(standard_rig(kind, size=(480, 270), f=400.0))
+    images = warm_up_images(rig, ["p"], (480, 270), 30.0)
+    assert all(im.shape == (270, 480, 3) for im in images)
+    detector = ObserverDetector(rig, "q", ["p"], 30.0)
+    found = set()
+    for k, image in enumerate(images):
+        frame = Frame(k, k / 30.0, image)
+        detector.feed(frame)
+        found |= set(detector.detect(frame).detections)
+    assert len(found) >= at_least and found <= set(rig.robot("p").markers), sorted(found)
+    assert len(images) == (36 if kind == "lights" else 1)  # lights: 1.2 s of blinking at 30 frames/s
+
+
+def test_a_replay_decodes_the_next_image_once_the_node_is_done_with_a_frame(sim):
+    """A replayed image is decoded while the node is idle -- after it said it
+    was done with the frame before (``handled``) -- not while its detector
+    runs; with no word from the node, in time for the next frame's release."""
+    out, _, times = sim
+    period = times[1] - times[0]
+    source = ReplaySource(out / "q", speed=1.0)
+    decoded = {}
+
+    def stream(frames):
+        for f in frames:
+            decoded[f.index] = time.monotonic()  # the image is read (decoded) now
+            yield f
+
+    source.stream = stream(list(source.stream))
+    source.start()
+    try:
+        handled = {}
+        for k in range(4):
+            frame = source.take(5.0)
+            assert frame is not None and frame.index == k
+            if k < 2:  # a node: busy 3 ms with the frame, then done
+                time.sleep(0.003)
+                handled[k] = time.monotonic()
+                source.handled(frame)
+            else:  # a consumer that never says it is done
+                pass
+        released = source.slot.captured
+    finally:
+        source.close()
+    assert released >= 4
+    for k in (0, 1):
+        assert decoded[k + 1] >= handled[k], k  # not while the node worked on frame k
+        assert decoded[k + 1] - handled[k] < 0.6 * period  # but at once after (not near frame k + 1's release)
+    # frame 3 without a word: decoded late in frame 2's period, and frame 3 still came (taken above)
+    assert decoded[3] - decoded[2] > 0.5 * period

@@ -23,7 +23,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--camera", required=True, metavar="SOURCE",
                    help="a camera device (/dev/video0 or 0), a GStreamer pipeline or stream URL (rtsp://...), a ROS 2 "
                         "image topic (ros:/p/image_raw, or .../compressed; its camera_info is checked against the "
-                        "rig), or a recorded video, image folder or bag (with --realtime)")
+                        "rig, or used: --camera-info), or a recorded video, image folder or bag (with --realtime)")
     p.add_argument("--realtime", nargs="?", const=1.0, type=positive_float, metavar="SPEED",
                    help="replay a recording as a camera: frames released at their own rate (times SPEED, default 1), "
                         "stamped with the wall-clock time of their scheduled release")
@@ -32,6 +32,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="with --realtime: release the first frame at this wall-clock time (seconds since 1970), so "
                         "that the replays of several robots run in step")
     p.add_argument("--topic", metavar="TOPIC", help="the image topic of a recorded bag")
+    p.add_argument("--camera-info", choices=("check", "use"), default="check",
+                   help="a ROS image topic's camera_info: check it against the rig's camera of this robot and warn "
+                        "when they differ (default), or use it: detect in the camera it describes (K, D plumb_bob or "
+                        "rational_polynomial, width, height) and publish pixels re-expressed in the rig's camera "
+                        "(same rays), so the localizer needs only the rig file")
     p.add_argument("--diagnostics", action="store_true",
                    help="also publish the node's own status on /diagnostics once a second")
     p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
@@ -59,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     # A device, stream or recording is opened before joining DDS: a bad one fails at once.
     bus = Bus(domain, loopback=loopback_wanted(args)) if camera_kind(args.camera) == "ros" else None
     source = open_camera(args.camera, bus=bus, realtime=args.realtime, topic=args.topic, loop=args.loop,
-                         rig_camera=rig.robot(args.robot).camera, start_at=args.start_at)
+                         rig_camera=rig.robot(args.robot).camera, start_at=args.start_at,
+                         camera_info=args.camera_info)
     bus = bus or Bus(domain, loopback=loopback_wanted(args))
     try:
         node = Node(args.rig, args.robot, source, bus, diagnostics=args.diagnostics, report=say)
@@ -68,8 +74,12 @@ def run(args: argparse.Namespace) -> int:
         try:
             stats = node.run(duration=args.duration, status_every=args.status_every if args.progress else None)
         except KeyboardInterrupt:
+            if node.stats.stages:
+                print(node.stats.stage_line(), file=sys.stderr, flush=True)
             print(f"interrupted: {node.stats.summary()}", file=sys.stderr, flush=True)
             return 130
+        if stats.stages:
+            print(stats.stage_line(), flush=True)
         print(stats.summary(), flush=True)
         return 0
     finally:

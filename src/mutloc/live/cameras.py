@@ -26,6 +26,7 @@ import os
 import re
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -35,11 +36,17 @@ import numpy as np
 
 from .._extras import require
 from ..core.camera import Camera
-from ..errors import InputError
-from ..track.sources import Frame, camera_from_info, image_from_message, open_source
+from ..errors import InputError, MutlocError
+from ..track.sources import Frame, image_from_message, open_source
 
 __all__ = ["LiveFrame", "LatestFrame", "CameraSource", "CaptureSource", "ReplaySource", "RosImageSource",
-           "open_camera", "camera_kind", "camera_info_topic", "compare_cameras", "RECORDING_NEEDS_REALTIME"]
+           "open_camera", "camera_kind", "camera_info_topic", "compare_cameras", "camera_from_camera_info",
+           "CAMERA_INFO_MODES", "DISTORTION_MODELS", "RECORDING_NEEDS_REALTIME"]
+
+#: ``--camera-info``: ``check`` a ROS camera_info against the rig's camera (warn when they differ), or ``use`` it.
+CAMERA_INFO_MODES = ("check", "use")
+#: The camera_info distortion models mutloc's camera takes, with their number of coefficients.
+DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}
 
 RECORDING_NEEDS_REALTIME = "a recording is replayed as a camera only with --realtime (frames released at their " \
                            "own rate, stamped when released)"
@@ -77,6 +84,12 @@ class LatestFrame:
             self.dropped += skipped + (self._frame is not None)
             self._frame = frame
             self._cond.notify_all()
+
+    def skip(self, n: int = 1) -> None:
+        """``n`` frames captured that the node has no use for (counted as captured and dropped)."""
+        with self._cond:
+            self.captured += n
+            self.dropped += n
 
     def end(self, error: str | None = None) -> None:
         """No frame will come after the one waiting (``error``: why, when it is a failure)."""
@@ -124,6 +137,26 @@ class CameraSource:
         self.notes: list[str] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._handled = threading.Condition()
+        self._handled_index = -1
+
+    def handled(self, frame: LiveFrame) -> None:
+        """The consumer is done with ``frame`` (the node published it): a
+        source that has work of its own to do between frames (a replay's
+        decoding) does it now rather than while the detector runs."""
+        with self._handled:
+            self._handled_index = max(self._handled_index, frame.index)
+            self._handled.notify_all()
+
+    def _wait_handled(self, index: int, deadline: float) -> None:
+        """Wait until frame ``index`` (or a later one) was :meth:`handled`, or
+        until ``deadline`` (``time.monotonic()``), or the source stops."""
+        with self._handled:
+            while self._handled_index < index and not self._stop.is_set():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._handled.wait(min(left, 0.05))
 
     def start(self) -> "CameraSource":
         self._thread = threading.Thread(target=self._guarded, name=f"mutloc camera {self.name}", daemon=True)
@@ -170,6 +203,8 @@ class CameraSource:
     def close(self) -> None:
         """Stop the thread; a frame left waiting counts as dropped."""
         self._stop.set()
+        with self._handled:
+            self._handled.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self.slot.discard()
@@ -268,7 +303,11 @@ class ReplaySource(CameraSource):
     driver hands the frame on), its own time in the recording as
     ``source_time``.  Images are decoded before their
     release time (a camera's readout), so the stamps keep the recording's
-    spacing while decoding keeps up.  ``loop``: play it again and again (frame
+    spacing while decoding keeps up; the next image is decoded once the
+    node is done with the frame released (:meth:`~CameraSource.handled`),
+    or when its release is near, so that decoding (a PNG of 960x540 takes
+    longer than most detectors) does not take the CPU from the detector as
+    a camera's readout would not.  ``loop``: play it again and again (frame
     numbers and ``source_time`` going on from one pass to the next).
     ``start_at``: the wall-clock time (UNIX seconds) at which the first
     frame is released, so that several replays (one per robot) run in step;
@@ -296,11 +335,25 @@ class ReplaySource(CameraSource):
     def _run(self) -> None:
         start = t0 = None
         stream, shift, index = self.stream, 0.0, 0
+        period = 1.0 / ((self.fps or 30.0) * self.speed)
+        decoding: deque[float] = deque(maxlen=16)  # the recent decoding times, s
+        released: LiveFrame | None = None
         while True:
             first = last = None
-            for f in stream:
+            frames = iter(stream)
+            while True:
+                if released is not None and start is not None:
+                    # the next image decoded once the node is done with the last frame, or a bit before it is due
+                    margin = 1.5 * max(decoding, default=period) + 0.003
+                    due_next = start + (released.source_time - t0) / self.speed + period
+                    self._wait_handled(released.index, due_next - margin)
                 if self._stop.is_set():
                     return
+                c = time.monotonic()
+                f = next(frames, None)
+                decoding.append(time.monotonic() - c)
+                if f is None:
+                    break
                 t = f.t + shift
                 if start is None:
                     start, wall, t0 = time.monotonic(), time.time(), t
@@ -312,7 +365,8 @@ class ReplaySource(CameraSource):
                     return
                 # stamped with the instant it is due, as a camera stamps its exposure (the thread's
                 # scheduling delay is the transfer's, not the capture's)
-                self.slot.put(LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t))
+                released = LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t)
+                self.slot.put(released)
                 first, last = first or f, f
             if not self.loop or last is None:
                 return
@@ -345,7 +399,48 @@ def compare_cameras(announced: Camera, rig_camera: Camera, where: str) -> str | 
     if not diffs:
         return None
     return f"{where} differs from the rig's camera: {'; '.join(diffs)} (detections and the localizer use the " \
-           "rig's; fix the rig file if the camera_info is right)"
+           "rig's; fix the rig file if the camera_info is right, or give --camera-info use)"
+
+
+def camera_from_camera_info(msg: Any, where: str) -> Camera:
+    """The camera a ``sensor_msgs/msg/CameraInfo`` announces, checked as a
+    calibration to work with: ``k`` a pinhole matrix with positive focal
+    lengths, ``d`` as many coefficients as its ``distortion_model`` has
+    (``plumb_bob`` 5, ``rational_polynomial`` 8; none without a model),
+    ``width`` and ``height`` given, no binning or region of interest.
+    InputError (one line, naming ``where``) otherwise."""
+    def bad(why: str) -> InputError:
+        return InputError(f"{where}: {why}")
+
+    try:
+        k = np.asarray(list(msg.k), float)
+        d = np.asarray(list(msg.d), float)
+        model = str(msg.distortion_model or "")
+        width, height = int(msg.width), int(msg.height)
+    except (AttributeError, TypeError, ValueError):
+        raise bad("not a camera_info message") from None
+    if k.size != 9:
+        raise bad(f"k has {k.size} numbers, a 3x3 matrix has 9")
+    if not (np.all(np.isfinite(k)) and k[0] > 0 and k[4] > 0):
+        raise bad(f"focal lengths must be positive and finite, got fx={k[0]:g} fy={k[4]:g} (an uncalibrated "
+                  "camera?)")
+    if model:
+        if model not in DISTORTION_MODELS:
+            raise bad(f"distortion model {model!r} is not supported ({', '.join(DISTORTION_MODELS)})")
+        if d.size != DISTORTION_MODELS[model]:
+            raise bad(f"{model} has {DISTORTION_MODELS[model]} distortion coefficients, d has {d.size}")
+    elif np.any(d != 0):
+        raise bad(f"d has {d.size} distortion coefficients but no distortion_model")
+    if width <= 0 or height <= 0:
+        raise bad(f"image size {width}x{height}: width and height must be given")
+    roi = msg.roi
+    if int(msg.binning_x) > 1 or int(msg.binning_y) > 1 or int(roi.x_offset) or int(roi.y_offset) or (
+            int(roi.width) and (int(roi.width), int(roi.height)) != (width, height)):
+        raise bad("binning and regions of interest are not supported (publish the full-resolution camera_info)")
+    try:
+        return Camera(k.reshape(3, 3), d if model else None, (width, height))
+    except MutlocError as exc:
+        raise bad(" ".join(str(exc).split())) from None
 
 
 class RosImageSource(CameraSource):
@@ -355,12 +450,16 @@ class RosImageSource(CameraSource):
     ``/compressed``), read with sensor-data QoS.  Each frame is stamped with
     its header's stamp (the driver's capture time; the receive time when the
     stamp is zero).  The first message of the camera_info topic beside it is
-    checked against ``rig_camera``: a difference is a note for the user and
-    :attr:`camera` holds what it announced."""
+    read (:func:`camera_from_camera_info`) into :attr:`camera`.  With
+    ``use_info`` False it is checked against ``rig_camera``: a difference,
+    or a camera_info that holds no valid calibration, is a note for the user
+    (the rig's camera is used).  With ``use_info`` the node takes its camera
+    model from it: frames are dropped (counted) until it came, and one that
+    holds no valid calibration ends the source with that error."""
 
     patient = True
 
-    def __init__(self, bus: Any, topic: str, *, rig_camera: Camera | None = None) -> None:
+    def __init__(self, bus: Any, topic: str, *, rig_camera: Camera | None = None, use_info: bool = False) -> None:
         super().__init__()
         from .messages import ros_types
 
@@ -371,10 +470,12 @@ class RosImageSource(CameraSource):
         self.name = f"ros:{topic}"
         self.compressed = topic.endswith("/compressed")
         self.info_topic = camera_info_topic(topic)
+        self.use_info = bool(use_info)
         self._reader = bus.reader(topic, T.CompressedImage if self.compressed else T.Image, sensor=True)
         self._info = bus.reader(self.info_topic, T.CameraInfo, sensor=True)
         self._participant = bus.participant
         self._rig_camera = rig_camera
+        self._info_read = False
 
     @property
     def malformed(self) -> int:
@@ -382,17 +483,21 @@ class RosImageSource(CameraSource):
         return self._reader.malformed + self._info.malformed
 
     def _check_info(self) -> None:
-        if self.camera is not None:
+        if self._info_read:
             return
         for sample in self._info.take():
+            self._info_read = True
+            where = f"camera_info on {self.info_topic}"
             try:
-                self.camera = camera_from_info(sample)
-            except Exception:  # noqa: BLE001 -- a camera_info with no valid K: said, not fatal
-                self.notes.append(f"camera_info on {self.info_topic} holds no valid calibration")
+                self.camera = camera_from_camera_info(sample, where)
+            except InputError as exc:
+                if self.use_info:
+                    raise
+                self.notes.append(f"{exc} (the rig's camera is used)")
                 self.camera = self._rig_camera
                 return
-            if self._rig_camera is not None:
-                note = compare_cameras(self.camera, self._rig_camera, f"camera_info on {self.info_topic}")
+            if self._rig_camera is not None and not self.use_info:
+                note = compare_cameras(self.camera, self._rig_camera, where)
                 if note:
                     self.notes.append(note)
             return
@@ -410,6 +515,9 @@ class RosImageSource(CameraSource):
             self._check_info()
             samples = self._reader.take()
             if not samples:
+                continue
+            if self.use_info and self.camera is None:
+                self.slot.skip(len(samples))  # no camera model to detect in yet
                 continue
             now = time.time()
             msg = samples[-1]
@@ -437,16 +545,24 @@ def camera_kind(spec: str) -> str:
 
 
 def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, topic: str | None = None,
-                loop: bool = False, rig_camera: Camera | None = None, start_at: float | None = None) -> CameraSource:
+                loop: bool = False, rig_camera: Camera | None = None, start_at: float | None = None,
+                camera_info: str = "check") -> CameraSource:
     """The :class:`CameraSource` ``spec`` names (see the module docstring),
     not started.  ``realtime``: the replay speed of a recording (1: its own
     rate; required for a recording); ``loop``: replay it again and again;
     ``topic``: a bag's image topic; ``bus``:
     the :class:`mutloc.live.dds.Bus` a ROS topic is read on; ``rig_camera``:
     the calibration a camera_info is checked against; ``start_at``: a
-    replay's first frame at that wall-clock time.  InputError (one line)
-    when the source cannot be opened."""
+    replay's first frame at that wall-clock time; ``camera_info``: ``check``
+    a ROS topic's camera_info against ``rig_camera``, or ``use`` it as the
+    camera (see :class:`RosImageSource`).  InputError (one line) when the
+    source cannot be opened."""
     kind = camera_kind(spec)
+    if camera_info not in CAMERA_INFO_MODES:
+        raise InputError(f"--camera-info must be one of {', '.join(CAMERA_INFO_MODES)}, got {camera_info!r}")
+    if camera_info == "use" and kind != "ros":
+        raise InputError(f"--camera-info use takes the camera model from a ROS camera_info topic; --camera {spec} "
+                         "is not a ROS image topic (ros:/TOPIC)")
     if kind != "recording" and topic is not None:
         raise InputError("--topic names the image topic of a bag; for a live ROS topic give --camera ros:TOPIC")
     if kind == "ros":
@@ -455,7 +571,7 @@ def open_camera(spec: str, *, bus: Any = None, realtime: float | None = None, to
             raise InputError(f"--camera {spec!r}: give the image topic, e.g. ros:/p/image_raw")
         if bus is None:
             raise InputError("a ROS image topic is read over DDS: a bus is needed")
-        return RosImageSource(bus, name, rig_camera=rig_camera)
+        return RosImageSource(bus, name, rig_camera=rig_camera, use_info=camera_info == "use")
     if kind == "recording":
         if realtime is None:
             p = Path(spec)

@@ -156,6 +156,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     logs = []
     received: list[tuple[float, float, Any]] = []  # (arrival wall time, stamp, message)
     source_time: dict[int, float] = {}  # stamp ns -> time in the recording
+    arrived: dict[int, float] = {}  # stamp ns -> arrival here of the last observation message of that stamp
     messages = 0
     labels = ["localizer", *folders]
     def launch(name: str, cmd: list[str]) -> None:
@@ -185,7 +186,9 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
                 received.append((now, stamp_of(m.header), m))
             for r in folders:
                 for m in readers[r].take():
-                    source_time[_ns(stamp_of(m.header))] = float(m.source_time)
+                    ns = _ns(stamp_of(m.header))
+                    source_time[ns] = float(m.source_time)
+                    arrived[ns] = now
                     messages += 1
             time.sleep(0.002)
     finally:
@@ -200,12 +203,38 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
         raise InputError(f"the {name} process stopped (exit {failed[0][1]}): {tail[0]}")
     summary = _summary(out, received, source_time, truth, seconds, domain)
     summary["observation_messages"] = messages
+    summary["stages_ms"] = _stages(received, arrived)
     summary["start_at"] = start_at  # the wall-clock time of every recording's first frame
+    # the first pose's capture time after the first frame, and the rate of poses from then on
+    first = min((stamp for _, stamp, _ in received), default=None)
+    summary["first_pose_s"] = None if first is None else first - start_at
+    summary["poses_per_second_once_tracked"] = (None if first is None or start_at + seconds <= first
+                                                else len(received) / (start_at + seconds - first))
+    # a record of one robot's message fused before the other's came gives a pose each: stamps counted once
+    summary["pose_stamps"] = len({_ns(stamp) for _, stamp, _ in received})
     return summary
 
 
 def _ns(t: float) -> int:
     return int(round(t * 1e9))
+
+
+def _stages(received: list, arrived: dict) -> dict[str, dict[str, float | None]]:
+    """Where capture -> pose received went, p50/p99 ms: ``nodes`` (capture ->
+    the last observation message of the pose's stamp received here: the
+    nodes' detection and DDS) and ``localizer`` (that -> the pose received:
+    the localizer's reorder wait, fusion, publishing and DDS)."""
+    nodes, loc = [], []
+    for arrival, stamp, _ in received:
+        last = arrived.get(_ns(stamp))
+        if last is not None:
+            nodes.append(last - stamp)
+            loc.append(max(0.0, arrival - last))
+
+    def pct(v: list[float]) -> dict[str, float | None]:
+        return {q: float(np.percentile(v, int(q[1:])) * 1e3) if v else None for q in ("p50", "p99")}
+
+    return {"nodes": pct(nodes), "localizer": pct(loc)}
 
 
 def _summary(out: Path, received: list, source_time: dict, truth: Callable[[float], Any] | None, seconds: float,

@@ -19,18 +19,21 @@ camera (never queued) and counted.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from ..api import load_rig
-from ..core.rig import Rig
-from ..errors import InputError
+from ..core.camera import Camera
+from ..core.observations import ObservationSet
+from ..core.rig import MarkerKind, Rig
+from ..errors import InputError, MutlocError
 from ..track.frames import expanded_rig
 from ..track.sources import Frame
 from ..track.tracker import DEFAULT_FPS, ObserverDetector
@@ -38,7 +41,7 @@ from .cameras import CameraSource, LiveFrame, ReplaySource
 from .messages import (DIAGNOSTICS_TOPIC, OK, WARN, RobotStatus, diagnostics_message, observations_message,
                        observations_topic, rig_id as rig_file_id, ros_types)
 
-__all__ = ["Node", "NodeStats", "percentile_ms", "LATENCY_WINDOW"]
+__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "LATENCY_WINDOW"]
 
 #: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
 LATENCY_WINDOW = 108_000
@@ -66,9 +69,16 @@ class NodeStats:
     dropped: int = 0
     corrupt: int = 0
     out_of_order: int = 0
+    unexpressed: int = 0  # detections left out: the rig's camera cannot express their ray (--camera-info use)
     markers_seen: int = 0  # in the last processed frame
     latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    #: Per published message, seconds: ``(capture -> taken by the node, detection (wall), detection (this
+    #: thread's CPU), detected -> written)`` (the last :data:`LATENCY_WINDOW`).
+    stages: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     started: float = field(default_factory=time.monotonic)
+    #: This process's CPU time (all threads: camera, detection, DDS) at the start and at the last frame, s.
+    cpu_started: float = field(default_factory=time.process_time)
+    cpu_now: float = field(default_factory=time.process_time)
 
     @property
     def fps(self) -> float:
@@ -87,16 +97,79 @@ class NodeStats:
         return (f"node {self.robot}: {self.captured} captured, {self.processed} processed ({self.fps:.1f}/s), "
                 f"{self.dropped} dropped{self._latency()}, {self.markers_seen} markers in the last frame")
 
+    def stage_line(self) -> str:
+        """Where capture -> publish went: p50/p99 of each stage, ms (empty before the first message)."""
+        if not self.stages:
+            return ""
+        a = np.asarray(self.stages, float)
+        parts = [f"{name} {percentile_ms(a[:, k], 50):.1f}/{percentile_ms(a[:, k], 99):.1f}"
+                 for k, name in enumerate(("waiting", "detect", "detect cpu", "publish"))]
+        cpu = (self.cpu_now - self.cpu_started) / max(1, self.captured) * 1e3
+        return (f"node {self.robot} stages p50/p99 ms: " + ", ".join(parts)
+                + f"; process cpu {cpu:.1f} ms per frame captured")
+
     def summary(self) -> str:
         """The line printed at exit."""
-        extra = "".join(f", {n} {what}" for n, what in ((self.corrupt, "corrupt"), (self.out_of_order, "out of order"))
-                        if n)
+        extra = "".join(f", {n} {what}" for n, what in (
+            (self.corrupt, "corrupt"), (self.out_of_order, "out of order"),
+            (self.unexpressed, "detections outside the rig's camera")) if n)
         lat = ""
         if self.latencies:
             lat = (f"; capture->publish p50 {percentile_ms(self.latencies, 50):.1f} ms, "
                    f"p99 {percentile_ms(self.latencies, 99):.1f} ms")
         return (f"node {self.robot}: {self.captured} frames captured from {self.source}, {self.processed} processed "
                 f"(published on {self.topic}), {self.dropped} dropped{extra}{lat}")
+
+
+def warm_up_images(rig: Rig, others: list[str], size: tuple[int, int], fps: float) -> list[np.ndarray]:
+    """Images of ``size`` (width, height) showing the markers of ``others``
+    as a camera might: coloured balls, tags (their printed pattern), blinking
+    lights switching at their rates over 1.2 s of frames at ``fps`` (their
+    tracker names a light after 0.7 s of blink history); none when there is
+    nothing to draw.  What :meth:`Node.warm_up` runs the detectors on."""
+    import cv2
+
+    from ..detect.tags import tag_spec
+    from ..sim.world import tag_image
+
+    markers = [m for r in others for m in rig.robot(r).markers.values()
+               if m.kind in (MarkerKind.BALL, MarkerKind.LIGHT, MarkerKind.TAG)]
+    if not markers:
+        return []
+    w, h = size
+    cell = max(24, min(w, h) // 6)  # one marker per cell of a grid
+    cols = max(1, w // cell)
+    places = [((k % cols) * cell + cell // 2, (k // cols) * cell + cell // 2) for k in range(len(markers))]
+    lights = any(m.kind == MarkerKind.LIGHT for m in markers)
+    n = int(math.ceil(1.2 * fps)) if lights else 1
+    images = []
+    for k in range(n):
+        t = k / fps
+        img = np.full((h, w, 3), 60, np.uint8)
+        for m, (x, y) in zip(markers, places):
+            if y + cell // 2 > h:
+                break  # (more markers than the grid holds: those drawn suffice)
+            bgr = tuple(int(c) for c in (m.color or (255, 255, 255))[::-1])
+            radius = max(4, cell // 5)
+            if m.kind == MarkerKind.BALL:
+                cv2.circle(img, (x, y), radius, bgr, -1, cv2.LINE_AA)
+            elif m.kind == MarkerKind.LIGHT:
+                if math.sin(2 * math.pi * float(m.blink_hz) * t) >= 0:
+                    cv2.circle(img, (x, y), radius // 2 + 1, bgr, -1, cv2.LINE_AA)
+            else:
+                try:
+                    family, tag_id, _ = tag_spec(m)
+                    pattern = tag_image(family, tag_id)
+                except MutlocError:
+                    continue
+                side = (cell * 3 // 4) // pattern.shape[0] * pattern.shape[0]
+                if side < pattern.shape[0] * 2:
+                    continue
+                tag = cv2.resize(pattern, (side, side), interpolation=cv2.INTER_NEAREST)
+                x0, y0 = x - side // 2, y - side // 2
+                img[y0:y0 + side, x0:x0 + side] = tag[:, :, None]
+        images.append(cv2.GaussianBlur(img, (3, 3), 0.8))
+    return images
 
 
 class Node:
@@ -106,7 +179,18 @@ class Node:
     SPEC's id of the rig file the localizer loads); ``fps``: the rate the
     blinking-light trackers assume (default the source's, else 30);
     ``diagnostics``: also publish the node's own ``/diagnostics`` status once
-    a second; ``report(line)``: where status lines and notes go."""
+    a second; ``report(line)``: where status lines and notes go.
+
+    A source that announces its own camera model and asks for it to be used
+    (a ROS topic with ``--camera-info use``: ``source.use_info``) has the
+    detectors work in that camera (its intrinsics, distortion and image
+    size), and each published pixel re-expressed in the rig's camera of this
+    robot -- the pixel the rig's camera would see along the same ray -- so
+    the message stays what the SPEC says (rig pixels) and a localizer that
+    knows only the rig file gets the right bearings.  A detection whose ray
+    the rig's camera cannot express (behind it, beyond half an image outside
+    it, or where its distortion does not invert) is left out and counted
+    (:attr:`NodeStats.unexpressed`)."""
 
     def __init__(self, rig: Any, robot: str, source: CameraSource, bus: Any, *, rig_id: str | None = None,
                  fps: float | None = None, diagnostics: bool = False,
@@ -131,17 +215,26 @@ class Node:
         self.stats = NodeStats(robot, source.name, self.topic)
         self._last_t = -np.inf
         self._said: set[str] = set()
+        self.use_info = bool(getattr(source, "use_info", False))
+        #: The camera the detectors work in when it is not the rig's (``use_info``: the camera_info's).
+        self.camera: Camera | None = None
 
     def warm_up(self) -> None:
-        """Run a throwaway copy of the detectors on a blank and a noise image:
-        loads their compiled kernels before the first frame, which would
-        otherwise be late by a quarter of a second and push the next ones out."""
+        """Run a throwaway copy of the detectors on a blank and a noise image,
+        then on drawn images of the markers they look for (balls, blinking
+        lights over a second of frames, tags): loads every compiled kernel
+        they use before the first frame.  A kernel first needed when a marker
+        is first seen costs up to half a second (Numba loading it and its
+        registries): the frame, and those behind it, would be that late, and
+        a blinking light's tracker would miss frames."""
         w, h = self.rig.robot(self.robot).camera.size or (640, 480)
         spare = ObserverDetector(self.rig, self.robot, self.others, self.detector_fps)
         # faint noise: full-range noise is a blob on every pixel, and the blinking lights' tracker
         # would spend minutes giving each a track
         noise = np.random.default_rng(0).integers(0, 8, (h, w, 3), dtype=np.uint8)
-        for k, image in enumerate((np.zeros((h, w, 3), np.uint8), noise)):
+        images = [np.zeros((h, w, 3), np.uint8), noise, *warm_up_images(self.rig, self.others, (w, h),
+                                                                         self.detector_fps)]
+        for k, image in enumerate(images):
             frame = Frame(k, k / self.detector_fps, image)
             spare.feed(frame)
             spare.detect(frame)
@@ -159,10 +252,12 @@ class Node:
             time.sleep(0.02)
         return True
 
-    def process(self, frame: LiveFrame) -> Any:
+    def process(self, frame: LiveFrame, taken: float | None = None) -> Any:
         """Detect, publish and return the ``Observations`` message of ``frame``
-        (None for a frame that is not published: corrupt, or out of order)."""
+        (None for a frame that is not published: corrupt, or out of order);
+        ``taken``: the wall-clock time the node took it from the camera (default now)."""
         s = self.stats
+        taken = time.time() if taken is None else taken
         if frame.image is None:
             s.corrupt += 1
             return None
@@ -170,18 +265,72 @@ class Node:
             s.out_of_order += 1
             return None
         self._last_t = frame.t
+        if self.use_info:
+            self._check_camera(frame)
         # A replayed frame's detectors run on the recording's own clock (the blink trackers' timing).
         seen = Frame(frame.index, frame.source_time if isinstance(self.source, ReplaySource) else frame.t,
                      frame.image)
+        t0, c0 = time.time(), time.thread_time()
         self.detector.feed(seen)
         found = self.detector.detect(seen)
+        t1, c1 = time.time(), time.thread_time()
         obs = found.observations(self.robot, frame.t)
+        if self.camera is not None:
+            obs = self._in_rig_pixels(obs)
         msg = observations_message(self.robot, self.rig_id, frame.index, frame.t, obs, frame.source_time)
         self.writer.write(msg)
-        s.latencies.append(time.time() - frame.t)
+        done = time.time()
+        s.latencies.append(done - frame.t)
+        s.stages.append((taken - frame.t, t1 - t0, c1 - c0, done - t1))
+        s.cpu_now = time.process_time()
         s.processed += 1
         s.markers_seen = len(msg.observations)
         return msg
+
+    def _check_camera(self, frame: LiveFrame) -> None:
+        """Detect in the camera the source announced (the first frame: the
+        detectors set up for it); InputError when the image is not its size."""
+        camera = self.source.camera
+        if camera is None:
+            raise InputError(f"camera {self.source.name}: a frame came before its camera model")
+        if self.camera is None:
+            rig_camera = self.rig.robot(self.robot).camera
+            self.camera = camera
+            robots = dict(self.rig.robots)
+            robots[self.robot] = replace(robots[self.robot], camera=camera)
+            self.detector = ObserverDetector(Rig(robots), self.robot, self.others, self.detector_fps)
+            self.report(f"camera model from {getattr(self.source, 'info_topic', self.source.name)}: {camera!r}; "
+                        f"pixels published in the rig's camera {rig_camera!r}")
+        h, w = frame.image.shape[:2]
+        if (w, h) != tuple(camera.size):
+            raise InputError(f"camera {self.source.name}: image is {w}x{h} but its camera_info says "
+                             f"{camera.size[0]}x{camera.size[1]}")
+
+    def _in_rig_pixels(self, obs: ObservationSet) -> ObservationSet:
+        """``obs`` (pixels of :attr:`camera`) as pixels of the rig's camera
+        along the same rays; detections it cannot express are left out (counted)."""
+        if not len(obs):
+            return obs
+        rig_camera = self.rig.robot(self.robot).camera
+        keep, uv = [], []
+        for i, pix in enumerate(obs.uv):
+            try:
+                ray = self.camera.pixels_to_bearings(pix)
+                out = rig_camera.project(ray)
+                back = rig_camera.pixels_to_bearings(out)
+            except MutlocError:
+                continue
+            if rig_camera.size is not None:
+                w, h = rig_camera.size
+                if not (-0.5 * w <= out[0] <= 1.5 * w and -0.5 * h <= out[1] <= 1.5 * h):
+                    continue
+            if np.all(np.isfinite(out)) and float(ray @ back) > 1.0 - 1e-9:  # the ray comes back: invertible there
+                keep.append(i)
+                uv.append(out)
+        self.stats.unexpressed += len(obs) - len(keep)
+        return ObservationSet([obs.observer[i] for i in keep], [obs.marker[i] for i in keep],
+                              np.asarray(uv, float).reshape(-1, 2), obs.time[keep] if len(keep) else None,
+                              obs.score[keep])
 
     def _publish_diagnostics(self) -> None:
         s = self.stats
@@ -212,6 +361,7 @@ class Node:
             self.wait_for_subscriber(subscriber_timeout)
         self.source.start()
         s.started = begin = time.monotonic()
+        s.cpu_started = time.process_time()
         next_status = begin + status_every if status_every else float("inf")
         next_diag = begin
         try:
@@ -222,7 +372,8 @@ class Node:
                 frame = self.source.take(timeout=0.1)
                 s.captured, s.dropped = self.source.captured, self.source.dropped
                 if frame is not None:
-                    self.process(frame)
+                    self.process(frame, time.time())
+                    self.source.handled(frame)
                 elif self.source.finished:
                     if self.source.error:
                         raise InputError(self.source.error)
