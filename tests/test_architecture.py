@@ -52,8 +52,16 @@ def test_no_private_name_crosses_modules():
     assert not bad, "\n".join(bad)
 
 
+#: A dependency's private module mutloc uses, where, and why (each with a fallback to the public API).
+THIRD_PARTY_PRIVATE = {
+    ("live/dds.py", "cyclonedds._clayer"): "taking samples as bytes in bulk (each undecodable one still counted); "
+                                           "without it, the public take of one sample at a time",
+}
+
+
 def test_private_modules_are_private_to_their_package():
-    """``mutloc.x._y`` is imported only from inside ``mutloc.x``."""
+    """``mutloc.x._y`` is imported only from inside ``mutloc.x``; a
+    dependency's private module only where :data:`THIRD_PARTY_PRIVATE` says."""
     bad = []
     for f in FILES:
         here = _module_name(f)
@@ -64,6 +72,8 @@ def test_private_modules_are_private_to_their_package():
                 for i, p in enumerate(parts):
                     if p.startswith("_") and not p.startswith("__") and i > 0:
                         owner = ".".join(parts[:i])
+                        if (str(f.relative_to(ROOT)), m) in THIRD_PARTY_PRIVATE:
+                            continue
                         if not (here == owner or here.startswith(owner + ".")):
                             bad.append(f"{f.relative_to(ROOT)}:{line} imports {m}")
     assert not bad, "\n".join(bad)
