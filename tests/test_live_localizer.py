@@ -389,6 +389,29 @@ def test_reordered_messages_are_fused_in_time_order_and_late_ones_dropped(setup)
     assert n_late >= 2 and loc.counts["p"].dropped_late == n_late and loc.records == len(late) - n_late
 
 
+def test_a_stamp_fused_twice_goes_on_tf_once(setup):
+    """Synchronized cameras at 30 fps, q's messages 31 ms after p's (beyond
+    the 30 ms reorder window, before p's next frame): p's message of each
+    stamp is fused on its own, q's of the same stamp after it as another
+    record.  Each fused message still gives a pose
+    on the pose topic, but /tf gets each robot's stamps once and in
+    increasing order (tf2 drops a repeated stamp with a warning)."""
+    both = SimpleNamespace(**{**vars(setup), "recs": camera_records(setup.rig, duration=1.5, pixel_sigma=1.0,
+                                                                  seed=5)})
+    sync = messages(both)
+    stamps = {}
+    for _, m, c in sync:
+        stamps.setdefault(M.stamp_of(m.header), set()).add(c)
+    assert sum(len(v) == 2 for v in stamps.values()) >= 10  # frames of both cameras at one stamp
+    late = [[now + (0.031 if c == "q" else 0.0), m, c] for now, m, c in sync]
+    loc = Localizer(setup.path)
+    poses = [p for _, p in drive(loc, late)]
+    on_tf = [p.stamp_ns for p in poses if p.tf]
+    assert len(poses) > len(on_tf) >= 0.9 * len(stamps)
+    assert all(b > a for a, b in zip(on_tf, on_tf[1:]))
+    assert set(on_tf) == {p.stamp_ns for p in poses}
+
+
 def test_a_fifth_of_the_messages_lost(setup):
     """20% of the messages never arrive: the rest are fused, the errors
     those of offline track on what arrived."""

@@ -110,6 +110,11 @@ class LivePose:
     #: Shared by the poses of one row (one estimate, several stamps): its
     #: :func:`~mutloc.live.messages.pose_cdr_body`, made by the first :meth:`cdr` (with what it is of).
     _body: list = field(default_factory=list, compare=False, repr=False)
+    #: Whether its ``/tf`` goes out too: only for a stamp newer than the robot's
+    #: last one on ``/tf`` (tf2 drops a transform at a stamp it has, with a
+    #: TF_REPEATED_DATA warning): a message fused after another of the same
+    #: stamp (it came after the reorder window) refines the pose topic only.
+    tf: bool = True
 
     def messages(self) -> tuple[Any, Any]:
         """``(PoseWithCovarianceStamped, TFMessage)`` as ``track --bag`` writes them,
@@ -151,6 +156,8 @@ class RobotCounts:
     unsent: int = 0
     #: Newest capture time among its messages taken (None: none yet).
     last_stamp: float | None = None
+    #: Stamp (ns) of its last pose on ``/tf`` (see :attr:`LivePose.tf`).
+    last_tf_ns: int | None = None
     #: Its track's status at the last record (robots whose pose is published).
     status: str = ""
     #: Time of its track's last measured row (solved, unverified or partial).
@@ -479,7 +486,10 @@ class Localizer:
             body: list = []  # (their bytes but the stamp: made once)
             for h in stamps:
                 rc.poses += 1
-                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns, body))
+                tf = rc.last_tf_ns is None or h.ns > rc.last_tf_ns
+                if tf:
+                    rc.last_tf_ns = h.ns
+                out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns, body, tf=tf))
         return out
 
     def finish(self) -> list[LivePose]:
@@ -671,7 +681,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
         for p in out:
             pm, tfm = p.cdr()
             for w, sample in ((poses[p.robot], raw_sample(T.PoseWithCovarianceStamped, pm)),
-                              (tf, raw_sample(T.TFMessage, tfm))):
+                              *(((tf, raw_sample(T.TFMessage, tfm)),) if p.tf else ())):
                 try:
                     w.write(sample)
                 except DDSException:  # (DDS refused it or timed out: counted, the loop goes on)
