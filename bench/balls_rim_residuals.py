@@ -2,12 +2,12 @@
 """Where a ball's rim measurement goes wrong: per-ray edge residuals against the true outline (issue 28).
 
     python bench/balls_rim_residuals.py [--set bench/blender_set] [--only hard,dim,warm,backlit]
-        [--renderer blender] [--json OUT.json]
+        [--renderer blender|mutloc] [--params '{"whole_half_window_px": 2.5}'] [--quiet] [--json OUT.json]
 
 For every whole ball (hidden share 0) of the set's scenes the rim is sampled as the first look's second
-round does (:func:`mutloc.detect.balls.rim.sample_rim` with the detector's window and gains), but along
-rays cast from the *true* projected centre and expected on the *true* outline (the sphere's cone), so
-what is left is the rim measurement alone, with no fit or blob choice in it.  Per ball:
+round does (:func:`mutloc.detect.balls.rim.sample_rim` with the detector's window for a whole ball and the
+light's gains), but along rays cast from the *true* projected centre and expected on the *true* outline
+(the sphere's cone), so what is left is the rim measurement alone, with no fit or blob choice in it.  Per ball:
 
 - ``mean``: mean radial residual over the valid rays (px; negative: the rim is found inside the
   outline -- a shrinking circle);
@@ -16,8 +16,9 @@ what is left is the rim measurement alone, with no fit or blob choice in it.  Pe
 - ``valid``: share of rays with an edge;
 - ``fit``: the first look's centre error (px) on the same ball (:func:`detect_balls`, with the camera).
 
-Per condition it prints the medians of |shift| and of the fit's error, and the ball pairs'
-*separation* error along the image x axis (the two balls of a robot: what the pose's depth follows).
+Per condition it prints the medians of |shift| and of the fit's error (and its p90), and the ball pairs'
+*separation* error along the image x axis (the two balls of a robot: what the pose's depth follows;
+median, and p90 of the fit's), over the images where both balls are whole.
 """
 
 from __future__ import annotations
@@ -53,7 +54,9 @@ def residuals(img, cam: CameraModel, tb: dict, radius_m: float, params: BallPara
     rexp = rim_radii(outline, cx, cy, ang)
     lut = value_lut(bool(params.srgb), float(params.mix_gamma))
     g = light_gains(img, params)
-    rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px,
+    # The window the first look's second round gives a whole ball (older trees: local_half_window_px).
+    half = getattr(params, "whole_half_window_px", params.local_half_window_px)
+    rim = sample_rim(img, lut, cx, cy, ang, rexp, half, params.step_px,
                      lut_gains(g, params) if g is not None else None)
     e = np.where(rim.valid, rim.radius - rexp, np.nan)
     ok = np.isfinite(e)
@@ -102,7 +105,8 @@ def main() -> None:
             if not args.quiet:
                 print(f"{folder.name:11s} {obs}: " + "; ".join(parts), flush=True)
     print()
-    print(f"{'condition':10s} {'|shift| med':>11s} {'|fit| med':>9s} {'sep(shift)':>10s} {'sep(fit)':>8s}  (px, medians)")
+    print(f"{'condition':10s} {'|shift| med':>11s} {'|fit| med':>9s} {'|fit| p90':>9s} {'sep(shift)':>10s} "
+          f"{'sep(fit)':>8s} {'sep p90':>7s}  (px)")
     for c in conds + ["all"]:
         rows = [r for r in out if c == "all" or r["condition"] == c]
         sh = [math.hypot(*b["shift"]) for r in rows for b in r["balls"].values()]
@@ -115,7 +119,9 @@ def main() -> None:
                 if bs[0]["fit"] is not None and bs[1]["fit"] is not None:
                     sep_f.append(abs(bs[1]["fit"][0] - bs[0]["fit"][0]))
         med = lambda x: float(np.median(x)) if x else float("nan")  # noqa: E731
-        print(f"{c:10s} {med(sh):11.3f} {med(ft):9.3f} {med(sep_s):10.3f} {med(sep_f):8.3f}")
+        p90 = lambda x: float(np.quantile(x, 0.9)) if x else float("nan")  # noqa: E731
+        print(f"{c:10s} {med(sh):11.3f} {med(ft):9.3f} {p90(ft):9.3f} {med(sep_s):10.3f} {med(sep_f):8.3f} "
+              f"{p90(sep_f):7.3f}")
     if args.json is not None:
         args.json.write_text(json.dumps(out, indent=1))
 
