@@ -283,8 +283,7 @@ def refine_blob(
 
     Two rounds of rim sampling and fitting: the second casts its rays from
     the fitted centre, with its windows centred on the fitted outline (an
-    ellipse off-axis), and narrower (``params.whole_half_window_px``) when
-    the first round found the rim whole.  With ``recentre_it``, when much of the first
+    ellipse off-axis).  With ``recentre_it``, when much of the first
     round's rim is off the coarse circle (an occluder cut or split the
     blob), the circle is found again from the visible outline
     (:func:`~.occlusion.recentre`); without, such a blob is appended to
@@ -298,14 +297,13 @@ def refine_blob(
     if cam is not None and cam.pinhole and not recentre_it:
         return _refine_pinhole(img, lut, s, blob, cam, max_r, params, lg, cut)
     recentred = moved = False
-    half = params.local_half_window_px
     it = 0
     while it < 2:
         if it == 0:
             n_rays = min(max(round(2 * math.pi * r), 24), 96)
             ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
             rexp = np.full(n_rays, r)
-        rim = sample_rim(img, lut, cx, cy, ang, rexp, half, params.step_px, lg)
+        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, lg)
         # Rays far off the expected rim are occluders, clutter or a bad
         # coarse circle: the ones close to it are the initial inlier set.
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
@@ -321,8 +319,6 @@ def refine_blob(
                     cx, cy, r = c
                     moved = True
                     continue
-        if it == 0 and near.sum() >= params.recentre_below * n_rays:
-            half = params.whole_half_window_px
         rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
         init = near & rim.valid
         if init.sum() < 6:
@@ -362,17 +358,13 @@ def _refine_pinhole(
     rexp = np.full(n_rays, r)
     slope_lim = math.tan(math.radians(params.max_rim_slope_deg)) * 2.0 * math.pi / max(n_rays, 1)
     K, dist = cam.camera.K, cam.camera.dist
-    half = params.local_half_window_px
     for it in range(2):
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
         status, n_near, inner, d, w, cos_t, rms, outline, cu, cv_, radii, r_fit, finite = sweep(
-            img, lut, gain, cx, cy, ang, rexp, half, params.step_px, tol0, slope_lim,
+            img, lut, gain, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, tol0, slope_lim,
             cam.Kinv, K, dist, cam.f)
-        if it == 0 and n_near < params.recentre_below * n_rays:
-            if cut is not None:
-                cut.append(blob)
-        elif it == 0:
-            half = params.whole_half_window_px
+        if it == 0 and n_near < params.recentre_below * n_rays and cut is not None:
+            cut.append(blob)
         if status != OK:
             return None
         cx, cy, rexp, r = cu, cv_, radii, r_fit

@@ -85,20 +85,6 @@ class BallParams:
     #: edge: room for the blur of optics, pixels and JPEG, little for the
     #: background to change within.
     local_half_window_px: float = 2.5
-    #: The same in the second round of rays of a ball whose first round
-    #: found its rim whole (at least ``recentre_below`` of the rays near the
-    #: coarse circle): a narrower window lets less of what lies next to the
-    #: rim into each ray's edge -- the ball's shading and highlight inside,
-    #: clutter outside, render noise on both sides.  Measured on whole balls
-    #: (first look): 2.0 against 2.5 gives median / p90 0.082 / 0.138 px
-    #: instead of 0.095 / 0.145 px on the Blender set (bench/blender_set, 21
-    #: scenes), 0.027 / 0.063 instead of 0.035 / 0.096 px on the same scenes
-    #: from mutloc's renderer, 0.016 / 0.039 instead of 0.018 / 0.047 px on
-    #: bench/balls_occluded.py's 92 held-out scenes, and the blur + noise +
-    #: JPEG renders of tests/test_detect_balls.py improve too; a cut ball keeps
-    #: ``local_half_window_px``, where the narrow window lost accuracy on
-    #: Blender's partly hidden balls.
-    whole_half_window_px: float = 2.0
     #: Without a camera, fitted ellipses more elongated than this are
     #: refused (a sphere's image reaches 1.4 only 45 deg off-axis).
     max_axis_ratio: float = 1.6
@@ -180,8 +166,7 @@ class BallParams:
         _positive_int("max_candidates", self.max_candidates)
         if self.downscale is not None:
             _positive_int("downscale", self.downscale)
-        for what in ("mix_gamma", "step_px", "local_half_window_px", "whole_half_window_px", "max_axis_ratio",
-                     "fallback_max_radius_px",
+        for what in ("mix_gamma", "step_px", "local_half_window_px", "max_axis_ratio", "fallback_max_radius_px",
                      "recheck_pair_error", "cut_size_tolerance"):
             _positive(what, getattr(self, what))
         _positive_int("max_joint_options", self.max_joint_options)
