@@ -2,11 +2,10 @@
 """Where a ball's rim measurement goes wrong: per-ray edge residuals against the true outline (issue 28).
 
     python bench/balls_rim_residuals.py [--set bench/blender_set] [--only hard,dim,warm,backlit]
-        [--renderer blender|mutloc] [--params '{"whole_half_window_px": 2.5}'] [--quiet] [--json OUT.json]
+        [--renderer blender|mutloc] [--params '{"local_half_window_px": 2.0}'] [--quiet] [--json OUT.json]
 
 For every whole ball (hidden share 0) of the set's scenes the rim is sampled as the first look's second
-round does (:func:`mutloc.detect.balls.rim.sample_rim` with the detector's window for a whole ball and the
-light's gains), but along rays cast from the *true* projected centre and expected on the *true* outline
+round does (:func:`mutloc.detect.balls.rim.sample_rim` with the detector's window and the light's gains), but along rays cast from the *true* projected centre and expected on the *true* outline
 (the sphere's cone), so what is left is the rim measurement alone, with no fit or blob choice in it.  Per ball:
 
 - ``mean``: mean radial residual over the valid rays (px; negative: the rim is found inside the
@@ -54,9 +53,7 @@ def residuals(img, cam: CameraModel, tb: dict, radius_m: float, params: BallPara
     rexp = rim_radii(outline, cx, cy, ang)
     lut = value_lut(bool(params.srgb), float(params.mix_gamma))
     g = light_gains(img, params)
-    # The window the first look's second round gives a whole ball (older trees: local_half_window_px).
-    half = getattr(params, "whole_half_window_px", params.local_half_window_px)
-    rim = sample_rim(img, lut, cx, cy, ang, rexp, half, params.step_px,
+    rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px,
                      lut_gains(g, params) if g is not None else None)
     e = np.where(rim.valid, rim.radius - rexp, np.nan)
     ok = np.isfinite(e)
