@@ -15,7 +15,7 @@ from mutloc.detect.balls.fit import cone_fit
 from mutloc.detect.balls.refit import RefitContext, apparent_radius_px, balls_near, fixed_cone_fit, refit_ball
 from mutloc.detect.base import Detection, DetectionResult
 from mutloc.sim.render import ball_visibility, project_markers, relative_pose, render, two_robot_world
-from mutloc.sim.scenes import occluder, with_props
+from mutloc.sim.scenes import OCCLUDERS, occluder, with_props
 from mutloc.sim.synthetic import facing_pose
 from mutloc.sim.world import standard_rig
 from mutloc.track.frames import detect_markers, expanded_rig, observations_of
@@ -299,8 +299,39 @@ def test_refit_finds_the_rim_against_a_background_of_a_near_hue(i, obs, m):
     X = _truth_centre(w, obs, m)
     shown = ball_visibility(w, obs, m)
     wide = refit_ball(ctx, m, marker, X, radius_offset_px=-0.065, narrow_px=None)
-    assert wide is not None and wide.visible_fraction < shown - 0.1
+    # (None: too little rim of the ball's colour to measure at all.)
+    assert wide is None or wide.visible_fraction < shown - 0.1
     det = refit_ball(ctx, m, marker, X, radius_offset_px=-0.065)
     assert det is not None
     assert abs(det.visible_fraction - shown) < 0.1, (det.visible_fraction, shown)
     assert np.linalg.norm(det.uv - project_markers(w, obs)[m]) < 0.1
+
+
+def test_refit_leaves_out_an_occluders_far_edge_near_the_outline():
+    """A pole a little wider than the ball's hidden part (bench/balls_occluded.py's held-out scene alt 318):
+    rays from the centre cross it and find its far edge close to the ball's outline on the hidden side.
+    That edge is a step from the pole's grey, not from the ball's red: it is not rim.  (Taken as rim, it
+    pulled the centre 0.18-0.25 px towards the pole and raised the visible fraction from 0.45 to 0.7.)"""
+    i = 318
+    rng = np.random.default_rng(1000 + i)
+    d = rng.uniform(1.2, 3.5)
+    T = facing_pose(d, np.radians(rng.uniform(-10, 10)), np.radians(rng.uniform(-10, 10)),
+                    rng.uniform(-0.15, 0.15) * d)
+    w = two_robot_world(RIG, T, seed=i)
+    props = []
+    for obs, ms in (("q", ["M3", "M4"]), ("p", ["M1", "M2"])):
+        m = str(rng.choice(ms))
+        props.append(occluder(w, obs, m, rng.uniform(0.3, 0.7), OCCLUDERS[rng.integers(3)],
+                              side=rng.choice([-1, 1])))
+    w = with_props(w, *props)
+    assert props[0].kind == "pole"
+    ctx = RefitContext.of(render(w, "q", seed=i, noise_sigma=1.0), RIG.robot("q").camera)
+    X, truth = _truth_centre(w, "q", "M3"), project_markers(w, "q")["M3"]
+    seen = ball_visibility(w, "q", "M3")
+    assert 0.4 < seen < 0.5
+    for dx in (0.0, 0.002, -0.002):  # predicted centres up to 2 mm off
+        det = refit_ball(ctx, "M3", RIG.robot("p").markers["M3"], X + np.array([dx, 0.0, 0.0]),
+                         radius_offset_px=-0.065)
+        assert det is not None
+        assert float(np.linalg.norm(det.uv - truth)) < 0.1
+        assert abs(det.visible_fraction - seen) < 0.1

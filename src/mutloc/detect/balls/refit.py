@@ -27,6 +27,7 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ..base import Detection, as_bgr
 from .choose import score_candidate
+from .cues import hue_chroma
 from .fit import CameraModel, Fit, bearings, cone_rim
 from .light import light_gains, lut_gains
 from .occlusion import smooth_rim
@@ -173,6 +174,23 @@ def _narrow_resample(ctx: RefitContext, rim: Rim, near: np.ndarray, rexp: np.nda
     return near | take
 
 
+def _ball_coloured(ctx: RefitContext, rim: Rim, hue_deg: float, min_chroma: float = 8.0) -> np.ndarray:
+    """Rays whose inner colour (the ball's side of their edge) has the marker's hue: within twice
+    ``hue_tol_deg`` and with a chroma (0..255) of at least ``min_chroma``.
+
+    A ray from a partly hidden ball's centre that runs over the occluder finds the occluder's far edge,
+    which can lie near the ball's outline (an occluder about as wide as the ball): its edge is a step
+    from the occluder's colour, not from the ball's, and must not count as rim.
+    """
+    ok = rim.valid.copy()
+    for i in np.flatnonzero(ok):
+        # As the score measures the ball's colour (choose.score_candidate), one ray at a time.
+        c = rim.inner[i]
+        hue, chroma = hue_chroma(c / max(1.0, float(c.max())), ctx.lut)
+        ok[i] = chroma >= min_chroma and abs((hue - hue_deg + 180.0) % 360.0 - 180.0) <= 2.0 * ctx.params.hue_tol_deg
+    return ok
+
+
 def apparent_radius_px(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray) -> float | None:
     """Mean radius (pixels) of the outline a ball at camera-frame ``centre`` projects to (None: it does not)."""
     p = _predicted(ctx, BallSearch.from_marker(name, marker, ctx.params).radius_m, centre)
@@ -247,6 +265,7 @@ def _refit(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, rad
         if narrow_px is not None and not near.all():
             near = _narrow_resample(ctx, rim, near, rexp, tol, narrow_px)
         rim.valid = smooth_rim(rim.radius, rim.valid, rim.ang, params.max_rim_slope_deg)
+        rim.valid = _ball_coloured(ctx, rim, s.hue_deg)
         fit = _fit(ctx, rim, near & rim.valid, d, cos_a)
         if fit is None:
             return None
