@@ -10,9 +10,10 @@ at up to 90 deg/s (`fast`, motion noise 5 rad/s^2, 3 m/s^2 per sqrt(Hz)).
 Cameras: both at 30 fps in step (`sync`); q half a frame after p (`half`:
 records alternate p-only and q-only); q at 15 fps, 11 ms after p (`30+15`).
 
-    .venv/bin/python bench/bench_unsync.py [--seeds N]
+    .venv/bin/python bench/bench_unsync.py [--seeds N] [--tracker pair|team]
 
-Writes bench/results/unsync.json.
+``--tracker team``: the team tracker on the pair (q the reference), the
+same logs.  Writes bench/results/unsync.json (``unsync_team.json``).
 """
 
 from __future__ import annotations
@@ -38,6 +39,13 @@ from mutloc.sim.tracking import camera_records  # noqa: E402
 from mutloc.sim.world import standard_rig  # noqa: E402
 from mutloc.track.filtering import FilterOptions  # noqa: E402
 from mutloc.track.tracker import track_log  # noqa: E402
+
+
+def _team_log(rig, frames, **kw):
+    """The team tracker on the pair: p's rows in q's frame."""
+    from mutloc.track.team import track_team_log
+
+    return track_team_log(rig, frames, reference="q", **kw).tracks["p"]
 
 
 def fast_path():
@@ -81,12 +89,14 @@ def score(traj, times, truth, after=0.5):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--tracker", choices=("pair", "team"), default="pair")
     args = ap.parse_args()
+    track = track_log if args.tracker == "pair" else _team_log
     rig = standard_rig()
     scenes = {"slow": (default_path(2.0, 8.0, 0.3), MotionNoise()),
               "fast": (fast_path(), MotionNoise(angular=5.0, linear=3.0))}
     cams = {"sync": ({}, {}), "half": ({"q": 1 / 60}, {}), "30+15": ({"q": 0.011}, {"q": 15.0})}
-    out = {"machine": machine(), "seeds": args.seeds, "scenes": {}}
+    out = {"machine": machine(), "seeds": args.seeds, "tracker": args.tracker, "scenes": {}}
     t0 = time.perf_counter()
     for name, (path, noise) in scenes.items():
         opts = FilterOptions(noise=noise)
@@ -94,11 +104,11 @@ def main() -> None:
         for seed in range(args.seeds):
             for cam, (offsets, rates) in cams.items():
                 recs = camera_records(rig, path, duration=4.0, offsets=offsets, rates=rates, seed=seed)
-                traj = track_log(rig, list(zip(recs.times, recs.frames)), progress=False, filter=opts)
+                traj = track(rig, list(zip(recs.times, recs.frames)), progress=False, filter=opts)
                 res.setdefault(cam, []).append(score(traj, recs.times, recs.truth))
                 if cam == "half":
                     pairs = nearest_pairs(recs)
-                    traj = track_log(rig, pairs, progress=False, filter=opts)
+                    traj = track(rig, pairs, progress=False, filter=opts)
                     ptimes = np.array([t for t, _ in pairs])
                     ptruth = Pose.concatenate([path(float(t)) for t in ptimes])
                     res.setdefault("half, nearest pairs", []).append(score(traj, ptimes, ptruth))
@@ -115,7 +125,7 @@ def main() -> None:
             print(f"{name:5s} {cam:20s} median {100 * s['median_translation_m']:.3f} cm ({s['ratio_to_sync']:.2f}x "
                   f"sync)  NEES/3 {s['median_nees']:.2f}  poses {s['rows_with_pose']}  >5 sigma {s['over_5_sigma']}")
         out["scenes"][name] = summary
-    path = Path(result_file("unsync.json"))
+    path = Path(result_file("unsync.json" if args.tracker == "pair" else "unsync_team.json"))
     path.write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {path}")
 
