@@ -12,9 +12,9 @@ mutloc.sim.tracking).  Timings (one core, wall clock, best of ``--repeat``):
 - ``kernel``: ConstantVelocityFilter.predict + update on frames with four
   markers, median over frames of each frame's best call (what the 100 us
   target is about);
-- ``tracker``: PairTracker.step on every frame (observations -> row,
+- ``tracker``: the pair's track (the team tracker of the two robots) on every frame (observations -> row,
   including the Estimate it reports) and the default fixed-lag smoothing
-  (PairTracker.finish);
+  (its final smoothing);
 - ``localize``: mutloc.localize on the frames with four markers, timed as
   ``kernel``, every call on a new ObservationSet (built from the frame's
   columns inside the timed call: the headline, as a new frame costs) and,
@@ -28,6 +28,7 @@ Writes bench/results/filter_results.json.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 import time
@@ -40,15 +41,17 @@ from _machine import machine, result_file  # noqa: E402
 
 import mutloc  # noqa: E402
 import mutloc.errors  # noqa: E402
-from mutloc.core.filter import ConstantVelocityFilter, MotionNoise, rts_smooth  # noqa: E402
+from mutloc.core.filter import MotionNoise  # noqa: E402
+from mutloc.core.team_filter import TeamFilter  # noqa: E402
+from mutloc.team import team_problem  # noqa: E402
 from mutloc.core.observations import ObservationSet  # noqa: E402
 from mutloc.core.geometry import so3_log  # noqa: E402
 from mutloc.sim.render import default_path  # noqa: E402
 from mutloc.sim.tracking import observation_sequence  # noqa: E402
 from mutloc.sim.world import standard_rig  # noqa: E402
-from mutloc.track.filtering import FilterOptions, PairTracker  # noqa: E402
+from mutloc.track.filtering import FilterOptions  # noqa: E402
 from mutloc.track.status import FrameStatus  # noqa: E402
-from mutloc.track.tracker import TrackRow, track_log  # noqa: E402
+from mutloc.track.tracker import PairTrack, TrackRow, track_log  # noqa: E402
 
 SIGMA = 2.0
 #: What is compared on the same frames: ``mutloc track``'s defaults (fixed lag
@@ -68,43 +71,35 @@ NOISE = MotionNoise()
 
 def smoothed_errors(rig, seq) -> np.ndarray:
     """Translation error per frame of the default track smoothed offline over
-    each whole uninterrupted stretch (RTS; NaN where the track did not run)."""
-    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions(smooth_lag=0))
-    tracker.history = []
-    for t, f in zip(seq.times, seq.frames):
-        tracker.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
-    err = np.full(len(seq.frames), np.nan)
-    hist = tracker.history
-    for k, j in tracker.segments():
-        for i, s in zip(range(k, j), rts_smooth([h[0] for h in hist[k:j]], [h[1] for h in hist[k:j]])):
-            err[i] = s.pose.translation_error(seq.truth[i])
-    return err
+    the whole input (a lag as long as the input; NaN where the track did not run)."""
+    frames = list(zip(seq.times, seq.frames))
+    rows = track_log(rig, frames, pixel_sigma=SIGMA, progress=False, filter=FilterOptions(smooth_lag=len(frames))).rows
+    return np.array([np.nan if r.estimate is None else r.estimate.pose.translation_error(T)
+                     for r, T in zip(rows, seq.truth)])
 
 
 def timings(rig, seq, repeat: int) -> dict:
     full = [(t, f) for t, f in zip(seq.times, seq.frames) if len(f) == 4 and not seq.outlier[list(seq.times).index(t)]]
-    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA)
-    problems = []
-    for t, f in full:
-        problems.append((t, tracker.problem(f.pair(rig, "p", "q"))))
+    problems = [(t, team_problem(rig, f)[0]) for t, f in full]
     T0 = seq.truth[0]
     cov0 = np.diag([1e-3] * 3 + [1e-2] * 3) ** 2
 
     def run_kernel():
         """Per frame: the best of ``repeat`` predict+update calls from the same
         state (the machine is shared: the best call is the least disturbed)."""
-        flt = ConstantVelocityFilter(NOISE, SIGMA)
-        flt.reset(problems[0][0] - 1 / 30, T0, cov0)
+        flt = TeamFilter(list(rig.robots), "q", NOISE, SIGMA)
+        flt.predict(problems[0][0] - 1 / 30)
+        flt.add("p", T0, cov0)
         per = []
         for t, prob in problems:
-            state = flt.state
             best = np.inf
             for _ in range(repeat):
-                flt.state = state
+                trial = copy.deepcopy(flt)  # the same state every time (copied before the clock starts)
                 t0 = time.perf_counter()
-                flt.predict(t)
-                flt.update(prob)
+                trial.predict(t)
+                trial.update(prob)
                 best = min(best, time.perf_counter() - t0)
+            flt = trial
             per.append(best)
         return float(np.median(per))
 
@@ -114,10 +109,10 @@ def timings(rig, seq, repeat: int) -> dict:
     def run_tracker():
         frames = [fresh(f) for f in seq.frames]  # new sets on every pass, built before the clock starts
         t0 = time.perf_counter()
-        tr = PairTracker(rig, "p", "q", pixel_sigma=SIGMA)
+        tr = PairTrack(rig, "p", "q", pixel_sigma=SIGMA)
         for t, f in zip(seq.times, frames):
             tr.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
-        tr.finish()  # the default fixed-lag smoothing
+        tr.team.finalize(end=True)  # the default fixed-lag smoothing
         return time.perf_counter() - t0
 
     def run_localize(form: str):

@@ -39,7 +39,7 @@ Timings (wall clock, one pass, median over frames, measured under load):
 GTSAM per frame is building the frame's factors, ``update`` (and any extra
 relinearising ``--iterations``), and reading the causal and lagged
 estimates with their marginal covariances; mutloc per frame is
-``PairTracker.step`` plus its fixed-lag smoothing (``finish``) spread over
+the pair's track step plus its fixed-lag smoothing spread over
 the frames.
 
 Writes bench/results/filter_gtsam_results.json.
@@ -65,9 +65,10 @@ from mutloc.core.geometry import so3_exp, so3_log  # noqa: E402
 from mutloc.core.pose import Pose  # noqa: E402
 from mutloc.core.refine import MODE_PIXEL, WS_SIZE, residuals  # noqa: E402
 from mutloc.sim.world import standard_rig  # noqa: E402
-from mutloc.track.filtering import FilterOptions, PairTracker, pair_problem, solve_row  # noqa: E402
+from mutloc.track.filtering import FilterOptions, pair_problem  # noqa: E402
+from mutloc.track.solving import solve_row  # noqa: E402
 from mutloc.track.status import FrameStatus  # noqa: E402
-from mutloc.track.tracker import TrackRow  # noqa: E402
+from mutloc.track.tracker import PairTrack, TrackRow  # noqa: E402
 
 try:
     import gtsam
@@ -355,9 +356,9 @@ def gtsam_track(rig, seq, lag: int, robust: str, iterations: int = 1, relineariz
 
 
 def mutloc_seconds(rig, seq, options: FilterOptions) -> np.ndarray:
-    """Wall time of ``PairTracker.step`` per frame, plus ``finish`` (the
-    fixed-lag smoothing) spread evenly over the frames."""
-    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=options)
+    """Wall time of the pair's track step per frame, plus its final
+    smoothing spread evenly over the frames."""
+    tracker = PairTrack(rig, "p", "q", pixel_sigma=SIGMA, options=options)
     out = np.empty(len(seq.frames))
     for k, (t, f) in enumerate(zip(seq.times, seq.frames)):
         row = TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f)
@@ -365,7 +366,7 @@ def mutloc_seconds(rig, seq, options: FilterOptions) -> np.ndarray:
         tracker.step(row)
         out[k] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tracker.finish()
+    tracker.team.finalize(end=True)
     return out + (time.perf_counter() - t0) / len(out)
 
 

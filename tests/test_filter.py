@@ -393,14 +393,13 @@ def test_the_track_picks_the_candidate_near_the_prediction():
     """A detector unsure between two blobs (the wrong one scored higher): the
     filtered track takes the one its prediction expects."""
     from mutloc.core.observations import ObservationSet
-    from mutloc.track.filtering import PairTracker
     from mutloc.track.status import FrameStatus
-    from mutloc.track.tracker import TrackRow
+    from mutloc.track.tracker import PairTrack, TrackRow
 
     rig = standard_rig("balls")
     seq = observation_sequence(rig, _path(), duration=1.0, fps=30.0, pixel_sigma=1.0, seed=2, drop=0.0, blind=(),
                                outliers=0.0)
-    tracker = PairTracker(rig, "p", "q", pixel_sigma=1.0, options=FilterOptions("cv", NOISE))
+    tracker = PairTrack(rig, "p", "q", pixel_sigma=1.0, options=FilterOptions("cv", NOISE))
     for k, (t, f) in enumerate(zip(seq.times, seq.frames)):
         if k == 20:
             i = f.marker.index("M1")
@@ -416,28 +415,23 @@ def test_the_track_picks_the_candidate_near_the_prediction():
 
 
 def test_rts_smoothing_uses_the_future():
-    """The offline smoother (used to compare with a smoother) is at least as
-    accurate as the filter on a track, and equal to it at the last frame."""
-    from mutloc.core.filter import rts_smooth
-    from mutloc.track.filtering import PairTracker
-    from mutloc.track.status import FrameStatus
-    from mutloc.track.tracker import TrackRow
-
+    """The smoother over the whole track (a lag as long as the input) is more
+    accurate than the causal filter, equal to it at the last frame, and no
+    less certain anywhere."""
     rig = standard_rig("balls")
     seq = observation_sequence(rig, _path(), duration=3.0, fps=30.0, pixel_sigma=SIGMA, seed=7, blind=(),
                                outliers=0.0)
-    tracker = PairTracker(rig, "p", "q", pixel_sigma=SIGMA, options=FilterOptions("cv", NOISE))
-    tracker.history = []
-    for t, f in zip(seq.times, seq.frames):
-        tracker.step(TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f))
-    hist = tracker.history
-    assert hist[0] is None and all(h is not None for h in hist[1:])
-    smooth = rts_smooth([h[0] for h in hist[1:]], [h[1] for h in hist[1:]])
-    ef = np.array([h[1].pose.translation_error(T) for h, T in zip(hist[1:], seq.truth[1:])])
-    es = np.array([s.pose.translation_error(T) for s, T in zip(smooth, seq.truth[1:])])
-    assert es[-1] == ef[-1]
+    frames = list(zip(seq.times, seq.frames))
+    causal = track_log(rig, frames, pixel_sigma=SIGMA, progress=False,
+                       filter=FilterOptions("cv", NOISE, smooth_lag=0)).rows
+    smooth = track_log(rig, frames, pixel_sigma=SIGMA, progress=False,
+                       filter=FilterOptions("cv", NOISE, smooth_lag=len(frames))).rows
+    assert all(r.estimate is not None for r in causal[1:]) and all(r.estimate is not None for r in smooth[1:])
+    ef = np.array([r.estimate.pose.translation_error(T) for r, T in zip(causal[1:], seq.truth[1:])])
+    es = np.array([r.estimate.pose.translation_error(T) for r, T in zip(smooth[1:], seq.truth[1:])])
+    assert es[-1] == pytest.approx(ef[-1], abs=1e-12)
     assert np.median(es) < 0.9 * np.median(ef)
-    assert np.all(np.diag(smooth[10].covariance) <= np.diag(hist[11][1].covariance) + 1e-15)
+    assert np.all(np.diag(smooth[10].estimate.covariance) <= np.diag(causal[10].estimate.covariance) + 1e-15)
 
 
 def test_a_jump_restarts_the_track_from_a_solved_frame():
@@ -492,9 +486,8 @@ def test_detections_better_than_stated_do_not_make_the_track_lag():
     filter follows the motion about as well as every frame on its own (with
     the stated noise it lags, 5x worse), the default smoother does no worse
     than every frame on its own, and the sigmas still follow --pixel-sigma."""
-    from mutloc.track.filtering import PairTracker
     from mutloc.track.status import FrameStatus
-    from mutloc.track.tracker import TrackRow
+    from mutloc.track.tracker import PairTrack, TrackRow
 
     rig = standard_rig("balls")
     med = {k: [] for k in ("none", "default", "causal", "stated")}
@@ -505,12 +498,12 @@ def test_detections_better_than_stated_do_not_make_the_track_lag():
         for key, opts in (("none", FilterOptions("none")), ("default", FilterOptions()),
                           ("stated", FilterOptions(smooth_lag=0, measure_noise=False))):
             med[key].append(_errors(track_log(rig, frames, pixel_sigma=1.0, progress=False, filter=opts), seq))
-        tracker = PairTracker(rig, "p", "q", pixel_sigma=1.0, options=FilterOptions(smooth_lag=0))
+        tracker = PairTrack(rig, "p", "q", pixel_sigma=1.0, options=FilterOptions(smooth_lag=0))
         rows = [TrackRow(float(t), float(t), float(t), FrameStatus.SOLVED, observations=f) for t, f in frames]
         for row in rows:
             tracker.step(row)
-        assert 0.04 <= tracker.filter.detection_sigma <= 0.06
-        assert tracker.filter.gain_sigma < 0.1
+        assert 0.04 <= tracker.team.filter.detection_sigma <= 0.06
+        assert tracker.team.filter.gain_sigma < 0.1
         med["causal"].append(np.array([r.estimate.pose.translation_error(T) for r, T in zip(rows, seq.truth)]))
         # Sigmas under the stated 1 px: about those of a frame on its own at 1 px, not of 0.05 px.
         per_frame = track_log(rig, frames, pixel_sigma=1.0, progress=False, filter="none").rows

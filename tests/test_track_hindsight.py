@@ -14,7 +14,7 @@ from mutloc.sim.render import moving_world, project_markers, relative_pose, rend
 from mutloc.sim.world import light_is_on, standard_rig
 from mutloc.track.filtering import DEFAULT_SMOOTH_LAG, FilterOptions
 from mutloc.track.sources import Frame, Stream
-from mutloc.track.tracker import track
+from mutloc.track.tracker import track, track_log
 
 FPS = 30.0
 
@@ -29,21 +29,6 @@ def _sequence(seed: int, n: int):
 
 def _track(rig, frames, **kw):
     return track(rig, {r: Stream(iter(f), FPS, r) for r, f in frames.items()}, progress=False, **kw)
-
-
-def _team_log(rig, frames, **kw):
-    """The team tracker on the pair (p's rows, in q's frame): the same rules for any number of robots."""
-    from mutloc.track.team import track_team_log
-
-    return track_team_log(rig, frames, reference="q", **kw).tracks["p"]
-
-
-@pytest.fixture(params=["pair", "team"])
-def track_log(request):
-    """Each test on a log runs with the pair tracker and with the team tracker of the two robots."""
-    from mutloc.track.tracker import track_log as pair_log
-
-    return pair_log if request.param == "pair" else _team_log
 
 
 def _lit_truth(world, rig, t):
@@ -91,7 +76,7 @@ def test_confirmed_tentative_track_reports_its_frames_in_hindsight(seed, frame, 
 @pytest.mark.parametrize("frame, marker, offset_px, angle_deg", [
     (10, "M3", 10.0, 0.0), (10, "M3", 10.0, 200.0), (10, "M3", 10.0, 90.0),
 ])
-def test_a_bad_detection_in_a_tentative_frame_is_not_confirmed_in_hindsight(track_log, frame, marker, offset_px, angle_deg):
+def test_a_bad_detection_in_a_tentative_frame_is_not_confirmed_in_hindsight(frame, marker, offset_px, angle_deg):
     """Correct detections of the standard lights (only those on), one of them
     moved 10 px in one three-marker frame of a tentative track.  The
     tentative track's vague prior takes it in and bends (the frame's
@@ -133,7 +118,7 @@ def _varied_lit(seed: int, n: int = 40):
 
 
 @pytest.mark.parametrize("seed, start", [(2, 0), (8, 0), (6, 5)])
-def test_the_frame_that_started_a_track_is_verified_in_hindsight(track_log, seed, start):
+def test_the_frame_that_started_a_track_is_verified_in_hindsight(seed, start):
     """The three-marker frame that started a tentative track is checked as
     its other frames are -- by the frames after it, run backward, which do
     not depend on it -- and reported solved once the track is confirmed
@@ -155,7 +140,7 @@ def test_the_frame_that_started_a_track_is_verified_in_hindsight(track_log, seed
 @pytest.mark.parametrize("seed, start", [(2, 0), (8, 0), (6, 5)])
 @pytest.mark.parametrize("which", [0, 1, 2])
 @pytest.mark.parametrize("angle_deg", [0.0, 200.0])
-def test_a_bad_detection_in_the_frame_that_started_a_track_leaves_no_wrong_solved_frame(track_log, seed, start, which,
+def test_a_bad_detection_in_the_frame_that_started_a_track_leaves_no_wrong_solved_frame(seed, start, which,
                                                                                        angle_deg):
     """One of the three lights of the frame that started a tentative track
     moved 10 px: three markers fit it exactly, and the forward track starts
@@ -181,7 +166,7 @@ def test_a_bad_detection_in_the_frame_that_started_a_track_leaves_no_wrong_solve
             assert e.translation_error(truth[i]) <= 0.05 and e.rotation_error_deg(truth[i]) <= 2.0, (i, r.reason)
 
 
-def test_four_lights_solved_on_their_own_confirm_the_tentative_track(track_log):
+def test_four_lights_solved_on_their_own_confirm_the_tentative_track():
     """A perfect detector whose lights are named only from 1 s on (seed 2's
     world): frames 30 and 31 see three lights (a tentative track starts),
     frame 32 all four -- solved on its own and agreeing with the track, it

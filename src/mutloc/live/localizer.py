@@ -9,14 +9,13 @@ puts it on the wire (the ``live`` extra).
 Each accepted message is one record of the track -- with the messages of
 other robots stamped within ``tolerance`` (5 ms) of it, at their mean time,
 as ``track`` pairs two cameras' frames -- fused exactly as ``track
---observations`` fuses a log's line (two robots: the pair tracker of
-:mod:`mutloc.track.filtering` through :class:`~mutloc.track.tracker.RecordStepper`;
-more: the team tracker of :mod:`mutloc.track.team`); what it fuses is what it
+--observations`` fuses a log's line (the team tracker of
+:mod:`mutloc.track.team`, two robots a team of two); what it fuses is what it
 logs (``--out DIR``: ``DIR/log.jsonl``, each observer's best candidate per
 marker, SPEC "Observation logs"), so replaying the log offline gives the same
 rows.  The pose published at once is the causal filter's; the trajectory
 files hold the rows as ``track`` reports them (smoothed over the tracker's
-lag, for a pair).
+lag).
 
 Messages are refused and counted, per robot, when they cannot be taken: not
 decodable or not what a node sends (``refused_malformed``: an unknown robot,
@@ -64,11 +63,10 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..errors import InputError, MutlocError, positive_number
-from ..track.filtering import FilterOptions, PairTracker
+from ..track.filtering import FilterOptions
 from ..track.frames import expanded_rig
 from ..track.rows import TrackRow
 from ..track.status import FrameStatus
-from ..track.tracker import RecordStepper
 from .messages import OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, rig_id as rig_id_of
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
@@ -180,27 +178,8 @@ class _Held:
     observations: ObservationSet = field(compare=False)
 
 
-class _PairEngine:
-    """Two robots: the pair tracker, each record a row (as ``track_log``)."""
-
-    def __init__(self, rig: Rig, source: str, target: str, pixel_sigma: float, confidence: float,
-                 options: FilterOptions, sink: Callable[[TrackRow, str], None] | None) -> None:
-        self.robots, self.reference = [source], target
-        tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
-        self.stepper = RecordStepper(tracker, None if sink is None else (lambda row: sink(row, source)))
-
-    def step(self, t: float, obs: ObservationSet) -> dict[str, TrackRow]:
-        return {self.robots[0]: self.stepper.step(t, obs)}
-
-    def involved(self, observer: str, obs: ObservationSet) -> list[str]:
-        return self.robots  # every record is about the pair
-
-    def finish(self) -> None:
-        self.stepper.finish()
-
-
 class _TeamEngine:
-    """Three robots or more: the team tracker, each record one row per robot (as ``track_team_log``)."""
+    """The team tracker (two robots: a team of two), each record one row per robot (as ``track_team_log``)."""
 
     def __init__(self, rig: Rig, reference: str, pixel_sigma: float, confidence: float, options: FilterOptions,
                  sink: Callable[[TrackRow, str], None] | None) -> None:
@@ -273,16 +252,13 @@ class Localizer:
         self.reorder = _nonnegative(reorder, "reorder")
         self.tolerance = _nonnegative(tolerance, "tolerance")
         self.names = names
-        if len(names) == 2:
-            source, target = self.rig.default_pair(None, reference)
-            self.engine: Any = _PairEngine(self.rig, source, target, pixel_sigma, confidence,
-                                           filter if filter is not None else FilterOptions(), sink)
-        else:
-            # the published poses are the causal filter's; the team smoother (a pass over the
-            # filter's past, never fed back) only serves the files: not run without them
-            self.engine = _TeamEngine(self.rig, reference if reference is not None else names[0], pixel_sigma,
-                                      confidence, filter if filter is not None else
-                                      FilterOptions(smooth_lag=None if sink is not None else 0), sink)
+        if reference is None:
+            # two robots: the pose of the first in the second's frame, as ``track``; more: the first's frame
+            reference = self.rig.default_pair(None, None)[1] if len(names) == 2 else names[0]
+        # the published poses are the causal filter's; the smoother (a pass over the filter's past,
+        # never fed back) only serves the files: not run without them
+        self.engine: Any = _TeamEngine(self.rig, reference, pixel_sigma, confidence, filter if filter is not None
+                                       else FilterOptions(smooth_lag=None if sink is not None else 0), sink)
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
@@ -308,11 +284,7 @@ class Localizer:
             robot, markers = self.rig.robot(other), list(self.rig.robot(other).markers)
             uv = self.rig.robot(observer).camera.project(to_obs.apply(robot.marker_positions(markers)))
             seen[observer] = ObservationSet([observer] * len(markers), markers, uv)
-        if len(self.names) == 2:
-            source, target = self.engine.robots[0], self.engine.reference
-            engine: Any = _PairEngine(self.rig, source, target, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
-        else:
-            engine = _TeamEngine(self.rig, a, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
+        engine = _TeamEngine(self.rig, self.engine.reference, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
         try:
             for k in range(12):
                 observer = (a, b)[k % 2]

@@ -1,5 +1,5 @@
-"""A frame on its own, and the limits of a track: what the tracker
-(:mod:`.filtering`) and its hindsight checks (:mod:`.hindsight`) share.
+"""A frame on its own, and the limits of a track (used by the tracker,
+:mod:`.team`, and its options, :mod:`.filtering`).
 
 :func:`solve_row` localizes one row's observations by themselves (with the
 predicted positions of lights that are off where too few markers were

@@ -1,5 +1,8 @@
 """``mutloc track``: two image streams in, a trajectory of T_qp out.
 
+A pair is a team of two: the track is :class:`~mutloc.track.team.TeamTracker`'s
+(the joint filter, its trust rules and smoother) with the target robot as
+the reference, each row the source robot's.
 Every camera frame is fused at its own capture time: frames of the two
 cameras within a tolerance of each other make one record, any other frame
 is a record of its own camera (cameras need not be synchronized).  Every
@@ -19,47 +22,65 @@ from tqdm import tqdm
 from ..api import load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
+from ..core.rig import Rig
+from ..errors import MutlocError
 from ..io import writable_path
 from ..io.logs import ObservationLogWriter
 from .annotate import Annotator
-from .filtering import FilterOptions, PairTracker
+from .filtering import FilterOptions
 from .frames import DEFAULT_FPS, ObserverDetector, check_streams, expanded_rig, frame_rate, observations_of, \
     prepare_pair
 from .second_look import look_again
 from .sources import Frame
 from .rows import TrackRow
 from .status import FrameStatus
-from .team import RowEmitter
+from .team import RowEmitter, TeamTracker
 from .trajectory import CSV_EXTRA, BaseFrames, Trajectory, csv_row, tum_comment
 
-__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "RecordStepper", "check_streams",
+__all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "PairTrack", "check_streams",
            "frame_rate", "DEFAULT_FPS", "CSV_EXTRA", "ObserverDetector", "RowEmitter", "BaseFrames", "csv_row",
            "tum_comment"]
 
 
-class RecordStepper:
-    """Records fed one at a time to a :class:`PairTracker`, as
-    :func:`track_log` feeds a log's lines (the live localizer feeds its
-    messages the same way): :meth:`step` makes the record's row (its pose
-    the causal filter's at once) and hands every row to ``sink(row)`` in
-    input order once its report is final; :meth:`finish` when the input ends."""
+class PairTrack:
+    """A pair's track: the team tracker of the two robots (``target`` the
+    reference), each record's row the source robot's.  :meth:`step` fills a
+    row from its observations (``t``, ``t_source``, ``t_target``);
+    ``team``: the tracker (its :meth:`~mutloc.track.team.TeamTracker.finalize`
+    says which rows are final)."""
 
-    def __init__(self, tracker: PairTracker, sink: Callable[[TrackRow], None] | None = None) -> None:
-        self.tracker = tracker
-        self._emitter = RowEmitter(tracker, lambda row, _: None if sink is None else sink(row))
+    def __init__(self, rig: Rig, source: str, target: str, *, pixel_sigma: float = 1.0,
+                 confidence: float = DEFAULT_CONFIDENCE, options: FilterOptions | None = None) -> None:
+        self.rig, self.source, self.target = rig, source, target
+        pair = rig if set(rig.robots) == {source, target} else \
+            Rig({target: rig.robot(target), source: rig.robot(source)})
+        self.team = TeamTracker(pair, target, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
+        self._others = len(rig.robots) > 2
 
-    def step(self, t: float, observations: ObservationSet) -> TrackRow:
-        """The row of one record at time ``t`` (not before the previous record's)."""
-        row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=observations)
-        before = self.tracker.rows_filtered
-        self.tracker.step(row)
-        self._emitter.add(row, self.tracker.rows_filtered > before)
-        self._emitter.emit()
-        return row
+    def step(self, row: TrackRow) -> bool:
+        """Fill ``row``; rows without observations (unpaired, corrupt) are
+        left alone.  Returns whether the row is one of the tracker's records."""
+        if row.observations is None:
+            return False
+        obs = self._pair_only(row.observations) if self._others else row.observations
+        self.team.step(row.t, obs, {self.source: row.t_source, self.target: row.t_target}, rows={self.source: row})
+        return True
 
-    def finish(self) -> None:
-        """The input ended: every row still held is final and handed on."""
-        self._emitter.emit(end=True)
+    def _pair_only(self, obs: ObservationSet) -> ObservationSet:
+        """The observations between the two robots (another robot's camera or markers left out)."""
+        pair = (self.source, self.target)
+        keep = []
+        for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
+            if o not in pair:
+                continue
+            if m is not None:
+                try:
+                    if self.rig.owner(m) not in pair:
+                        continue
+                except MutlocError:
+                    pass  # an unknown marker: the tracker names it
+            keep.append(i)
+        return obs if len(keep) == len(obs) else obs.take(np.array(keep, dtype=np.int64))
 
 
 def pair_streams(a: Iterator[Frame], b: Iterator[Frame], tolerance: float) -> Iterator[tuple[Frame | None, Frame | None]]:
@@ -101,7 +122,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
 
     ``sink`` is called with every row, in input order, as soon as its report
     is final (after the smoother's lag; see
-    :meth:`~mutloc.track.filtering.PairTracker.finalize`): write outputs
+    :meth:`~mutloc.track.team.TeamTracker.finalize`): write outputs
     there to have them as the track runs (:class:`mutloc.track.outputs.TrackOutputs`).
     The annotated video and the Rerun recording are written the same way.
     On Ctrl-C (``KeyboardInterrupt``) every frame finished so far is
@@ -121,8 +142,8 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     observation log (JSON Lines, SPEC "Observation logs").
     """
     rig, source, target = prepare_pair(rig, streams, source, target, "stream")
-    tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
-                          options=_options(filter))
+    tracker = PairTrack(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
+                        options=_options(filter))
     rate = frame_rate(streams, fps)
     dets = {source: ObserverDetector(rig, source, target, rate or DEFAULT_FPS),
             target: ObserverDetector(rig, target, source, rate or DEFAULT_FPS)}
@@ -140,7 +161,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
         if sink is not None:
             sink(row)
 
-    emitter = RowEmitter(tracker, final)
+    emitter = RowEmitter(tracker.team, final)
     rows: list[TrackRow] = []
     checked = False
     last: dict[str, np.ndarray] = {}  # each robot's latest image (the annotated video shows both)
@@ -176,9 +197,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 row.observations = observations_of(row.detections, row.t)
                 if log is not None:
                     log.write(row.t, row.observations)
-                before = tracker.rows_filtered
-                tracker.step(row)
-                filtered = tracker.rows_filtered > before
+                filtered = tracker.step(row)
                 if notes:
                     row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
             rows.append(row)
@@ -213,8 +232,8 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
     source, target = rig.default_pair(source, target)
     if rerun is not None:
         writable_path(rerun, "rerun")  # before the work, not after it
-    tracker = PairTracker(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
-                          options=_options(filter))
+    tracker = PairTrack(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
+                        options=_options(filter))
     viz = _rerun_writer(rerun, source, target)
 
     def final(row: TrackRow) -> None:
@@ -223,7 +242,7 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
         if sink is not None:
             sink(row)
 
-    stepper = RecordStepper(tracker, final)
+    emitter = RowEmitter(tracker.team, lambda row, _: final(row))
     rows: list[TrackRow] = []
     try:
         for item in tqdm(frames, total=total, unit="frame", disable=not progress, desc="track"):
@@ -232,10 +251,13 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
                 t, obs = (float(times[0]) if len(times) else (rows[-1].t if rows else 0.0)), item
             else:
                 t, obs = float(item[0]), item[1]
-            rows.append(stepper.step(t, obs))
-        stepper.finish()
+            row = TrackRow(t, t, t, FrameStatus.SOLVED, observations=obs)
+            emitter.add(row, tracker.step(row))
+            emitter.emit()
+            rows.append(row)
+        emitter.emit(end=True)
     except KeyboardInterrupt:
-        stepper.finish()
+        emitter.emit(end=True)  # every record finished so far, reported as if the input ended here
         raise
     finally:
         if viz is not None:
