@@ -617,11 +617,13 @@ class TeamTracker:
         if bridge is not None:
             for r in list(bridge[1]):
                 note = self._moving_start(t, obs, r)
+                if note is None:
+                    continue  # tied to other robots too: the joint start below
+                bridge[1].remove(r)  # seen only with the reference: the tested start or none (yet)
                 if note:  # placed by the records' observations at their own times, tested
                     started[r] = note
                     failed.pop(r, None)
                     used[touch[r]] = True
-                    bridge[1].remove(r)
         if bridge is not None and bridge[1]:
             more, _ = self._start(obs, problem, names, markers, touch, used, bridge[1], {}, rejected, bridge[0])
             started.update(more)
@@ -913,7 +915,7 @@ class TeamTracker:
                                       np.array([latest[k][0] for k in keys]), score=[latest[k][1] for k in keys])
         return both, want
 
-    def _moving_start(self, t: float, obs: ObservationSet, r: str) -> str:
+    def _moving_start(self, t: float, obs: ObservationSet, r: str) -> str | None:
         """Start robot ``r`` from the records of the last ``start_window``
         seconds and this one when every observation of ``r`` in them is
         between it and the reference (as for a pair): its pose at ``t`` and
@@ -922,7 +924,8 @@ class TeamTracker:
         records hold four or more distinct observations, the fit leaves
         ``MIN_START_DOF`` degrees of freedom and passes its chi-square test,
         and its uncertainty is within the track's limits -- then a confirmed
-        track.  Returns the row's note, or "" (not started)."""
+        track.  Returns the row's note, "" (not started: not yet) or None
+        (``r`` is seen with other robots too)."""
         ref = self.reference
         problems, times, latest = [], [], {}
         for tk, o in [*self._recent, (t, obs)]:
@@ -932,7 +935,7 @@ class TeamTracker:
                 if a != r and owner != r:
                     continue
                 if {a, owner} != {r, ref}:
-                    return ""  # tied to other robots too: the joint start (see _bridge)
+                    return None  # tied to other robots too: the joint start (see _bridge)
                 mine.append(k)
             if not mine:
                 continue
