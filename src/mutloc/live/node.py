@@ -186,7 +186,7 @@ class Node:
     detectors work in that camera (its intrinsics, distortion and image
     size), and each published pixel re-expressed in the rig's camera of this
     robot -- the pixel the rig's camera would see along the same ray -- so
-    the message stays what the SPEC says (rig pixels) and a localizer that
+    the message keeps its documented meaning (rig pixels) and a localizer that
     knows only the rig file gets the right bearings.  A detection whose ray
     the rig's camera cannot express (behind it, beyond half an image outside
     it, or where its distortion does not invert) is left out and counted
