@@ -157,13 +157,20 @@ def _retract(i, o, e, R0, t0, Rs, ts):
 
 
 @njit(cache=True)
-def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res):
+def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res,
+              H_lin, r_lin, innov_lin):
     """The iterated update with the observations given (all of tracked
     robots or the reference ``ref``; ``pos[i]``: robot ``i``'s state block
     or -1).  Writes the posterior robots' ``Rs``, ``ts``, ``vel``, ``P`` and
     each row's reprojection error at it (``res``, px).  Returns ``(ok,
     chi2)``; not ok when a marker is behind its camera or the innovation
-    covariance is not positive definite."""
+    covariance is not positive definite.
+
+    At the last linearisation it also writes the Jacobian ``H_lin`` (``2m x
+    6q``: the pose columns of the ``q`` robots involved, in ascending robot
+    index), the residuals ``r_lin`` and the innovation ``innov_lin`` (``-r +
+    H e``) -- what the caller needs for the same gain's covariance under
+    another noise and for the residual no pose explains."""
     m = cam.shape[0]
     n = R0.shape[0]
     N = P0.shape[0]
@@ -234,6 +241,8 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
                 for row in range(2 * m):
                     S[row, col] += HP[row, o] * h
             innov[col, 0] = -r[col] + he
+            innov_lin[col] = innov[col, 0]
+            r_lin[col] = r[col]
         for a in range(2 * m):
             S[a, a] += s2
         for a in range(2 * m):
@@ -287,6 +296,7 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     for row in range(2 * m):
         for z in range(12):
             B[row, hc[row, z]] += hv[row, z]
+    H_lin[:, :] = B
     _forward(L, B)  # B = L^-1 H (2m x c)
     if 2 * m <= c:
         Wl = PHc @ B.T  # (N, 2m)
