@@ -54,7 +54,7 @@ from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .filter import NOISE_WINDOW, STATE_DIM, MotionNoise, measured_noise, single_outlier
 from .pose import Pose
 from .team import TeamProblem
-from .team_kernels import team_iekf, team_predict
+from .team_kernels import team_iekf, team_ls_residual, team_predict
 
 __all__ = ["TeamFilter", "TeamUpdate", "TeamSnapshot"]
 
@@ -369,7 +369,8 @@ class TeamFilter:
         ref = self.index(self.reference)
         pos = self._positions()
         robots = np.unique(np.r_[cam, own])
-        cols = (STATE_DIM * pos[robots[robots != ref]][:, None] + np.arange(6)).ravel()
+        robots = robots[robots != ref]
+        cols = (STATE_DIM * pos[robots][:, None] + np.arange(6)).ravel()
         Rs, ts, vel = np.empty_like(self.R), np.empty_like(self.t), np.empty_like(self.vel)
         Pg = np.empty_like(self.P)
         res = np.empty(m)
@@ -390,7 +391,9 @@ class TeamFilter:
         dof = 2 * m
         test = Consistency(chi2, dof, self.confidence,
                            chi2_quantile(self.confidence, dof) if self.confidence < 1.0 else math.inf)
-        return (Rs, ts, vel, P, Pg, (self.pixel_sigma / sigma) ** 2), test, res, (H, r)
+        blocks = np.searchsorted(robots, np.c_[cam, own])  # each observation's column blocks (-1: the reference)
+        blocks[np.c_[cam, own] == ref] = -1
+        return (Rs, ts, vel, P, Pg, (self.pixel_sigma / sigma) ** 2), test, res, (H, r, blocks)
 
     def _stated(self, H: np.ndarray, cols: np.ndarray, innov: np.ndarray, sigma: float):
         """The posterior covariance under ``pixel_sigma`` of the gain computed
@@ -423,31 +426,13 @@ class TeamFilter:
         return pos
 
     def _accept(self, result) -> None:
-        (self.R, self.t, self.vel, self.P, self.Pg, self.noise_scale), _, _, (H, r) = result
-        fit = fitted_alone(H, r)
-        if fit is not None:
-            self._noise_window.append(fit)
-            self._noise_sum[0] += fit[0]
-            self._noise_sum[1] += fit[1]
+        (self.R, self.t, self.vel, self.P, self.Pg, self.noise_scale), _, _, (H, r, blocks) = result
+        chi2, dof = team_ls_residual(H, r, blocks)
+        if dof > 0:
+            self._noise_window.append((chi2, dof))
+            self._noise_sum[0] += chi2
+            self._noise_sum[1] += dof
             if len(self._noise_window) > NOISE_WINDOW:
                 c, d = self._noise_window.popleft()
                 self._noise_sum[0] -= c
                 self._noise_sum[1] -= d
-
-
-def fitted_alone(H: np.ndarray, r: np.ndarray) -> tuple[float, int] | None:
-    """The squared residual (px^2) of observations fitted on their own --
-    ``|r|^2`` less its part in the span of the Jacobian ``H``'s columns --
-    and its degrees of freedom (rows less ``H``'s rank: ``2m - 6q`` when
-    the observations fix the ``q`` robots involved), or None without any."""
-    if H.shape[1] == 0:
-        return (float(r @ r), len(r)) if len(r) else None
-    norm = np.linalg.norm(H, axis=0)
-    norm[norm == 0.0] = 1.0
-    U, s, _ = np.linalg.svd(H / norm, full_matrices=False)
-    rank = int(np.sum(s > 1e-9 * s[0])) if s[0] > 0.0 else 0
-    dof = len(r) - rank
-    if dof <= 0:
-        return None
-    x = U[:, :rank].T @ r
-    return max(float(r @ r - x @ x), 0.0), dof
