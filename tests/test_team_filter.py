@@ -109,7 +109,8 @@ def test_misuse_is_refused():
     assert not f.is_tracked(f.robots[1]) and f.P.shape == (12, 12)
 
 
-def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_ones():
+@pytest.mark.parametrize("few", [False, True])
+def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_ones(few):
     """Detections of 0.5 px with the stated noise 2 px: after a few records
     the filter has measured the noise (each update's residual that no pose
     explains) and its gain weighs the detections by it.  One more update
@@ -117,7 +118,9 @@ def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_o
     own covariance is the Kalman posterior at the measured noise, the
     reported one the Joseph form of that same gain under 2 px, the gate is
     under 2 px, and the residual measured is that of the record's
-    observations fitted on their own (the two robots' poses free)."""
+    observations fitted on their own (the two robots' poses free).  ``few``:
+    five observations of the two robots (the update's other arithmetic:
+    fewer rows than pose columns)."""
     from scipy.optimize import least_squares
 
     from mutloc.core.geometry import so3_exp
@@ -138,6 +141,11 @@ def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_o
     assert 0.35 < f.detection_sigma < 0.65 and f.gain_sigma < 0.8 and f.Pg is not None
     sg, sr = f.gain_sigma, 2.0
     prob = team_problem(scene.rig, scene.observations(0.5, rng))[0]
+    if few:
+        first = [int(np.flatnonzero((prob.cam == i) | (prob.own == i))[0]) for i in (1, 2)]
+        rest = [j for j in range(len(prob.cam)) if j not in first]
+        prob = prob.take(np.array(first + rest[:5 - len(set(first))]))
+        assert len(prob.cam) == 5
     f.predict(0.06)
     prior = f.snapshot()
     upd = f.update(prob)
@@ -170,6 +178,8 @@ def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_o
         Rp[i], tp[i] = prior.R[x], prior.t[x]
     nu = pix(Rp, tp)
     assert upd.test.chi2 == pytest.approx(nu @ np.linalg.solve(H @ P0 @ H.T + sr**2 * np.eye(2 * m), nu), rel=0.05)
+    if few:
+        return
     # The record on its own: the residual no pose of the two robots explains, 2m - 12 degrees of freedom.
     fit = least_squares(lambda d: pix(*moved(f.R, f.t, np.r_[d[:6], np.zeros(6), d[6:], np.zeros(6)])),
                         np.zeros(12), xtol=1e-14, ftol=1e-14)

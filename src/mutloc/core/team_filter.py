@@ -402,22 +402,28 @@ class TeamFilter:
         the innovation's Mahalanobis distance under ``pixel_sigma``; None if
         its covariance is not positive definite.
 
-        ``(I - K H) P (I - K H)^T + s^2 K K^T = P + Y + Y^T`` with ``Y = (K S / 2
-        - P H^T) K^T``, ``S = H P H^T + s^2 I``: one ``N x 2m x N`` product."""
-        P, Po = self.P, self.own_covariance
+        With ``A = P_own[:, cols]``, ``B = P[:, cols]``, the gain ``K = A Z``
+        (``Z = H^T S_own^-1``) and ``S = H B[cols] H^T + s^2 I``: ``(I - K H) P
+        (I - K H)^T + s^2 K K^T = P + Y + Y^T``, ``Y = (K S / 2 - B H^T) K^T``,
+        or, with fewer columns than rows, ``Y = (A T / 2 - B Q^T) A^T``
+        (``T = Z S Z^T``, ``Q = Z H``): one product of rank ``min(2m, 6q)``."""
+        A, B = self.own_covariance[:, cols], self.P[:, cols]
         eye = np.eye(H.shape[0])
-        PoH = Po[:, cols] @ H.T
-        K = np.linalg.solve(H @ PoH[cols] + sigma**2 * eye, PoH.T).T
-        PH = P[:, cols] @ H.T
-        S = H @ PH[cols] + self.pixel_sigma**2 * eye
+        S = H @ B[cols] @ H.T + self.pixel_sigma**2 * eye
         try:
             L = np.linalg.cholesky(0.5 * (S + S.T))
         except np.linalg.LinAlgError:
             return None
         w = np.linalg.solve(L, innov)
-        Y = (0.5 * (K @ S) - PH) @ K.T
-        out = P + Y + Y.T
-        return 0.5 * (out + out.T), float(w @ w)
+        Z = np.linalg.solve(H @ A[cols] @ H.T + sigma**2 * eye, H).T
+        if H.shape[0] <= H.shape[1]:
+            K = A @ Z
+            Y = (K @ (0.5 * S) - B @ H.T) @ K.T
+        else:
+            Y = (A @ (0.5 * (Z @ S @ Z.T)) - B @ (Z @ H).T) @ A.T
+        out = Y + Y.T
+        out += self.P
+        return out, float(w @ w)
 
     def _positions(self) -> np.ndarray:
         """Each robot's state block (-1: not tracked)."""
