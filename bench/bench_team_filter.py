@@ -8,12 +8,15 @@ second for 10 robots, 1500 for 50), 1 px noise.
 
     OPENBLAS_NUM_THREADS=1 taskset -c 1 python bench/bench_team_filter.py [--robots 10 50] [--durations 2 0.2]
         [--gtsam-durations 1 0.2] [--lags 0.02 0.1] [--gtsam-budget 120] [--detection-sigma 1]
-        [--no-measure-noise]
+        [--no-measure-noise] [--speed 1 --turn-rate 30]
 
 ``--detection-sigma``: the simulated detections' noise (px; the filter's
 stated noise stays 1 px): below it, e.g. 0.05 px as in rendered images,
 the filter's gain weighs the detections by the noise it measures
 (``--no-measure-noise``: by the stated 1 px, as GTSAM's factors do).
+``--speed``/``--turn-rate``: the robots drive circles at about that speed
+(m/s) and turn at that peak rate (deg/s) instead of swaying slowly
+(:func:`mutloc.sim.team.team_motion`).
 
 Per record, timed alike (wall clock and the process's CPU time, all threads; median over
 the records after a warm-up, a new ``ObservationSet`` every call):
@@ -77,11 +80,11 @@ SIGMA = 1.0
 WARMUP = 30
 
 
-def setup(n: int, seed: int, duration: float, detection_sigma: float = SIGMA):
+def setup(n: int, seed: int, duration: float, detection_sigma: float = SIGMA, **motion):
     rng = np.random.default_rng(seed)
     scene = random_team(n, rng, one_way=0.0)
-    recs = team_camera_records(scene, duration, sigma=detection_sigma, seed=seed)
-    snap = TeamScene(scene.rig, team_motion(scene, seed=seed)(0.0), scene.links)
+    recs = team_camera_records(scene, duration, sigma=detection_sigma, seed=seed, **motion)
+    snap = TeamScene(scene.rig, team_motion(scene, seed=seed, **motion)(0.0), scene.links)
     team = localize_team(scene.rig, snap.observations(detection_sigma, rng), scene.names[0], pixel_sigma=SIGMA)
     return scene, recs, team
 
@@ -274,6 +277,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="the simulated detections' noise (px); the stated noise stays 1 px")
     ap.add_argument("--no-measure-noise", action="store_true",
                     help="the filter's gain weighs the detections by the stated noise only")
+    ap.add_argument("--speed", type=float, default=None, help="the robots drive circles at about this speed (m/s)")
+    ap.add_argument("--turn-rate", type=float, default=None, help="and turn at this peak rate (deg/s)")
     ap.add_argument("--out", default=result_file("team_filter.json"))
     args = ap.parse_args(argv)
     import os
@@ -285,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
            "gtsam": version("gtsam") if gtsam is not None else None, "teams": {}}
     for n, dur, gdur in zip(args.robots, args.durations, args.gtsam_durations):
         t0 = time.perf_counter()
-        scene, recs, team = setup(n, args.seed, dur, args.detection_sigma)
+        scene, recs, team = setup(n, args.seed, dur, args.detection_sigma, speed=args.speed, turn_rate=args.turn_rate)
         settle = min(args.settle, (gdur if gdur > 0 else dur) / 4)  # one window for both
         entry = {"records": len(recs), "duration_s": dur, "records_per_second_simulated": len(recs) / dur,
                  "simulation_s": time.perf_counter() - t0, "mutloc": run_mutloc(scene, recs, team, settle, not args.no_measure_noise)}
