@@ -293,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         scene, recs, team = setup(n, args.seed, dur, args.detection_sigma, speed=args.speed, turn_rate=args.turn_rate)
         settle = min(args.settle, (gdur if gdur > 0 else dur) / 4)  # one window for both
         entry = {"records": len(recs), "duration_s": dur, "records_per_second_simulated": len(recs) / dur,
-                 "simulation_s": time.perf_counter() - t0, "mutloc": run_mutloc(scene, recs, team, settle, not args.no_measure_noise)}
+                 "simulation_s": time.perf_counter() - t0,
+                 "mutloc": run_mutloc(scene, recs, team, settle, not args.no_measure_noise)}
         m = entry["mutloc"]
         print(f"{n} robots, {len(recs)} records ({len(recs) / dur:.0f}/s), {m['observations_per_record_median']:.0f} "
               f"observations per record; mutloc per record median {1e6 * m['time_per_record']['median_wall_s']:.0f} us "

@@ -548,7 +548,8 @@ def test_a_pair_as_a_team_of_two_does_not_lag_with_detections_better_than_stated
         frames = list(zip(seq.times, seq.frames))
         for key, opts in (("none", FilterOptions("none")), ("causal", FilterOptions(smooth_lag=0)),
                           ("stated", FilterOptions(smooth_lag=0, measure_noise=False)), ("default", FilterOptions())):
-            rows = track_team_log(rig, frames, reference="q", pixel_sigma=1.0, progress=False, filter=opts).tracks["p"].rows
+            log = track_team_log(rig, frames, reference="q", pixel_sigma=1.0, progress=False, filter=opts)
+            rows = log.tracks["p"].rows
             assert all(r.estimate is not None for r in rows)
             med[key].append([r.estimate.pose.translation_error(T) for r, T in zip(rows, seq.truth)])
     med = {k: np.median(np.concatenate(v)) for k, v in med.items()}

@@ -53,7 +53,8 @@ from .pose import Pose
 from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, normal_equations, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
-           "iekf_update", "measured_noise", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose", "single_outlier"]
+           "iekf_update", "measured_noise", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose",
+           "single_outlier"]
 
 #: Error-state dimension: rotation, translation, angular and linear velocity.
 STATE_DIM = 12

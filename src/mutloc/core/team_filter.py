@@ -133,7 +133,7 @@ class TeamFilter:
         self.R = np.tile(np.eye(3), (n, 1, 1))
         self.t = np.zeros((n, 3))
         self.vel = np.zeros((n, 6))
-        #: Tracked robots' indices, in state order, and the joint covariance.
+        #: Tracked robots' indices, in state order, and the joint covariance (under ``pixel_sigma``).
         self.tracked: list[int] = []
         self.P = np.zeros((0, 0))
         #: The gain's own joint covariance (None: ``P``) and ``(pixel_sigma / gain sigma)^2`` at the last update.

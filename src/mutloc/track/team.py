@@ -844,8 +844,8 @@ class TeamTracker:
         if not guesses:
             return {}, failed
         before = set(self.tracks)
-        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), None if f.Pg is None else f.Pg.copy(), f.noise_scale, list(f.tracked), f.serial.copy(),
-                 dict(self.tracks))
+        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), None if f.Pg is None else f.Pg.copy(), f.noise_scale,
+                 list(f.tracked), f.serial.copy(), dict(self.tracks))
         for r, (pose, three) in guesses.items():
             if r in self.tracks:
                 self._drop(r)
