@@ -7,7 +7,16 @@ evenly over a frame, so each record is one camera's frame: 300 records a
 second for 10 robots, 1500 for 50), 1 px noise.
 
     OPENBLAS_NUM_THREADS=1 taskset -c 1 python bench/bench_team_filter.py [--robots 10 50] [--durations 2 0.2]
-        [--gtsam-durations 1 0.2] [--lags 0.02 0.1] [--gtsam-budget 120]
+        [--gtsam-durations 1 0.2] [--lags 0.02 0.1] [--gtsam-budget 120] [--detection-sigma 1]
+        [--no-measure-noise] [--speed 1 --turn-rate 30]
+
+``--detection-sigma``: the simulated detections' noise (px; the filter's
+stated noise stays 1 px): below it, e.g. 0.05 px as in rendered images,
+the filter's gain weighs the detections by the noise it measures
+(``--no-measure-noise``: by the stated 1 px, as GTSAM's factors do).
+``--speed``/``--turn-rate``: the robots drive circles at about that speed
+(m/s) and turn at that peak rate (deg/s) instead of swaying slowly
+(:func:`mutloc.sim.team.team_motion`).
 
 Per record, timed alike (wall clock and the process's CPU time, all threads; median over
 the records after a warm-up, a new ``ObservationSet`` every call):
@@ -71,12 +80,12 @@ SIGMA = 1.0
 WARMUP = 30
 
 
-def setup(n: int, seed: int, duration: float):
+def setup(n: int, seed: int, duration: float, detection_sigma: float = SIGMA, **motion):
     rng = np.random.default_rng(seed)
     scene = random_team(n, rng, one_way=0.0)
-    recs = team_camera_records(scene, duration, sigma=SIGMA, seed=seed)
-    snap = TeamScene(scene.rig, team_motion(scene, seed=seed)(0.0), scene.links)
-    team = localize_team(scene.rig, snap.observations(SIGMA, rng), scene.names[0])
+    recs = team_camera_records(scene, duration, sigma=detection_sigma, seed=seed, **motion)
+    snap = TeamScene(scene.rig, team_motion(scene, seed=seed, **motion)(0.0), scene.links)
+    team = localize_team(scene.rig, snap.observations(detection_sigma, rng), scene.names[0], pixel_sigma=SIGMA)
     return scene, recs, team
 
 
@@ -107,10 +116,10 @@ def timings(wall: list, cpu: list) -> dict:
             "records_per_second_mean_cpu": float(1.0 / np.mean(c))}
 
 
-def run_mutloc(scene, recs, team, settle: float) -> dict:
+def run_mutloc(scene, recs, team, settle: float, measure_noise: bool = True) -> dict:
     names = scene.names
     ref = names[0]
-    f = TeamFilter(names, ref, NOISE, pixel_sigma=SIGMA)
+    f = TeamFilter(names, ref, NOISE, pixel_sigma=SIGMA, measure_noise=measure_noise)
     f.reset(0.0, {r: team.poses[r] for r in team.robots}, team.joint_covariance)
     wall, cpu, errors, accepted, obs_count = [], [], [], 0, []
     for t, _, world, obs in recs:
@@ -127,6 +136,7 @@ def run_mutloc(scene, recs, team, settle: float) -> dict:
                        for i in involved(scene, prob, 0)])
     late = [e for (t, *_), e in zip(recs, errors) if t >= settle]
     return {"time_per_record": timings(wall, cpu), "accuracy": score(sum(late, [])), "accepted": accepted,
+            "detection_sigma_measured": f.detection_sigma, "gain_sigma": f.gain_sigma,
             "records": len(recs), "observations_per_record_median": float(np.median(obs_count)),
             "errors_per_record": errors}
 
@@ -263,6 +273,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--relinearize", type=float, default=1e-3)
     ap.add_argument("--gtsam-budget", type=float, default=120.0,
                     help="seconds per GTSAM run; it stops there (after at least 60 records) and reports those")
+    ap.add_argument("--detection-sigma", type=float, default=SIGMA,
+                    help="the simulated detections' noise (px); the stated noise stays 1 px")
+    ap.add_argument("--no-measure-noise", action="store_true",
+                    help="the filter's gain weighs the detections by the stated noise only")
+    ap.add_argument("--speed", type=float, default=None, help="the robots drive circles at about this speed (m/s)")
+    ap.add_argument("--turn-rate", type=float, default=None, help="and turn at this peak rate (deg/s)")
     ap.add_argument("--out", default=result_file("team_filter.json"))
     args = ap.parse_args(argv)
     import os
@@ -274,14 +290,16 @@ def main(argv: list[str] | None = None) -> int:
            "gtsam": version("gtsam") if gtsam is not None else None, "teams": {}}
     for n, dur, gdur in zip(args.robots, args.durations, args.gtsam_durations):
         t0 = time.perf_counter()
-        scene, recs, team = setup(n, args.seed, dur)
+        scene, recs, team = setup(n, args.seed, dur, args.detection_sigma, speed=args.speed, turn_rate=args.turn_rate)
         settle = min(args.settle, (gdur if gdur > 0 else dur) / 4)  # one window for both
         entry = {"records": len(recs), "duration_s": dur, "records_per_second_simulated": len(recs) / dur,
-                 "simulation_s": time.perf_counter() - t0, "mutloc": run_mutloc(scene, recs, team, settle)}
+                 "simulation_s": time.perf_counter() - t0,
+                 "mutloc": run_mutloc(scene, recs, team, settle, not args.no_measure_noise)}
         m = entry["mutloc"]
         print(f"{n} robots, {len(recs)} records ({len(recs) / dur:.0f}/s), {m['observations_per_record_median']:.0f} "
               f"observations per record; mutloc per record median {1e6 * m['time_per_record']['median_wall_s']:.0f} us "
-              f"wall, {1e6 * m['time_per_record']['median_cpu_s']:.0f} us CPU; accepted {m['accepted']}; "
+              f"wall, {1e6 * m['time_per_record']['median_cpu_s']:.0f} us CPU; accepted {m['accepted']}; gain sigma "
+              f"{m['gain_sigma']:.3g} px (measured {m['detection_sigma_measured'] or float('nan'):.3g}); "
               f"{m['accuracy']}", flush=True)
         if gtsam is not None and gdur > 0:
             cut = [r for r in recs if r[0] <= gdur]

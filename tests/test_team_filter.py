@@ -8,6 +8,7 @@ import pytest
 
 from mutloc.core.filter import MotionNoise
 from mutloc.core.geometry import so3_log
+from mutloc.core.pose import Pose
 from mutloc.core.team_filter import TeamFilter
 from mutloc.errors import InputError
 from mutloc.sim.team import TeamScene, random_team, team_camera_records, team_motion
@@ -106,3 +107,103 @@ def test_misuse_is_refused():
         f.add(f.reference, truth[f.reference], np.eye(6))
     f.drop(f.robots[1])
     assert not f.is_tracked(f.robots[1]) and f.P.shape == (12, 12)
+
+
+@pytest.mark.parametrize("few", [False, True])
+def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_ones(few):
+    """Detections of 0.5 px with the stated noise 2 px: after a few records
+    the filter has measured the noise (each update's residual that no pose
+    explains) and its gain weighs the detections by it.  One more update
+    against a dense reference with a finite-difference Jacobian: the gain's
+    own covariance is the Kalman posterior at the measured noise, the
+    reported one the Joseph form of that same gain under 2 px, the gate is
+    under 2 px, and the residual measured is that of the record's
+    observations fitted on their own (the two robots' poses free).  ``few``:
+    five observations of the two robots (the update's other arithmetic:
+    fewer rows than pose columns)."""
+    from scipy.optimize import least_squares
+
+    from mutloc.core.geometry import so3_exp
+    from mutloc.core.team import team_residuals
+
+    rng = np.random.default_rng(7)
+    scene = random_team(3, rng, one_way=0.0)
+    names = scene.names
+    truth = scene.truth(names[0])
+    f = TeamFilter(names, names[0], pixel_sigma=2.0, max_iter=30)
+    f.time = 0.0
+    for r in names[1:]:
+        f.add(r, Pose(so3_exp(rng.normal(0, 0.003, 3)) @ truth[r].R, truth[r].t + rng.normal(0, 0.005, 3)),
+              np.diag([0.01] * 3 + [0.02] * 3) ** 2)
+    for k in range(1, 6):
+        f.predict(0.01 * k)
+        assert f.update(team_problem(scene.rig, scene.observations(0.5, rng))[0]).accepted
+    assert 0.35 < f.detection_sigma < 0.65 and f.gain_sigma < 0.8 and f.Pg is not None
+    sg, sr = f.gain_sigma, 2.0
+    prob = team_problem(scene.rig, scene.observations(0.5, rng))[0]
+    if few:
+        first = [int(np.flatnonzero((prob.cam == i) | (prob.own == i))[0]) for i in (1, 2)]
+        rest = [j for j in range(len(prob.cam)) if j not in first]
+        prob = prob.take(np.array(first + rest[:5 - len(set(first))]))
+        assert len(prob.cam) == 5
+    f.predict(0.06)
+    prior = f.snapshot()
+    upd = f.update(prob)
+    assert upd.accepted and len(upd.dropped) == 0
+    m = len(prob.cam)
+
+    def pix(R, t):
+        r = np.empty(2 * m)
+        J = np.empty((m, 2, 6))
+        assert team_residuals(prob.cam, prob.own, prob.points, prob.uv, prob.K, prob.dist, R, t, r, J, J, False)
+        return r
+
+    def moved(R, t, dx):  # every tracked robot's pose moved by its error state's pose part
+        R, t = R.copy(), t.copy()
+        for x, i in enumerate(f.tracked):
+            R[i] = so3_exp(dx[12 * x:12 * x + 3]) @ R[i]
+            t[i] = t[i] + dx[12 * x + 3:12 * x + 6]
+        return R, t
+
+    N = 12 * len(f.tracked)
+    H = np.array([(pix(*moved(f.R, f.t, h)) - pix(*moved(f.R, f.t, -h))) / 2e-7 for h in np.eye(N) * 1e-7]).T
+    P0, Pg0 = prior.P, prior.Pg
+    K = Pg0 @ H.T @ np.linalg.inv(H @ Pg0 @ H.T + sg**2 * np.eye(2 * m))
+    A = np.eye(N) - K @ H
+    np.testing.assert_allclose(f.Pg, A @ Pg0 @ A.T + sg**2 * K @ K.T, rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(f.P, A @ P0 @ A.T + sr**2 * K @ K.T, rtol=1e-4, atol=1e-12)
+    assert f.noise_scale == pytest.approx((sr / sg) ** 2)
+    Rp, tp = np.array([np.eye(3)] * len(names)), np.zeros((len(names), 3))
+    for x, i in enumerate(prior.tracked):
+        Rp[i], tp[i] = prior.R[x], prior.t[x]
+    nu = pix(Rp, tp)
+    assert upd.test.chi2 == pytest.approx(nu @ np.linalg.solve(H @ P0 @ H.T + sr**2 * np.eye(2 * m), nu), rel=0.05)
+    if few:
+        return
+    # The record on its own: the residual no pose of the two robots explains, 2m - 12 degrees of freedom.
+    fit = least_squares(lambda d: pix(*moved(f.R, f.t, np.r_[d[:6], np.zeros(6), d[6:], np.zeros(6)])),
+                        np.zeros(12), xtol=1e-14, ftol=1e-14)
+    chi2, dof = f._noise_window[-1]
+    assert dof == 2 * m - 12 and chi2 == pytest.approx(np.sum(fit.fun**2), rel=0.02)
+
+
+def test_detections_as_stated_leave_the_filter_as_it_was():
+    """With 1 px detections and 1 px stated the measured noise is not
+    clearly below the stated: no second covariance, and every update leaves
+    the state the filter without noise measurement gets, bit for bit."""
+    rng = np.random.default_rng(5)
+    scene = random_team(3, rng, one_way=0.0)
+    names = scene.names
+    truth = scene.truth(names[0])
+    f, g = TeamFilter(names, names[0]), TeamFilter(names, names[0], measure_noise=False)
+    for x in (f, g):
+        x.time = 0.0
+        for r in names[1:]:
+            x.add(r, truth[r], np.diag([0.01] * 3 + [0.02] * 3) ** 2)
+    for k in range(1, 8):
+        prob = team_problem(scene.rig, scene.observations(1.0, rng))[0]
+        for x in (f, g):
+            x.predict(0.01 * k)
+            assert x.update(prob).accepted
+        assert f.Pg is None and np.array_equal(f.P, g.P) and np.array_equal(f.t, g.t) and np.array_equal(f.R, g.R)
+    assert 0.7 < f.detection_sigma < 1.3 and f.gain_sigma == 1.0 and g.gain_sigma == 1.0

@@ -185,3 +185,51 @@ def test_the_kernel_rotation_log_is_the_geometry_one():
             _so3_log(R, out)
             assert np.allclose(out, so3_log(R), atol=1e-9), (scale, out, so3_log(R))
             assert np.allclose(so3_exp(out), R, atol=1e-9)
+
+
+def test_with_measured_noise_the_gains_are_the_filters_own_as_for_the_pair():
+    """A robot whose filter's gain weighed measured noise below the stated
+    (a second, own covariance and noise_scale 4, then back to none at the
+    last record): the joint smoother's means, own covariances and reported
+    covariances are the pair smoother's (gains from the own covariances, the
+    reported covariance the smaller bound of the stated one), records 0 .. 6."""
+    rng = np.random.default_rng(6)
+    f = TeamFilter(["r0", "r1"], "r0", NOISE)
+    f.add("r1", Pose(so3_exp(rng.normal(size=3)), rng.normal(size=3)), _spd(rng, 6, 0.01),
+          velocity=rng.normal(size=6) * 0.5, velocity_covariance=_spd(rng, 6, 0.1))
+    f.Pg, f.noise_scale, f.time = 0.3 * f.P, 4.0, 0.0
+    sm = TeamSmoother(lag=6)
+    priors, posts = [], []
+    for k in range(7):
+        f.predict(0.05 * k + 0.01 * (k % 2))
+        prior = f.snapshot()
+        assert prior.Pg is not None
+        P = 0.5 * prior.P + _spd(rng, STATE_DIM, 1e-4) if k else prior.P
+        Pg = (0.4 * prior.Pg + _spd(rng, STATE_DIM, 1e-5) if k < 6 else None) if k else prior.Pg
+        post = TeamSnapshot(prior.time, prior.tracked, prior.serial,
+                            np.array([so3_exp(0.02 * rng.normal(size=3)) @ prior.R[0]]) if k else prior.R,
+                            prior.t + (0.01 * rng.normal(size=prior.t.shape) if k else 0.0),
+                            prior.vel + (0.05 * rng.normal(size=prior.vel.shape) if k else 0.0), P, Pg,
+                            4.0 if Pg is not None else 1.0)
+        sm.add(prior, post)
+        f.tracked, f.time = list(post.tracked), post.time
+        f.R[1], f.t[1], f.vel[1], f.P, f.Pg, f.noise_scale = (post.R[0], post.t[0], post.vel[0], post.P.copy(),
+                                                               None if Pg is None else Pg.copy(), post.noise_scale)
+        priors.append(prior)
+        posts.append(post)
+
+    def state(s):
+        return FilterState(s.time, Pose(s.R[0], s.t[0]), s.vel[0], s.P, s.Pg, s.noise_scale)
+
+    want = rts_smooth([state(s) for s in priors], [state(s) for s in posts])
+    used_scaled = 0
+    for k in range(7):
+        got = sm.smoothed(k)
+        assert np.allclose(got.R[0], want[k].pose.R, atol=1e-10)
+        assert np.allclose(got.t[0], want[k].pose.t, atol=1e-10)
+        assert np.allclose(got.vel[0], want[k].velocity, atol=1e-10)
+        assert np.allclose(got.P, want[k].covariance, atol=1e-12)
+        assert (got.Pg is None) == (want[k].gain_covariance is None)
+        assert np.allclose(got.own, want[k].own_covariance, atol=1e-12)
+        used_scaled += k < 6 and np.allclose(got.P, 4.0 * got.own, atol=1e-12)
+    assert used_scaled >= 1  # the scaled own bound was the smaller one somewhere

@@ -53,7 +53,8 @@ from .pose import Pose
 from .refine import MODE_PIXEL, WS_SIZE, cho_solve, cholesky, normal_equations, residuals, so3_exp_left
 
 __all__ = ["MotionNoise", "FilterState", "FilterUpdate", "ConstantVelocityFilter", "cv_predict", "cv_transition",
-           "iekf_update", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose", "single_outlier"]
+           "iekf_update", "measured_noise", "rts_gains", "rts_smooth", "STATE_DIM", "MovingFit", "fit_moving_pose",
+           "single_outlier"]
 
 #: Error-state dimension: rotation, translation, angular and linear velocity.
 STATE_DIM = 12
@@ -64,6 +65,24 @@ NOISE_WINDOW = 30
 NOISE_MIN_DOF = 20
 NOISE_CLEARLY_BELOW = 0.8
 NOISE_FLOOR = 0.01
+
+
+def measured_noise(chi2: float, dof: int, pixel_sigma: float, use: bool = True) -> tuple[float | None, float]:
+    """The detections' pixel noise measured from pooled squared residuals
+    ``chi2`` (px^2) over ``dof`` degrees of freedom (None before
+    ``NOISE_MIN_DOF``), and the noise a filter's gain weighs them with:
+    ``pixel_sigma``, unless ``use`` and the measured noise is clearly
+    smaller (its upper two-sigma bound below ``NOISE_CLEARLY_BELOW`` of
+    ``pixel_sigma``; then that bound, never below ``NOISE_FLOOR`` of it)."""
+    if dof < NOISE_MIN_DOF:
+        return None, pixel_sigma
+    measured = math.sqrt(max(chi2, 0.0) / dof)
+    if not use:
+        return measured, pixel_sigma
+    upper = measured * math.sqrt(1.0 + 2.0 * math.sqrt(2.0 / dof))
+    if upper > NOISE_CLEARLY_BELOW * pixel_sigma:
+        return measured, pixel_sigma
+    return measured, max(upper, NOISE_FLOOR * pixel_sigma)
 
 
 @dataclass(frozen=True)
@@ -413,27 +432,14 @@ class ConstantVelocityFilter:
         """The detections' pixel noise measured over the last accepted frames
         (their residuals fitted on their own, pooled), or None before
         ``NOISE_MIN_DOF`` degrees of freedom."""
-        chi2, dof = self._noise_sum
-        if dof < NOISE_MIN_DOF:
-            return None
-        return math.sqrt(max(chi2, 0.0) / dof)
+        return measured_noise(*self._noise_sum, self.pixel_sigma, True)[0]
 
     @property
     def gain_sigma(self) -> float:
-        """The noise the gain weighs the detections with: ``pixel_sigma``,
-        unless the measured noise is clearly smaller (its upper two-sigma
-        bound below ``NOISE_CLEARLY_BELOW`` of ``pixel_sigma``; then that
-        bound, never below ``NOISE_FLOOR`` of it).
+        """The noise the gain weighs the detections with (see :func:`measured_noise`).
         Detections far better than stated then update the track almost as a
         frame on its own would, instead of lagging behind the motion."""
-        measured = self.detection_sigma if self.measure_noise else None
-        if measured is None:
-            return self.pixel_sigma
-        dof = self._noise_sum[1]
-        upper = measured * math.sqrt(1.0 + 2.0 * math.sqrt(2.0 / dof))
-        if upper > NOISE_CLEARLY_BELOW * self.pixel_sigma:
-            return self.pixel_sigma
-        return max(upper, NOISE_FLOOR * self.pixel_sigma)
+        return measured_noise(*self._noise_sum, self.pixel_sigma, self.measure_noise)[1]
 
     # -- the track ----------------------------------------------------------
 

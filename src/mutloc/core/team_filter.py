@@ -27,22 +27,34 @@ more) and exactly one passing subset drops that observation, else the
 update is rejected and the state stays the prediction.  Observations of
 robots not tracked are not used (the caller starts them first).
 
+Detection noise, as the pair filter's: ``pixel_sigma`` is the stated noise
+behind the reported covariance (:attr:`TeamFilter.P`) and the gate.  The
+filter also measures the noise from each accepted update's residual that no
+pose explains (its observations fitted on their own: the involved robots'
+poses free, the reference fixed, ``2m - 6q`` degrees of freedom for ``m``
+observations of ``q`` robots the record fixes); when it is clearly smaller
+(:func:`~mutloc.core.filter.measured_noise`), the gain weighs the
+detections by it and the filter carries, next to the stated covariance, the
+gain's own (:attr:`TeamFilter.Pg`); the stated one is then the Joseph form
+of the same gain under ``pixel_sigma``.
+
 Nothing here reads files or decides statuses: the tracker does.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
-from .filter import STATE_DIM, MotionNoise, single_outlier
+from .filter import NOISE_WINDOW, STATE_DIM, MotionNoise, measured_noise, single_outlier
 from .pose import Pose
 from .team import TeamProblem
-from .team_kernels import team_iekf, team_predict
+from .team_kernels import team_iekf, team_ls_residual, team_predict
 
 __all__ = ["TeamFilter", "TeamUpdate", "TeamSnapshot"]
 
@@ -67,7 +79,10 @@ class TeamSnapshot:
     """The filter's state at one time, kept for smoothing: ``tracked`` the
     robots' indices in state order, ``serial`` each one's track (a robot
     started again is a new track), their poses ``R``/``t`` and velocities
-    ``vel`` (one row each, in state order) and the joint covariance ``P``."""
+    ``vel`` (one row each, in state order) and the joint covariance ``P``
+    under the stated noise; ``Pg`` the gain's own where it weighed measured,
+    smaller noise (None: the same) and ``noise_scale`` ``(pixel_sigma /
+    gain sigma)^2`` at the last update (see :class:`TeamFilter`)."""
 
     time: float
     tracked: tuple[int, ...]
@@ -76,6 +91,13 @@ class TeamSnapshot:
     t: np.ndarray
     vel: np.ndarray
     P: np.ndarray
+    Pg: np.ndarray | None = None
+    noise_scale: float = 1.0
+
+    @property
+    def own(self) -> np.ndarray:
+        """The covariance the gain was computed with."""
+        return self.P if self.Pg is None else self.Pg
 
     def position(self, robot: int) -> int:
         """``robot``'s place in the state (-1: not tracked)."""
@@ -89,10 +111,13 @@ class TeamFilter:
     :class:`~mutloc.core.team.TeamProblem` indices the updates use;
     ``reference``: the one whose frame the poses are in.  Robots enter the
     state with :meth:`add` (or :meth:`reset`) and leave it with :meth:`drop`.
+    ``measure_noise``: the gain may weigh the detections by their measured
+    noise (see the module docstring).
     """
 
     def __init__(self, robots: list[str], reference: str, noise: MotionNoise | None = None,
-                 pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 5) -> None:
+                 pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 5,
+                 measure_noise: bool = True) -> None:
         if reference not in robots:
             raise InputError(f"reference {reference!r} is not among the robots {robots}")
         self.robots = list(robots)
@@ -101,20 +126,45 @@ class TeamFilter:
         self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
         self.confidence = confidence_level(confidence)
         self.max_iter = int(max_iter)
+        self.measure_noise = bool(measure_noise)
         self.time: float | None = None
         n = len(self.robots)
         #: Every robot's pose (the reference's and untracked robots' are the identity / unused).
         self.R = np.tile(np.eye(3), (n, 1, 1))
         self.t = np.zeros((n, 3))
         self.vel = np.zeros((n, 6))
-        #: Tracked robots' indices, in state order, and the joint covariance.
+        #: Tracked robots' indices, in state order, and the joint covariance (under ``pixel_sigma``).
         self.tracked: list[int] = []
         self.P = np.zeros((0, 0))
+        #: The gain's own joint covariance (None: ``P``) and ``(pixel_sigma / gain sigma)^2`` at the last update.
+        self.Pg: np.ndarray | None = None
+        self.noise_scale = 1.0
+        # (squared residual, degrees of freedom) of the last accepted updates
+        # fitted on their own: the detections' noise.
+        self._noise_window: deque[tuple[float, int]] = deque()
+        self._noise_sum = [0.0, 0]
         #: Each robot's track: a new number whenever it enters the state (see :class:`TeamSnapshot`).
         self.serial = np.zeros(n, np.int64)
         self._serials = 0
 
     # -- the state ----------------------------------------------------------
+
+    @property
+    def detection_sigma(self) -> float | None:
+        """The detections' pixel noise measured over the last accepted
+        updates (their residuals fitted on their own, pooled), or None before
+        enough degrees of freedom."""
+        return measured_noise(*self._noise_sum, self.pixel_sigma)[0]
+
+    @property
+    def gain_sigma(self) -> float:
+        """The noise the gain weighs the detections with (see :func:`~mutloc.core.filter.measured_noise`)."""
+        return measured_noise(*self._noise_sum, self.pixel_sigma, self.measure_noise)[1]
+
+    @property
+    def own_covariance(self) -> np.ndarray:
+        """The joint covariance the gain is computed with (``Pg``, else ``P``)."""
+        return self.P if self.Pg is None else self.Pg
 
     def index(self, name: str) -> int:
         try:
@@ -184,24 +234,41 @@ class TeamFilter:
         B[:6, :6] = np.asarray(covariance, float)
         B[6:, 6:] = (np.asarray(velocity_covariance, float) if velocity_covariance is not None else
                      np.diag([n.initial_angular**2] * 3 + [n.initial_linear**2] * 3))
+        # The start's own covariance, were the noise the measured one: the
+        # measured part scaled (the pose's; all of a full state's).
+        scale = (self.gain_sigma / self.pixel_sigma) ** 2
+        Bg = B.copy()
+        Bg[:6, :6] *= scale
         if state_covariance is not None:
             B = np.array(state_covariance, float).reshape(STATE_DIM, STATE_DIM)
-        k = len(self.tracked)
-        P = np.zeros((STATE_DIM * (k + 1),) * 2)
-        P[:STATE_DIM * k, :STATE_DIM * k] = self.P
-        P[STATE_DIM * k:, STATE_DIM * k:] = B
-        self.P = P
+            Bg = B * scale
+        if scale != 1.0 or self.Pg is not None:
+            if self.Pg is None:
+                self.noise_scale = 1.0 / scale
+            self.Pg = self._grown(self.own_covariance, Bg)
+        self.P = self._grown(self.P, B)
         self.tracked.append(i)
         self._serials += 1
         self.serial[i] = self._serials
         self.R[i], self.t[i] = pose.R, pose.t
         self.vel[i] = 0.0 if velocity is None else np.asarray(velocity, float)
 
+    @staticmethod
+    def _grown(P: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """``P`` with the block ``B`` appended, uncorrelated."""
+        k = P.shape[0]
+        out = np.zeros((k + STATE_DIM,) * 2)
+        out[:k, :k] = P
+        out[k:, k:] = B
+        return out
+
     def drop(self, name: str) -> None:
         """Stop tracking ``name`` (its block and correlations go)."""
         b = self._block(name)
         keep = np.r_[np.arange(0, b.start), np.arange(b.stop, self.P.shape[0])]
         self.P = self.P[np.ix_(keep, keep)]
+        if self.Pg is not None:
+            self.Pg = self.Pg[np.ix_(keep, keep)]
         self.tracked.remove(self.index(name))
 
     def reset(self, time: float, poses: dict[str, Pose], covariance: np.ndarray) -> None:
@@ -214,20 +281,26 @@ class TeamFilter:
         C = np.asarray(covariance, float)
         if C.shape != (6 * len(names), 6 * len(names)):
             raise InputError(f"covariance must be {6 * len(names)} square for {len(names)} robots, got {C.shape}")
-        self.tracked, self.P, self.time = [], np.zeros((0, 0)), float(time)
+        self.tracked, self.P, self.Pg, self.time = [], np.zeros((0, 0)), None, float(time)
+        scale = (self.gain_sigma / self.pixel_sigma) ** 2
+        self.noise_scale = 1.0 / scale
         for name in names:
             self.add(name, poses[name], np.eye(6))
         for x, a in enumerate(names):
             for y, b in enumerate(names):
                 sa, sb = self._block(a), self._block(b)
-                self.P[sa.start:sa.start + 6, sb.start:sb.start + 6] = C[6 * x:6 * x + 6, 6 * y:6 * y + 6]
+                block = C[6 * x:6 * x + 6, 6 * y:6 * y + 6]
+                self.P[sa.start:sa.start + 6, sb.start:sb.start + 6] = block
+                if self.Pg is not None:
+                    self.Pg[sa.start:sa.start + 6, sb.start:sb.start + 6] = scale * block
 
     def snapshot(self) -> TeamSnapshot:
         """A copy of the state now (see :class:`TeamSnapshot`)."""
         idx = np.asarray(self.tracked, np.int64)
         return TeamSnapshot(-math.inf if self.time is None else self.time, tuple(self.tracked),
                             tuple(int(s) for s in self.serial[idx]), self.R[idx].copy(), self.t[idx].copy(),
-                            self.vel[idx].copy(), self.P.copy())
+                            self.vel[idx].copy(), self.P.copy(), None if self.Pg is None else self.Pg.copy(),
+                            self.noise_scale)
 
     # -- motion ---------------------------------------------------------------
 
@@ -242,9 +315,14 @@ class TeamFilter:
         self.time = float(time)
         if dt == 0.0 or not self.tracked:
             return
+        tracked = np.asarray(self.tracked, np.int64)
+        qa, ql = self.noise.angular**2, self.noise.linear**2
+        if self.Pg is not None:  # (the poses move once: with the stated covariance below)
+            Pg = np.array(self.Pg, dtype=float, order="C")
+            team_predict(tracked, self.R.copy(), self.t.copy(), self.vel, Pg, dt, qa, ql)
+            self.Pg = Pg
         P = np.array(self.P, dtype=float, order="C")  # a new array: results handed out before stay as they were
-        team_predict(np.asarray(self.tracked, np.int64), self.R, self.t, self.vel, P, dt, self.noise.angular**2,
-                     self.noise.linear**2)
+        team_predict(tracked, self.R, self.t, self.vel, P, dt, qa, ql)
         self.P = P
 
     # -- observations -------------------------------------------------------
@@ -279,24 +357,73 @@ class TeamFilter:
 
     def _try(self, problem: TeamProblem, rows: np.ndarray):
         """The iterated update with observations ``rows``: ``(state, test,
-        residuals_px)`` or None (a marker behind its camera, or no positive
-        definite innovation covariance)."""
+        residuals_px, linearisation)`` or None (a marker behind its camera,
+        or no positive definite innovation covariance).  The gain weighs
+        the detections by :attr:`gain_sigma`; the state's covariance and the
+        gate are under ``pixel_sigma``."""
         if len(rows) == len(problem.cam):
             cam, own, pts, meas = problem.cam, problem.own, problem.points, problem.uv
         else:
             cam, own, pts, meas = problem.cam[rows], problem.own[rows], problem.points[rows], problem.uv[rows]
         m = len(rows)
+        ref = self.index(self.reference)
+        pos = self._positions()
+        robots = np.unique(np.r_[cam, own])
+        robots = robots[robots != ref]
+        cols = (STATE_DIM * pos[robots][:, None] + np.arange(6)).ravel()
         Rs, ts, vel = np.empty_like(self.R), np.empty_like(self.t), np.empty_like(self.vel)
-        P = np.empty_like(self.P)
+        Pg = np.empty_like(self.P)
         res = np.empty(m)
-        ok, chi2 = team_iekf(cam, own, pts, meas, problem.K, problem.dist, self._positions(), self.index(self.reference),
-                             self.R, self.t, self.vel, self.P, self.pixel_sigma**2, self.max_iter, Rs, ts, vel, P, res)
+        H, r, innov = np.empty((2 * m, len(cols))), np.empty(2 * m), np.empty(2 * m)
+        sigma = self.gain_sigma
+        ok, chi2 = team_iekf(cam, own, pts, meas, problem.K, problem.dist, pos, ref, self.R, self.t, self.vel,
+                             self.own_covariance, sigma**2, self.max_iter, Rs, ts, vel, Pg, res, H, r, innov)
         if not ok:
             return None
+        if sigma == self.pixel_sigma:
+            # Back at the stated noise, the reported covariance is the gain's own again.
+            P, Pg = Pg, None
+        else:
+            stated = self._stated(H, cols, innov, sigma)
+            if stated is None:
+                return None
+            P, chi2 = stated
         dof = 2 * m
         test = Consistency(chi2, dof, self.confidence,
                            chi2_quantile(self.confidence, dof) if self.confidence < 1.0 else math.inf)
-        return (Rs, ts, vel, P), test, res
+        blocks = np.searchsorted(robots, np.c_[cam, own])  # each observation's column blocks (-1: the reference)
+        blocks[np.c_[cam, own] == ref] = -1
+        return (Rs, ts, vel, P, Pg, (self.pixel_sigma / sigma) ** 2), test, res, (H, r, blocks)
+
+    def _stated(self, H: np.ndarray, cols: np.ndarray, innov: np.ndarray, sigma: float):
+        """The posterior covariance under ``pixel_sigma`` of the gain computed
+        with the own covariance and noise ``sigma`` (Joseph form, ``H`` the
+        Jacobian on the pose columns ``cols`` at the last linearisation), and
+        the innovation's Mahalanobis distance under ``pixel_sigma``; None if
+        its covariance is not positive definite.
+
+        With ``A = P_own[:, cols]``, ``B = P[:, cols]``, the gain ``K = A Z``
+        (``Z = H^T S_own^-1``) and ``S = H B[cols] H^T + s^2 I``: ``(I - K H) P
+        (I - K H)^T + s^2 K K^T = P + Y + Y^T``, ``Y = (K S / 2 - B H^T) K^T``,
+        or, with fewer columns than rows, ``Y = (A T / 2 - B Q^T) A^T``
+        (``T = Z S Z^T``, ``Q = Z H``): one product of rank ``min(2m, 6q)``."""
+        A, B = self.own_covariance[:, cols], self.P[:, cols]
+        eye = np.eye(H.shape[0])
+        S = H @ B[cols] @ H.T + self.pixel_sigma**2 * eye
+        try:
+            L = np.linalg.cholesky(0.5 * (S + S.T))
+        except np.linalg.LinAlgError:
+            return None
+        w = np.linalg.solve(L, innov)
+        Z = np.linalg.solve(H @ A[cols] @ H.T + sigma**2 * eye, H).T
+        if H.shape[0] <= H.shape[1]:
+            K = A @ Z
+            Y = (K @ (0.5 * S) - B @ H.T) @ K.T
+        else:
+            Y = (A @ (0.5 * (Z @ S @ Z.T)) - B @ (Z @ H).T) @ A.T
+        out = Y + Y.T
+        out += self.P
+        return out, float(w @ w)
 
     def _positions(self) -> np.ndarray:
         """Each robot's state block (-1: not tracked)."""
@@ -305,4 +432,13 @@ class TeamFilter:
         return pos
 
     def _accept(self, result) -> None:
-        (self.R, self.t, self.vel, self.P), _, _ = result
+        (self.R, self.t, self.vel, self.P, self.Pg, self.noise_scale), _, _, (H, r, blocks) = result
+        chi2, dof = team_ls_residual(H, r, blocks)
+        if dof > 0:
+            self._noise_window.append((chi2, dof))
+            self._noise_sum[0] += chi2
+            self._noise_sum[1] += dof
+            if len(self._noise_window) > NOISE_WINDOW:
+                c, d = self._noise_window.popleft()
+                self._noise_sum[0] -= c
+                self._noise_sum[1] -= d

@@ -12,6 +12,8 @@ prediction and its iterated update, written to touch only what they must.
   the state step through those columns of ``P``, and the posterior
   ``P - K S K^T`` as one symmetric low-rank update of rank ``min(2m, 6q)``
   (``m`` observations, ``q`` robots involved).
+- :func:`team_ls_residual` is the residual of one update's observations
+  fitted on their own (the detections' noise, whatever the prior).
 
 The arithmetic is that of the NumPy formulation it replaces (same
 linearisation points, iterations and stopping rule); only the order of
@@ -27,7 +29,7 @@ from .filter import STATE_DIM, cv_transition
 from .refine import so3_exp_left
 from .team import team_residuals
 
-__all__ = ["team_predict", "team_iekf"]
+__all__ = ["team_predict", "team_iekf", "team_ls_residual"]
 
 
 @njit(cache=True)
@@ -157,13 +159,20 @@ def _retract(i, o, e, R0, t0, Rs, ts):
 
 
 @njit(cache=True)
-def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res):
+def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res,
+              H_lin, r_lin, innov_lin):
     """The iterated update with the observations given (all of tracked
     robots or the reference ``ref``; ``pos[i]``: robot ``i``'s state block
     or -1).  Writes the posterior robots' ``Rs``, ``ts``, ``vel``, ``P`` and
     each row's reprojection error at it (``res``, px).  Returns ``(ok,
     chi2)``; not ok when a marker is behind its camera or the innovation
-    covariance is not positive definite."""
+    covariance is not positive definite.
+
+    At the last linearisation it also writes the Jacobian ``H_lin`` (``2m x
+    6q``: the pose columns of the ``q`` robots involved, in ascending robot
+    index), the residuals ``r_lin`` and the innovation ``innov_lin`` (``-r +
+    H e``) -- what the caller needs for the same gain's covariance under
+    another noise and for the residual no pose explains."""
     m = cam.shape[0]
     n = R0.shape[0]
     N = P0.shape[0]
@@ -234,6 +243,8 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
                 for row in range(2 * m):
                     S[row, col] += HP[row, o] * h
             innov[col, 0] = -r[col] + he
+            innov_lin[col] = innov[col, 0]
+            r_lin[col] = r[col]
         for a in range(2 * m):
             S[a, a] += s2
         for a in range(2 * m):
@@ -287,6 +298,7 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     for row in range(2 * m):
         for z in range(12):
             B[row, hc[row, z]] += hv[row, z]
+    H_lin[:, :] = B
     _forward(L, B)  # B = L^-1 H (2m x c)
     if 2 * m <= c:
         Wl = PHc @ B.T  # (N, 2m)
@@ -310,3 +322,96 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     for j in range(m):
         res[j] = np.hypot(r[2 * j], r[2 * j + 1])
     return True, chi2
+
+
+@njit(cache=True)
+def team_ls_residual(H, r, blocks):
+    """The squared residual (px^2) of observations fitted on their own and
+    its degrees of freedom: ``|r|^2`` less its part in the span of the
+    Jacobian ``H`` (``2m`` rows, six pose columns per robot involved; row
+    ``2j + k`` touches only observation ``j``'s ``blocks[j]``: its
+    observer's and marker owner's column blocks, -1 for the reference),
+    ``2m - 6q`` degrees of freedom for the ``q`` robots the observations
+    fix.  A robot in three observations or fewer fits them exactly whatever
+    the others' poses (six rows or fewer, six unknowns): it and its
+    observations are left out, which changes neither the residual nor its
+    degrees of freedom.  Returns ``(chi2, dof)``; ``(nan, 0)`` with no
+    degree of freedom or singular normal equations."""
+    m = blocks.shape[0]
+    q = H.shape[1] // 6
+    keep = np.ones(m, np.bool_)
+    weak = np.zeros(q, np.bool_)
+    count = np.empty(q, np.int64)
+    while True:
+        count[:] = 0
+        for j in range(m):
+            if keep[j]:
+                for s in range(2):
+                    if blocks[j, s] >= 0 and not (s == 1 and blocks[j, 1] == blocks[j, 0]):
+                        count[blocks[j, s]] += 1
+        changed = False
+        for x in range(q):
+            if not weak[x] and count[x] <= 3:
+                weak[x] = True
+                changed = True
+        if not changed:
+            break
+        for j in range(m):
+            for s in range(2):
+                if blocks[j, s] >= 0 and weak[blocks[j, s]]:
+                    keep[j] = False
+    cmap = np.full(q, -1, np.int64)
+    k = 0
+    for x in range(q):
+        if not weak[x]:
+            cmap[x] = k
+            k += 1
+    c = 6 * k
+    n_rows = 0
+    for j in range(m):
+        if keep[j]:
+            n_rows += 2
+    dof = n_rows - c
+    if dof <= 0:
+        return np.nan, 0
+    N = np.zeros((c, c))
+    g = np.zeros((c, 1))
+    rr = 0.0
+    for j in range(m):
+        if not keep[j]:
+            continue
+        blocks_j1 = -1 if blocks[j, 1] == blocks[j, 0] else blocks[j, 1]  # its own marker: one block
+        for i in range(2):
+            row = 2 * j + i
+            ri = r[row]
+            rr += ri * ri
+            for s in range(2):
+                b = blocks[j, 0] if s == 0 else blocks_j1
+                if b < 0:
+                    continue
+                for a in range(6):
+                    h = H[row, 6 * b + a]
+                    ia = 6 * cmap[b] + a
+                    g[ia, 0] += h * ri
+                    for s2 in range(2):
+                        b2 = blocks[j, 0] if s2 == 0 else blocks_j1
+                        if b2 < 0:
+                            continue
+                        for a2 in range(6):
+                            N[ia, 6 * cmap[b2] + a2] += h * H[row, 6 * b2 + a2]
+    d = np.empty(c)
+    for a in range(c):
+        if not N[a, a] > 0.0:
+            return np.nan, 0
+        d[a] = np.sqrt(N[a, a])
+    for a in range(c):
+        g[a, 0] /= d[a]
+        for b in range(c):
+            N[a, b] /= d[a] * d[b]
+    L = np.empty((c, c))
+    if not _cholesky(N, L):
+        return np.nan, 0
+    _forward(L, g)  # g = L^-1 D^-1 H^T r: |g|^2 is the part of |r|^2 the poses explain
+    for a in range(c):
+        rr -= g[a, 0] * g[a, 0]
+    return max(rr, 0.0), dof

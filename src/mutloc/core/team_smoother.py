@@ -24,6 +24,13 @@ by what came after -- the records after its track ended say nothing of it
 but through the others, which is what the gain over the others carries.
 A robot's records before it entered are not smoothed (it has no state there).
 
+Where the filter's gain weighed measured detection noise below the stated
+(:attr:`~mutloc.core.team_filter.TeamSnapshot.Pg`), the gains and the
+recursion use the filter's own covariances, and the reported covariance is
+the smaller (by the trace of the pose blocks) of two bounds of the stated
+one: the filter's, and the smoothed own one times ``noise_scale`` (as the
+pair smoother, :func:`mutloc.core.filter.rts_smooth`).
+
 Nothing here reads files or decides statuses.
 """
 
@@ -80,8 +87,8 @@ def _gain(post: TeamSnapshot, prior: TeamSnapshot, nxt_post: TeamSnapshot) -> _G
     FP = np.empty((len(rows), post.P.shape[0]))
     for n, x in enumerate(carried):
         cv_transition(post.vel[x], dt, F)
-        FP[STATE_DIM * n:STATE_DIM * (n + 1)] = F @ post.P[STATE_DIM * x:STATE_DIM * (x + 1)]
-    Pp = prior.P[np.ix_(rows, rows)]
+        FP[STATE_DIM * n:STATE_DIM * (n + 1)] = F @ post.own[STATE_DIM * x:STATE_DIM * (x + 1)]
+    Pp = prior.own[np.ix_(rows, rows)]
     G = np.linalg.solve(Pp, FP).T
     return _Gain(G, np.asarray(carried, np.int64),
                  np.array([nxt_post.position(post.tracked[x]) for x in carried], np.int64))
@@ -165,12 +172,19 @@ def team_rts_step(post: TeamSnapshot, prior: TeamSnapshot, smooth_next: TeamSnap
     k = len(post.tracked)
     if len(g.at_post) == k == len(smooth_next.tracked) and (g.at_post == g.at_next).all() \
             and (g.at_post == np.arange(k)).all():
-        D = smooth_next.P - prior.P  # every robot carried, in the same order (the common case)
+        D = smooth_next.own - prior.own  # every robot carried, in the same order (the common case)
     else:
         post_rows, next_rows = g.post, g.nxt
-        D = smooth_next.P[np.ix_(next_rows, next_rows)] - prior.P[np.ix_(post_rows, post_rows)]
-    P = post.P + (g.G @ D) @ g.G.T
-    return TeamSnapshot(post.time, post.tracked, post.serial, R, t, vel, 0.5 * (P + P.T))
+        D = smooth_next.own[np.ix_(next_rows, next_rows)] - prior.own[np.ix_(post_rows, post_rows)]
+    Pg = post.own + (g.G @ D) @ g.G.T
+    if post.Pg is None and prior.Pg is None and smooth_next.Pg is None:
+        P, Pg = Pg, None
+    else:
+        Pg = 0.5 * (Pg + Pg.T)
+        scaled = post.noise_scale * Pg
+        pose = (np.arange(len(Pg)) % STATE_DIM) < 6
+        P = scaled if np.diag(scaled)[pose].sum() < np.diag(post.P)[pose].sum() else post.P
+    return TeamSnapshot(post.time, post.tracked, post.serial, R, t, vel, 0.5 * (P + P.T), Pg, post.noise_scale)
 
 
 class TeamSmoother:

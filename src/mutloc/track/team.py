@@ -246,7 +246,8 @@ class TeamTracker:
         self.pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
         self.confidence = confidence
         self.options = options if options is not None else FilterOptions()
-        self.filter = TeamFilter(names, reference, self.options.noise, pixel_sigma, confidence)
+        self.filter = TeamFilter(names, reference, self.options.noise, pixel_sigma, confidence,
+                                 measure_noise=self.options.measure_noise)
         #: With ``smooth_lag``: the joint filter's states of the records not yet
         #: final and their rows (see :meth:`finalize`).
         self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
@@ -368,7 +369,8 @@ class TeamTracker:
         from the last of those records whose joint solve places ``r``."""
         sm = self.smoother
         later = self._unfinal[p.k + 1 - sm.first:p.k + 1 + sm.lag - sm.first]
-        f = TeamFilter(self.filter.robots, self.reference, self.options.noise, self.pixel_sigma, self.confidence)
+        f = TeamFilter(self.filter.robots, self.reference, self.options.noise, self.pixel_sigma, self.confidence,
+                       measure_noise=self.options.measure_noise)
         started = False
         for rec in reversed(later):
             if rec.obs is None or len(rec.obs) == 0:
@@ -844,7 +846,8 @@ class TeamTracker:
         if not guesses:
             return {}, failed
         before = set(self.tracks)
-        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), list(f.tracked), f.serial.copy(), dict(self.tracks))
+        saved = (f.R.copy(), f.t.copy(), f.vel.copy(), f.P.copy(), None if f.Pg is None else f.Pg.copy(), f.noise_scale,
+                 list(f.tracked), f.serial.copy(), dict(self.tracks))
         for r, (pose, three) in guesses.items():
             if r in self.tracks:
                 self._drop(r)
@@ -879,7 +882,7 @@ class TeamTracker:
                 started[r] = note
             return started, failed
         # the record's observations of them contradict the others' tracks: not started (tracks restarting kept)
-        f.R, f.t, f.vel, f.P, f.tracked, f.serial, self.tracks = saved
+        f.R, f.t, f.vel, f.P, f.Pg, f.noise_scale, f.tracked, f.serial, self.tracks = saved
         for r in new:
             if r not in restart:
                 failed[r] = (FrameStatus.REJECTED, "its joint solve is inconsistent with the tracked robots" +
