@@ -223,6 +223,13 @@ class TeamSmoother:
             s = team_rts_step(self.posterior(j), self._priors[j + 1 - self.first], s, g)
         return s
 
+    def truncate(self, k: int) -> None:
+        """Drop record ``k`` and those after it (to filter them again)."""
+        n = max(k - self.first, 0)
+        del self._priors[n:], self._posts[n:]
+        for j in [j for j in self._gains if j >= k - 1]:
+            del self._gains[j]
+
     def forget(self, k: int) -> None:
         """Drop the records before ``k``."""
         n = k - self.first

@@ -67,6 +67,7 @@ reasons are the causal filter's.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -200,6 +201,35 @@ class _Track:
     held_by_others: dict = field(default_factory=dict)
     #: While tentative: its records as a confirmed track would report them (see ``_Tentative``).
     frames: list = field(default_factory=list)
+    #: Whether the robot's last update tied it to one robot by four or more
+    #: (or started it): a track that can verify a record of three.
+    supported: bool = True
+    #: Records of three the confirmed track took without being able to verify them (see ``_Undo``).
+    undo: "_Undo | None" = None
+
+    def copy(self) -> "_Track":
+        return replace(self, contradicted=dict(self.contradicted), held_by_others=dict(self.held_by_others),
+                       frames=list(self.frames),
+                       undo=None if self.undo is None else replace(self.undo, records=set(self.undo.records)))
+
+
+@dataclass
+class _Undo:
+    """Records of exactly three observations tying a robot to one other that
+    its confirmed track took while the record before did not support it:
+    the first one's number and all of them (see ``TeamTracker._roll_back``)."""
+
+    first: int
+    records: set = field(default_factory=set)
+
+
+class _Unconfirmed(Exception):
+    """Internal: a record solved on its own contradicts records of three that
+    robot ``robot``'s track took unverified."""
+
+    def __init__(self, robot: str, t: float) -> None:
+        super().__init__(robot)
+        self.robot, self.t = robot, t
 
 
 @dataclass
@@ -227,6 +257,8 @@ class _Record:
     times: Mapping[str, float | None] | None
     problems: Mapping[str, tuple[FrameStatus, str]] | None
     rows: dict[str, TrackRow]
+    #: The tracker's state before it, where an undo may go back to it (see ``_save``).
+    saved: tuple | None = None
 
 
 class TeamTracker:
@@ -256,6 +288,7 @@ class TeamTracker:
         #: again: (time, the records, the one that started it, its record number, robot).
         self._confirmations: list[tuple[float, list[_Tentative], _Tentative | None, int, str]] = []
         self._k = 0  #: the number of the record being filtered
+        self._replaying = False
         self.tracks: dict[str, _Track] = {}
         #: The records of the last ``start_window`` seconds (a start may bridge them).
         self._recent: deque[tuple[float, ObservationSet]] = deque()
@@ -292,17 +325,28 @@ class TeamTracker:
             self._per_record(observations, rows)
             self._input_problems(rec)
             return rows
-        self._filter_record(rec)
+        try:
+            self._filter_record(rec)
+        except _Unconfirmed as u:
+            self._roll_back(u)
+            self._filter_record(rec)  # the undone records no longer hold the track: this cannot undo any
         return rows
 
-    def _filter_record(self, rec: _Record) -> None:
-        """Filter one record and keep it (with smoothing) until final."""
+    def _filter_record(self, rec: _Record, exclude: str | None = None) -> None:
+        """Filter one record and keep it (with smoothing) until final
+        (``exclude``: a robot whose observations in it are left out)."""
         sm = self.smoother
+        # an undo can only go back to a record a track took unsupported: save the state before such records
+        rec.saved = self._save() if sm is not None and not self._replaying and any(
+            tr.confirmed and not tr.supported for tr in self.tracks.values()) else None
         self.last_time = rec.t
         self._k = len(sm) if sm is not None else 0
         self.filter.predict(rec.t)
         prior = self.filter.snapshot() if sm is not None else None
         obs = rec.obs
+        if exclude is not None and obs is not None:
+            obs = obs.take(np.array([i for i, (o, m) in enumerate(zip(obs.observer, obs.marker))
+                                     if o != exclude and (m is None or self._owner(m) != exclude)], dtype=np.int64))
         self._filtered(rec.t, obs, rec.rows)
         if obs is not None and len(obs):
             self._recent.append((rec.t, obs))
@@ -329,6 +373,68 @@ class TeamTracker:
                     row.reason = _join(note, row.reason)
                 else:
                     row.reason = _join(row.reason, f"{note} (localized from the others' views)")
+
+    # -- taking back records of three that a record solved on its own contradicts
+
+    def _save(self) -> tuple:
+        """The tracker's state (the filter and the tracks) as an undo restores it."""
+        return (copy.deepcopy(self.filter), {r: tr.copy() for r, tr in self.tracks.items()}, tuple(self._recent),
+                self.last_time)
+
+    def _undoable(self, undo: _Undo) -> bool:
+        """Whether the state before the undo's first record is still kept."""
+        sm = self.smoother
+        k = undo.first - (sm.first if sm is not None else 0)
+        return sm is not None and 0 <= k < len(self._unfinal) and self._unfinal[k].saved is not None
+
+    def _roll_back(self, u: _Unconfirmed) -> None:
+        """Undo robot ``u.robot``'s track since its first unverified record of
+        three (a record solved on its own contradicts it): those records
+        report it ``rejected`` (with the track's prediction without them),
+        every record since is filtered again; the current record then goes again."""
+        sm = self.smoother
+        undo = self.tracks[u.robot].undo
+        assert sm is not None and undo is not None
+        redo = self._unfinal[undo.first - sm.first:]
+        filt, tracks, recent, last = redo[0].saved
+        self.filter, self.tracks, self._recent, self.last_time = filt, tracks, deque(recent), last
+        sm.truncate(undo.first)
+        del self._unfinal[undo.first - sm.first:]
+        self._confirmations = [c for c in self._confirmations if c[3] < undo.first]
+        note = (f"not confirmed: the record at {u.t:.3f} s, solved on its own, contradicts the track this record of "
+                "three observations made")
+        self._replaying = True  # records filtered again make nothing to undo
+        try:
+            for i, rec in enumerate(redo):
+                for row in rec.rows.values():
+                    row.status, row.reason, row.estimate = FrameStatus.SOLVED, "", None
+                if undo.first + i in undo.records:
+                    self._filter_record(rec, exclude=u.robot)
+                    row = rec.rows[u.robot]
+                    row.status, row.reason = FrameStatus.REJECTED, note
+                    row.estimate = self._estimate(u.robot, None, [], None, None, None) \
+                        if u.robot in self.tracks else None
+                else:
+                    self._filter_record(rec)
+        finally:
+            self._replaying = False
+
+    def _judge_support(self, r: str, tr: _Track, problem: TeamProblem, mine: np.ndarray) -> None:
+        """After an accepted update of a confirmed track: four or more
+        observations tying it to one robot support it (and clear the records
+        it took unverified); exactly three while the record before did not
+        support it are taken but remembered, so that a record solved on its
+        own within the smoother's lag that contradicts the track can undo
+        them (:meth:`_roll_back`).  Without smoothing nothing is undone."""
+        n = _ties_to_one(problem.take(np.flatnonzero(mine)), self.filter.index(r))
+        if n > MIN_TIES:
+            tr.undo, tr.supported = None, True
+            return
+        if n == MIN_TIES and not tr.supported and self.smoother is not None and not self._replaying:
+            if tr.undo is None:
+                tr.undo = _Undo(self._k)
+            tr.undo.records.add(self._k)
+        tr.supported = False
 
     # -- a tentative track's records, reported again once it is confirmed ------
 
@@ -454,6 +560,9 @@ class TeamTracker:
         if not end:
             for c in self._confirmations:
                 limit = min(limit, min(p.k for p in c[1]))
+            for tr in self.tracks.values():
+                if tr.undo is not None:
+                    limit = min(limit, tr.undo.first - sm.lag)
             limit = max(limit, sm.first)
         for k in range(sm.first, limit):
             state = sm.smoothed(k)
@@ -542,6 +651,9 @@ class TeamTracker:
             for r, row in rows.items():
                 self._unobserved(r, row, "no frame" if obs is None else "no markers seen")
             return
+        for tr in self.tracks.values():
+            if tr.undo is not None and self._k - tr.undo.first > self.options.smooth_lag:
+                tr.undo = None  # beyond the lag its reports are out: taken as they stand
         if obs.has_alternatives and self.tracks:
             obs = self._nearest_candidates(obs)
         try:
@@ -573,6 +685,13 @@ class TeamTracker:
         restart: dict[str, str] = {}
         for r in rejected:
             tr = self.tracks[r]
+            tr.supported = False
+            if (tr.undo is not None and not self._replaying and _ties_to_one(problem, index[r]) > MIN_TIES
+                    and self._undoable(tr.undo)):
+                # a record that holds on its own contradicts a track made by records of three nothing confirmed
+                team, _, _ = self._solve(obs, self.reference)
+                if team is not None and team.status == "solved" and r in team.poses and r not in team.unverified:
+                    raise _Unconfirmed(r, t)
             cams = {names[c] for c in problem.cam[touch[r]].tolist()}
             for c in cams:
                 tr.contradicted[c] = tr.contradicted.get(c, 0) + 1
@@ -605,6 +724,14 @@ class TeamTracker:
             elif tr.three and _ties_to_one(problem, self.filter.index(r)) > MIN_TIES:
                 restart[r] = "a record of four or more observations does not confirm the tentative track"
                 used[touch[r]] = False
+        for r, tr in self.tracks.items():
+            mine = used & touch[r]
+            if r in rejected or r in restart or not mine.any():
+                continue
+            if r in confirmed:
+                tr.supported = _ties_to_one(problem.take(np.flatnonzero(mine)), index[r]) > MIN_TIES
+            elif tr.confirmed:
+                self._judge_support(r, tr, problem, mine)
         for r in confirmed:
             self.tracks[r].confirmed = True
         # 2. robots not tracked (or to restart) that the record places on its own
@@ -1066,6 +1193,7 @@ class TeamTracker:
             row.status = FrameStatus.TOO_FEW
             row.reason = _join(row.reason, why)
             return
+        tr.supported = False
         row.estimate = self._estimate(r, None, [], None, None, None)
         if tr.three and not tr.confirmed:
             self._tentative(r, tr, row, FrameStatus.PREDICTED, why, None, 0)
