@@ -198,7 +198,7 @@ def test_three_marker_frame_with_a_wrong_detection_is_undone(tmp_path):
     the wrong M3) fits a track that the partial frame before it left
     unverifiable.  No solved frame may be off by more than 5 cm or 2 deg, and
     no pose of any status by more than 5 sigma (SPEC order, per component);
-    the wrong M3 is dropped by the gate wherever it is seen."""
+    the frame solved on its own after it undoes it."""
     from pathlib import Path
 
     from mutloc.io.logs import iter_observation_log
@@ -222,8 +222,5 @@ def test_three_marker_frame_with_a_wrong_detection_is_undone(tmp_path):
         worst_z = max(worst_z, float(np.max(np.abs(d) / np.sqrt(np.diag(e.covariance)))))
     assert worst_z < 5.0
     at = {round(r.t, 3): r for r in traj.rows}
-    # the wrong M3 holds no pose: the joint filter's gate drops it from the frames it is in
-    for t in (0.467, 0.5):
-        row = at[t]
-        assert "dropped q saw M3" in row.reason and "M3" not in row.estimate.markers_used, (row.status, row.reason)
+    assert at[0.5].status == "rejected" and "not confirmed" in at[0.5].reason
     assert at[0.533].status == "solved"
