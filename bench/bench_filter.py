@@ -176,13 +176,14 @@ def normalised(estimates, truth) -> tuple[float, float]:
 
 
 #: The figures of one track on one sequence (:func:`figures`).
-FIGURES = ("filtered_median_m", "ratio_same_frames", "blind_median_m", "normalised_error_mean_square", "nees_over_6",
-           "outliers_within_twice_median")
+FIGURES = ("filtered_median_m", "ratio_same_frames", "same_frames_without_pose", "blind_median_m",
+           "normalised_error_mean_square", "nees_over_6", "outliers_within_twice_median")
 
 
 def figures(seq, estimates, en: np.ndarray) -> dict:
     """:data:`FIGURES` of one track's ``estimates`` on ``seq`` against the
-    per-frame errors ``en`` (the ratio on the frames solved per frame), and
+    per-frame errors ``en`` (the ratio on the frames solved per frame, those
+    of them the track gives no pose counted apart), and
     ``outliers_within_twice_median``: outlier frames whose error is at most
     twice the track's median (the acceptance's "no worse than twice the median")."""
     e = translation_errors(estimates, seq.truth)
@@ -190,7 +191,8 @@ def figures(seq, estimates, en: np.ndarray) -> dict:
     blind = np.array([b != "" for b in seq.blind])
     z2, nees = normalised(estimates, seq.truth)
     med = float(np.nanmedian(e))
-    return {"filtered_median_m": med, "ratio_same_frames": float(np.median(e[same]) / np.median(en[same])),
+    return {"filtered_median_m": med, "ratio_same_frames": float(np.nanmedian(e[same]) / np.median(en[same])),
+            "same_frames_without_pose": int(np.sum(np.isnan(e[same]))),
             "blind_median_m": float(np.nanmedian(e[blind])), "normalised_error_mean_square": z2, "nees_over_6": nees,
             "outliers_within_twice_median": int(np.sum(e[seq.outlier] <= 2 * med))}
 
