@@ -419,14 +419,14 @@ class TeamTracker:
         finally:
             self._replaying = False
 
-    def _judge_support(self, r: str, tr: _Track, problem: TeamProblem, mine: np.ndarray) -> None:
+    def _judge_support(self, tr: _Track, n: int) -> None:
         """After an accepted update of a confirmed track: four or more
         observations tying it to one robot support it (and clear the records
         it took unverified); exactly three while the record before did not
         support it are taken but remembered, so that a record solved on its
         own within the smoother's lag that contradicts the track can undo
-        them (:meth:`_roll_back`).  Without smoothing nothing is undone."""
-        n = _ties_to_one(problem.take(np.flatnonzero(mine)), self.filter.index(r))
+        them (:meth:`_roll_back`).  Without smoothing nothing is undone.
+        ``n``: the record's used observations tying it to one robot, at most."""
         if n > MIN_TIES:
             tr.undo, tr.supported = None, True
             return
@@ -724,14 +724,16 @@ class TeamTracker:
             elif tr.three and _ties_to_one(problem, self.filter.index(r)) > MIN_TIES:
                 restart[r] = "a record of four or more observations does not confirm the tentative track"
                 used[touch[r]] = False
+        C = np.zeros((problem.n_robots, problem.n_robots), dtype=np.int64)  # used observations, camera -> robot
+        np.add.at(C, (problem.cam[used], problem.own[used]), 1)
+        C = C + C.T
         for r, tr in self.tracks.items():
-            mine = used & touch[r]
-            if r in rejected or r in restart or not mine.any():
+            if r in rejected or r in restart or not (used & touch[r]).any():
                 continue
             if r in confirmed:
-                tr.supported = _ties_to_one(problem.take(np.flatnonzero(mine)), index[r]) > MIN_TIES
+                tr.supported = int(C[index[r]].max()) > MIN_TIES
             elif tr.confirmed:
-                self._judge_support(r, tr, problem, mine)
+                self._judge_support(tr, int(C[index[r]].max()))
         for r in confirmed:
             self.tracks[r].confirmed = True
         # 2. robots not tracked (or to restart) that the record places on its own
@@ -770,6 +772,11 @@ class TeamTracker:
         self._coast(rows, {r for r in self.tracks if used[touch[r]].any()})
         # 3. every robot's row
         held = self._held(problem, used)
+        res = _reprojection(problem.take(np.flatnonzero(used)), self.filter) if used.any() else None
+        if res is not None:
+            full = np.zeros(len(used))
+            full[used] = res
+            res = full
         cams = {names[c] for c in problem.cam[used].tolist()}
         for r in held & set(self.tracks):
             tr = self.tracks[r]
@@ -785,7 +792,7 @@ class TeamTracker:
                 row.status = (FrameStatus.SOLVED if not tr.three else
                               FrameStatus.UNVERIFIED if int((used & mine).sum()) >= MIN_TIES else FrameStatus.PARTIAL)
                 row.reason = _join(row.reason, started[r])
-                row.estimate = self._estimate(r, problem, markers, used, mine, test)
+                row.estimate = self._estimate(r, problem, markers, used, mine, test, res)
                 if tr.three and self.smoother is not None:
                     n = int((used & mine).sum())
                     on = ", ".join(sorted({markers[j] for j in np.flatnonzero(used & mine).tolist()}))
@@ -806,7 +813,7 @@ class TeamTracker:
                     status, why = FrameStatus.SOLVED, ""
                 else:
                     status, why = FrameStatus.PARTIAL, f"{n} observation(s) tie it to the team: updated through the filter"
-                row.estimate = self._estimate(r, problem, markers, used, mine, test)
+                row.estimate = self._estimate(r, problem, markers, used, mine, test, res)
                 if tr.three and not tr.confirmed:
                     # a tentative track reports nothing of its own yet (see _tentative)
                     self._tentative(r, tr, row, status, _join(row.reason, why), prior.get(r), n)
@@ -1202,14 +1209,17 @@ class TeamTracker:
         row.reason = _join(row.reason, why)
 
     def _estimate(self, r: str, problem: TeamProblem | None, markers: list[str], used: np.ndarray | None,
-                  mine: np.ndarray | None, test: Any) -> Estimate:
+                  mine: np.ndarray | None, test: Any, res: np.ndarray | None = None) -> Estimate:
+        """Robot ``r``'s row estimate now (``res``: every observation's
+        reprojection error at the filter's poses, when already computed)."""
         f = self.filter
         pose, vel = f.pose(r), f.velocity(r)
         names, rms = [], 0.0
         if problem is not None and used is not None and mine is not None and (used & mine).any():
             rows = np.flatnonzero(used & mine)
             names = sorted({markers[j] for j in rows.tolist()})
-            rms = float(np.sqrt(np.mean(_reprojection(problem.take(rows), f) ** 2)))
+            err = res[rows] if res is not None else _reprojection(problem.take(rows), f)
+            rms = float(np.sqrt(np.mean(err ** 2)))
         return Estimate(source=r, target=self.reference, pose=pose, covariance=f.covariance(r),
                         pixel_sigma=self.pixel_sigma, reprojection_rms_px=rms, markers_used=names,
                         candidates=Pose.concatenate([pose]), consistency=test,
