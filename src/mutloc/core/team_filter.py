@@ -207,16 +207,21 @@ class TeamFilter:
         ia, ib = self.index(a), self.index(b)
         Ja, Jb = relative_jacobian(self.R[ia], self.t[ia], self.R[ib], self.t[ib])
         pose = Pose(self.R[ib].T @ self.R[ia], self.R[ib].T @ (self.t[ia] - self.t[ib]))
-        blocks, jac = [], []
-        for name, J in ((a, Ja), (b, Jb)):
-            if name != self.reference:
-                blocks.append(self._block(name))
-                jac.append(J)
-        C = np.zeros((6, 6))
-        for s1, J1 in zip(blocks, jac):
-            for s2, J2 in zip(blocks, jac):
+        return pose, self.pose_sandwich([(a, Ja), (b, Jb)])
+
+    def pose_sandwich(self, terms: list[tuple[str, np.ndarray]]) -> np.ndarray:
+        """``sum J_a P_ab J_b^T`` over the robots' pose blocks of the joint
+        covariance, for ``terms`` ``(robot, J)`` (``J``: k x 6 Jacobians with
+        respect to that robot's pose; the reference's term is zero): the
+        covariance of a function of several robots' poses, correlations
+        included.  Symmetric (k x k)."""
+        live = [(self._block(name), np.asarray(J, float)) for name, J in terms if name != self.reference]
+        k = np.asarray(terms[0][1]).shape[0]
+        C = np.zeros((k, k))
+        for s1, J1 in live:
+            for s2, J2 in live:
                 C += J1 @ self.P[s1, s2][:6, :6] @ J2.T
-        return pose, 0.5 * (C + C.T)
+        return 0.5 * (C + C.T)
 
     def add(self, name: str, pose: Pose, covariance: np.ndarray, velocity: np.ndarray | None = None,
             velocity_covariance: np.ndarray | None = None, state_covariance: np.ndarray | None = None) -> None:

@@ -1145,20 +1145,11 @@ class TeamTracker:
         Ja, Jb = np.empty((1, 2, 6)), np.empty((1, 2, 6))
         if not team_residuals(one.cam, one.own, one.points, one.uv, one.K, one.dist, f.R, f.t, res, Ja, Jb, True):
             return math.inf
-        blocks, jac = [], []
-        for i, J in ((int(one.cam[0]), Ja[0]), (int(one.own[0]), Jb[0])):
-            name = f.robots[i]
-            if name == self.reference:
-                continue
-            if not f.is_tracked(name):
-                return math.inf
-            blocks.append(f._block(name))
-            jac.append(J)
-        S = np.zeros((2, 2))
-        for s1, J1 in zip(blocks, jac):
-            for s2, J2 in zip(blocks, jac):
-                S += J1 @ f.P[s1, s2][:6, :6] @ J2.T
-        return float(math.sqrt(max(np.linalg.eigvalsh(0.5 * (S + S.T)).max(), 0.0)))
+        terms = [(f.robots[int(one.cam[0])], Ja[0]), (f.robots[int(one.own[0])], Jb[0])]
+        if any(name != self.reference and not f.is_tracked(name) for name, _ in terms):
+            return math.inf
+        S = f.pose_sandwich(terms)
+        return float(math.sqrt(max(np.linalg.eigvalsh(S).max(), 0.0)))
 
     def _held(self, problem: TeamProblem, used: np.ndarray) -> set[str]:
         """Robots the record's used observations tie to the reference on
