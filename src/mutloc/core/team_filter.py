@@ -43,6 +43,7 @@ Nothing here reads files or decides statuses: the tracker does.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -298,6 +299,17 @@ class TeamFilter:
                 self.P[sa.start:sa.start + 6, sb.start:sb.start + 6] = block
                 if self.Pg is not None:
                     self.Pg[sa.start:sa.start + 6, sb.start:sb.start + 6] = scale * block
+
+    def copy(self) -> "TeamFilter":
+        """An independent copy of the filter, as cheap as it can be: the
+        poses, velocities and bookkeeping copied, the covariances shared --
+        the filter never writes into a covariance array once another may
+        hold it (predict, add, drop and updates make new ones)."""
+        new = copy.copy(self)
+        new.R, new.t, new.vel, new.serial = self.R.copy(), self.t.copy(), self.vel.copy(), self.serial.copy()
+        new.tracked = list(self.tracked)
+        new._noise_window, new._noise_sum = deque(self._noise_window), list(self._noise_sum)
+        return new
 
     def snapshot(self) -> TeamSnapshot:
         """A copy of the state now (see :class:`TeamSnapshot`)."""

@@ -67,7 +67,6 @@ reasons are the causal filter's.
 
 from __future__ import annotations
 
-import copy
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -378,7 +377,7 @@ class TeamTracker:
 
     def _save(self) -> tuple:
         """The tracker's state (the filter and the tracks) as an undo restores it."""
-        return (copy.deepcopy(self.filter), {r: tr.copy() for r, tr in self.tracks.items()}, tuple(self._recent),
+        return (self.filter.copy(), {r: tr.copy() for r, tr in self.tracks.items()}, tuple(self._recent),
                 self.last_time)
 
     def _undoable(self, undo: _Undo) -> bool:
