@@ -138,13 +138,14 @@ def pixel_error(side: int, point: np.ndarray, uv: np.ndarray, K, dist):
     pts = np.ascontiguousarray(np.reshape(point, (1, 3)), float)
     meas = np.ascontiguousarray(np.reshape(uv, (1, 2)), float)
     basis = np.zeros((1, 3, 3))
+    _ONE = np.ones(1)
     ws = np.empty(WS_SIZE)
     Kp, dp, Kq, dq = (np.ascontiguousarray(a, float) for a in (K[0], dist[0], K[1], dist[1]))
     behind = np.full(2, 2.0 * (Kp if side == 0 else Kq)[0, 0])
 
     def f(R, t, want_jac):
         r, J = np.empty(2), np.empty((2, 6))
-        if not residuals(side_a, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, r, J, want_jac, ws):
+        if not residuals(side_a, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, _ONE, R, t, r, J, want_jac, ws):
             COUNTS["behind_camera"] += 1
             return behind.copy(), np.zeros((2, 6))
         return r, J

@@ -323,7 +323,8 @@ def test_iekf_matches_the_map_estimate_of_a_linear_gaussian_prior():
     prob = _problem(rig, T)
     P0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [0.1] * 6) ** 2
     R, t, vel, P, res = np.empty((3, 3)), np.empty(3), np.empty(6), np.empty((12, 12)), np.empty(4)
-    chi2, _, _ = iekf_update(prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1], 2.0,
+    chi2, _, _ = iekf_update(prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1], np.ones(4),
+                             2.0,
                           T.R, T.t, np.zeros(6), P0, 5, R, t, vel, P, res, 2.0, P0, np.empty((12, 12)))
     assert chi2 < 1e-12 and np.max(res) < 1e-9
     # J by finite differences of the projection, independent of the kernel's Jacobian.
@@ -530,7 +531,7 @@ def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_o
     Pr0 = 3.0 * P0
     R, t, vel, P, res, Pr = np.empty((3, 3)), np.empty(3), np.empty(6), np.empty((12, 12)), np.empty(4), \
         np.empty((12, 12))
-    args = (prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1])
+    args = (prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1], np.ones(4))
     chi2, _, ls = iekf_update(*args, 0.5, prior.R, prior.t, np.zeros(6), P0, 20, R, t, vel, P, res, 2.0, Pr0, Pr)
     post = Pose(R.copy(), t.copy())
 

@@ -159,8 +159,10 @@ def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: n
     table = pair.table
     labels = _Labels(pair, rows)
     if rows is pair.rows:  # the named observations: their arrays are kept on the pair
-        return PairProblem.trusted(side, pair.points, None, pair.uv, table.K, table.dist, labels)
-    return PairProblem.trusted(side, table.points[prow], None, pair.parent.uv[rows], table.K, table.dist, labels)
+        return PairProblem.trusted(side, pair.points, None, pair.uv, table.K, table.dist, labels, pair.sigma_scale)
+    scale = pair.parent.sigma_scale[rows]
+    return PairProblem.trusted(side, table.points[prow], None, pair.parent.uv[rows], table.K, table.dist, labels,
+                               None if np.all(scale == 1.0) else np.ascontiguousarray(scale))
 
 
 class _Labels:

@@ -42,6 +42,11 @@ class PairProblem:
     the rays looked up.
 
     ``pixels``/``K``/``dist`` are only needed for the pixel objective.
+    ``sigma_scale`` (n,) is each observation's detection noise relative to
+    the stated ``pixel_sigma`` (None: 1 for all): the objective weighs each
+    observation by its inverse, so the information matrix (and the
+    covariance ``pixel_sigma**2`` times its inverse) follows each one's own
+    noise.
     """
 
     side: np.ndarray
@@ -51,6 +56,7 @@ class PairProblem:
     K: tuple[np.ndarray, np.ndarray] | None = None
     dist: tuple[np.ndarray, np.ndarray] | None = None
     labels: list[str] | None = None  # where each row came from, for messages
+    sigma_scale: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.side = np.ascontiguousarray(self.side, dtype=np.int64)
@@ -75,16 +81,31 @@ class PairProblem:
             raise TooFewObservationsError(f"{n} marker observations; at least three are needed")
         if self.pixels is not None:
             self.pixels = np.ascontiguousarray(self.pixels, dtype=float).reshape(-1, 2)
+        if self.sigma_scale is not None:
+            self.sigma_scale = np.ascontiguousarray(self.sigma_scale, dtype=float).reshape(-1)
+            if self.sigma_scale.shape[0] != n:
+                raise InputError("observations: side and sigma_scale differ in length")
+            if not np.all(np.isfinite(self.sigma_scale) & (self.sigma_scale > 0.0)):
+                raise InputError("observations: every sigma_scale must be finite and positive")
 
     @classmethod
-    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None, labels=None) -> "PairProblem":
+    def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None, labels=None,
+                sigma_scale=None) -> "PairProblem":
         """Build without validation, for callers that already validated
-        (contiguous float arrays, unit bearings, at least three rows).
-        ``bearings`` may be None with pixels: the solver computes them."""
+        (contiguous float arrays, unit bearings, at least three rows, positive
+        scales).  ``bearings`` may be None with pixels: the solver computes them."""
         obj = cls.__new__(cls)
         obj.side, obj.points, obj.bearings = side, points, bearings
         obj.pixels, obj.K, obj.dist, obj.labels = pixels, K, dist, labels
+        obj.sigma_scale = sigma_scale
         return obj
+
+    @property
+    def wt(self) -> np.ndarray:
+        """Each row's weight in the objective: ``1 / sigma_scale``."""
+        if self.sigma_scale is None:
+            return np.ones(len(self.side))
+        return 1.0 / self.sigma_scale
 
     def ensure_bearings(self) -> np.ndarray:
         """The unit rays, computed from the pixels if not yet known
@@ -118,7 +139,7 @@ class PairProblem:
             meas = np.zeros((len(self.side), 2))
             Kp = Kq = np.eye(3)
             dp = dq = np.zeros(8)
-        return (self.side, self.points, meas, basis, Kp, dp, Kq, dq, self.mode)
+        return (self.side, self.points, meas, basis, Kp, dp, Kq, dq, self.mode, self.wt)
 
 
 class Solution:
@@ -237,7 +258,7 @@ def _same_basin(Ra, ta, Rb, tb):
 
 
 @njit(cache=True)
-def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc, n_refine, max_iter,
+def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc, tc, nc, n_refine, max_iter,
                        prefer_facing, order, costs, Rbest, tbest):
     """Rank candidates (dedup, best first, into ``order``), refine the top
     ``n_refine`` distinct ones, keep the best in Rbest/tbest.
@@ -249,7 +270,7 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
     J = np.empty((1, 6))
     ws = np.empty(WS_SIZE)
     for i in range(nc):
-        c = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc[i], tc[i], r, J, ws)
+        c = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc[i], tc[i], r, J, ws)
         costs[i] = c
         k = c
         if prefer_facing:
@@ -299,7 +320,7 @@ def rank_refine_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc,
         R[:, :] = Rc[i]
         t[:] = tc[i]
         if max_iter > 0:
-            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H)
+            c, _ = lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, max_iter, H)
         else:
             c = costs[i]
         if c < best:
@@ -403,7 +424,7 @@ def first_subset(side, bearings, sub):
 
 
 @njit(cache=True)
-def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R, t, H, Hinv):
+def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, wt, accept, max_iter, R, t, H, Hinv):
     """The estimate from one well-chosen minimal subset (pixel objective, at
     least four observations): its roots ranked on every observation, the
     best refined.  Accepted (status 0, the cost) only when the refined cost
@@ -439,7 +460,7 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R,
     if nc > 1:  # a lone root needs no ranking: the refinement evaluates it
         i0 = -1
         for i in range(nc):
-            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, Rc[i], tc[i], r, J, ws)
+            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, Rc[i], tc[i], r, J, ws)
             if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
                 i0 = i
     if nc == 0 or i0 < 0:
@@ -447,7 +468,7 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R,
     R[:, :] = Rc[i0]
     t[:] = tc[i0]
     # H: J^T J at the refined pose, as information() would compute it.
-    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, max_iter, H)
+    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, R, t, max_iter, H)
     if not c <= accept:
         return _FALL_BACK, c
     # Another root that starts within the margin solve_kernel refines
@@ -462,7 +483,7 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, accept, max_iter, R,
 
 
 @njit(cache=True)
-def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, subsets, root_filter, n_extra, n_refine,
+def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, wt, subsets, root_filter, n_extra, n_refine,
                  max_iter, Rc, tc, order, costs, Rbest, tbest, H, Hinv):
     """The whole estimate in one compiled call: rays from pixels (pixel
     mode), candidates of every minimal subset (after the ``n_extra`` given
@@ -482,11 +503,11 @@ def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, subsets, ro
     nc = n_extra
     if subsets.shape[0] > 0:
         nc += minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc[n_extra:], tc[n_extra:])
-    nd, best = rank_refine_kernel(side, points, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, nc, n_refine, max_iter,
+    nd, best = rank_refine_kernel(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc, tc, nc, n_refine, max_iter,
                                   n == 3, order, costs, Rbest, tbest)
     if nd == 0 or not np.isfinite(best):
         return _NO_CANDIDATE, -1, nc, nd, best
-    if not information(side, points, meas, basis, Kp, dp, Kq, dq, mode, Rbest, tbest, H):
+    if not information(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rbest, tbest, H):
         return _BEHIND, -1, nc, nd, best
     if not _inverse_checked(H, _MAX_COND, Hinv):
         return _DEGENERATE, -1, nc, nd, best
@@ -524,7 +545,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         H = np.empty((6, 6))
         Hinv = np.empty((6, 6))
         (Kp, Kq), (dp, dq) = obs.K, obs.dist
-        status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, Kp, dp, Kq, dq, accept, max_iter,
+        status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, Kp, dp, Kq, dq, obs.wt, accept, max_iter,
                                         R, t, H, Hinv)
         if status == _OK:
             return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True, {"first_subset": True},
@@ -557,7 +578,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         dp = dq = _NO_DIST
         meas, mode, bearings = np.zeros((n, 2)), MODE_BEARING, obs.bearings
     status, index, nc, nd, best = solve_kernel(
-        obs.side, obs.points, meas, bearings, Kp, dp, Kq, dq, mode, subsets, root_filter, n_extra,
+        obs.side, obs.points, meas, bearings, Kp, dp, Kq, dq, mode, obs.wt, subsets, root_filter, n_extra,
         n_refine if refine else 1, max_iter if refine else 0, Rc, tc, order, costs, Rbest, tbest, H, Hinv)
     if status == _UNDISTORT:
         u, v = meas[index]

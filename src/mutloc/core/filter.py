@@ -262,11 +262,11 @@ def _mahalanobis2(S, v, L, y):
 
 
 @njit(cache=True)
-def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_iter, R, t, vel, P, res_px,
+def iekf_update(side, pts, meas, Kp, dp, Kq, dq, wt, sigma, R0, t0, vel0, P0, max_iter, R, t, vel, P, res_px,
                 sigma_report, Pr0, Pr):
     """Iterated EKF update of the prior ``(R0, t0, vel0, P0)`` with pixel
     observations (``side``/``pts``/``meas``/cameras as in
-    :func:`mutloc.core.refine.residuals`) of noise ``sigma``; posterior into
+    :func:`mutloc.core.refine.residuals`, ``wt`` each one's weight) of noise ``sigma``; posterior into
     ``R, t, vel, P`` and each observation's reprojection error (px) at it
     into ``res_px``.
 
@@ -302,7 +302,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
     chi2 = np.inf
     it = 0
     for it in range(1, max_iter + 1):
-        if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, r, J, True, ws):
+        if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, R, t, r, J, True, ws):
             return np.inf, it, np.nan
         # PH = P0[:, :6] J^T, S = J P0[:6, :6] J^T + s2 I  (H = [J 0])
         for i in range(STATE_DIM):
@@ -398,7 +398,7 @@ def iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, R0, t0, vel0, P0, max_it
             return np.inf, it, np.nan
         Pr[:, :] = A @ Pr0 @ A.T + sigma_report * sigma_report * KK
         _symmetrize(Pr)
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, R, t, r, J, False, ws):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, R, t, r, J, False, ws):
         return np.inf, it, np.nan
     for i in range(n):
         res_px[i] = np.sqrt(r[2 * i] ** 2 + r[2 * i + 1] ** 2)
@@ -561,9 +561,9 @@ class ConstantVelocityFilter:
         r = np.empty(2 * n)
         J = np.empty((1, 6))
         ws = np.empty(WS_SIZE)
-        side, pts, meas, Kp, dp, Kq, dq = self._arrays(problem)
+        side, pts, meas, Kp, dp, Kq, dq, wt = self._arrays(problem)
         basis = np.zeros((n, 3, 3))
-        if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, pose.R, pose.t, r, J, False, ws):
+        if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, pose.R, pose.t, r, J, False, ws):
             out[:] = np.inf
             return out
         return np.hypot(r[0::2], r[1::2])
@@ -592,14 +592,14 @@ class ConstantVelocityFilter:
             raise InputError("the filter's update needs pixel observations with their cameras")
         return (np.ascontiguousarray(problem.side, dtype=np.int64), np.ascontiguousarray(problem.points, float),
                 np.ascontiguousarray(problem.pixels, float), problem.K[0], problem.dist[0], problem.K[1],
-                problem.dist[1])
+                problem.dist[1], np.ascontiguousarray(problem.wt, float))
 
     def _try(self, problem: PairProblem, rows: np.ndarray):
         """Posterior, test and residuals from the observations ``rows``, or None."""
         s = self.state
-        side, pts, meas, Kp, dp, Kq, dq = self._arrays(problem)
+        side, pts, meas, Kp, dp, Kq, dq, wt = self._arrays(problem)
         if len(rows) != len(side):
-            side, pts, meas = side[rows], pts[rows], meas[rows]
+            side, pts, meas, wt = side[rows], pts[rows], meas[rows], wt[rows]
         n = len(side)
         R = np.empty((3, 3))
         t = np.empty(3)
@@ -613,7 +613,7 @@ class ConstantVelocityFilter:
         # that the frame does not hold, and the track grows overconfident
         # (measured: 80 cm off at 10 cm sigma after a second of two markers).
         iters_max = self.max_iter if n >= 3 else 1
-        chi2, iters, ls = iekf_update(side, pts, meas, Kp, dp, Kq, dq, sigma, s.pose.R, s.pose.t, s.velocity,
+        chi2, iters, ls = iekf_update(side, pts, meas, Kp, dp, Kq, dq, wt, sigma, s.pose.R, s.pose.t, s.velocity,
                                       s.own_covariance, iters_max, R, t, vel, Pg, res, self.pixel_sigma,
                                       s.covariance, P)
         if not math.isfinite(chi2):
@@ -746,8 +746,8 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
     sigma = positive_number(sigma, "sigma")
     groups = []
     for prob, ti in zip(problems, times):
-        side, pts, meas, Kp, dp, Kq, dq = ConstantVelocityFilter._arrays(prob)
-        groups.append((float(ti) - float(time), side, pts, meas, Kp, dp, Kq, dq))
+        side, pts, meas, Kp, dp, Kq, dq, wt = ConstantVelocityFilter._arrays(prob)
+        groups.append((float(ti) - float(time), side, pts, meas, Kp, dp, Kq, dq, wt))
     n = sum(len(g[1]) for g in groups)
     R = np.array(pose.R, dtype=float)
     t = np.array(pose.t, dtype=float)
@@ -762,20 +762,20 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
         cost = 0.0
         k = 0
         Ri, ti = np.empty((3, 3)), np.empty(3)
-        for dt, side, pts, meas, Kp, dp, Kq, dq in groups:
+        for dt, side, pts, meas, Kp, dp, Kq, dq, wt in groups:
             m = len(side)
             so3_exp_left(vel[:3] * dt, R, Ri)
             ti[:] = t + vel[3:] * dt
             r = np.empty(2 * m)
             J = np.empty((2 * m, 6))
-            if not residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, Ri, ti, r, J, want,
+            if not residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, wt, Ri, ti, r, J, want,
                              ws):
                 return None
             res[k:k + m] = np.hypot(r[0::2], r[1::2])
             k += m
             if noise is not None:
                 if not want:
-                    residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, Ri, ti, r, J, True,
+                    residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, wt, Ri, ti, r, J, True,
                               ws)
                 d3 = abs(dt) ** 3 / 3.0
                 Q = np.diag([noise.angular**2 * d3] * 3 + [noise.linear**2 * d3] * 3)

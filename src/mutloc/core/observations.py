@@ -40,13 +40,19 @@ NOT_PIXELS_PX = 2.0
 
 @dataclass(frozen=True)
 class Observation:
-    """One marker seen by one robot's camera (``marker=None``: identity unknown)."""
+    """One marker seen by one robot's camera (``marker=None``: identity unknown).
+
+    ``sigma_scale``: this detection's noise relative to the stated
+    ``pixel_sigma`` (a detector that knows a measurement is worse, e.g. a
+    partly hidden ball, says so here; 1 for given pixels).
+    """
 
     observer: str
     marker: str | None
     uv: tuple[float, float]
     time: float | None = None
     score: float = 1.0
+    sigma_scale: float = 1.0
 
 
 def _short(value: Any, limit: int = 60) -> str:
@@ -99,21 +105,26 @@ class ObservationSet:
     Columns: ``observer`` and ``marker`` (tuples of names; ``None`` for a
     marker of unknown identity), ``uv`` (n, 2) raw pixels, ``time`` (n,)
     seconds (NaN: untimed), ``score`` (n,) detector confidence (1 for given
-    pixels).  Iterating yields :class:`Observation` records.
+    pixels), ``sigma_scale`` (n,) each detection's noise relative to the
+    stated ``pixel_sigma`` (1 for given pixels; the solvers weigh each
+    observation by its inverse and the covariance follows).  Iterating
+    yields :class:`Observation` records.
 
     What is derived from the columns alone or with one rig (whether a marker
     has alternatives, a pair's solver form) is computed once and kept: a set
     localized again, or in every iteration of a filter, is not scanned again.
     """
 
-    __slots__ = ("observer", "marker", "uv", "time", "score", "_memo")
+    __slots__ = ("observer", "marker", "uv", "time", "score", "sigma_scale", "_memo")
 
     def __init__(self, observer: Sequence[str], marker: Sequence[str | None], uv: Any,
-                 time: Any = None, score: Any = None) -> None:
+                 time: Any = None, score: Any = None, sigma_scale: Any = None) -> None:
         n = len(observer)
         uv = np.asarray(uv, dtype=float).reshape(-1, 2) if n else np.empty((0, 2))
         time = np.full(n, np.nan) if time is None else np.broadcast_to(np.asarray(time, float), (n,)).copy()
         score = np.ones(n) if score is None else np.broadcast_to(np.asarray(score, float), (n,)).copy()
+        scale = (np.ones(n) if sigma_scale is None
+                 else np.broadcast_to(np.asarray(sigma_scale, float), (n,)).copy())
         if len(marker) != n or uv.shape[0] != n:
             raise InputError(f"ObservationSet: {n} observers, {len(marker)} markers and {uv.shape[0]} pixels")
         if not np.all(np.isfinite(uv)):
@@ -121,18 +132,21 @@ class ObservationSet:
             raise ObservationError(f"observations[{observer[i]!r}][{marker[i]!r}]: pixel must be finite")
         if np.any(np.isinf(time)) or np.any(~np.isfinite(score)):
             raise ObservationError("observations: times and scores must be finite")
+        if not np.all(np.isfinite(scale) & (scale > 0.0)):
+            raise ObservationError("observations: every sigma_scale must be finite and positive")
         uv.flags.writeable = False
         time.flags.writeable = False
         score.flags.writeable = False
+        scale.flags.writeable = False
         for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
-                     ("score", score), ("_memo", {})):
+                     ("score", score), ("sigma_scale", scale), ("_memo", {})):
             object.__setattr__(self, k, v)
 
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("ObservationSet is immutable")
 
     def __reduce__(self) -> tuple:
-        return (ObservationSet, (self.observer, self.marker, self.uv, self.time, self.score))
+        return (ObservationSet, (self.observer, self.marker, self.uv, self.time, self.score, self.sigma_scale))
 
     # -- construction -------------------------------------------------------
 
@@ -170,15 +184,16 @@ class ObservationSet:
 
     @classmethod
     def trusted(cls, observer: Sequence[str], marker: Sequence[str | None], uv: Any, time: Any = None,
-                score: Any = None) -> "ObservationSet":
-        """Build from columns already checked (finite pixels, times and scores)."""
+                score: Any = None, sigma_scale: Any = None) -> "ObservationSet":
+        """Build from columns already checked (finite pixels, times and scores, positive scales)."""
         n = len(observer)
         obj = cls.__new__(cls)
         uv = np.array(uv, dtype=float).reshape(n, 2)
         time = np.full(n, np.nan if time is None else float(time))
         score = np.ones(n) if score is None else np.asarray(score, dtype=float)
+        scale = np.ones(n) if sigma_scale is None else np.asarray(sigma_scale, dtype=float)
         for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
-                     ("score", score), ("_memo", {})):
+                     ("score", score), ("sigma_scale", scale), ("_memo", {})):
             if isinstance(v, np.ndarray):
                 v.flags.writeable = False
             object.__setattr__(obj, k, v)
@@ -190,7 +205,8 @@ class ObservationSet:
         recs = list(records)
         uv = [_pixel(r.uv, f"observations[{r.observer!r}][{r.marker!r}]") for r in recs]
         return cls([r.observer for r in recs], [r.marker for r in recs], uv,
-                   [np.nan if r.time is None else r.time for r in recs], [r.score for r in recs])
+                   [np.nan if r.time is None else r.time for r in recs], [r.score for r in recs],
+                   [r.sigma_scale for r in recs])
 
     @classmethod
     def concatenate(cls, sets: Sequence["ObservationSet"]) -> "ObservationSet":
@@ -200,7 +216,7 @@ class ObservationSet:
             return cls((), (), np.empty((0, 2)))
         return cls(sum((s.observer for s in sets), ()), sum((s.marker for s in sets), ()),
                    np.concatenate([s.uv for s in sets]), np.concatenate([s.time for s in sets]),
-                   np.concatenate([s.score for s in sets]))
+                   np.concatenate([s.score for s in sets]), np.concatenate([s.sigma_scale for s in sets]))
 
     # -- a collection -------------------------------------------------------
 
@@ -211,7 +227,7 @@ class ObservationSet:
         for i in range(len(self)):
             t = float(self.time[i])
             yield Observation(self.observer[i], self.marker[i], (float(self.uv[i, 0]), float(self.uv[i, 1])),
-                              None if math.isnan(t) else t, float(self.score[i]))
+                              None if math.isnan(t) else t, float(self.score[i]), float(self.sigma_scale[i]))
 
     def __eq__(self, other: object) -> bool:
         """Same observations in the same order (a mapping is read as the SPEC's form)."""
@@ -224,7 +240,7 @@ class ObservationSet:
             return NotImplemented
         return (self.observer == other.observer and self.marker == other.marker
                 and np.array_equal(self.uv, other.uv) and np.array_equal(self.time, other.time, equal_nan=True)
-                and np.array_equal(self.score, other.score))
+                and np.array_equal(self.score, other.score) and np.array_equal(self.sigma_scale, other.sigma_scale))
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -235,7 +251,7 @@ class ObservationSet:
         """The rows ``index`` (indices or a boolean mask)."""
         idx = np.arange(len(self))[index]
         return ObservationSet([self.observer[i] for i in idx], [self.marker[i] for i in idx], self.uv[idx],
-                              self.time[idx], self.score[idx])
+                              self.time[idx], self.score[idx], self.sigma_scale[idx])
 
     @property
     def observers(self) -> list[str]:
@@ -254,7 +270,8 @@ class ObservationSet:
 
     def with_time(self, t: float | None) -> "ObservationSet":
         """The same observations stamped with time ``t``."""
-        return ObservationSet(self.observer, self.marker, self.uv, np.nan if t is None else t, self.score)
+        return ObservationSet(self.observer, self.marker, self.uv, np.nan if t is None else t, self.score,
+                              self.sigma_scale)
 
     def best(self) -> "ObservationSet":
         """One candidate per (time, observer, marker): the highest-scored
@@ -341,7 +358,7 @@ class ObservationSet:
             # a dict turned into a set) would then wait for the cyclic garbage
             # collector instead of being freed at once.  What the solver reads
             # is computed now, so every pair handed out has it.
-            result.points, result.uv, result.names, result.count  # noqa: B018
+            result.points, result.uv, result.names, result.count, result.sigma_scale  # noqa: B018
             template = _with_parent(result, None)
         else:
             template = result  # of the set of best candidates, not of this one
@@ -473,6 +490,12 @@ class PairObservations:
     def uv(self) -> np.ndarray:
         """(n, 2) each row's raw pixel (shared: do not modify)."""
         return np.ascontiguousarray(self.parent.uv[self.rows])
+
+    @cached_property
+    def sigma_scale(self) -> np.ndarray | None:
+        """(n,) each row's noise relative to the stated pixel sigma, or None when all are 1."""
+        s = self.parent.sigma_scale[self.rows]
+        return None if np.all(s == 1.0) else np.ascontiguousarray(s)
 
     @cached_property
     def count(self) -> int:

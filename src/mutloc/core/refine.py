@@ -63,7 +63,7 @@ def tangent_bases(bearings, basis):
 
 
 @njit(cache=True)
-def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac, ws):
+def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, want_jac, ws):
     """Residuals (2N,) and optionally their Jacobian (2N, 6) at (R, t);
     ``ws`` is scratch of at least :data:`WS_SIZE` floats (reused across
     calls: candidate ranking calls this thousands of times).
@@ -142,17 +142,21 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, want_jac
                 r[2 * i + k] = num / den
                 for a in range(3):
                     Jp[k, a] = (basis[i, k, a] * den - num * basis[i, 2, a]) / (den * den)
+        # Each observation's rows in units of its own noise (``wt``: pixel_sigma over its sigma).
+        w = wt[i]
+        r[2 * i] *= w
+        r[2 * i + 1] *= w
         if want_jac:
             for k in range(2):
                 for c in range(6):
-                    J[2 * i + k, c] = Jp[k, 0] * dX[0, c] + Jp[k, 1] * dX[1, c] + Jp[k, 2] * dX[2, c]
+                    J[2 * i + k, c] = w * (Jp[k, 0] * dX[0, c] + Jp[k, 1] * dX[1, c] + Jp[k, 2] * dX[2, c])
     return True
 
 
 @njit(cache=True)
-def cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, ws):
+def cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, ws):
     """Sum of squared residuals with caller-provided buffers (see :func:`residuals`)."""
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, False, ws):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, False, ws):
         return np.inf
     c = 0.0
     for k in range(r.shape[0]):
@@ -161,12 +165,12 @@ def cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, ws):
 
 
 @njit(cache=True)
-def cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t):
+def cost(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t):
     """Sum of squared residuals; inf if a marker is behind its observer."""
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((1, 6))
-    return cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, np.empty(WS_SIZE))
+    return cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, np.empty(WS_SIZE))
 
 
 @njit(cache=True)
@@ -272,7 +276,7 @@ def normal_equations(J, r, H, g):
 
 
 @njit(cache=True)
-def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H=None):
+def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, max_iter, H=None):
     """Levenberg-Marquardt on SE(3) from (R, t), updated in place; ``H``
     (6, 6), if given, receives J^T J at the returned pose (what
     :func:`information` computes) when the cost is finite.
@@ -293,7 +297,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H=No
     r2 = np.empty(2 * n)
     J2 = np.empty((2 * n, 6))
     ws = np.empty(WS_SIZE)
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, ws):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, True, ws):
         return np.inf, 0
     c = 0.0
     for k in range(2 * n):
@@ -332,7 +336,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H=No
             # The trial point's Jacobian comes with its residuals: a step is
             # accepted far more often than not, and then it is the next one's.
             cn = np.inf
-            if residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rn, tn, r2, J2, True, ws):
+            if residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rn, tn, r2, J2, True, ws):
                 cn = 0.0
                 for k in range(2 * n):
                     cn += r2[k] * r2[k]
@@ -362,12 +366,12 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, max_iter, H=No
 
 
 @njit(cache=True)
-def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, H):
+def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, H):
     """J^T J (6x6) at (R, t) into H; False if a marker is behind a camera."""
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((2 * n, 6))
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, R, t, r, J, True, np.empty(WS_SIZE)):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, True, np.empty(WS_SIZE)):
         return False
     g = np.empty(6)
     normal_equations(J, r, H, g)

@@ -30,8 +30,8 @@ _OBS_CONFIDENCE = 0.9999
 
 
 @njit(cache=True)
-def observation_errors_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, tc, out):
-    """``out[c, k]``: squared residual of observation k under candidate c (inf behind a camera)."""
+def observation_errors_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc, tc, out):
+    """``out[c, k]``: squared residual of observation k under candidate c, weighted (inf behind a camera)."""
     n = side.shape[0]
     r = np.empty(2)
     J = np.empty((1, 6))
@@ -39,7 +39,7 @@ def observation_errors_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, Rc, 
     for c in range(Rc.shape[0]):
         for k in range(n):
             ok = residuals(side[k:k + 1], pts[k:k + 1], meas[k:k + 1], basis[k:k + 1], Kp, dp, Kq, dq, mode,
-                           Rc[c], tc[c], r, J, False, ws)
+                           wt[k:k + 1], Rc[c], tc[c], r, J, False, ws)
             out[c, k] = r[0] * r[0] + r[1] * r[1] if ok else np.inf
 
 
@@ -48,11 +48,12 @@ def _args(problem: PairProblem) -> tuple:
     basis = np.empty((n, 3, 3))
     tangent_bases(problem.bearings, basis)
     (Kp, Kq), (dp, dq) = problem.K, problem.dist
-    return (problem.side, problem.points, problem.pixels, basis, Kp, dp, Kq, dq, MODE_PIXEL)
+    return (problem.side, problem.points, problem.pixels, basis, Kp, dp, Kq, dq, MODE_PIXEL, problem.wt)
 
 
 def observation_errors(problem: PairProblem, Rs: np.ndarray, ts: np.ndarray) -> np.ndarray:
-    """Squared pixel residual of every observation under every pose ``(Rs, ts)``: (poses, n)."""
+    """Squared pixel residual of every observation under every pose ``(Rs, ts)``: (poses, n), each in
+    units of its own noise (divided by its ``sigma_scale`` squared)."""
     Rs = np.ascontiguousarray(Rs, dtype=float).reshape(-1, 3, 3)
     ts = np.ascontiguousarray(ts, dtype=float).reshape(-1, 3)
     out = np.empty((len(Rs), len(problem.side)))
@@ -73,7 +74,8 @@ def _sub(problem: PairProblem, idx: np.ndarray) -> PairProblem:
     labels = problem.labels
     return PairProblem.trusted(problem.side[idx], problem.points[idx], problem.bearings[idx],
                                problem.pixels[idx], problem.K, problem.dist,
-                               None if labels is None else [labels[int(i)] for i in idx])
+                               None if labels is None else [labels[int(i)] for i in idx],
+                               None if problem.sigma_scale is None else problem.sigma_scale[idx])
 
 
 def largest_consistent_set(problem: PairProblem, first: Solution, sigma: float,

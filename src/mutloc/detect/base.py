@@ -36,6 +36,11 @@ class Detection:
     visible_fraction: float | None = None
     #: ... and the RMS residual (pixels) of the outline's fit.
     residual_px: float | None = None
+    #: The position's noise relative to a whole marker's (1): a partly hidden
+    #: ball's centre, fitted on part of its rim, is known less well.  It goes
+    #: with the pixel into :class:`~mutloc.ObservationSet` (``sigma_scale``), so
+    #: the pose weighs it less and its covariance grows.
+    sigma_scale: float = 1.0
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"uv": [float(self.uv[0]), float(self.uv[1])], "score": float(self.score)}
@@ -46,6 +51,8 @@ class Detection:
         for what in ("visible_fraction", "residual_px"):
             if getattr(self, what) is not None:
                 d[what] = float(getattr(self, what))
+        if self.sigma_scale != 1.0:
+            d["sigma_scale"] = float(self.sigma_scale)
         if self.info:
             d["info"] = self.info
         return d
@@ -70,7 +77,7 @@ class DetectionResult:
     def observations(self, observer: str, time: float | None = None, *,
                      include_predicted: bool = False) -> ObservationSet:
         """What ``observer``'s camera measured, as an :class:`ObservationSet`
-        (the detector's score travels with each pixel).  Predicted positions
+        (the detector's score and ``sigma_scale`` travel with each pixel).  Predicted positions
         (a blinking light that is off) are not measurements and are left out:
         they would count earlier frames twice and cannot expose a wrong pose
         (``include_predicted`` keeps them, e.g. to start a track)."""
@@ -78,7 +85,7 @@ class DetectionResult:
         dets += [a for alts in self.alternatives.values() for a in alts]
         uv = np.array([d.uv for d in dets], dtype=float).reshape(-1, 2)
         return ObservationSet([observer] * len(dets), [d.marker for d in dets], uv, time,
-                              [float(d.score) for d in dets])
+                              [float(d.score) for d in dets], [float(d.sigma_scale) for d in dets])
 
     @property
     def predicted(self) -> list[str]:

@@ -90,4 +90,4 @@ def pair_problem(pair: PairObservations) -> PairProblem:
     rows = pair.rows
     labels = [f"{obs.observer[r]} saw {obs.marker[r]}" for r in rows.tolist()]
     return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), None,
-                               np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels)
+                               np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels, pair.sigma_scale)

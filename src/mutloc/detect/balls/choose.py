@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .cues import evidence, hue_chroma, shading_contrast, vivid
-from .fit import CameraModel, Fit
+from .fit import CameraModel, Fit, centre_sigma_scale
 from .numeric import column_medians
 from .params import BallParams
 from .rim import Rim
@@ -95,15 +95,15 @@ def score_candidate(
         uv = cam.camera.project(fit.direction)
     else:
         uv = fit.ellipse_centre
-    return scored(search, fill, fit, cam is not None, params, rim_frac, hue, chroma, shading, uv)
+    return scored(search, fill, fit, cam is not None, params, rim_frac, hue, chroma, shading, uv, rim.ang)
 
 
 def scored(
     search: BallSearch, fill: float, fit: Fit, with_camera: bool, params: BallParams, rim_frac: float, hue: float,
-    chroma: float, shading: float, uv: np.ndarray | None,
+    chroma: float, shading: float, uv: np.ndarray | None, ang: np.ndarray,
 ) -> Candidate | None:
     """The score of :func:`score_candidate` from its measurements (rim fraction, the ball's hue, chroma and
-    shading, the reported pixel ``uv``); None if implausible."""
+    shading, the reported pixel ``uv``, the rim rays' angles ``ang``); None if implausible."""
     r = fit.radius_px
     dh = abs((hue - search.hue_deg + 180.0) % 360.0 - 180.0)
     colour = math.exp(-0.5 * (dh / (1.5 * params.hue_tol_deg)) ** 2)
@@ -116,6 +116,7 @@ def scored(
         "radius_px": r,
         "rim_fraction": rim_frac,
         "rms_px": float(fit.rms),
+        "sigma_scale": centre_sigma_scale(ang, fit.weights > 0),
         "hue_deg": float(hue),
         "chroma": chroma,
         "shading": shading,

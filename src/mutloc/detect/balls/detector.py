@@ -241,7 +241,8 @@ def detect_balls(
         c.info["ellipse"] = ellipse_info(c.outline)
         result.detections[c.search.name] = Detection(
             marker=c.search.name, uv=c.uv, score=c.score, info=c.info,
-            visible_fraction=float(c.info["rim_fraction"]), residual_px=float(c.info["rms_px"]))
+            visible_fraction=float(c.info["rim_fraction"]), residual_px=float(c.info["rms_px"]),
+            sigma_scale=float(c.info["sigma_scale"]))
     # Where another blob of a marker scored nearly as well, the detector is
     # unsure: hand it over too, and let the mutual geometry decide.  Scores
     # are compared per share of visible rim: a partly hidden ball scores
@@ -255,7 +256,8 @@ def detect_balls(
                 and not any(same_blob(a, t) for t in taken)]
         if alts:
             result.alternatives[c.search.name] = [
-                Detection(marker=a.search.name, uv=a.uv, score=a.score, info=a.info)
+                Detection(marker=a.search.name, uv=a.uv, score=a.score, info=a.info,
+                          sigma_scale=float(a.info["sigma_scale"]))
                 for a in sorted(alts, key=lambda a: -a.score)[: params.max_alternatives]]
     result.missing = [s.name for s in searches if s.name not in result.detections]
     for name in result.missing:
@@ -373,4 +375,4 @@ def _refine_pinhole(
     fit = Fit(outline, np.array([cx, cy]), radii, r, w, rms, d, cos_t, None)
     n_in, eb, eg, er, shading, uv = measure(img, lut, w, inner, cx, cy, K, dist, d)
     hue, chroma = encoded_hue_chroma(eb, eg, er)
-    return scored(s, blob.fill, fit, True, params, float(n_in) / len(w), hue, chroma, shading, uv)
+    return scored(s, blob.fill, fit, True, params, float(n_in) / len(w), hue, chroma, shading, uv, ang)

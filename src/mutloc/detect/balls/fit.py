@@ -78,6 +78,37 @@ class Fit:
     ellipse_centre: np.ndarray | None = None
 
 
+#: A centre known worse than this many times a whole ball's is reported at this scale (an arc so short
+#: that it hardly fixes a centre is rejected by ``min_visible_fraction`` long before).
+MAX_SIGMA_SCALE = 20.0
+
+
+def centre_sigma_scale(ang: np.ndarray, used: np.ndarray) -> float:
+    """How much worse a circle's centre is known from the rim rays ``used`` (a mask over the evenly spread
+    rays at angles ``ang``) than from all of them: the square root of the ratio of the centre's worst
+    variance, the radius free, to a whole rim's (``2 / n``), for the same noise on each ray.
+
+    A ray at angle a measures ``-cos(a) dx - sin(a) dy - dr``; a rim seen all round fixes the centre
+    from opposite sides, an arc only along its middle: with half the rim hidden the centre is about 3
+    times worse along the hidden side (the radius with it), with 60 % hidden about 6 times.
+    """
+    n = len(ang)
+    a = ang[used]
+    m = len(a)
+    if m < 3 or n == 0:
+        return MAX_SIGMA_SCALE
+    c, s_ = np.cos(a), np.sin(a)
+    A = np.array([[c @ c, c @ s_, c.sum()], [c @ s_, s_ @ s_, s_.sum()], [c.sum(), s_.sum(), float(m)]])
+    try:
+        C = np.linalg.inv(A)[:2, :2]
+    except np.linalg.LinAlgError:
+        return MAX_SIGMA_SCALE
+    worst = float(np.linalg.eigvalsh(C)[-1])
+    if not (math.isfinite(worst) and worst > 0.0):
+        return MAX_SIGMA_SCALE
+    return float(min(max(math.sqrt(worst * n / 2.0), 1.0), MAX_SIGMA_SCALE))
+
+
 def fit_rim(rim: Rim, init: np.ndarray, cam: CameraModel | None, max_axis_ratio: float) -> Fit | None:
     """Robust outline through the valid points of ``rim`` (IRLS starts from the rays in ``init``).
 

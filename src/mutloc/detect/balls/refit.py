@@ -284,7 +284,7 @@ def _refit(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, rad
         return None
     cand.info["refit"] = True
     return Detection(marker=name, uv=cand.uv, score=cand.score, info=cand.info, visible_fraction=vis,
-                     residual_px=float(cand.info["rms_px"]))
+                     residual_px=float(cand.info["rms_px"]), sigma_scale=float(cand.info["sigma_scale"]))
 
 
 def balls_near(ctx: RefitContext, name: str, marker: Marker, distance_m: float,
