@@ -151,13 +151,15 @@ def scipy_solve(problem: TeamProblem, ref: int, Rs0: np.ndarray, ts0: np.ndarray
 
     def fun(x):
         Rs, ts = poses(x)
-        team_residuals(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts, r, Ja,
+        team_residuals(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, Rs, ts,
+                       r, Ja,
                        Jb, False)
         return r.copy()
 
     def jac(x):
         Rs, ts = poses(x)
-        team_residuals(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts, r, Ja,
+        team_residuals(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, Rs, ts,
+                       r, Ja,
                        Jb, True)
         for k, i in enumerate(var):  # d/dx of the rotation part: left perturbation times J_l(x)
             Jl = _left_jacobian(x[6 * k:6 * k + 3])
@@ -252,7 +254,7 @@ def gtsam_timed(problem: TeamProblem, ref: int, Rs0: np.ndarray, ts0: np.ndarray
 def cost_of(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> float:
     from mutloc.core.team import team_cost
 
-    return float(team_cost(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts))
+    return float(team_cost(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, Rs, ts))
 
 
 def max_pose_diff(Rs1, ts1, Rs2, ts2) -> tuple[float, float]:

@@ -113,3 +113,20 @@ def test_centre_sigma_scale_of_an_arc_matches_a_monte_carlo_circle_fit():
         used = np.abs(ang) >= np.pi * hidden
         assert centre_sigma_scale(ang, used) == pytest.approx(spread(used) / whole, rel=0.12)
     assert centre_sigma_scale(ang, np.ones(n, bool)) == pytest.approx(1.0)
+
+
+def test_the_team_solver_weighs_the_same_way():
+    """A team's joint solve reads the same column: a common scale scales its covariance, and one
+    noisy ball's weight gives the pair solver's pose and covariance."""
+    rig, T, truth = _scene()
+    o = _observations(truth, np.random.default_rng(5), 0.3, {"M1": 4.0})
+    flat = mutloc.ObservationSet(o.observer, o.marker, o.uv)
+    three = mutloc.ObservationSet(o.observer, o.marker, o.uv, sigma_scale=3.0)
+    t1 = mutloc.localize_team(rig, flat, "p")
+    t3 = mutloc.localize_team(rig, three, "p")
+    np.testing.assert_allclose(t3.covariance("q"), 9.0 * t1.covariance("q"), rtol=1e-5)
+    tw = mutloc.localize_team(rig, o, "p")
+    pw = mutloc.localize(rig, o, "q", "p", confidence=1.0)
+    assert np.allclose(tw.poses["q"].t, pw.t, atol=1e-7)
+    np.testing.assert_allclose(tw.covariance("q"), pw.covariance, rtol=1e-4, atol=1e-12)
+    assert not np.allclose(t1.poses["q"].t, pw.t, atol=1e-5)

@@ -155,7 +155,7 @@ def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_o
     def pix(R, t):
         r = np.empty(2 * m)
         J = np.empty((m, 2, 6))
-        assert team_residuals(prob.cam, prob.own, prob.points, prob.uv, prob.K, prob.dist, R, t, r, J, J, False)
+        assert team_residuals(prob.cam, prob.own, prob.points, prob.uv, prob.wt, prob.K, prob.dist, R, t, r, J, J, False)
         return r
 
     def moved(R, t, dx):  # every tracked robot's pose moved by its error state's pose part

@@ -152,7 +152,7 @@ def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, l
     K = np.array([rig.robots[n].camera.K for n in names])
     dist = np.array([rig.robots[n].camera.dist for n in names])
     points = np.array(pts, dtype=float).reshape(-1, 3)[row]
-    return TeamProblem(cam, own, points, obs.uv, K, dist), names, list(obs.marker)
+    return TeamProblem(cam, own, points, obs.uv, K, dist, 1.0 / obs.sigma_scale), names, list(obs.marker)
 
 
 def _team_problem_rows(rig: Rig, observations: ObservationSet, names: list[str]) -> tuple[TeamProblem, list[str],
@@ -174,7 +174,7 @@ def _team_problem_rows(rig: Rig, observations: ObservationSet, names: list[str])
     points = np.array([rig.robots[o].markers[m].position for o, m in zip(owners, obs.marker)]).reshape(-1, 3)
     K = np.array([rig.robots[n].camera.K for n in names])
     dist = np.array([rig.robots[n].camera.dist for n in names])
-    return TeamProblem(cam, own, points, obs.uv, K, dist), names, list(obs.marker)
+    return TeamProblem(cam, own, points, obs.uv, K, dist, 1.0 / obs.sigma_scale), names, list(obs.marker)
 
 
 def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], reference: str | None = None, *,

@@ -87,6 +87,8 @@ class TeamProblem:
     uv: np.ndarray
     K: np.ndarray
     dist: np.ndarray
+    #: (n,) each observation's weight, ``1 / sigma_scale`` (None: 1 for all).
+    wt: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.cam = np.ascontiguousarray(self.cam, dtype=np.int64)
@@ -95,6 +97,8 @@ class TeamProblem:
         self.uv = np.ascontiguousarray(self.uv, dtype=float).reshape(-1, 2)
         self.K = np.ascontiguousarray(self.K, dtype=float).reshape(-1, 3, 3)
         self.dist = np.ascontiguousarray(self.dist, dtype=float).reshape(-1, 8)
+        n = self.cam.shape[0]
+        self.wt = np.ones(n) if self.wt is None else np.ascontiguousarray(self.wt, dtype=float).reshape(n)
 
     @property
     def n_robots(self) -> int:
@@ -102,7 +106,8 @@ class TeamProblem:
 
     def take(self, rows: np.ndarray) -> "TeamProblem":
         """The observations ``rows`` only (same robots)."""
-        return TeamProblem(self.cam[rows], self.own[rows], self.points[rows], self.uv[rows], self.K, self.dist)
+        return TeamProblem(self.cam[rows], self.own[rows], self.points[rows], self.uv[rows], self.K, self.dist,
+                           self.wt[rows])
 
     def counts(self) -> np.ndarray:
         """``C[a, b]``: observations camera ``a`` made of robot ``b``'s markers."""
@@ -121,10 +126,11 @@ def _skew_mul(M, v, out):
 
 
 @njit(cache=True)
-def team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, want_jac):
+def team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, want_jac):
     """Residuals (2n,) and, with ``want_jac``, each observation's Jacobians
     (n, 2, 6) with respect to the observer's pose (``Ja``) and the marker
-    owner's pose (``Jb``).  False when a marker is behind its observer."""
+    owner's pose (``Jb``), each observation's rows times its weight ``wt``
+    (pixel_sigma over its own noise).  False when a marker is behind its observer."""
     Y = np.empty(3)
     d = np.empty(3)
     X = np.empty(3)
@@ -146,13 +152,14 @@ def team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, want_jac):
                 return False
         elif not project_kernel(Ks[a], ds[a], X, uv):
             return False
-        r[2 * j] = uv[0] - meas[j, 0]
-        r[2 * j + 1] = uv[1] - meas[j, 1]
+        w = wt[j]
+        r[2 * j] = w * (uv[0] - meas[j, 0])
+        r[2 * j + 1] = w * (uv[1] - meas[j, 1])
         if want_jac:
-            # M = d uv / d x_ref = Jp R_a^T
+            # M = d uv / d x_ref = Jp R_a^T (weighted)
             for k in range(2):
                 for i in range(3):
-                    M[k, i] = Jp[k, 0] * Rs[a, i, 0] + Jp[k, 1] * Rs[a, i, 1] + Jp[k, 2] * Rs[a, i, 2]
+                    M[k, i] = w * (Jp[k, 0] * Rs[a, i, 0] + Jp[k, 1] * Rs[a, i, 1] + Jp[k, 2] * Rs[a, i, 2])
             # owner: d x_ref = -[R_b P]x dtheta_b + dt_b
             _skew_mul(M, Y, S)
             for k in range(2):
@@ -169,12 +176,12 @@ def team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, want_jac):
 
 
 @njit(cache=True)
-def team_cost(cam, own, pts, meas, Ks, ds, Rs, ts):
-    """Sum of squared pixel residuals (inf if a marker is behind its observer)."""
+def team_cost(cam, own, pts, meas, wt, Ks, ds, Rs, ts):
+    """Sum of squared weighted pixel residuals (inf if a marker is behind its observer)."""
     n = cam.shape[0]
     r = np.empty(2 * n)
     J = np.empty((1, 2, 6))
-    if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, J, J, False):
+    if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, J, J, False):
         return np.inf
     c = 0.0
     for k in range(2 * n):
@@ -275,7 +282,7 @@ def _cholesky_solve(A, first, b, x, L):
 
 
 @njit(cache=True)
-def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
+def team_lm(cam, own, pts, meas, wt, Ks, ds, var, Rs, ts, max_iter, H):
     """Levenberg-Marquardt over the poses of robots with ``var[i] >= 0``
     (column block ``var[i]``), others fixed; Rs/ts updated in place, ``H``
     (6k, 6k) receives J^T J at the end.  Returns (cost, iterations); cost is
@@ -294,7 +301,7 @@ def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
     first = _envelope(cam, own, var, m)
     Rn = np.empty_like(Rs)
     tn = np.empty_like(ts)
-    if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
+    if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True):
         return np.inf, 0
     c = 0.0
     for k in range(2 * n):
@@ -334,7 +341,7 @@ def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
                     so3_exp_left(delta[6 * v:6 * v + 3], Rs[i], Rn[i])
                     for k in range(3):
                         tn[i, k] += delta[6 * v + 3 + k]
-            cn = team_cost(cam, own, pts, meas, Ks, ds, Rn, tn)
+            cn = team_cost(cam, own, pts, meas, wt, Ks, ds, Rn, tn)
             if cn <= c:
                 Rs[:, :, :] = Rn
                 ts[:, :] = tn
@@ -350,10 +357,10 @@ def team_lm(cam, own, pts, meas, Ks, ds, var, Rs, ts, max_iter, H):
             lam *= 10.0
         if not improved or small:
             break
-        team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True)
+        team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True)
         _accumulate(cam, own, var, r, Ja, Jb, H, g)
     if it > 0:
-        team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True)
+        team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True)
         _accumulate(cam, own, var, r, Ja, Jb, H, g)
     return c, it
 
@@ -362,7 +369,8 @@ def _lm(problem: TeamProblem, var: np.ndarray, Rs: np.ndarray, ts: np.ndarray, m
                                                                                                       np.ndarray]:
     k = int(var.max()) + 1 if var.size else 0
     H = np.zeros((6 * k, 6 * k))
-    c, it = team_lm(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, var, Rs, ts,
+    c, it = team_lm(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, var,
+                    Rs, ts,
                     max_iter, H)
     return float(c), int(it), H
 
@@ -460,7 +468,7 @@ def _spread(rows, k):
 
 
 @njit(cache=True)
-def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subsets, gate, max_iter, out_R, out_t):
+def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, subsets, gate, max_iter, out_R, out_t):
     """One attempt at placing robot ``r`` (the body of :func:`initial_poses`):
     the pair problem of r's views ``sees`` (placed markers, expressed in
     camera ``c``'s frame) and c's views ``seen`` of r's markers, solved by
@@ -475,6 +483,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     side = np.empty(n, dtype=np.int64)
     P = np.empty((n, 3))
     meas = np.empty((n, 2))
+    w = np.empty(n)
     Rc_, tc_ = Rs[c], ts[c]
     for i in range(na):
         j = sees[i]
@@ -487,6 +496,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
             P[i, k] = Rc_[0, k] * x[0] + Rc_[1, k] * x[1] + Rc_[2, k] * x[2]
         meas[i, 0] = uv[j, 0]
         meas[i, 1] = uv[j, 1]
+        w[i] = wt[j]
     for i in range(nb):
         j = seen[i]
         side[na + i] = 1
@@ -494,6 +504,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
             P[na + i, k] = pts[j, k]
         meas[na + i, 0] = uv[j, 0]
         meas[na + i, 1] = uv[j, 1]
+        w[na + i] = wt[j]
     size = max(subsets.shape[0] * PER_SUBSET, 1)
     Rc = np.empty((size, 3, 3))
     tc = np.empty((size, 3))
@@ -504,7 +515,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     H6 = np.empty((6, 6))
     Hinv = np.empty((6, 6))
     bearings = np.empty((n, 3))
-    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, Ks[r], ds[r], Ks[c], ds[c], MODE_PIXEL, np.ones(n),
+    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, Ks[r], ds[r], Ks[c], ds[c], MODE_PIXEL, w,
                                        subsets, False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest, H6, Hinv)
     if status != 0:
         return np.inf
@@ -513,6 +524,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
     sown = own[ties]
     spts = pts[ties]
     suv = uv[ties]
+    swt = wt[ties]
     var = np.full(Rs.shape[0], -1, dtype=np.int64)
     var[r] = 0
     H = np.empty((6, 6))
@@ -538,7 +550,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
                 for b in range(3):
                     Rtry[r, a, b] = Rc_[a, 0] * Rq[0, b] + Rc_[a, 1] * Rq[1, b] + Rc_[a, 2] * Rq[2, b]
                 ttry[r, a] = Rc_[a, 0] * tq[0] + Rc_[a, 1] * tq[1] + Rc_[a, 2] * tq[2] + tc_[a]
-            cost = team_cost(scam, sown, spts, suv, Ks, ds, Rtry, ttry)
+            cost = team_cost(scam, sown, spts, suv, swt, Ks, ds, Rtry, ttry)
             if cost < best:
                 best = cost
                 bR[:, :] = Rtry[r]
@@ -547,7 +559,7 @@ def _place_pass(cam, own, pts, uv, Ks, ds, Rs, ts, r, c, sees, seen, ties, subse
             continue
         Rtry[r] = bR
         ttry[r] = bt
-        cost, _ = team_lm(scam, sown, spts, suv, Ks, ds, var, Rtry, ttry, max_iter, H)
+        cost, _ = team_lm(scam, sown, spts, suv, swt, Ks, ds, var, Rtry, ttry, max_iter, H)
         if np.isfinite(cost) and cost < best:
             best = cost
             bR[:, :] = Rtry[r]
@@ -631,7 +643,8 @@ def _attach(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.nda
             Rc, tc = Rc[choice:choice + 1], tc[choice:choice + 1]
         for R, t in zip(Rc, tc):
             apply(R, t, Rtry, ttry)
-            cost = team_cost(tie_sub.cam, tie_sub.own, tie_sub.points, tie_sub.uv, tie_sub.K, tie_sub.dist, Rtry, ttry)
+            cost = team_cost(tie_sub.cam, tie_sub.own, tie_sub.points, tie_sub.uv, tie_sub.wt, tie_sub.K, tie_sub.dist,
+                             Rtry, ttry)
             if cost < best:
                 best, bR, bt = cost, Rtry[members].copy(), ttry[members].copy()
         if best <= gate or choice is not None:
@@ -715,8 +728,8 @@ def _grow(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarr
                 continue
             subsets = minimal_subsets(np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)])
             R1, t1 = np.empty((3, 3)), np.empty(3)
-            cost = _place_pass(cam, own, problem.points, problem.uv, problem.K, problem.dist, Rs, ts, r, c, a, b, ties,
-                               subsets, gate, max_iter, R1, t1)
+            cost = _place_pass(cam, own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, Rs, ts, r, c, a,
+                               b, ties, subsets, gate, max_iter, R1, t1)
             if cost < found:
                 found, out_R, out_t = cost, R1, t1
             if found <= gate:
@@ -1270,19 +1283,20 @@ def residual_norms(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> np.n
     """Each observation's reprojection error (pixels) at poses (Rs, ts);
     inf for a marker behind its observer."""
     out = np.full(len(problem.cam), np.inf)
-    _residual_norms(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist,
+    _residual_norms(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist,
                     np.ascontiguousarray(Rs, dtype=float), np.ascontiguousarray(ts, dtype=float), out)
     return out
 
 
 @njit(cache=True)
-def _residual_norms(cam, own, pts, meas, Ks, ds, Rs, ts, out):
+def _residual_norms(cam, own, pts, meas, wt, Ks, ds, Rs, ts, out):
     """``out[j]``: observation ``j``'s reprojection error, each on its own (one
     behind its observer leaves its ``out[j]`` as it is)."""
     r = np.empty(2)
     J = np.empty((1, 2, 6))
     for j in range(cam.shape[0]):
-        if team_residuals(cam[j:j + 1], own[j:j + 1], pts[j:j + 1], meas[j:j + 1], Ks, ds, Rs, ts, r, J, J, False):
+        if team_residuals(cam[j:j + 1], own[j:j + 1], pts[j:j + 1], meas[j:j + 1], wt[j:j + 1], Ks, ds, Rs, ts, r, J,
+                          J, False):
             out[j] = np.hypot(r[0], r[1])
 
 

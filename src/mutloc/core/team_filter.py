@@ -379,9 +379,10 @@ class TeamFilter:
         the detections by :attr:`gain_sigma`; the state's covariance and the
         gate are under ``pixel_sigma``."""
         if len(rows) == len(problem.cam):
-            cam, own, pts, meas = problem.cam, problem.own, problem.points, problem.uv
+            cam, own, pts, meas, wt = problem.cam, problem.own, problem.points, problem.uv, problem.wt
         else:
-            cam, own, pts, meas = problem.cam[rows], problem.own[rows], problem.points[rows], problem.uv[rows]
+            cam, own, pts, meas, wt = (problem.cam[rows], problem.own[rows], problem.points[rows], problem.uv[rows],
+                                       problem.wt[rows])
         m = len(rows)
         ref = self.index(self.reference)
         pos = self._positions()
@@ -393,7 +394,7 @@ class TeamFilter:
         res = np.empty(m)
         H, r, innov = np.empty((2 * m, len(cols))), np.empty(2 * m), np.empty(2 * m)
         sigma = self.gain_sigma
-        ok, chi2 = team_iekf(cam, own, pts, meas, problem.K, problem.dist, pos, ref, self.R, self.t, self.vel,
+        ok, chi2 = team_iekf(cam, own, pts, meas, wt, problem.K, problem.dist, pos, ref, self.R, self.t, self.vel,
                              self.own_covariance, sigma**2, self.max_iter, Rs, ts, vel, Pg, res, H, r, innov)
         if not ok:
             return None

@@ -159,7 +159,7 @@ def _retract(i, o, e, R0, t0, Rs, ts):
 
 
 @njit(cache=True)
-def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res,
+def team_iekf(cam, own, pts, meas, wt, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res,
               H_lin, r_lin, innov_lin):
     """The iterated update with the observations given (all of tracked
     robots or the reference ``ref``; ``pos[i]``: robot ``i``'s state block
@@ -222,7 +222,7 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
     chi2 = np.inf
     iters = max_iter if m >= 3 else 1
     for _ in range(iters):
-        if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, True):
+        if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True):
             return False, chi2
         _sparse_rows(cam, own, ref, slot, Ja, Jb, hv, hc)
         HP[:, :] = 0.0  # H Pcc
@@ -317,7 +317,7 @@ def team_iekf(cam, own, pts, meas, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_i
             v = 0.5 * (P0[a, b] + P0[b, a]) - WW[a, b]
             P[a, b] = v
             P[b, a] = v
-    if not team_residuals(cam, own, pts, meas, Ks, ds, Rs, ts, r, Ja, Jb, False):
+    if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, False):
         return False, chi2
     for j in range(m):
         res[j] = np.hypot(r[2 * j], r[2 * j + 1])

@@ -1038,7 +1038,7 @@ class TeamTracker:
         latest: dict[tuple[str, str | None], tuple[tuple[float, float], float]] = {}
         for _, o in [*self._recent, (None, obs)]:
             for k in range(len(o)):
-                latest[(o.observer[k], o.marker[k])] = (tuple(o.uv[k]), float(o.score[k]))
+                latest[(o.observer[k], o.marker[k])] = (tuple(o.uv[k]), float(o.score[k]), float(o.sigma_scale[k]))
         keys = [k for k in latest if k[1] is not None]
         ties = {r: 0 for r in self.rig.robots}
         for observer, m in keys:
@@ -1048,7 +1048,8 @@ class TeamTracker:
         if not want or len(keys) <= MIN_TIES:
             return None
         both = ObservationSet.trusted([k[0] for k in keys], [k[1] for k in keys],
-                                      np.array([latest[k][0] for k in keys]), score=[latest[k][1] for k in keys])
+                                      np.array([latest[k][0] for k in keys]), score=[latest[k][1] for k in keys],
+                                      sigma_scale=[latest[k][2] for k in keys])
         return both, want
 
     def _moving_start(self, t: float, obs: ObservationSet, r: str) -> str | None:
@@ -1086,11 +1087,13 @@ class TeamTracker:
             problems.append(pair_problem(pair))
             times.append(tk)
             for k in pair.rows.tolist():
-                latest[(pair.parent.observer[k], pair.parent.marker[k])] = pair.parent.uv[k]
+                latest[(pair.parent.observer[k], pair.parent.marker[k])] = (pair.parent.uv[k],
+                                                                            pair.parent.sigma_scale[k])
         n = sum(len(p.side) for p in problems)
         if len(latest) <= MIN_TIES or len(times) < 2 or 2 * n - 12 < MIN_START_DOF:
             return ""
-        union = ObservationSet([o for o, _ in latest], [m for _, m in latest], np.array(list(latest.values())), t)
+        union = ObservationSet([o for o, _ in latest], [m for _, m in latest], np.array([v[0] for v in latest.values()]),
+                               t, sigma_scale=[v[1] for v in latest.values()])
         try:
             first = localize(self.rig, union, r, ref, pixel_sigma=self.pixel_sigma, confidence=1.0)
         except MutlocError:
@@ -1142,7 +1145,8 @@ class TeamTracker:
         one = problem.take(np.array([j]))
         res = np.empty(2)
         Ja, Jb = np.empty((1, 2, 6)), np.empty((1, 2, 6))
-        if not team_residuals(one.cam, one.own, one.points, one.uv, one.K, one.dist, f.R, f.t, res, Ja, Jb, True):
+        if not team_residuals(one.cam, one.own, one.points, one.uv, one.wt, one.K, one.dist, f.R, f.t, res, Ja, Jb,
+                              True):
             return math.inf
         terms = [(f.robots[int(one.cam[0])], Ja[0]), (f.robots[int(one.own[0])], Jb[0])]
         if any(name != self.reference and not f.is_tracked(name) for name, _ in terms):
