@@ -11,7 +11,8 @@ Per scene and renderer (``blender_*.png``: Cycles; ``mutloc_*.png``: mutloc.sim.
   are those with more than 5 % of their disc covered (truth by ray casting);
 - pose: :func:`mutloc.track.localize_images` (first look, solve, second look at partly hidden balls),
   translation error in cm against the true T_qp, and the error's Mahalanobis distance under the
-  estimate's own translation covariance (pixel_sigma 1 px): "beyond 5 sigma" when it exceeds 5.
+  estimate's own translation covariance (``--pixel-sigma``, default 1 px, with each partly hidden ball's
+  ``sigma_scale``): "beyond 5 sigma" when it exceeds 5.
 
 Prints per condition and renderer: ball-centre error median / p90 (px) of the first look ("1st",
 a wrong blob taken counts with its distance), then of the balls localize_images kept (all, and the
@@ -68,10 +69,10 @@ def ball_rows(rig, imgs, truth, final=None) -> list[dict]:
     return rows
 
 
-def pose_row(rig, imgs, truth) -> dict:
+def pose_row(rig, imgs, truth, pixel_sigma: float = 1.0) -> dict:
     t_true = np.asarray(truth["T_qp"]["t"])
     try:
-        res = localize_images(rig, imgs)
+        res = localize_images(rig, imgs, pixel_sigma=pixel_sigma)
     except MutlocError as exc:
         missed = [{"observer": o, "marker": m, "hidden": b["hidden"], "radius_px": b["radius_px"], "err_px": None,
                    "why": "no pose"} for o, bs in truth["balls"].items() for m, b in bs.items()]
@@ -96,6 +97,8 @@ def main() -> None:
     ap.add_argument("--renderer", choices=RENDERERS, action="append", default=None)
     ap.add_argument("--json", type=Path, default=ROOT / "results" / "balls_blender_results.json")
     ap.add_argument("--only", default=None, help="comma-separated conditions (default: every scene of the set)")
+    ap.add_argument("--pixel-sigma", type=float, default=1.0,
+                    help="the detection noise the pose's covariance and consistency test assume (px, default 1)")
     args = ap.parse_args()
     renderers = args.renderer or list(RENDERERS)
     rig = standard_rig("balls")
@@ -111,7 +114,7 @@ def main() -> None:
         for ren in renderers:
             imgs = {o: cv2.imread(str(folder / f"{ren}_{o}.png"), cv2.IMREAD_COLOR) for o in ("p", "q")}
             row = {"scene": folder.name, "condition": truth["condition"], "renderer": ren,
-                   "balls": ball_rows(rig, imgs, truth), **pose_row(rig, imgs, truth)}
+                   "balls": ball_rows(rig, imgs, truth), **pose_row(rig, imgs, truth, args.pixel_sigma)}
             rows.append(row)
             errs = [f"{b['marker']}{'*' if b['hidden'] > HIDDEN else ''} "
                     + ("miss" if b["err_px"] is None else f"{b['err_px']:.2f}") for b in row["balls"]]
