@@ -92,21 +92,41 @@ def centre_sigma_scale(ang: np.ndarray, used: np.ndarray) -> float:
     from opposite sides, an arc only along its middle: with half the rim hidden the centre is about 3
     times worse along the hidden side (the radius with it), with 60 % hidden about 6 times.
     """
-    n = len(ang)
-    a = ang[used]
-    m = len(a)
+    return float(_centre_sigma_scale(np.ascontiguousarray(ang, dtype=np.float64),
+                                     np.ascontiguousarray(used, dtype=np.bool_), MAX_SIGMA_SCALE))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _centre_sigma_scale(ang, used, cap):
+    n = ang.shape[0]
+    m = 0
+    cc = cs = ss = c1 = s1 = 0.0
+    for i in range(n):
+        if used[i]:
+            c = math.cos(ang[i])
+            s = math.sin(ang[i])
+            cc += c * c
+            cs += c * s
+            ss += s * s
+            c1 += c
+            s1 += s
+            m += 1
     if m < 3 or n == 0:
-        return MAX_SIGMA_SCALE
-    c, s_ = np.cos(a), np.sin(a)
-    A = np.array([[c @ c, c @ s_, c.sum()], [c @ s_, s_ @ s_, s_.sum()], [c.sum(), s_.sum(), float(m)]])
-    try:
-        C = np.linalg.inv(A)[:2, :2]
-    except np.linalg.LinAlgError:
-        return MAX_SIGMA_SCALE
-    worst = float(np.linalg.eigvalsh(C)[-1])
-    if not (math.isfinite(worst) and worst > 0.0):
-        return MAX_SIGMA_SCALE
-    return float(min(max(math.sqrt(worst * n / 2.0), 1.0), MAX_SIGMA_SCALE))
+        return cap
+    # The centre block of the inverse of [[cc, cs, c1], [cs, ss, s1], [c1, s1, m]]: the Schur
+    # complement of m, inverted.
+    a = cc - c1 * c1 / m
+    b = cs - c1 * s1 / m
+    d = ss - s1 * s1 / m
+    det = a * d - b * b
+    if not det > 1e-12 * (a + d) ** 2:
+        return cap
+    # the largest eigenvalue of the 2x2 inverse is 1 / the smallest of [[a, b], [b, d]]
+    tr = a + d
+    small = 0.5 * (tr - math.sqrt(max((a - d) ** 2 + 4.0 * b * b, 0.0)))
+    if not small > 0.0:
+        return cap
+    return min(max(math.sqrt(n / (2.0 * small)), 1.0), cap)
 
 
 def fit_rim(rim: Rim, init: np.ndarray, cam: CameraModel | None, max_axis_ratio: float) -> Fit | None:
