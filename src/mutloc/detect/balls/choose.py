@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,6 +36,10 @@ __all__ = [
     "same_blob",
     "score_candidate",
 ]
+
+#: Shading contrast (:func:`~.cues.shading_contrast`) from which a candidate looks fully like a lit
+#: sphere in the score; below, less (a printed disc is flat).
+SHADED = 0.12
 
 
 @dataclass
@@ -66,13 +70,15 @@ def score_candidate(
     params: BallParams,
     *,
     gains: np.ndarray | None = None,
+    rim_gains: np.ndarray | None = None,
 ) -> Candidate | None:
     """Score the ball that ``fit`` (through ``rim``) found for ``search``; None if implausible.
 
     ``fill`` is the coarse blob's fill of its circle, ``lut`` the image's
     unmixing values, ``gains`` the light's colour to divide out of the
     rim's colours (in those values) before the hue is compared, unless
-    :func:`~.rim.sample_rim` did already.  With a camera, a distance (from the apparent size and
+    :func:`~.rim.sample_rim` did already (with ``rim_gains``, which the shading cue's samples of the
+    image then take too).  With a camera, a distance (from the apparent size and
     the marker's radius) outside ``params.distance_range_m`` is implausible.
     """
     cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
@@ -89,7 +95,9 @@ def score_candidate(
     ball = ball / max(1.0, float(ball.max()))
     hue, chroma = hue_chroma(ball, lut)
     # Shading is a soft cue: balls in perfectly diffuse light look flat too.
-    shading = shading_contrast(img, lut, cx, cy, inner)
+    mid = np.column_stack([cx + 0.5 * fit.radii[inl] * np.cos(rim.ang[inl]),
+                           cy + 0.5 * fit.radii[inl] * np.sin(rim.ang[inl])])
+    shading = shading_contrast(img, lut, cx, cy, inner, mid, rim_gains, 2.0 * params.hue_tol_deg)
     if cam is not None:
         assert fit.direction is not None
         uv = cam.camera.project(fit.direction)
@@ -110,7 +118,7 @@ def scored(
     shape = 1.0 / (1.0 + (fit.rms / 0.5) ** 2)
     # A blob that fills little of its circle is a ring or a crescent.
     solid = min(1.0, fill / 0.6)
-    relief = 0.6 + 0.4 * min(1.0, shading / 0.12)
+    relief = 0.6 + 0.4 * min(1.0, shading / SHADED)
     score = rim_frac * colour * vivid(chroma) * shape * solid * evidence(rim_frac * 2.0 * math.pi * r) * relief
     info: dict[str, Any] = {
         "radius_px": r,
@@ -184,7 +192,8 @@ def worst_pair_error(picked: list[Candidate]) -> float:
 
 
 def choose_consistent(
-    group: list[BallSearch], per_marker: Mapping[str, list[Candidate]], params: BallParams
+    group: list[BallSearch], per_marker: Mapping[str, list[Candidate]], params: BallParams,
+    key: Callable[[Candidate], float] | None = None,
 ) -> tuple[list[Candidate], bool]:
     """The candidates of one robot's balls (or none of some) that best fit the rig.
 
@@ -195,9 +204,11 @@ def choose_consistent(
     error allowed grows with range (see :func:`range_sigma`).  Exhaustive: a
     few markers with a few candidates each.  Also says whether the choice is
     clean: every marker with a candidate has one and every pair is within 3
-    sigma.
+    sigma.  ``key``: what stands for a candidate's score (its ``score`` when
+    None).
     """
-    top = [sorted(per_marker.get(s.name, []), key=lambda c: -c.score)[: params.max_joint_options] for s in group]
+    value = (lambda c: c.score) if key is None else key
+    top = [sorted(per_marker.get(s.name, []), key=lambda c: -value(c))[: params.max_joint_options] for s in group]
     options: list[list[Candidate | None]] = [[None, *t] for t in top]
     if math.prod(len(o) for o in options) > params.max_joint_combos:
         # Too many to try (a robot with many balls): each marker's best.
@@ -220,7 +231,7 @@ def choose_consistent(
     for combo in itertools.product(*options):
         val = 0.0
         for c in combo:
-            val += miss if c is None else math.log(c.score)
+            val += miss if c is None else math.log(value(c))
         if val <= best_val:
             continue  # consistency can only lower it
         worst = 0.0

@@ -8,10 +8,11 @@ import math
 import numba
 import numpy as np
 
-from .numeric import sort_inplace
+from .numeric import column_medians, sort_inplace
 
 __all__ = [
-    "encode_kernel", "encoded_hue_chroma", "evidence", "hue_chroma", "shading_contrast", "shading_kernel", "vivid",
+    "ball_coloured", "encode_kernel", "encoded_hue_chroma", "evidence", "hue_chroma", "hue_kernel", "shading_contrast",
+    "shading_kernel", "vivid",
 ]
 
 
@@ -65,42 +66,117 @@ def encode_kernel(lut, b, g, r):
     return out[0], out[1], out[2]
 
 
-def shading_contrast(img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inner: np.ndarray) -> float:
+def shading_contrast(
+    img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inner: np.ndarray, mid_pts: np.ndarray | None = None,
+    gain: np.ndarray | None = None, tol_deg: float = 24.0,
+) -> float:
     """Relative brightness range over the ball: its middle and the ring just inside the rim (0..1).
 
     A lit sphere is shaded (its limb or one side darker than its middle); a
     printed disc of the same colour is flat.  ``inner`` (n, 3) holds the
-    ball colours next to the rim, in ``lut``'s values.
+    ball colours next to the rim, in ``lut``'s values (times ``gain``, the
+    light's colour divided out, if any); those without the ball's colour
+    (hue within ``tol_deg`` of their median's, see :func:`ball_coloured`: an
+    occluder's edge crossed the ray) are left out.  The middle is the 3x3 pixels at
+    ``(cx, cy)`` where each has the ball's colour (hue within ``tol_deg``
+    of the ring's, see :func:`ball_coloured`); where an occluder hides them
+    (a cut ball, a printed disc behind a box), the points ``mid_pts``
+    (k, 2: half way in along the rays of the visible rim) that have it.
     """
-    return float(shading_kernel(img, lut, float(cx), float(cy), inner))
+    g = np.ones(3) if gain is None else np.ascontiguousarray(gain, dtype=np.float64)
+    mid = np.zeros((0, 2)) if mid_pts is None else np.ascontiguousarray(mid_pts, dtype=np.float64)
+    return float(shading_kernel(img, lut, g, float(cx), float(cy), inner, mid, float(tol_deg)))
 
 
 @numba.njit(cache=True, fastmath=False)
-def shading_kernel(img, lut, cx, cy, inner):
+def hue_kernel(b, g, r):
+    """Hue (deg) of an encoded colour, as :func:`colorsys.rgb_to_hsv` (0 for a grey)."""
+    mx = max(b, g, r)
+    mn = min(b, g, r)
+    if mx == mn:
+        return 0.0
+    d = mx - mn
+    if r == mx:
+        h = (g - b) / d
+    elif g == mx:
+        h = 2.0 + (b - r) / d
+    else:
+        h = 4.0 + (r - g) / d
+    return 360.0 * ((h / 6.0) % 1.0)
+
+
+@numba.njit(cache=True, fastmath=False)
+def ball_coloured(lut, b, g, r, hue_deg, tol_deg, min_chroma=8.0):
+    """Whether a colour in ``lut``'s values has the hue ``hue_deg`` (within ``tol_deg``) and a chroma
+    (encoded 0..255) of at least ``min_chroma`` (as :mod:`.refit` tests the rays' inner colours)."""
+    top = max(1.0, b, g, r)
+    eb, eg, er = encode_kernel(lut, b / top, g / top, r / top)
+    if max(eb, eg, er) - min(eb, eg, er) < min_chroma:
+        return False
+    return abs((hue_kernel(eb, eg, er) - hue_deg + 180.0) % 360.0 - 180.0) <= tol_deg
+
+
+@numba.njit(cache=True, fastmath=False)
+def shading_kernel(img, lut, gain, cx, cy, inner, mid_pts, tol_deg):
     # Sums in NumPy's order (three values in turn, nine pairwise), so the
     # figures match the array code they replace.
     n = inner.shape[0]
     if n < 4:
         return 0.0
+    # The ball's colour: the ring's median, per channel; rays whose inner colour is not the ball's
+    # (an occluder's edge ran across the window) are left out.
+    ball = np.empty(3)
+    column_medians(inner, ball)
+    top = max(1.0, ball[0], ball[1], ball[2])
+    eb, eg, er = encode_kernel(lut, ball[0] / top, ball[1] / top, ball[2] / top)
+    hue = hue_kernel(eb, eg, er)
     ring = np.empty(n)
+    m = 0
     for k in range(n):
-        ring[k] = inner[k, 0] + inner[k, 1] + inner[k, 2]
-    sort_inplace(ring, n)
+        if ball_coloured(lut, inner[k, 0], inner[k, 1], inner[k, 2], hue, tol_deg):
+            ring[m] = inner[k, 0] + inner[k, 1] + inner[k, 2]
+            m += 1
+    if m < 4:
+        return 0.0
+    sort_inplace(ring, m)
     # 10th and 90th percentiles (robust to a stray ray).
-    lo = ring[n // 10]
-    hi = ring[(9 * n) // 10]
+    lo = ring[m // 10]
+    hi = ring[(9 * m) // 10]
     mn = min(lo, hi)
     mx = max(lo, hi)
     i = round(cy)
     j = round(cx)
-    if 1 <= i < img.shape[0] - 1 and 1 <= j < img.shape[1] - 1:
+    H = img.shape[0]
+    W = img.shape[1]
+    seen = False
+    if 1 <= i < H - 1 and 1 <= j < W - 1:
         s = np.empty(9, np.float32)
+        seen = True
         for a in range(3):
             for b in range(3):
                 p = img[i - 1 + a, j - 1 + b]
                 s[3 * a + b] = lut[p[0]] + lut[p[1]] + lut[p[2]]
-        tot = (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))) + s[8]
-        mid = float(tot / np.float32(9.0))
-        mn = min(mn, mid)
-        mx = max(mx, mid)
+                seen = seen and ball_coloured(lut, gain[0] * lut[p[0]], gain[1] * lut[p[1]], gain[2] * lut[p[2]],
+                                              hue, tol_deg)
+        if seen:
+            tot = (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))) + s[8]
+            mid = float(tot / np.float32(9.0))
+            mn = min(mn, mid)
+            mx = max(mx, mid)
+    if not seen:
+        # The middle is hidden: the ball half way in along its visible rays instead.
+        acc = 0.0
+        k = 0
+        for q in range(mid_pts.shape[0]):
+            y = round(mid_pts[q, 1])
+            x = round(mid_pts[q, 0])
+            if 0 <= y < H and 0 <= x < W:
+                p = img[y, x]
+                b_, g_, r_ = gain[0] * lut[p[0]], gain[1] * lut[p[1]], gain[2] * lut[p[2]]
+                if ball_coloured(lut, b_, g_, r_, hue, tol_deg):
+                    acc += b_ + g_ + r_
+                    k += 1
+        if k > 0:
+            mn = min(mn, acc / k)
+            mx = max(mx, acc / k)
     return (mx - mn) / mx if mx > 0 else 0.0

@@ -12,9 +12,10 @@ from ...core.camera import Camera
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import Detection, DetectionResult, as_bgr
-from .choose import (Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored,
+from .choose import (SHADED, Candidate, assign, choose_consistent, rig_mates, same_blob, score_candidate, scored,
                      worst_pair_error)
 from .fit import CameraModel, Fit, ellipse_info, fit_rim
+from .guided import guided_blobs, per_rim
 from .cues import encoded_hue_chroma
 from .light import light_gains, lut_gains
 from .occlusion import recentre, smooth_rim
@@ -124,12 +125,16 @@ def detect_balls(
                               f"(min_visible_fraction {100 * params.min_visible_fraction:.0f}%)")
             return None
         if c.score < params.min_score:
+            # Kept aside: a ball hidden by more than half scores low for the rim it does not show
+            # (the rig's guided look below judges it by the rim it shows).
+            weak.setdefault(s.name, []).append(c)
             reject(s.name, 1, f"rejected: its best blob scores {c.score:.2f}, below min_score {params.min_score}")
             return None
         source[id(c)] = blob
         return c
 
     source: dict[int, Blob] = {}  # id of a candidate -> the blob it was refined from
+    weak: dict[str, list[Candidate]] = {}  # candidates scoring below min_score, per marker
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
@@ -186,6 +191,39 @@ def detect_balls(
         return [max(per_marker[g.name], key=lambda c: c.score) for g in searches
                 if g is not s and g.robot is not None and g.robot == s.robot and per_marker[g.name]]
 
+    def look_where_the_rig_says(group: list[BallSearch], picked: list[Candidate]) -> list[Candidate]:
+        """``picked`` with the robot's missing balls looked for again where the rig puts them, around a
+        ball of the robot found whole (:mod:`.guided`)."""
+        whole = [c for c in picked if float(c.info["rim_fraction"]) >= 0.9 and c.xyz is not None]
+        if not whole or cam is None:
+            return picked
+        mate = max(whole, key=lambda c: c.score)
+        for g in group:
+            if any(c.search.name == g.name for c in picked):
+                continue
+            L = float(np.linalg.norm(g.position - mate.search.position))  # type: ignore[operator]
+            if L < 1e-6:
+                continue
+            cands = list(weak.get(g.name, []))
+            for b in guided_blobs(img, g, mate, L, cam.f, v_floor, gains, params):
+                if (c := refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains)) is not None:
+                    cands.append(c)
+            # Looked for among blobs of its hue (posters), where printed discs are what passes for a
+            # ball: a candidate must be shaded like a lit sphere.
+            cands = [c for c in cands if float(c.info["rim_fraction"]) >= params.min_visible_fraction
+                     and per_rim(c, params) >= params.min_score and float(c.info["shading"]) >= SHADED]
+            if not cands:
+                continue
+            # The found balls stay as they are; the rig check decides between the candidates and none.
+            options = {c.search.name: [c] for c in picked}
+            options[g.name] = cands
+            new, _ = choose_consistent([x for x in group if x.name in options], options, params,
+                                       key=lambda c: per_rim(c, params))
+            if len(new) == len(picked) + 1:
+                picked = new
+                per_marker[g.name] = per_marker.get(g.name, []) + [c for c in new if c.search.name == g.name]
+        return picked
+
     search(searches, k, rmax)
     for s in searches:
         if not per_marker[s.name] and later[s.name]:
@@ -230,7 +268,7 @@ def detect_balls(
                     extra = True
             if extra:
                 picked, _ = choose_consistent(group, per_marker, params)
-        chosen.extend(picked)
+        chosen.extend(look_where_the_rig_says(group, picked))
     rest = [c for s in searches if s.robot not in mates for c in per_marker[s.name]]
 
     for s in searches:
@@ -247,12 +285,9 @@ def detect_balls(
     # unsure: hand it over too, and let the mutual geometry decide.  Scores
     # are compared per share of visible rim: a partly hidden ball scores
     # low for being hidden, not for looking less like a ball.
-    def per_rim(c: Candidate) -> float:
-        return c.score / max(float(c.info["rim_fraction"]), params.min_visible_fraction, 1e-9)
-
     for c in taken:
         alts = [a for a in per_marker.get(c.search.name, [])
-                if a is not c and per_rim(a) >= params.alternative_ratio * per_rim(c)
+                if a is not c and per_rim(a, params) >= params.alternative_ratio * per_rim(c, params)
                 and not any(same_blob(a, t) for t in taken)]
         if alts:
             result.alternatives[c.search.name] = [
@@ -337,7 +372,7 @@ def refine_blob(
     # The coarse blob of a split ball is one piece of it, filling little of
     # its circle: the visible rim (in the score) is the better judge then.
     fill = max(blob.fill, 0.6) if moved else blob.fill
-    return score_candidate(img, lut, s, fill, rim, fit, cam, params)
+    return score_candidate(img, lut, s, fill, rim, fit, cam, params, rim_gains=lg)
 
 
 def _refine_pinhole(
@@ -373,6 +408,7 @@ def _refine_pinhole(
         if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not finite:
             return None
     fit = Fit(outline, np.array([cx, cy]), radii, r, w, rms, d, cos_t, None)
-    n_in, eb, eg, er, shading, uv = measure(img, lut, w, inner, cx, cy, K, dist, d)
+    n_in, eb, eg, er, shading, uv = measure(img, lut, gain, w, inner, cx, cy, ang, radii, 2.0 * params.hue_tol_deg, K,
+                                            dist, d)
     hue, chroma = encoded_hue_chroma(eb, eg, er)
     return scored(s, blob.fill, fit, True, params, float(n_in) / len(w), hue, chroma, shading, uv, ang)

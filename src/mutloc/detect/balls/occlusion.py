@@ -32,7 +32,7 @@ from .numeric import circle3, kasa_circle
 from .params import BallParams
 from .search import BallSearch, Blob
 
-__all__ = ["outline_points", "recentre", "smooth_kernel", "smooth_rim"]
+__all__ = ["hue_mask", "outline_points", "recentre", "smooth_kernel", "smooth_rim"]
 
 # Fixed random draws: detections are repeatable.
 _DRAWS = np.random.default_rng(2718).random((48, 3))
@@ -93,7 +93,7 @@ def recentre(
         return None
     roi = correct(np.ascontiguousarray(img[y0:y1, x0:x1]), gains)
     hsv = cv2.cvtColor(roi, cv2.COLOR_BGR2HSV_FULL)
-    mask = _hue_mask(hsv, s, params.hue_tol_deg, v_floor)
+    mask = hue_mask(hsv, s, params.hue_tol_deg, v_floor)
     pts, nrm = outline_points(mask)
     if len(pts) < 12:
         return None
@@ -110,7 +110,7 @@ def recentre(
     return u + x0, v + y0, r + 0.5
 
 
-def _hue_mask(hsv: np.ndarray, s: BallSearch, tol_deg: float, v_floor: int) -> np.ndarray:
+def hue_mask(hsv: np.ndarray, s: BallSearch, tol_deg: float, v_floor: int) -> np.ndarray:
     """The coarse search's mask (:func:`~.search.hue_masks`) for one marker, by ranges (red wraps around)."""
     s_floor = int(np.clip(0.4 * 255 * s.saturation, 40, 110))
     lo = (s.hue_deg - tol_deg - 0.71) * 256.0 / 360.0

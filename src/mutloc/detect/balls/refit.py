@@ -273,7 +273,7 @@ def _refit(ctx: RefitContext, name: str, marker: Marker, centre: np.ndarray, rad
         cx, cy = float(fit.centre_px[0]), float(fit.centre_px[1])
         rexp = fit.radii
     assert fit is not None and rim is not None
-    cand = score_candidate(ctx.img, ctx.lut, s, 1.0, rim, fit, ctx.cam, params)
+    cand = score_candidate(ctx.img, ctx.lut, s, 1.0, rim, fit, ctx.cam, params, rim_gains=ctx.rim_gains)
     if cand is None:
         return None
     vis = float(cand.info["rim_fraction"])

@@ -94,11 +94,13 @@ def sweep(img, lut, gain, cx, cy, ang, rexp, local_half_window, step, tol0, slop
 
 
 @numba.njit(cache=True, fastmath=False)
-def measure(img, lut, w, inner_all, cx, cy, K, dist, d):
+def measure(img, lut, gain, w, inner_all, cx, cy, ang, radii, tol_deg, K, dist, d):
     """What :func:`~.choose.score_candidate` measures of a fitted ball (no light correction), compiled.
 
-    ``w``: the fit's weights per ray, ``inner_all`` the rim's inner colours,
-    ``(cx, cy)`` the fitted centre, ``d`` the cone's axis.  Returns
+    ``gain``: the light's colour in the rim's values, ``w``: the fit's weights per ray, ``inner_all``
+    the rim's inner colours, ``(cx, cy)`` the fitted centre, ``radii`` the fitted outline's radii
+    along the rays at ``ang`` from it, ``tol_deg``: the shading cue's hue tolerance, ``d`` the cone's
+    axis.  Returns
     ``(inliers, b, g, r, shading, uv)``: the rays with weight, the ball's
     median colour encoded to 0..255 (:func:`~.cues.hue_chroma`), its
     shading contrast (:func:`~.cues.shading_contrast`) and the projection
@@ -110,11 +112,14 @@ def measure(img, lut, w, inner_all, cx, cy, K, dist, d):
         if w[i] > 0.0:
             k += 1
     inner = np.empty((k, 3))
+    mid = np.empty((k, 2))
     j = 0
     for i in range(n):
         if w[i] > 0.0:
             for c in range(3):
                 inner[j, c] = inner_all[i, c]
+            mid[j, 0] = cx + 0.5 * radii[i] * np.cos(ang[i])
+            mid[j, 1] = cy + 0.5 * radii[i] * np.sin(ang[i])
             j += 1
     ball = np.empty(3)
     column_medians(inner, ball)
@@ -128,7 +133,7 @@ def measure(img, lut, w, inner_all, cx, cy, K, dist, d):
         top = ball[0]
     div = top if top > 1.0 else 1.0
     b, g, r = encode_kernel(lut, ball[0] / div, ball[1] / div, ball[2] / div)
-    shading = shading_kernel(img, lut, cx, cy, inner)
+    shading = shading_kernel(img, lut, gain, cx, cy, inner, mid, tol_deg)
     uv = np.empty(2)
     project_kernel(K, dist, d, uv)
     return k, b, g, r, shading, uv
