@@ -76,27 +76,55 @@ def test_hue_chroma_is_searchsorted_and_colorsys(seed, srgb):
     assert hue_chroma(bgr, lut) == (360.0 * h, float(enc.max() - enc.min()))
 
 
-@settings(max_examples=80, deadline=None)
+def _ball_coloured(c: np.ndarray, hue: float, tol: float, lut: np.ndarray) -> bool:
+    h, chroma = hue_chroma(c / max(1.0, float(c.max())), lut)
+    return chroma >= 8 and abs((h - hue + 180.0) % 360.0 - 180.0) <= tol
+
+
+@settings(max_examples=120, deadline=None)
 @given(SEEDS, st.integers(0, 97))
 def test_shading_contrast_is_the_numpy_figure(seed, n):
+    """The ring's rays of the ball's colour, and its middle where seen (else the half-way points that
+    are), as array code with colorsys's hues."""
     rng = np.random.default_rng(seed)
     lut = value_lut(True, 1.7)
-    img = rng.integers(0, 256, (9, 11, 3), dtype=np.uint8)
-    inner = rng.uniform(0, 1, (n, 3)) * rng.uniform(0.01, 1)
+    # A ball of one colour, shaded, with rays and pixels of other colours (an occluder) among them.
+    colour = lut[rng.integers(0, 256, 3)].astype(float)
+    inner = colour * rng.uniform(0.2, 1.0, (n, 1)) + rng.normal(0, 0.01, (n, 3))
+    other = rng.random(n) < rng.uniform(0, 0.6)
+    inner[other] = rng.uniform(0, 1, (int(other.sum()), 3))
+    inner = np.clip(inner, 0, 1)
+    enc = np.searchsorted(lut, colour).clip(0, 255)
+    img = rng.integers(0, 256, (9, 11, 3)).astype(np.uint8)
+    ball_px = rng.random((9, 11)) < rng.uniform(0, 1)
+    img[ball_px] = np.clip(enc * rng.uniform(0.5, 1.0, (int(ball_px.sum()), 1)), 0, 255).astype(np.uint8)
     cx, cy = rng.uniform(-1, 12), rng.uniform(-1, 10)
     if rng.random() < 0.3:  # exactly between pixels: rounding half to even
         cx, cy = np.floor(cx) + 0.5, np.floor(cy) + 0.5
-    # The array code the compiled cue replaced.
-    ring = np.sort(inner.sum(axis=1))
+    mid = rng.uniform(-2, 12, (int(rng.integers(0, 12)), 2))
+    gain = rng.uniform(0.5, 2.0, 3) if rng.random() < 0.5 else None
+    g = np.ones(3) if gain is None else gain
+    tol = float(rng.uniform(5, 40))
     want = 0.0
-    if len(ring) >= 4:
-        vals = [float(ring[len(ring) // 10]), float(ring[(9 * len(ring)) // 10])]
-        i, j = int(round(cy)), int(round(cx))
-        if 1 <= i < 8 and 1 <= j < 10:
-            vals.append(float(lut[img[i - 1 : i + 2, j - 1 : j + 2]].sum(axis=2).mean()))
-        hi = max(vals)
-        want = (hi - min(vals)) / hi if hi > 0 else 0.0
-    assert shading_contrast(img, lut, cx, cy, inner) == want
+    if n >= 4:
+        ball = np.median(inner, axis=0)
+        hue, _ = hue_chroma(ball / max(1.0, float(ball.max())), lut)
+        ring = np.sort([c.sum() for c in inner if _ball_coloured(c, hue, tol, lut)])
+        if len(ring) >= 4:
+            vals = [float(ring[len(ring) // 10]), float(ring[(9 * len(ring)) // 10])]
+            i, j = int(round(cy)), int(round(cx))
+            seen = 1 <= i < 8 and 1 <= j < 10 and all(
+                _ball_coloured(g * lut[p].astype(float), hue, tol, lut) for p in img[i - 1 : i + 2, j - 1 : j + 2].reshape(-1, 3))
+            if seen:
+                vals.append(float(lut[img[i - 1 : i + 2, j - 1 : j + 2]].sum(axis=2).mean()))
+            else:
+                pts = [g * lut[img[y, x]].astype(float) for x, y in np.round(mid).astype(int) if 0 <= y < 9 and 0 <= x < 11]
+                pts = [c for c in pts if _ball_coloured(c, hue, tol, lut)]
+                if pts:
+                    vals.append(sum(float(c[0] + c[1] + c[2]) for c in pts) / len(pts))
+            hi = max(vals)
+            want = (hi - min(vals)) / hi if hi > 0 else 0.0
+    assert shading_contrast(img, lut, cx, cy, inner, mid, gain, tol) == want
 
 
 @settings(max_examples=60, deadline=None)

@@ -206,8 +206,16 @@ def detect_balls(
                 continue
             cands = list(weak.get(g.name, []))
             for b in guided_blobs(img, g, mate, L, cam.f, v_floor, gains, params):
-                if (c := refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains)) is not None:
-                    cands.append(c)
+                # As in the rescue: a seed whose rim is much off its circle also has its circle found
+                # again from the visible outline, and the two fits compete.
+                was_cut: list[Blob] = []
+                for rec in (False, True):
+                    if rec and not was_cut:
+                        break
+                    c = refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains,
+                                    recentre_it=rec, cut=was_cut)
+                    if c is not None:
+                        cands.append(c)
             # Looked for among blobs of its hue (posters), where printed discs are what passes for a
             # ball: a candidate must be shaded like a lit sphere.
             cands = [c for c in cands if float(c.info["rim_fraction"]) >= params.min_visible_fraction
