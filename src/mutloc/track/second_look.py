@@ -152,7 +152,8 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
         for name, X in centres[obs].items():
             err = errors.get((obs, name))
             if left_out != (obs, name) and name in det.detections and not (
-                    _hidden(det, name) and (err is None or abs(err - off) > _SIZE_TOL)):
+                    _hidden(det, name) and (err is None or abs(err - off) > _SIZE_TOL
+                                            or det.detections[name].info.get("guided"))):
                 continue
             found = refit_ball(contexts[obs], name, balls[name], X, radius_offset_px=off)
             new.alternatives.pop(name, None)

@@ -228,6 +228,9 @@ def detect_balls(
             new, _ = choose_consistent([x for x in group if x.name in options], options, params,
                                        key=lambda c: per_rim(c, params))
             if len(new) == len(picked) + 1:
+                for c in new:
+                    if c.search.name == g.name:
+                        c.info["guided"] = True
                 picked = new
                 per_marker[g.name] = per_marker.get(g.name, []) + [c for c in new if c.search.name == g.name]
         return picked
