@@ -114,6 +114,7 @@ def detect_balls(
     cut: list[Blob] = []
 
     def refine(s: BallSearch, blob: Blob, rescue: bool = False) -> Candidate | None:
+        looked.setdefault(s.name, []).append(blob)
         c = refine_blob(img, lut, s, blob, cam, rmax, params, v_floor=v_floor, gains=gains,
                         recentre_it=rescue, cut=None if rescue else cut)
         if c is None:
@@ -135,13 +136,15 @@ def detect_balls(
 
     source: dict[int, Blob] = {}  # id of a candidate -> the blob it was refined from
     weak: dict[str, list[Candidate]] = {}  # candidates scoring below min_score, per marker
+    looked: dict[str, list[Blob]] = {}  # blobs refined, per marker
+    masks: dict[str, tuple[np.ndarray, float, float]] = {}  # the coarse search's hue masks, per marker
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
     later: dict[str, list[Blob]] = {}
 
     def search(level: list[BallSearch], k: int, blob_rmax: float) -> None:
-        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params, gains=gains)):
+        for s, blobs in zip(level, find_blobs(img, level, k, blob_rmax, v_floor, params, gains=gains, masks=masks)):
             good_r = math.inf
             found: list[Candidate] = []
             # Blobs ranked below max_candidates are looked at only when none
@@ -204,22 +207,19 @@ def detect_balls(
             L = float(np.linalg.norm(g.position - mate.search.position))  # type: ignore[operator]
             if L < 1e-6:
                 continue
-            cands = list(weak.get(g.name, []))
-            for b in guided_blobs(img, g, mate, L, cam.f, v_floor, gains, params):
-                # As in the rescue: a seed whose rim is much off its circle also has its circle found
-                # again from the visible outline, and the two fits compete.
-                was_cut: list[Blob] = []
-                for rec in (False, True):
-                    if rec and not was_cut:
-                        break
-                    c = refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains,
-                                    recentre_it=rec, cut=was_cut)
-                    if c is not None:
-                        cands.append(c)
             # Looked for among blobs of its hue (posters), where printed discs are what passes for a
             # ball: a candidate must be shaded like a lit sphere.
-            cands = [c for c in cands if float(c.info["rim_fraction"]) >= params.min_visible_fraction
-                     and per_rim(c, params) >= params.min_score and float(c.info["shading"]) >= SHADED]
+            def fits(c: Candidate | None) -> bool:
+                return (c is not None and float(c.info["rim_fraction"]) >= params.min_visible_fraction
+                        and per_rim(c, params) >= params.min_score and float(c.info["shading"]) >= SHADED)
+
+            cands = [c for c in weak.get(g.name, []) if fits(c)]
+            # Blobs judged already are not refined again (those that scored low were kept aside).
+            full = masks.get(g.name)
+            for b in guided_blobs(img, g, mate, L, cam.f, v_floor, gains, params, looked.get(g.name),
+                                  full[0] if full is not None and full[1] == full[2] == 1 else None):
+                if fits(c := refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains)):
+                    cands.append(c)  # type: ignore[arg-type]
             if not cands:
                 continue
             # The found balls stay as they are; the rig check decides between the candidates and none.

@@ -9,11 +9,11 @@ such a ball from the first look:
 * a region of nearly the ball's hue touching it (a poster at the edge of the
   hue window, speckled by the noise that moves its pixels in and out of it)
   merges with it into one coarse blob whose circle is neither's: around the
-  whole ball, the marker's mask is *opened* (a disc of a quarter of the
-  smallest radius the rig allows: thin and speckled clutter goes, the
-  visible part of a ball stays) and the circles of what is left
-  (:func:`~.search.coarse_blobs`) are refined like any blob
-  (:func:`guided_blobs`);
+  whole ball, the marker's hue mask at full resolution is *opened* (a disc of
+  a quarter of the smallest radius the rig allows: thin and speckled clutter
+  goes, the visible part of a ball stays) and the circles of what is left
+  (:func:`~.search.coarse_blobs`) that the first look did not refine are
+  refined like any blob (:func:`guided_blobs`);
 * a ball hidden by more than half scores below ``min_score`` because its
   score counts the rim it shows, although ``min_visible_fraction`` allows
   it.  A candidate of the missing ball is judged by its score per share of
@@ -33,7 +33,7 @@ from .choose import Candidate, range_sigma
 from .light import correct
 from .occlusion import hue_mask
 from .params import BallParams
-from .search import BallSearch, Blob, coarse_blobs
+from .search import BallSearch, Blob, coarse_blobs, same_circle
 
 __all__ = ["guided_blobs", "per_rim", "rig_window"]
 
@@ -59,12 +59,14 @@ def rig_window(mate: Candidate, L: float, radius_m: float, f: float) -> tuple[fl
 
 def guided_blobs(
     img: np.ndarray, s: BallSearch, mate: Candidate, L: float, f: float, v_floor: int, gains: np.ndarray | None,
-    params: BallParams,
+    params: BallParams, looked: list[Blob] | None = None, mask: np.ndarray | None = None,
 ) -> list[Blob]:
     """Seeds for ``s``'s ball, found whole as ``mate`` at ``L`` metres from it on the robot: circles of
-    the opened hue mask within the rig's reach (:func:`rig_window`), best first, at most
-    ``2 * max_candidates``.  Their ``fill`` is at least 0.6: a partly hidden ball fills little of its
-    circle, and it is looked for here because it is hidden."""
+    its hue mask at full resolution (``mask`` when the search made one, else made here as the search
+    does), opened, within the rig's reach (:func:`rig_window`) and not one of the blobs ``looked`` at
+    already (:func:`~.search.same_circle`), best first, at most ``max_candidates``.  Their ``fill`` is
+    at least 0.6: a partly hidden ball fills little of its circle, and it is looked for here because it
+    is hidden."""
     H, W = img.shape[:2]
     reach, r_lo, r_hi = rig_window(mate, L, s.radius_m, f)
     mu, mv = float(mate.centre_px[0]), float(mate.centre_px[1])
@@ -73,17 +75,23 @@ def guided_blobs(
     y0, y1 = max(0, int(mv - half)), min(H, int(math.ceil(mv + half)) + 1)
     if x1 - x0 < 8 or y1 - y0 < 8:
         return []
-    roi = correct(np.ascontiguousarray(img[y0:y1, x0:x1]), gains)
-    mask = hue_mask(cv2.cvtColor(roi, cv2.COLOR_BGR2HSV_FULL), s, params.hue_tol_deg, v_floor)
+    if mask is None:
+        roi = correct(np.ascontiguousarray(img[y0:y1, x0:x1]), gains)
+        roi_mask = hue_mask(cv2.cvtColor(roi, cv2.COLOR_BGR2HSV_FULL), s, params.hue_tol_deg, v_floor)
+    else:
+        roi_mask = np.ascontiguousarray(mask[y0:y1, x0:x1])
     k = max(1, round(0.25 * r_lo))
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
+    opened = cv2.morphologyEx(roi_mask, cv2.MORPH_OPEN,
+                              cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
     out = []
-    for b in coarse_blobs(mask, 1.0, 1.0, max(params.min_radius_px, 0.5 * r_lo), r_hi):
-        u, v = b.u + x0, b.v + y0
-        d = math.hypot(u - mu, v - mv)
-        if d > reach + b.radius or d < 0.5 * (b.radius + mate.radius_px):
-            continue
-        out.append(Blob(u, v, b.radius, b.quality, max(b.fill, 0.6)))
-    # A piece much smaller than the smallest ball the rig allows is a sliver of it at best.
+    for b in coarse_blobs(opened, 1.0, 1.0, max(params.min_radius_px, 0.5 * r_lo), r_hi):
+        b = Blob(b.u + x0, b.v + y0, b.radius, b.quality, max(b.fill, 0.6))
+        d = math.hypot(b.u - mu, b.v - mv)
+        # A circle less than half the smallest ball the rig allows is not one (nor a visible part
+        # of one: the circle of a ball's visible arc is the ball's).
+        if (b.radius >= 0.5 * r_lo and 0.5 * (b.radius + mate.radius_px) <= d <= reach + b.radius
+                and not any(same_circle(b, x) for x in looked or [])):
+            out.append(b)
+    # Smaller circles are slivers of a ball at best.
     out.sort(key=lambda b: -b.quality * min(1.0, b.radius / r_lo))
-    return out[: 2 * int(params.max_candidates)]
+    return out[: int(params.max_candidates)]

@@ -31,6 +31,7 @@ __all__ = [
     "hue_masks",
     "pick_downscale",
     "ransac_circle",
+    "same_circle",
     "value_floor",
 ]
 
@@ -357,13 +358,15 @@ WHOLE = 0.25
 
 def find_blobs(
     img: np.ndarray, searches: list[BallSearch], k: int, max_r: float, v_floor: int, params: BallParams,
-    gains: np.ndarray | None = None,
+    gains: np.ndarray | None = None, masks: dict[str, tuple[np.ndarray, float, float]] | None = None,
 ) -> list[list[Blob]]:
     """Per search, its blobs in the image shrunk ``k`` times, best first.
 
     Best: round, solid, vivid and (other things equal) big, as in the final
     score; blobs that are clearly not discs are dropped.  ``gains`` (linear,
     per channel) divide out the light's colour first (:mod:`.light`).
+    ``masks``: where to keep each search's hue mask, by name, with the
+    factors ``(sx, sy)`` from its pixels to the image's.
     """
     H, W = img.shape[:2]
     coarse = img if k == 1 else cv2.resize(img, (W // k, H // k), interpolation=cv2.INTER_AREA)
@@ -373,7 +376,9 @@ def find_blobs(
     sx = W / coarse.shape[1]
     sy = H / coarse.shape[0]
     out = []
-    for mask in hue_masks(hsv, searches, params.hue_tol_deg, v_floor):
+    for s, mask in zip(searches, hue_masks(hsv, searches, params.hue_tol_deg, v_floor)):
+        if masks is not None:
+            masks[s.name] = (mask, sx, sy)
         rows = _coarse_rows(mask, sx, sy, params.min_radius_px, max_r)
         # A ball split by a pole leaves half-discs: support ~0.5 of their
         # circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
@@ -382,6 +387,13 @@ def find_blobs(
         blobs.sort(key=lambda b: -b.quality * evidence(2.0 * math.pi * b.radius) * vivid(b.chroma))
         out.append(blobs)
     return out
+
+
+def same_circle(a: Blob, b: Blob) -> bool:
+    """Whether two coarse circles are one blob's (centres and radii within a third of the larger radius,
+    plus a pixel: coarse circles of one blob at two resolutions differ by that much)."""
+    tol = 1.0 + max(a.radius, b.radius) / 3.0
+    return math.hypot(a.u - b.u, a.v - b.v) <= tol and abs(a.radius - b.radius) <= tol
 
 
 def fill_fraction(mask: np.ndarray, cu: float, cv_: float, r: float) -> float:
