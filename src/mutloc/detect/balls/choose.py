@@ -88,6 +88,7 @@ def score_candidate(
     # Hue of the ball as seen (inner colours of the inlier rays), vs nominal.
     ball = np.empty(3)
     column_medians(inner, ball)
+    ring = ball.copy()
     if gains is not None:
         # As under white light (gains in the rim values, see .light).
         ball = ball * gains
@@ -97,7 +98,7 @@ def score_candidate(
     # Shading is a soft cue: balls in perfectly diffuse light look flat too.
     mid = np.column_stack([cx + 0.5 * fit.radii[inl] * np.cos(rim.ang[inl]),
                            cy + 0.5 * fit.radii[inl] * np.sin(rim.ang[inl])])
-    shading = shading_contrast(img, lut, cx, cy, inner, mid, rim_gains, 2.0 * params.hue_tol_deg)
+    shading = shading_contrast(img, lut, cx, cy, inner, ring, mid, rim_gains, 2.0 * params.hue_tol_deg)
     if cam is not None:
         assert fit.direction is not None
         uv = cam.camera.project(fit.direction)

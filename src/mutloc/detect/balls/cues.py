@@ -11,7 +11,7 @@ import numpy as np
 from .numeric import column_medians, sort_inplace
 
 __all__ = [
-    "ball_coloured", "encode_kernel", "encoded_hue_chroma", "evidence", "hue_chroma", "hue_kernel", "shading_contrast",
+    "GREY_BELOW", "ball_coloured", "encode_kernel", "encoded_hue_chroma", "evidence", "hue_chroma", "hue_kernel", "shading_contrast",
     "shading_kernel", "vivid",
 ]
 
@@ -66,31 +66,43 @@ def encode_kernel(lut, b, g, r):
     return out[0], out[1], out[2]
 
 
+#: A colour (in the unmixing values) whose chroma is less than this share of its brightest channel has
+#: no hue to compare: about the coarse search's lowest saturation floor, 40 of 255 in encoded values
+#: (``1 - (215 / 255) ** 1.7``).
+GREY_BELOW = 0.25
+
+
 def shading_contrast(
-    img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inner: np.ndarray, mid_pts: np.ndarray | None = None,
-    gain: np.ndarray | None = None, tol_deg: float = 24.0,
+    img: np.ndarray, lut: np.ndarray, cx: float, cy: float, inner: np.ndarray, ball: np.ndarray | None = None,
+    mid_pts: np.ndarray | None = None, gain: np.ndarray | None = None, tol_deg: float = 24.0,
 ) -> float:
     """Relative brightness range over the ball: its middle and the ring just inside the rim (0..1).
 
     A lit sphere is shaded (its limb or one side darker than its middle); a
     printed disc of the same colour is flat.  ``inner`` (n, 3) holds the
     ball colours next to the rim, in ``lut``'s values (times ``gain``, the
-    light's colour divided out, if any); those without the ball's colour
-    (hue within ``tol_deg`` of their median's, see :func:`ball_coloured`: an
-    occluder's edge crossed the ray) are left out.  The middle is the 3x3 pixels at
-    ``(cx, cy)`` where each has the ball's colour (hue within ``tol_deg``
-    of the ring's, see :func:`ball_coloured`); where an occluder hides them
-    (a cut ball, a printed disc behind a box), the points ``mid_pts``
-    (k, 2: half way in along the rays of the visible rim) that have it.
+    light's colour divided out, if any), ``ball`` their median (computed
+    when None).  Only colours of the ball's count (:func:`ball_coloured`:
+    the hue of ``ball`` within ``tol_deg``), so a ray an occluder's edge
+    crossed is left out of the ring; the middle is the 3x3 pixels at
+    ``(cx, cy)`` if each has the ball's colour, else (an occluder hides it:
+    a cut ball, a printed disc behind a box) the mean of the points
+    ``mid_pts`` (k, 2: half way in along the rays of the visible rim) that
+    have it.
     """
+    inner = np.ascontiguousarray(inner, dtype=np.float64)
+    if ball is None:
+        ball = np.empty(3)
+        column_medians(inner, ball)
     g = np.ones(3) if gain is None else np.ascontiguousarray(gain, dtype=np.float64)
     mid = np.zeros((0, 2)) if mid_pts is None else np.ascontiguousarray(mid_pts, dtype=np.float64)
-    return float(shading_kernel(img, lut, g, float(cx), float(cy), inner, mid, float(tol_deg)))
+    return float(shading_kernel(img, lut, g, float(cx), float(cy), inner, np.asarray(ball, np.float64), mid,
+                                float(tol_deg)))
 
 
 @numba.njit(cache=True, fastmath=False)
 def hue_kernel(b, g, r):
-    """Hue (deg) of an encoded colour, as :func:`colorsys.rgb_to_hsv` (0 for a grey)."""
+    """Hue (deg) of a colour, as :func:`colorsys.rgb_to_hsv` (0 for a grey)."""
     mx = max(b, g, r)
     mn = min(b, g, r)
     if mx == mn:
@@ -106,34 +118,27 @@ def hue_kernel(b, g, r):
 
 
 @numba.njit(cache=True, fastmath=False)
-def ball_coloured(lut, b, g, r, hue_deg, tol_deg, min_chroma=8.0):
-    """Whether a colour in ``lut``'s values has the hue ``hue_deg`` (within ``tol_deg``) and a chroma
-    (encoded 0..255) of at least ``min_chroma`` (as :mod:`.refit` tests the rays' inner colours)."""
-    top = max(1.0, b, g, r)
-    eb, eg, er = encode_kernel(lut, b / top, g / top, r / top)
-    if max(eb, eg, er) - min(eb, eg, er) < min_chroma:
+def ball_coloured(b, g, r, hue_deg, tol_deg):
+    """Whether a colour (unmixing values, any scale: shading scales them alike) has a hue
+    (chroma at least :data:`GREY_BELOW` of its brightest channel) within ``tol_deg`` of ``hue_deg``."""
+    mx = max(b, g, r)
+    if not mx > 0.0 or mx - min(b, g, r) < GREY_BELOW * mx:
         return False
-    return abs((hue_kernel(eb, eg, er) - hue_deg + 180.0) % 360.0 - 180.0) <= tol_deg
+    return abs((hue_kernel(b, g, r) - hue_deg + 180.0) % 360.0 - 180.0) <= tol_deg
 
 
 @numba.njit(cache=True, fastmath=False)
-def shading_kernel(img, lut, gain, cx, cy, inner, mid_pts, tol_deg):
+def shading_kernel(img, lut, gain, cx, cy, inner, ball, mid_pts, tol_deg):
     # Sums in NumPy's order (three values in turn, nine pairwise), so the
     # figures match the array code they replace.
     n = inner.shape[0]
     if n < 4:
         return 0.0
-    # The ball's colour: the ring's median, per channel; rays whose inner colour is not the ball's
-    # (an occluder's edge ran across the window) are left out.
-    ball = np.empty(3)
-    column_medians(inner, ball)
-    top = max(1.0, ball[0], ball[1], ball[2])
-    eb, eg, er = encode_kernel(lut, ball[0] / top, ball[1] / top, ball[2] / top)
-    hue = hue_kernel(eb, eg, er)
+    hue = hue_kernel(ball[0], ball[1], ball[2])
     ring = np.empty(n)
     m = 0
     for k in range(n):
-        if ball_coloured(lut, inner[k, 0], inner[k, 1], inner[k, 2], hue, tol_deg):
+        if ball_coloured(inner[k, 0], inner[k, 1], inner[k, 2], hue, tol_deg):
             ring[m] = inner[k, 0] + inner[k, 1] + inner[k, 2]
             m += 1
     if m < 4:
@@ -156,7 +161,7 @@ def shading_kernel(img, lut, gain, cx, cy, inner, mid_pts, tol_deg):
             for b in range(3):
                 p = img[i - 1 + a, j - 1 + b]
                 s[3 * a + b] = lut[p[0]] + lut[p[1]] + lut[p[2]]
-                seen = seen and ball_coloured(lut, gain[0] * lut[p[0]], gain[1] * lut[p[1]], gain[2] * lut[p[2]],
+                seen = seen and ball_coloured(gain[0] * lut[p[0]], gain[1] * lut[p[1]], gain[2] * lut[p[2]],
                                               hue, tol_deg)
         if seen:
             tot = (((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))) + s[8]
@@ -173,7 +178,7 @@ def shading_kernel(img, lut, gain, cx, cy, inner, mid_pts, tol_deg):
             if 0 <= y < H and 0 <= x < W:
                 p = img[y, x]
                 b_, g_, r_ = gain[0] * lut[p[0]], gain[1] * lut[p[1]], gain[2] * lut[p[2]]
-                if ball_coloured(lut, b_, g_, r_, hue, tol_deg):
+                if ball_coloured(b_, g_, r_, hue, tol_deg):
                     acc += b_ + g_ + r_
                     k += 1
         if k > 0:

@@ -133,7 +133,7 @@ def measure(img, lut, gain, w, inner_all, cx, cy, ang, radii, tol_deg, K, dist, 
         top = ball[0]
     div = top if top > 1.0 else 1.0
     b, g, r = encode_kernel(lut, ball[0] / div, ball[1] / div, ball[2] / div)
-    shading = shading_kernel(img, lut, gain, cx, cy, inner, mid, tol_deg)
+    shading = shading_kernel(img, lut, gain, cx, cy, inner, ball, mid, tol_deg)
     uv = np.empty(2)
     project_kernel(K, dist, d, uv)
     return k, b, g, r, shading, uv
