@@ -203,17 +203,24 @@ def _occluded_run(i: int):
 
 @pytest.mark.parametrize("i", [5, 11])
 def test_second_look_solves_a_frame_with_one_ball_seen_from_each_side(i):
-    """Scenes where the first look keeps one ball on each side (the partly
-    hidden ones score low and their free size breaks the rig's distances:
-    no pose at all); the second look finds them among the blobs of their
-    colour near their whole mates, and the pose is verified and accurate."""
+    """First looks that keep one ball on each side (no pose at all): the second look finds the others
+    among the blobs of their colour near their whole mates, and the pose is verified and accurate.
+    (The first look kept only the whole balls of these scenes until it looked for a robot's missing
+    ball where the rig puts it (mutloc.detect.balls.guided); the partly hidden balls it finds now are
+    taken out of it here.)"""
     from mutloc.errors import TooFewObservationsError
-    from mutloc.track.second_look import first_solve
+    from mutloc.track.second_look import PARTLY_HIDDEN, first_solve
 
     rig = expanded_rig(RIG)
     w = _occluded_run(i)
     imgs = {r: render(w, r, seed=i, noise_sigma=1.0) for r in ("p", "q")}
     dets = {o: detect_markers(rig, o, imgs[o], targets=[t]) for o, t in (("p", "q"), ("q", "p"))}
+    for d in dets.values():
+        for m in [m for m, x in d.detections.items() if x.visible_fraction < PARTLY_HIDDEN]:
+            del d.detections[m]
+            d.alternatives.pop(m, None)
+            d.missing.append(m)
+    assert all(len(d.detections) == 1 for d in dets.values())
     est, err = first_solve(rig, dets, "p", "q")
     assert est is None and isinstance(err, TooFewObservationsError)
     out = second_look(rig, imgs, dets, est, err, "p", "q")
@@ -268,7 +275,7 @@ def test_track_uses_the_second_look(filter):
     from mutloc.track.tracker import track
 
     rig = expanded_rig(RIG)
-    for i in (0, 2):
+    for i in (0, 7):
         w = _scene(i, 0.5, "box")
         imgs = {r: render(w, r, seed=i, noise_sigma=1.0) for r in ("p", "q")}
         dets = {o: detect_markers(rig, o, imgs[o], targets=[t]) for o, t in (("p", "q"), ("q", "p"))}
