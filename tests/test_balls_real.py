@@ -158,16 +158,25 @@ def test_new_params_are_checked():
 
 
 def test_a_ball_hidden_beyond_measure_is_missing_with_its_reason():
+    """95 % of the disc behind a box edge leaves a fifth of the rim, below ``min_visible_fraction``:
+    missing, with the reason.  At 90 % the edge leaves 29 % of the rim, within measure by that rule
+    (the rig's guided look, mutloc.detect.balls.guided, may take it): then its centre is reported as
+    known no better than 5 times worse than a whole ball's (``sigma_scale``)."""
     rig = three_ball_rig()
     found = 0
     for i in range(4):
         world, rng, _ = base_world(20 + i, rig)
-        w = with_props(world, occluder(world, "q", "M3", 0.9, "box", side=rng.choice([-1, 1])))
-        assert ball_visibility(w, "q", "M3") < 0.2
+        side = rng.choice([-1, 1])
+        w = with_props(world, occluder(world, "q", "M3", 0.95, "box", side=side))
+        assert ball_visibility(w, "q", "M3") < 0.1
         img = render(w, "q", seed=i, noise_sigma=1.0)
         res = detect_balls(img, rig.robot("p").markers, camera=rig.robot("q").camera)
         assert "M3" in res.missing and res.missing_reasons["M3"].split(":")[0] in {"occluded", "not_found", "rejected"}
         found += {"M4", "M5"} <= set(res.detections)
+        w = with_props(world, occluder(world, "q", "M3", 0.9, "box", side=side))
+        res = detect_balls(render(w, "q", seed=i, noise_sigma=1.0), rig.robot("p").markers,
+                           camera=rig.robot("q").camera)
+        assert "M3" in res.missing or res.detections["M3"].sigma_scale >= 5.0
     assert found >= 3
 
 
