@@ -215,9 +215,8 @@ def detect_balls(
 
             cands = [c for c in weak.get(g.name, []) if fits(c)]
             # Blobs judged already are not refined again (those that scored low were kept aside).
-            full = masks.get(g.name)
             for b in guided_blobs(img, g, mate, L, cam.f, v_floor, gains, params, looked.get(g.name),
-                                  full[0] if full is not None and full[1] == full[2] == 1 else None):
+                                  masks.get(g.name)):
                 if fits(c := refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains)):
                     cands.append(c)  # type: ignore[arg-type]
             if not cands:

@@ -9,7 +9,7 @@ such a ball from the first look:
 * a region of nearly the ball's hue touching it (a poster at the edge of the
   hue window, speckled by the noise that moves its pixels in and out of it)
   merges with it into one coarse blob whose circle is neither's: around the
-  whole ball, the marker's hue mask at full resolution is *opened* (a disc of
+  whole ball, the marker's hue mask is *opened* (a disc of
   a quarter of the smallest radius the rig allows: thin and speckled clutter
   goes, the visible part of a ball stays) and the circles of what is left
   (:func:`~.search.coarse_blobs`) that the first look did not refine are
@@ -35,7 +35,7 @@ from .occlusion import hue_mask
 from .params import BallParams
 from .search import BallSearch, Blob, coarse_blobs, same_circle
 
-__all__ = ["guided_blobs", "per_rim", "rig_window"]
+__all__ = ["MIN_OPENING_PX", "guided_blobs", "per_rim", "rig_window"]
 
 
 def per_rim(c: Candidate, params: BallParams) -> float:
@@ -57,35 +57,46 @@ def rig_window(mate: Candidate, L: float, radius_m: float, f: float) -> tuple[fl
     return reach, f * radius_m / far, f * radius_m / near
 
 
+#: The opening's disc must be at least this many mask pixels in radius to strip speckle (pixels of a
+#: poster at the edge of the hue window, in and out of the mask by noise, in clusters of one or two).
+MIN_OPENING_PX = 2
+
+
 def guided_blobs(
     img: np.ndarray, s: BallSearch, mate: Candidate, L: float, f: float, v_floor: int, gains: np.ndarray | None,
-    params: BallParams, looked: list[Blob] | None = None, mask: np.ndarray | None = None,
+    params: BallParams, looked: list[Blob] | None = None,
+    mask: tuple[np.ndarray, float, float] | None = None,
 ) -> list[Blob]:
     """Seeds for ``s``'s ball, found whole as ``mate`` at ``L`` metres from it on the robot: circles of
-    its hue mask at full resolution (``mask`` when the search made one, else made here as the search
-    does), opened, within the rig's reach (:func:`rig_window`) and not one of the blobs ``looked`` at
-    already (:func:`~.search.same_circle`), best first, at most ``max_candidates``.  Their ``fill`` is
-    at least 0.6: a partly hidden ball fills little of its circle, and it is looked for here because it
-    is hidden."""
+    its hue mask, opened, within the rig's reach (:func:`rig_window`) and not one of the blobs ``looked``
+    at already (:func:`~.search.same_circle`), best first, at most ``max_candidates``.  The mask is the
+    search's (``mask``: it, and the factors from its pixels to the image's) when the opening's disc is
+    :data:`MIN_OPENING_PX` of its pixels or more there, else made here at full resolution as the
+    search makes it.  The seeds' ``fill`` is at least 0.6: a partly hidden ball fills little of its
+    circle, and it is looked for here because it is hidden."""
     H, W = img.shape[:2]
     reach, r_lo, r_hi = rig_window(mate, L, s.radius_m, f)
     mu, mv = float(mate.centre_px[0]), float(mate.centre_px[1])
     half = reach + r_hi + 2.0
-    x0, x1 = max(0, int(mu - half)), min(W, int(math.ceil(mu + half)) + 1)
-    y0, y1 = max(0, int(mv - half)), min(H, int(math.ceil(mv + half)) + 1)
+    if mask is not None and round(0.25 * r_lo / max(mask[1], mask[2])) >= MIN_OPENING_PX:
+        m, sx, sy = mask
+    else:
+        m, sx, sy = None, 1.0, 1.0
+    x0, x1 = max(0, int((mu - half) / sx)), min(int(W / sx), int(math.ceil((mu + half) / sx)) + 1)
+    y0, y1 = max(0, int((mv - half) / sy)), min(int(H / sy), int(math.ceil((mv + half) / sy)) + 1)
     if x1 - x0 < 8 or y1 - y0 < 8:
         return []
-    if mask is None:
+    if m is None:
         roi = correct(np.ascontiguousarray(img[y0:y1, x0:x1]), gains)
         roi_mask = hue_mask(cv2.cvtColor(roi, cv2.COLOR_BGR2HSV_FULL), s, params.hue_tol_deg, v_floor)
     else:
-        roi_mask = np.ascontiguousarray(mask[y0:y1, x0:x1])
-    k = max(1, round(0.25 * r_lo))
+        roi_mask = np.ascontiguousarray(m[y0:y1, x0:x1])
+    k = max(1, round(0.25 * r_lo / sx))
     opened = cv2.morphologyEx(roi_mask, cv2.MORPH_OPEN,
                               cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1)))
     out = []
-    for b in coarse_blobs(opened, 1.0, 1.0, max(params.min_radius_px, 0.5 * r_lo), r_hi):
-        b = Blob(b.u + x0, b.v + y0, b.radius, b.quality, max(b.fill, 0.6))
+    for b in coarse_blobs(opened, sx, sy, max(params.min_radius_px, 0.5 * r_lo), r_hi):
+        b = Blob(b.u + x0 * sx, b.v + y0 * sy, b.radius, b.quality, max(b.fill, 0.6))
         d = math.hypot(b.u - mu, b.v - mv)
         # A circle less than half the smallest ball the rig allows is not one (nor a visible part
         # of one: the circle of a ball's visible arc is the ball's).
