@@ -137,7 +137,7 @@ def detect_balls(
     source: dict[int, Blob] = {}  # id of a candidate -> the blob it was refined from
     weak: dict[str, list[Candidate]] = {}  # candidates scoring below min_score, per marker
     looked: dict[str, list[Blob]] = {}  # blobs refined, per marker
-    masks: dict[str, tuple[np.ndarray, float, float]] = {}  # the coarse search's hue masks, per marker
+    masks: dict[str, list[tuple[np.ndarray, float, float]]] = {}  # the searches' hue masks, per marker
 
     per_marker: dict[str, list[Candidate]] = {}
     skipped: dict[str, list[Blob]] = {}
@@ -216,7 +216,7 @@ def detect_balls(
             cands = [c for c in weak.get(g.name, []) if fits(c)]
             # Blobs judged already are not refined again (those that scored low were kept aside).
             for b in guided_blobs(img, g, mate, L, cam.f, v_floor, gains, params, looked.get(g.name),
-                                  masks.get(g.name)):
+                                  masks.get(g.name, [])):
                 if fits(c := refine_blob(img, lut, g, b, cam, rmax, params, v_floor=v_floor, gains=gains)):
                     cands.append(c)  # type: ignore[arg-type]
             if not cands:

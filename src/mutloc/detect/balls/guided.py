@@ -65,23 +65,21 @@ MIN_OPENING_PX = 2
 def guided_blobs(
     img: np.ndarray, s: BallSearch, mate: Candidate, L: float, f: float, v_floor: int, gains: np.ndarray | None,
     params: BallParams, looked: list[Blob] | None = None,
-    mask: tuple[np.ndarray, float, float] | None = None,
+    masks: list[tuple[np.ndarray, float, float]] = (),  # type: ignore[assignment]
 ) -> list[Blob]:
     """Seeds for ``s``'s ball, found whole as ``mate`` at ``L`` metres from it on the robot: circles of
     its hue mask, opened, within the rig's reach (:func:`rig_window`) and not one of the blobs ``looked``
     at already (:func:`~.search.same_circle`), best first, at most ``max_candidates``.  The mask is the
-    search's (``mask``: it, and the factors from its pixels to the image's) when the opening's disc is
-    :data:`MIN_OPENING_PX` of its pixels or more there, else made here at full resolution as the
-    search makes it.  The seeds' ``fill`` is at least 0.6: a partly hidden ball fills little of its
+    coarsest of the search's (``masks``: each with the factors from its pixels to the image's) in which
+    the opening's disc is :data:`MIN_OPENING_PX` of its pixels or more, else one made here at full
+    resolution as the search makes it.  The seeds' ``fill`` is at least 0.6: a partly hidden ball fills little of its
     circle, and it is looked for here because it is hidden."""
     H, W = img.shape[:2]
     reach, r_lo, r_hi = rig_window(mate, L, s.radius_m, f)
     mu, mv = float(mate.centre_px[0]), float(mate.centre_px[1])
     half = reach + r_hi + 2.0
-    if mask is not None and round(0.25 * r_lo / max(mask[1], mask[2])) >= MIN_OPENING_PX:
-        m, sx, sy = mask
-    else:
-        m, sx, sy = None, 1.0, 1.0
+    usable = [x for x in masks if round(0.25 * r_lo / max(x[1], x[2])) >= MIN_OPENING_PX]
+    m, sx, sy = max(usable, key=lambda x: x[1]) if usable else (None, 1.0, 1.0)
     x0, x1 = max(0, int((mu - half) / sx)), min(int(W / sx), int(math.ceil((mu + half) / sx)) + 1)
     y0, y1 = max(0, int((mv - half) / sy)), min(int(H / sy), int(math.ceil((mv + half) / sy)) + 1)
     if x1 - x0 < 8 or y1 - y0 < 8:

@@ -358,14 +358,14 @@ WHOLE = 0.25
 
 def find_blobs(
     img: np.ndarray, searches: list[BallSearch], k: int, max_r: float, v_floor: int, params: BallParams,
-    gains: np.ndarray | None = None, masks: dict[str, tuple[np.ndarray, float, float]] | None = None,
+    gains: np.ndarray | None = None, masks: dict[str, list[tuple[np.ndarray, float, float]]] | None = None,
 ) -> list[list[Blob]]:
     """Per search, its blobs in the image shrunk ``k`` times, best first.
 
     Best: round, solid, vivid and (other things equal) big, as in the final
     score; blobs that are clearly not discs are dropped.  ``gains`` (linear,
     per channel) divide out the light's colour first (:mod:`.light`).
-    ``masks``: where to keep each search's hue mask, by name, with the
+    ``masks``: where to add each search's hue mask, by name, with the
     factors ``(sx, sy)`` from its pixels to the image's.
     """
     H, W = img.shape[:2]
@@ -378,7 +378,7 @@ def find_blobs(
     out = []
     for s, mask in zip(searches, hue_masks(hsv, searches, params.hue_tol_deg, v_floor)):
         if masks is not None:
-            masks[s.name] = (mask, sx, sy)
+            masks.setdefault(s.name, []).append((mask, sx, sy))
         rows = _coarse_rows(mask, sx, sy, params.min_radius_px, max_r)
         # A ball split by a pole leaves half-discs: support ~0.5 of their
         # circle, filling ~0.4 of it (:data:`WHOLE` for the rest).
