@@ -30,7 +30,10 @@ Partly hidden balls (:mod:`.occlusion`): when much of a blob's rim is off
 its coarse circle, the circle is found again from the visible outline at
 full resolution (RANSAC whose inliers have radial normals), rim points on an
 occluder's edge are dropped, and a ball with too little rim visible is
-reported missing with the reason.  Real light (:mod:`.light`): a strong
+reported missing with the reason.  A robot's ball the rig check leaves
+missing, beside one of its balls found whole, is looked for again where
+the rig puts it (:mod:`.guided`): merged with clutter of its hue, or
+hidden by more than half.  Real light (:mod:`.light`): a strong
 colour cast is divided out before hues are compared and rims unmixed.
 
 Every tuning value is a field of the frozen :class:`BallParams`.
