@@ -130,3 +130,10 @@ def test_the_team_solver_weighs_the_same_way():
     assert np.allclose(tw.poses["q"].t, pw.t, atol=1e-7)
     np.testing.assert_allclose(tw.covariance("q"), pw.covariance, rtol=1e-4, atol=1e-12)
     assert not np.allclose(t1.poses["q"].t, pw.t, atol=1e-5)
+
+
+def test_with_sigma_scale_sets_or_clears_the_column():
+    o = mutloc.ObservationSet(["p", "q"], ["M1", "M3"], [[1.0, 2.0], [3.0, 4.0]], time=2.0, sigma_scale=[2.0, 3.0])
+    assert list(o.with_sigma_scale(None).sigma_scale) == [1.0, 1.0]
+    assert list(o.with_sigma_scale(4.0).sigma_scale) == [4.0, 4.0]
+    assert o.with_sigma_scale(None).uv.tolist() == o.uv.tolist() and list(o.with_sigma_scale(None).time) == [2.0, 2.0]

@@ -273,6 +273,11 @@ class ObservationSet:
         return ObservationSet(self.observer, self.marker, self.uv, np.nan if t is None else t, self.score,
                               self.sigma_scale)
 
+    def with_sigma_scale(self, scale: Any) -> "ObservationSet":
+        """The same observations with each one's ``sigma_scale`` (a number for all, one per row, or None:
+        1 for all, what an observations file, an observation log or the live message can hold)."""
+        return ObservationSet(self.observer, self.marker, self.uv, self.time, self.score, scale)
+
     def best(self) -> "ObservationSet":
         """One candidate per (time, observer, marker): the highest-scored
         (markers of unknown identity are all kept)."""

@@ -45,7 +45,8 @@ def solve_row(row: "TrackRow", rig: Rig, source: str, target: str, pixel_sigma: 
     if row.status != FrameStatus.TOO_FEW or not any(d.predicted for d in (row.detections or {}).values()):
         return
     attempt = replace(row, reason="", estimate=None,
-                      observations=observations_of(row.detections, row.t, include_predicted=True))
+                      observations=observations_of(row.detections, row.t,
+                                                   include_predicted=True).with_sigma_scale(None))
     _solve_observations(attempt, rig, source, target, pixel_sigma, confidence)
     if attempt.estimate is not None:
         n_pred = sum(len(d.predicted) for d in row.detections.values())

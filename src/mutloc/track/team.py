@@ -1415,7 +1415,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                     detections[r] = dets[r].detect(fr)
                     if writer is not None:
                         last[r] = (fr.image, fr.t)
-            obs = observations_of(detections, t) if detections else None
+            # What the log (and a live node's message) holds: pixels, each weighed alike, so that a
+            # track from its log, or a live run, gives the same poses.
+            obs = observations_of(detections, t).with_sigma_scale(None) if detections else None
             if log is not None and obs is not None:
                 log.write(t, obs)
             times = {r: f.t for r, f in group.items()}

@@ -194,7 +194,8 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                                                        pixel_sigma=pixel_sigma, confidence=confidence)
                 else:
                     notes = []
-                row.observations = observations_of(row.detections, row.t)
+                # pixels only, as the log holds them (see track.team)
+                row.observations = observations_of(row.detections, row.t).with_sigma_scale(None)
                 if log is not None:
                     log.write(row.t, row.observations)
                 filtered = tracker.step(row)
