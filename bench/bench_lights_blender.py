@@ -3,7 +3,7 @@
 
     python bench/make_blender_lights.py            # once: renders /work/blender_lights/ (see there)
     python bench/bench_lights_blender.py [--set /work/blender_lights] [--frames 60] [--phases 2]
-                                         [--json OUT.json] [--renderer blender]
+                                         [--json OUT.json] [--renderer blender] [--centroid]
 
 Per scene, observer, renderer and blink-phase draw: a still sequence of ``--frames`` frames at 30 fps
 composed from the scene's four rendered light states (the state of each observed light at frame ``k``
@@ -16,8 +16,8 @@ Light-centre error: in every frame from the first second on in which a light is 
 (px) from the centre the tracker measured there (reported under the light's name, not predicted) to
 the true projection of the light's centre; ``dv`` its signed vertical part (+: down, along the rod).
 A lit light not reported as measured counts as missed.  Prints per renderer, mount (metal / matte
-rod) and light colour: median / p90 error, median dv, lit frames and missed; writes the rows to
-``--json`` (default bench/results/lights_blender_results.json).
+rod) and light colour: median / p90 error, median dv, lit frames and missed; writes them and a row
+per sequence and light to ``--json`` (default bench/results/lights_blender_results.json).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mutloc.detect.blink import BlinkTracker
+from mutloc.detect.blink import BlinkTracker, measure
 from mutloc.sim.world import light_is_on, standard_rig
 
 ROOT = Path(__file__).resolve().parent
@@ -95,13 +95,18 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--phases", type=int, default=2, help="blink-phase draws per scene and observer")
     ap.add_argument("--json", type=Path, default=ROOT / "results" / "lights_blender_results.json")
+    ap.add_argument("--centroid", action="store_true",
+                    help="a clipped light without a halo measured by its centroid, as before the edge fit "
+                         "(mutloc.detect.blink.measure.EDGE_FALLBACK False)")
     args = ap.parse_args()
+    if args.centroid:
+        measure.EDGE_FALLBACK = False
     renderers = args.renderer or list(RENDERERS)
     rig = standard_rig("lights")
     scenes = sorted(p.parent for p in args.set.glob("*/truth.json"))
     if not scenes:
         raise SystemExit(f"no scenes in {args.set}: run bench/make_blender_lights.py first")
-    rows = []
+    rows, seqs = [], []
     for si, folder in enumerate(scenes):
         truth = json.loads((folder / "truth.json").read_text())
         for obs, order in OBSERVED.items():
@@ -122,6 +127,11 @@ def main() -> None:
                     for m in order:
                         e = [r["err_px"] for r in errs if r["marker"] == m]
                         got = [x for x in e if x is not None]
+                        seqs.append({"scene": folder.name, "finish": truth["finish"], "renderer": ren, "observer": obs,
+                                     "phase": j, "marker": m, "colour": COLOURS[m], "lit": len(e),
+                                     "missed": len(e) - len(got), "median_px": q(got, 0.5),
+                                     "max_px": max(got, default=float("nan")),
+                                     "median_dv_px": q([r.get("dv") for r in errs if r["marker"] == m], 0.5)})
                         txt.append(f"{m} {COLOURS[m]} med {q(got, 0.5):.2f} max {max(got, default=float('nan')):.2f}"
                                    f" ({len(got)}/{len(e)})")
                     print(f"{folder.name:9s} {obs} {ren:7s} phase {j}: " + ", ".join(txt), flush=True)
@@ -146,7 +156,7 @@ def main() -> None:
                       f"{len(e):5d} {missed:6d}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"set": str(args.set), "frames": args.frames, "phases": args.phases,
-                                     "summary": summary, "rows": rows}, indent=1))
+                                     "summary": summary, "sequences": seqs}, indent=1))
 
 
 if __name__ == "__main__":
