@@ -47,7 +47,7 @@ NEIGHBOUR_SHARE = 0.25
 # Levels (fractions of the way from the background to the clip level) at
 # which a clipped light without a halo is measured by its core's edge (see
 # MeasureStage._edge_centre); EDGE_FALLBACK False: by its centroid.
-EDGE_LEVELS = (0.5, 0.7, 0.85)
+EDGE_LEVELS = (0.75, 0.85, 0.95)
 EDGE_FALLBACK = True
 
 
