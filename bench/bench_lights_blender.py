@@ -1,8 +1,8 @@
 #!/usr/bin/env python
 """The blinking-light detector on lights mounted on rods, rendered by Blender and by mutloc (issue 28).
 
-    python bench/make_blender_lights.py            # once: renders /work/blender_lights/ (see there)
-    python bench/bench_lights_blender.py [--set /work/blender_lights] [--frames 60] [--phases 2]
+    python bench/make_blender_lights.py            # once: renders bench/blender_lights/ (see there)
+    python bench/bench_lights_blender.py [--set bench/blender_lights] [--frames 60] [--phases 2]
                                          [--json OUT.json] [--renderer blender] [--centroid]
 
 Per scene, observer, renderer and blink-phase draw: a still sequence of ``--frames`` frames at 30 fps
@@ -89,7 +89,7 @@ def q(x, p):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", type=Path, default=Path("/work/blender_lights"))
+    ap.add_argument("--set", type=Path, default=ROOT / "blender_lights")
     ap.add_argument("--renderer", choices=RENDERERS, action="append", default=None)
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--fps", type=float, default=30.0)

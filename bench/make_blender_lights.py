@@ -3,7 +3,7 @@
 mutloc's own renderer, with exact truth.
 
     MUTLOC_BLENDER_PYTHON=.venv-render/bin/python python bench/make_blender_lights.py
-        [--out /work/blender_lights] [--worlds 3] [--samples 4]
+        [--out bench/blender_lights] [--worlds 3] [--samples 4]
     python bench/make_blender_lights.py --export-test tests/data/blender_lights --scenes metal_00,...
 
 The rig is ``standard_rig("lights")`` (p carries M3 red 5 Hz and M4 green 7.5 Hz, q carries M1 blue
@@ -50,6 +50,7 @@ from mutloc.sim.scenes import with_props
 from mutloc.sim.synthetic import facing_pose
 from mutloc.sim.world import Prop, World, ball_radius, standard_rig
 
+ROOT = Path(__file__).resolve().parent
 FINISHES = ("metal", "matte")
 STATES = ("00", "01", "10", "11")
 #: The lights each observer sees, in the order of a state's digits.
@@ -174,7 +175,7 @@ def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26) -> No
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=Path("/work/blender_lights"))
+    ap.add_argument("--out", type=Path, default=ROOT / "blender_lights")
     ap.add_argument("--worlds", type=int, default=3, help="worlds (each rendered with metal and matte rods)")
     ap.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel (denoised)")
     ap.add_argument("--only", default=None, help="comma-separated finishes (metal, matte)")
