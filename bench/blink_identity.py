@@ -12,10 +12,15 @@ measured lit more than 10 px from its own) are counted separately.
 
     python bench/blink_identity.py [--seeds 0,1,2] [--distances 1.5,2,3] [--period 4] [--pan 15]
                                    [--size 960x540 --f 800] [--frames 90] [--cache DIR] [--fixed-motion]
+                                   [--centroid]
 
 Each seed draws its own room, motion phases and blink phases
 (:func:`mutloc.sim.tracking.varied_world`); ``--fixed-motion`` changes only
 the room (how the figures before 2026-11-25 were measured).
+
+Also the centre error of lit lights: in those frames, the distance from each lit light's measured
+centre (reported under its name, not predicted) to its true projection, median and p90 per distance.
+``--centroid``: clipped lights without a halo measured by their centroid (before the edge fit).
 
 Writes bench/results/blink_identity_results.json (``--out``).
 """
@@ -66,6 +71,19 @@ def identity(results, truth, lit, fps: float, tol: float) -> dict:
             "failures": r.failures}
 
 
+def centre_errors(results, truth, lit, fps: float) -> list[float]:
+    """After the first second, every lit light's measured centre (reported under its name, not
+    predicted): its distance (px) to the light's true projection."""
+    out = []
+    for k, (res, tr, on) in enumerate(zip(results, truth, lit)):
+        if k < fps:
+            continue
+        for name, det in res.detections.items():
+            if name in tr and on.get(name) and not det.predicted:
+                out.append(float(np.hypot(*(det.uv - np.asarray(tr[name])))))
+    return out
+
+
 def run_tracker(rig, markers, frames, fps: float, use_camera: bool = True):
     cam = rig.robot("q").camera if use_camera else None
     tracker = BlinkTracker(markers, fps, camera=cam)
@@ -87,23 +105,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-camera", action="store_true", help="track without the camera model")
     ap.add_argument("--fixed-motion", action="store_true",
                     help="same motion and blink phases for every seed (only the room changes)")
+    ap.add_argument("--centroid", action="store_true",
+                    help="a clipped light without a halo measured by its centroid, as before the edge fit "
+                         "(mutloc.detect.blink.measure.EDGE_FALLBACK False)")
     from _machine import machine, result_file
 
     ap.add_argument("--out", default=result_file("blink_identity_results.json"))
     args = ap.parse_args(argv)
+    if args.centroid:
+        from mutloc.detect.blink import measure
+
+        measure.EDGE_FALLBACK = False
 
     size = tuple(int(s) for s in args.size.split("x"))
     cache = Path(args.cache) if args.cache else None
     res = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "runs": []}
     per_distance: dict[str, list[int]] = {}
+    centres: dict[str, list[float]] = {}
     for d in (float(s) for s in args.distances.split(",")):
         for seed in (int(s) for s in args.seeds.split(",")):
             t0 = time.perf_counter()
             rig, markers, frames, truth, lit = sequence(size, args.f, d, seed, args.frames, args.fps,
                                                         args.period, args.pan, cache, not args.fixed_motion)
             t1 = time.perf_counter()
-            out = identity(run_tracker(rig, markers, frames, args.fps, not args.no_camera), truth, lit,
-                           args.fps, args.tol)
+            results = run_tracker(rig, markers, frames, args.fps, not args.no_camera)
+            out = identity(results, truth, lit, args.fps, args.tol)
+            errs = centre_errors(results, truth, lit, args.fps)
+            centres.setdefault(f"{d:g}", []).extend(errs)
             t2 = time.perf_counter()
             g = per_distance.setdefault(f"{d:g}", [0, 0, 0])
             g[0] += out["good"]
@@ -113,11 +141,15 @@ def main(argv: list[str] | None = None) -> int:
                   f"wrong labels {out['wrong_labels']} (render {t1 - t0:.1f} s, track {t2 - t1:.1f} s) "
                   f"{out['failures'][:8]}", flush=True)
             res["runs"].append({"distance": d, "seed": seed, **out})
-    res["per_distance"] = {k: {"good": g, "total": n, "fraction": g / max(n, 1), "wrong_labels": w}
+    res["per_distance"] = {k: {"good": g, "total": n, "fraction": g / max(n, 1), "wrong_labels": w,
+                               "centre_px_median": float(np.median(centres[k])) if centres[k] else None,
+                               "centre_px_p90": float(np.quantile(centres[k], 0.9)) if centres[k] else None,
+                               "centres": len(centres[k])}
                            for k, (g, n, w) in per_distance.items()}
     for k, v in res["per_distance"].items():
         print(f"distance {k} m: identity {v['good']}/{v['total']} = {v['fraction']:.3f}, "
-              f"wrong labels {v['wrong_labels']}")
+              f"wrong labels {v['wrong_labels']}; lit centres median {v['centre_px_median']:.4f} px, "
+              f"p90 {v['centre_px_p90']:.4f} px ({v['centres']})")
     Path(args.out).write_text(json.dumps(res, indent=1))
     return 0
 

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from . import measure
 from .halo import CLIP_LEVEL
 from .state import Track
 
@@ -304,6 +305,8 @@ class AssociationStage:
             if circle is not None and math.hypot(*(circle[0] - uv)) > PLATEAU_DISAGREE_PX:
                 uv = circle[0]
             better = self._halo_centre(tr, uv)
+            if better is None and measure.EDGE_FALLBACK and tr.marker is not None:
+                better = self._edge_centre(img, uv, tr.clip_radius)
             if better is not None:
                 # The halo is measured against plates taken while the light
                 # was off; when the robot has moved since, the dark light

@@ -44,6 +44,12 @@ _TRIPLES = np.random.default_rng(0).random((300, 3))
 # 0.25 lose none anywhere.
 NEIGHBOUR_SHARE = 0.25
 
+# Levels (fractions of the way from the background to the clip level) at
+# which a clipped light without a halo is measured by its core's edge (see
+# MeasureStage._edge_centre); EDGE_FALLBACK False: by its centroid.
+EDGE_LEVELS = (0.75, 0.85, 0.95)
+EDGE_FALLBACK = True
+
 
 class MeasureStage:
     """Methods of :class:`~mutloc.detect.blink.tracker.LightTracker` for this stage (it holds the state)."""
@@ -364,6 +370,48 @@ class MeasureStage:
             return None
         found = np.array([out[0] + x0, out[1] + y0])
         if math.hypot(*(found - uv)) > max(2.0, 0.5 * r_core):
+            return None
+        return found
+
+    def _edge_centre(self, img: np.ndarray, uv: np.ndarray, clip_radius: float) -> np.ndarray | None:
+        """Centre of a clipped light without a halo, from its clipped core's edge.
+
+        A light with no glow around it (a sharp lens, a path tracer without
+        bloom: :mod:`mutloc.sim.blender`) has no halo to measure
+        (:meth:`_halo_centre`), and its clipped core's centroid follows any
+        clipped patch joined to it: a polished mount's reflection of the
+        light, a streak along the rod, dragged it 0.4-0.55 px down the rod
+        (bench/bench_lights_blender.py).  The core's disc is measured by its
+        edge instead: rays from ``uv`` find where the image falls through
+        :data:`EDGE_LEVELS` of the way from the window's background (border
+        median) to the clip level, and the crossings are fitted robustly by
+        circles of one centre (:func:`~mutloc.detect.blink.halo.halo_kernel`),
+        so the few rays that run down a streak are outliers.  None if too
+        little fits, if the fit lacks a quadrant, or if it moves the centre
+        by more than half the core's radius (or 1.5 px)."""
+        if not math.isfinite(clip_radius) or clip_radius < 2.0:
+            return None
+        rmax = clip_radius + 5.0
+        half = math.ceil(rmax) + 2
+        h, w = img.shape
+        cx, cy = round(float(uv[0])), round(float(uv[1]))
+        x0, x1, y0, y1 = max(0, cx - half), min(w, cx + half + 1), max(0, cy - half), min(h, cy + half + 1)
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return None
+        patch = img[y0:y1, x0:x1].astype(np.float32)
+        border = np.concatenate([patch[0], patch[-1], patch[1:-1, 0], patch[1:-1, -1]])
+        bg = float(np.median(border))
+        if CLIP_LEVEL - bg < self.diff_threshold:
+            return None
+        levels = (np.array(EDGE_LEVELS) * (CLIP_LEVEL - bg)).astype(np.float64)
+        out = np.empty(5)
+        if not halo_kernel(patch - np.float32(bg), float(uv[0]) - x0, float(uv[1]) - y0, levels, 64, 0.25,
+                           float(rmax), 3, out):
+            return None
+        if out[2] < 24 or out[3] < 4:
+            return None
+        found = np.array([out[0] + x0, out[1] + y0])
+        if math.hypot(*(found - uv)) > max(1.5, 0.5 * clip_radius):
             return None
         return found
 
