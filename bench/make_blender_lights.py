@@ -34,7 +34,6 @@ radius, distance and colour.  Scenes already rendered (``truth.json`` present) a
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
@@ -44,6 +43,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from _blender_sets import set_parser, write_crop
 from mutloc.sim.blender import render_spec, scene_spec
 from mutloc.sim.render import project_markers, render, two_robot_world
 from mutloc.sim.scenes import with_props
@@ -162,10 +162,7 @@ def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26) -> No
                 x1, y1 = min(W, round(b["u"]) + half + 1), min(H, round(b["v"]) + half + 1)
                 key = f"{name}_{obs}_{m}"
                 for tag, img in (("on", img_on), ("off", img_off)):
-                    cv2.imwrite(str(dest / f"{key}_{tag}.png"), img[y0:y1, x0:x1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
-                K = np.array(rig.robot(obs).camera.K, float)
-                K[0, 2] -= x0
-                K[1, 2] -= y0
+                    K = write_crop(dest / f"{key}_{tag}.png", img, x0, y0, x1, y1, rig.robot(obs).camera.K)
                 index[key] = {"scene": name, "finish": truth["finish"], "observer": obs, "marker": m,
                               "corner": [x0, y0], "size": [x1 - x0, y1 - y0], "K": K.tolist(),
                               "light": {**b, "u": b["u"] - x0, "v": b["v"] - y0}}
@@ -174,15 +171,8 @@ def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26) -> No
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "blender_lights")
+    ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_lights", "comma-separated finishes (metal, matte)")
     ap.add_argument("--worlds", type=int, default=3, help="worlds (each rendered with metal and matte rods)")
-    ap.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel (denoised)")
-    ap.add_argument("--only", default=None, help="comma-separated finishes (metal, matte)")
-    ap.add_argument("--python", default=None, help="the interpreter with bpy (default $MUTLOC_BLENDER_PYTHON)")
-    ap.add_argument("--export-test", type=Path, default=None, metavar="DIR",
-                    help="write crops of --scenes (already rendered) with their truth to DIR, render nothing")
-    ap.add_argument("--scenes", default="", help="comma-separated scene names for --export-test")
     args = ap.parse_args()
     if args.export_test is not None:
         export_crops(args.out, args.export_test, [s for s in args.scenes.split(",") if s])

@@ -29,7 +29,6 @@ geometry).  ``index.json`` lists the scenes and the render times.  Scenes alread
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -38,6 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from _blender_sets import set_parser, write_crop
 from mutloc.sim.blender import ball_truth, render_spec, scene_spec
 from mutloc.sim.render import relative_pose, render, two_robot_world
 from mutloc.sim.scenes import lit, occluder, with_props
@@ -134,10 +134,7 @@ def export_crops(out: Path, dest: Path, scenes: list[str], margin: float = 24.0)
             x0, x1 = int(max(0, min(us) - 3 * r - margin)), int(min(W, max(us) + 3 * r + margin + 1))
             y0, y1 = int(max(0, min(vs) - 3 * r - margin)), int(min(H, max(vs) + 3 * r + margin + 1))
             key = f"{name}_{obs}"
-            cv2.imwrite(str(dest / f"{key}.png"), img[y0:y1, x0:x1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
-            K = np.array(rig.robot(obs).camera.K, float)
-            K[0, 2] -= x0
-            K[1, 2] -= y0
+            K = write_crop(dest / f"{key}.png", img, x0, y0, x1, y1, rig.robot(obs).camera.K)
             index[key] = {"scene": name, "condition": truth["condition"], "observer": obs, "corner": [x0, y0],
                           "size": [x1 - x0, y1 - y0], "K": K.tolist(),
                           "balls": {m: {**b, "u": b["u"] - x0, "v": b["v"] - y0} for m, b in balls.items()}}
@@ -146,15 +143,8 @@ def export_crops(out: Path, dest: Path, scenes: list[str], margin: float = 24.0)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "blender_set")
+    ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_set", "comma-separated conditions")
     ap.add_argument("--frames", type=int, default=3, help="scenes per condition")
-    ap.add_argument("--samples", type=int, default=4, help="Cycles samples per pixel (denoised)")
-    ap.add_argument("--only", default=None, help="comma-separated conditions")
-    ap.add_argument("--python", default=None, help="the interpreter with bpy (default $MUTLOC_BLENDER_PYTHON)")
-    ap.add_argument("--export-test", type=Path, default=None, metavar="DIR",
-                    help="write crops of --scenes (already rendered) with their truth to DIR, render nothing")
-    ap.add_argument("--scenes", default="", help="comma-separated scene names for --export-test")
     args = ap.parse_args()
     if args.export_test is not None:
         export_crops(args.out, args.export_test, [s for s in args.scenes.split(",") if s])
