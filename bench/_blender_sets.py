@@ -32,3 +32,16 @@ def write_crop(path: Path, img: np.ndarray, x0: int, y0: int, x1: int, y1: int, 
     Kc[0, 2] -= x0
     Kc[1, 2] -= y0
     return Kc
+
+
+def subset_or_export(args: argparse.Namespace, export, allowed, what: str) -> list[str] | None:
+    """With ``--export-test``: ``export(out, dest, scenes)`` and None (render nothing); else the
+    ``--only`` subset of ``allowed`` (all by default), a one-line exit naming an unknown ``what``."""
+    if args.export_test is not None:
+        export(args.out, args.export_test, [s for s in args.scenes.split(",") if s])
+        return None
+    chosen = args.only.split(",") if args.only else list(allowed)
+    bad = [c for c in chosen if c not in allowed]
+    if bad:
+        raise SystemExit(f"unknown {what} {bad[0]!r} (one of {', '.join(allowed)})")
+    return chosen

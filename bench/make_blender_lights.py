@@ -43,7 +43,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from _blender_sets import set_parser, write_crop
+from _blender_sets import set_parser, subset_or_export, write_crop
 from mutloc.sim.blender import render_spec, scene_spec
 from mutloc.sim.render import project_markers, render, two_robot_world
 from mutloc.sim.scenes import with_props
@@ -174,13 +174,9 @@ def main() -> None:
     ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_lights", "comma-separated finishes (metal, matte)")
     ap.add_argument("--worlds", type=int, default=3, help="worlds (each rendered with metal and matte rods)")
     args = ap.parse_args()
-    if args.export_test is not None:
-        export_crops(args.out, args.export_test, [s for s in args.scenes.split(",") if s])
+    finishes = subset_or_export(args, export_crops, FINISHES, "finish")
+    if finishes is None:
         return
-    finishes = args.only.split(",") if args.only else list(FINISHES)
-    bad = [f for f in finishes if f not in FINISHES]
-    if bad:
-        raise SystemExit(f"unknown finish {bad[0]!r} (one of {', '.join(FINISHES)})")
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     for i in range(args.worlds):

@@ -30,14 +30,13 @@ geometry).  ``index.json`` lists the scenes and the render times.  Scenes alread
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from _blender_sets import set_parser, write_crop
+from _blender_sets import set_parser, subset_or_export, write_crop
 from mutloc.sim.blender import ball_truth, render_spec, scene_spec
 from mutloc.sim.render import relative_pose, render, two_robot_world
 from mutloc.sim.scenes import lit, occluder, with_props
@@ -146,13 +145,9 @@ def main() -> None:
     ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_set", "comma-separated conditions")
     ap.add_argument("--frames", type=int, default=3, help="scenes per condition")
     args = ap.parse_args()
-    if args.export_test is not None:
-        export_crops(args.out, args.export_test, [s for s in args.scenes.split(",") if s])
+    conds = subset_or_export(args, export_crops, CONDITIONS, "condition")
+    if conds is None:
         return
-    conds = args.only.split(",") if args.only else list(CONDITIONS)
-    bad = [c for c in conds if c not in CONDITIONS]
-    if bad:
-        sys.exit(f"unknown condition {bad[0]!r} (one of {', '.join(CONDITIONS)})")
     rig = standard_rig("balls")
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
