@@ -21,6 +21,7 @@ from ..errors import DegenerateGeometryError, InputError, NoSolutionError, Obser
 from .pose import Pose
 from .camera import undistort_kernel
 from .minimal import solve_minimal_kernel
+from .observations import unit_scales
 from .refine import MODE_BEARING, MODE_PIXEL, WS_SIZE, cost_into, information, lm_refine, tangent_bases
 
 __all__ = ["PairProblem", "Solution", "estimate", "minimal_subsets"]
@@ -102,9 +103,9 @@ class PairProblem:
 
     @property
     def wt(self) -> np.ndarray:
-        """Each row's weight in the objective: ``1 / sigma_scale``."""
+        """Each row's weight in the objective: ``1 / sigma_scale`` (shared, read-only)."""
         if self.sigma_scale is None:
-            return np.ones(len(self.side))
+            return unit_scales(len(self.side))
         return 1.0 / self.sigma_scale
 
     def ensure_bearings(self) -> np.ndarray:

@@ -99,6 +99,21 @@ def _name(key: Any, kind: str, where: str) -> str:
     return str(key)
 
 
+_ONES: dict[int, np.ndarray] = {}
+
+
+def unit_scales(n: int) -> np.ndarray:
+    """A read-only array of ``n`` ones (one per size, kept): the scales of a set built without, the
+    weights of a problem without."""
+    w = _ONES.get(n)
+    if w is None:
+        w = np.ones(n)
+        w.flags.writeable = False
+        if n <= 4096:
+            _ONES[n] = w
+    return w
+
+
 class ObservationSet:
     """Observations keyed by (time, observer, marker); immutable.
 
@@ -123,8 +138,8 @@ class ObservationSet:
         uv = np.asarray(uv, dtype=float).reshape(-1, 2) if n else np.empty((0, 2))
         time = np.full(n, np.nan) if time is None else np.broadcast_to(np.asarray(time, float), (n,)).copy()
         score = np.ones(n) if score is None else np.broadcast_to(np.asarray(score, float), (n,)).copy()
-        scale = (np.ones(n) if sigma_scale is None
-                 else np.broadcast_to(np.asarray(sigma_scale, float), (n,)).copy())
+        unit = sigma_scale is None
+        scale = unit_scales(n) if unit else np.broadcast_to(np.asarray(sigma_scale, float), (n,)).copy()
         if len(marker) != n or uv.shape[0] != n:
             raise InputError(f"ObservationSet: {n} observers, {len(marker)} markers and {uv.shape[0]} pixels")
         if not np.all(np.isfinite(uv)):
@@ -132,14 +147,14 @@ class ObservationSet:
             raise ObservationError(f"observations[{observer[i]!r}][{marker[i]!r}]: pixel must be finite")
         if np.any(np.isinf(time)) or np.any(~np.isfinite(score)):
             raise ObservationError("observations: times and scores must be finite")
-        if not np.all(np.isfinite(scale) & (scale > 0.0)):
+        if not unit and not np.all(np.isfinite(scale) & (scale > 0.0)):
             raise ObservationError("observations: every sigma_scale must be finite and positive")
         uv.flags.writeable = False
         time.flags.writeable = False
         score.flags.writeable = False
         scale.flags.writeable = False
         for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
-                     ("score", score), ("sigma_scale", scale), ("_memo", {})):
+                     ("score", score), ("sigma_scale", scale), ("_memo", {"unit": True} if unit else {})):
             object.__setattr__(self, k, v)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -191,9 +206,10 @@ class ObservationSet:
         uv = np.array(uv, dtype=float).reshape(n, 2)
         time = np.full(n, np.nan if time is None else float(time))
         score = np.ones(n) if score is None else np.asarray(score, dtype=float)
-        scale = np.ones(n) if sigma_scale is None else np.asarray(sigma_scale, dtype=float)
+        unit = sigma_scale is None
+        scale = unit_scales(n) if unit else np.asarray(sigma_scale, dtype=float)
         for k, v in (("observer", tuple(observer)), ("marker", tuple(marker)), ("uv", uv), ("time", time),
-                     ("score", score), ("sigma_scale", scale), ("_memo", {})):
+                     ("score", score), ("sigma_scale", scale), ("_memo", {"unit": True} if unit else {})):
             if isinstance(v, np.ndarray):
                 v.flags.writeable = False
             object.__setattr__(obj, k, v)
@@ -216,7 +232,8 @@ class ObservationSet:
             return cls((), (), np.empty((0, 2)))
         return cls(sum((s.observer for s in sets), ()), sum((s.marker for s in sets), ()),
                    np.concatenate([s.uv for s in sets]), np.concatenate([s.time for s in sets]),
-                   np.concatenate([s.score for s in sets]), np.concatenate([s.sigma_scale for s in sets]))
+                   np.concatenate([s.score for s in sets]),
+                   None if all(s._memo.get("unit") for s in sets) else np.concatenate([s.sigma_scale for s in sets]))
 
     # -- a collection -------------------------------------------------------
 
@@ -251,7 +268,7 @@ class ObservationSet:
         """The rows ``index`` (indices or a boolean mask)."""
         idx = np.arange(len(self))[index]
         return ObservationSet([self.observer[i] for i in idx], [self.marker[i] for i in idx], self.uv[idx],
-                              self.time[idx], self.score[idx], self.sigma_scale[idx])
+                              self.time[idx], self.score[idx], self._scale(idx))
 
     @property
     def observers(self) -> list[str]:
@@ -271,7 +288,13 @@ class ObservationSet:
     def with_time(self, t: float | None) -> "ObservationSet":
         """The same observations stamped with time ``t``."""
         return ObservationSet(self.observer, self.marker, self.uv, np.nan if t is None else t, self.score,
-                              self.sigma_scale)
+                              self._scale())
+
+    def _scale(self, idx: Any = None) -> np.ndarray | None:
+        """The scales of rows ``idx`` (all: None), None when every one is 1 (a set built without)."""
+        if self._memo.get("unit"):
+            return None
+        return self.sigma_scale if idx is None else self.sigma_scale[idx]
 
     def with_sigma_scale(self, scale: Any) -> "ObservationSet":
         """The same observations with each one's ``sigma_scale`` (a number for all, one per row, or None:
@@ -363,7 +386,7 @@ class ObservationSet:
             # a dict turned into a set) would then wait for the cyclic garbage
             # collector instead of being freed at once.  What the solver reads
             # is computed now, so every pair handed out has it.
-            result.points, result.uv, result.names, result.count, result.sigma_scale  # noqa: B018
+            result.points, result.uv, result.names, result.count  # noqa: B018
             template = _with_parent(result, None)
         else:
             template = result  # of the set of best candidates, not of this one
@@ -416,8 +439,12 @@ class ObservationSet:
             raise ObservationError("observations of several times: localize one frame at a time (at_time)")
         if duplicates:
             return self.best().pair(rig, source, target)
+        scale = None
+        if not self._memo.get("unit"):
+            s = self.sigma_scale[rows]
+            scale = None if np.all(s == 1.0) else np.ascontiguousarray(s)
         return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
-                                np.array(rows, dtype=np.int64), anonymous, table)
+                                np.array(rows, dtype=np.int64), anonymous, table, scale)
 
 
 def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size: tuple[int, int] | None,
@@ -476,6 +503,8 @@ class PairObservations:
     rows: np.ndarray
     anonymous: dict[int, list[int]]
     table: Any
+    #: (n,) each row's noise relative to the stated pixel sigma, or None when all are 1.
+    sigma_scale: np.ndarray | None = None
 
     @property
     def names(self) -> list[str]:
@@ -495,12 +524,6 @@ class PairObservations:
     def uv(self) -> np.ndarray:
         """(n, 2) each row's raw pixel (shared: do not modify)."""
         return np.ascontiguousarray(self.parent.uv[self.rows])
-
-    @cached_property
-    def sigma_scale(self) -> np.ndarray | None:
-        """(n,) each row's noise relative to the stated pixel sigma, or None when all are 1."""
-        s = self.parent.sigma_scale[self.rows]
-        return None if np.all(s == 1.0) else np.ascontiguousarray(s)
 
     @cached_property
     def count(self) -> int:

@@ -144,12 +144,16 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, want
                     Jp[k, a] = (basis[i, k, a] * den - num * basis[i, 2, a]) / (den * den)
         # Each observation's rows in units of its own noise (``wt``: pixel_sigma over its sigma).
         w = wt[i]
-        r[2 * i] *= w
-        r[2 * i + 1] *= w
+        if w != 1.0:
+            r[2 * i] *= w
+            r[2 * i + 1] *= w
+            for k in range(2):
+                for a in range(3):
+                    Jp[k, a] *= w
         if want_jac:
             for k in range(2):
                 for c in range(6):
-                    J[2 * i + k, c] = w * (Jp[k, 0] * dX[0, c] + Jp[k, 1] * dX[1, c] + Jp[k, 2] * dX[2, c])
+                    J[2 * i + k, c] = Jp[k, 0] * dX[0, c] + Jp[k, 1] * dX[1, c] + Jp[k, 2] * dX[2, c]
     return True
 
 
