@@ -160,9 +160,9 @@ def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: n
     labels = _Labels(pair, rows)
     if rows is pair.rows:  # the named observations: their arrays are kept on the pair
         return PairProblem.trusted(side, pair.points, None, pair.uv, table.K, table.dist, labels, pair.sigma_scale)
-    scale = pair.parent.sigma_scale[rows]
+    scale = pair.parent.scales_of(rows)
     return PairProblem.trusted(side, table.points[prow], None, pair.parent.uv[rows], table.K, table.dist, labels,
-                               None if np.all(scale == 1.0) else np.ascontiguousarray(scale))
+                               None if scale is None else np.ascontiguousarray(scale))
 
 
 class _Labels:

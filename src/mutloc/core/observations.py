@@ -268,7 +268,7 @@ class ObservationSet:
         """The rows ``index`` (indices or a boolean mask)."""
         idx = np.arange(len(self))[index]
         return ObservationSet([self.observer[i] for i in idx], [self.marker[i] for i in idx], self.uv[idx],
-                              self.time[idx], self.score[idx], self._scale(idx))
+                              self.time[idx], self.score[idx], self.scales_of(idx))
 
     @property
     def observers(self) -> list[str]:
@@ -288,10 +288,11 @@ class ObservationSet:
     def with_time(self, t: float | None) -> "ObservationSet":
         """The same observations stamped with time ``t``."""
         return ObservationSet(self.observer, self.marker, self.uv, np.nan if t is None else t, self.score,
-                              self._scale())
+                              self.scales_of())
 
-    def _scale(self, idx: Any = None) -> np.ndarray | None:
-        """The scales of rows ``idx`` (all: None), None when every one is 1 (a set built without)."""
+    def scales_of(self, idx: Any = None) -> np.ndarray | None:
+        """The ``sigma_scale`` of rows ``idx`` (None: all rows), or None for a set built without scales
+        (every one 1): what a solver needs to know without looking at every row."""
         if self._memo.get("unit"):
             return None
         return self.sigma_scale if idx is None else self.sigma_scale[idx]
@@ -439,10 +440,9 @@ class ObservationSet:
             raise ObservationError("observations of several times: localize one frame at a time (at_time)")
         if duplicates:
             return self.best().pair(rig, source, target)
-        scale = None
-        if not self._memo.get("unit"):
-            s = self.sigma_scale[rows]
-            scale = None if np.all(s == 1.0) else np.ascontiguousarray(s)
+        scale = self.scales_of(rows)
+        if scale is not None:
+            scale = None if np.all(scale == 1.0) else np.ascontiguousarray(scale)
         return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
                                 np.array(rows, dtype=np.int64), anonymous, table, scale)
 

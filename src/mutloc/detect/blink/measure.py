@@ -51,6 +51,23 @@ EDGE_LEVELS = (0.75, 0.85, 0.95)
 EDGE_FALLBACK = True
 
 
+def _circle_centre(g: np.ndarray, uv: np.ndarray, x0: int, y0: int, levels: np.ndarray, step: float, rmax: float,
+                   min_used: int, min_quadrants: int, max_shift: float) -> np.ndarray | None:
+    """The centre (image pixels) of the circles where ``g`` (a window whose corner is ``(x0, y0)``) falls
+    through ``levels`` along 64 rays from ``uv`` (:func:`~mutloc.detect.blink.halo.halo_kernel`, rays
+    sampled every ``step`` px up to ``rmax``); None unless at least ``min_used`` crossings in
+    ``min_quadrants`` quadrants fit and the centre is within ``max_shift`` px of ``uv``."""
+    out = np.empty(5)
+    if not halo_kernel(g, float(uv[0]) - x0, float(uv[1]) - y0, levels, 64, step, float(rmax), 3, out):
+        return None
+    if out[2] < min_used or out[3] < min_quadrants:
+        return None
+    found = np.array([out[0] + x0, out[1] + y0])
+    if math.hypot(*(found - uv)) > max_shift:
+        return None
+    return found
+
+
 class MeasureStage:
     """Methods of :class:`~mutloc.detect.blink.tracker.LightTracker` for this stage (it holds the state)."""
 
@@ -363,15 +380,7 @@ class MeasureStage:
         fin = np.isfinite(b)
         ref = float(np.median(b[fin])) if fin.any() else 0.0
         levels = np.maximum(HALO_MIN_LEVEL, max(0.1, 1.0 - ref) * np.array(HALO_LEVELS))
-        out = np.empty(5)
-        if not halo_kernel(g, float(uv[0]) - x0, float(uv[1]) - y0, levels, 64, 0.5, float(rmax), 3, out):
-            return None
-        if out[2] < 16 or out[3] < 3:
-            return None
-        found = np.array([out[0] + x0, out[1] + y0])
-        if math.hypot(*(found - uv)) > max(2.0, 0.5 * r_core):
-            return None
-        return found
+        return _circle_centre(g, uv, x0, y0, levels, 0.5, rmax, 16, 3, max(2.0, 0.5 * r_core))
 
     def _edge_centre(self, img: np.ndarray, uv: np.ndarray, clip_radius: float) -> np.ndarray | None:
         """Centre of a clipped light without a halo, from its clipped core's edge.
@@ -404,16 +413,8 @@ class MeasureStage:
         if CLIP_LEVEL - bg < self.diff_threshold:
             return None
         levels = (np.array(EDGE_LEVELS) * (CLIP_LEVEL - bg)).astype(np.float64)
-        out = np.empty(5)
-        if not halo_kernel(patch - np.float32(bg), float(uv[0]) - x0, float(uv[1]) - y0, levels, 64, 0.25,
-                           float(rmax), 3, out):
-            return None
-        if out[2] < 24 or out[3] < 4:
-            return None
-        found = np.array([out[0] + x0, out[1] + y0])
-        if math.hypot(*(found - uv)) > max(1.5, 0.5 * clip_radius):
-            return None
-        return found
+        return _circle_centre(patch - np.float32(bg), uv, x0, y0, levels, 0.25, rmax, 24, 4,
+                              max(1.5, 0.5 * clip_radius))
 
     @staticmethod
     def _plateau_circle(img: np.ndarray, uv: np.ndarray, r: int) -> tuple[np.ndarray, float] | None:
