@@ -4,6 +4,7 @@
     MUTLOC_BLENDER_PYTHON=.venv-render/bin/python python bench/make_blender_set.py [--out bench/blender_set]
         [--frames 3] [--samples 4] [--only hard,dim]
     python bench/make_blender_set.py --export-test tests/data/blender --scenes pole_00,box_01,...
+    ... make_blender_set.py --out DIR --seed 1 --only hard,dim    # the same scenes, another draw of render noise
 
 (``.venv-render``: ``python3.11 -m venv .venv-render && .venv-render/bin/pip install bpy`` -- bpy 5.0 pins
 numpy < 2, so it lives in a virtual environment of its own; see mutloc.sim.blender.)
@@ -91,26 +92,27 @@ def scene(cond: str, i: int, rig):
     return w, metal, desc
 
 
-def make(out: Path, cond: str, i: int, rig, samples: int, python: str | None) -> dict:
+def make(out: Path, cond: str, i: int, rig, samples: int, python: str | None, seed: int = 0) -> dict:
     folder = out / f"{cond}_{i:02d}"
     if (folder / "truth.json").exists():
         return json.loads((folder / "truth.json").read_text())
     folder.mkdir(parents=True, exist_ok=True)
     w, metal, desc = scene(cond, i, rig)
     spec = scene_spec(w, {o: folder / f"blender_{o}.png" for o in ("p", "q")}, texture_dir=out / "textures",
-                      metal=metal, samples=samples, seed=i)
+                      metal=metal, samples=samples, seed=i + 1000 * seed)
     t0 = time.time()
     imgs = render_spec(spec, python=python)
     seconds = time.time() - t0
     for j, o in enumerate(("p", "q")):
-        noise = np.random.default_rng([2811, CONDITIONS.index(cond), i, j]).normal(0.0, 1.0, imgs[o].shape)
+        draw = [2811, CONDITIONS.index(cond), i, j] + ([seed] if seed else [])
+        noise = np.random.default_rng(draw).normal(0.0, 1.0, imgs[o].shape)
         cv2.imwrite(str(folder / f"blender_{o}.png"), np.clip(np.rint(imgs[o] + noise), 0, 255).astype(np.uint8))
-        cv2.imwrite(str(folder / f"mutloc_{o}.png"), render(w, o, seed=1000 * CONDITIONS.index(cond) + i,
+        cv2.imwrite(str(folder / f"mutloc_{o}.png"), render(w, o, seed=1000 * CONDITIONS.index(cond) + i + 100_000 * seed,
                                                               noise_sigma=1.0))
     T = relative_pose(w, "p", "q")
     truth = {**desc, "name": folder.name, "T_qp": {"R": T.R.tolist(), "t": T.t.tolist()},
              "balls": {o: ball_truth(w, o) for o in ("p", "q")}, "blender_seconds": seconds,
-             "samples": samples}
+             "samples": samples, "seed": seed}
     (folder / "truth.json").write_text(json.dumps(truth, indent=1))
     return truth
 
@@ -144,6 +146,10 @@ def export_crops(out: Path, dest: Path, scenes: list[str], margin: float = 24.0)
 def main() -> None:
     ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_set", "comma-separated conditions")
     ap.add_argument("--frames", type=int, default=3, help="scenes per condition")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="the renders' noise draw (Cycles' sampling seed and the added sensor noise): the same "
+                         "scenes and truth drawn again, to tell the set's render noise from the detector's bias "
+                         "(0: the fixed set)")
     args = ap.parse_args()
     conds = subset_or_export(args, export_crops, CONDITIONS, "condition")
     if conds is None:
@@ -154,7 +160,7 @@ def main() -> None:
     names = []
     for i in range(args.frames):  # round-robin: a stopped run still covers every condition
         for c in conds:
-            tr = make(args.out, c, i, rig, args.samples, args.python)
+            tr = make(args.out, c, i, rig, args.samples, args.python, args.seed)
             names.append(tr["name"])
             hid = [f"{m} {100 * b['hidden']:.0f}%" for o in tr["balls"].values() for m, b in o.items() if b["hidden"] > 0]
             print(f"{tr['name']}: {tr['distance_m']:.2f} m, Blender {tr['blender_seconds']:.0f} s"

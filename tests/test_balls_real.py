@@ -19,7 +19,8 @@ from mutloc.core.rig import Marker, Rig, Robot
 from mutloc.detect.balls import BallParams, detect_balls
 from mutloc.detect.base import Detection, DetectionResult
 from mutloc.errors import InputError, MutlocError
-from mutloc.sim.render import ball_visibility, relative_pose, render, render_linear, two_robot_world
+from mutloc.sim.render import (ball_visibility, project_markers, relative_pose, render, render_linear,
+                               two_robot_world)
 from mutloc.sim.scenes import OCCLUDERS, hidden_share, lit, occluder, same_hue_clutter, with_props
 from mutloc.sim.synthetic import facing_pose
 from mutloc.sim.world import Light, Plastic, Prop, standard_rig
@@ -149,8 +150,34 @@ def test_quality_fields_travel_through_dicts_and_merge():
     assert "visible_fraction" not in Detection("X", np.zeros(2)).to_dict()
 
 
+def test_whole_balls_under_a_hard_light_are_measured_with_their_limb_colours():
+    """Plastic balls under a hard, a warm and a back light (their shading changes fast at the limb): the
+    first look's centres of whole balls against the projected truth are better with the narrower colour
+    window of a whole rim than with the partly hidden balls' wider one (RMS 0.043 against 0.061 px, median
+    0.033 against 0.037 px when written; the back light gains most)."""
+    cam = RIG.robot("q").camera
+    wide = BallParams(whole_rim_half_window_px=BallParams().local_half_window_px)
+    pairs = []
+    for lighting in ("hard", "warm", "backlit"):
+        for i in range(6):
+            world, _, _ = base_world(80 + i)
+            w = lit(world, lighting, observer="q", target="p", seed=i)
+            img = render(w, "q", seed=i, noise_sigma=1.0)
+            truth = project_markers(w, "q")
+            narrow = detect_balls(img, RIG.robot("p").markers, camera=cam).detections
+            wider = detect_balls(img, RIG.robot("p").markers, camera=cam, params=wide).detections
+            pairs += [(float(np.hypot(*(np.asarray(narrow[m].uv) - truth[m]))),
+                       float(np.hypot(*(np.asarray(wider[m].uv) - truth[m])))) for m in narrow if m in wider]
+    # Balls both took at the same place (a clutter blob taken by both is not this test's business).
+    e = np.array([p for p in pairs if max(p) < 1.0])
+    assert len(e) >= 24
+    rms = np.sqrt(np.mean(e**2, axis=0))
+    assert rms[0] <= 0.8 * rms[1] and np.median(e[:, 0]) <= 0.04, (rms, np.median(e, axis=0))
+
+
 def test_new_params_are_checked():
     for bad in (dict(min_visible_fraction=1.5), dict(recentre_below=-0.1), dict(max_rim_slope_deg=95),
+                dict(whole_rim_share=1.2), dict(whole_rim_half_window_px=0.0),
                 dict(white_balance="sunny"), dict(white_balance=(0, 0, 0)), dict(white_balance=(1, 2))):
         with pytest.raises(InputError):
             BallParams(**bad)

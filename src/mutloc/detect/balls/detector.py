@@ -345,12 +345,13 @@ def refine_blob(
         return _refine_pinhole(img, lut, s, blob, cam, max_r, params, lg, cut)
     recentred = moved = False
     it = 0
+    hw = params.local_half_window_px
     while it < 2:
         if it == 0:
             n_rays = min(max(round(2 * math.pi * r), 24), 96)
             ang = np.arange(n_rays) * (2.0 * math.pi / n_rays)
             rexp = np.full(n_rays, r)
-        rim = sample_rim(img, lut, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, lg)
+        rim = sample_rim(img, lut, cx, cy, ang, rexp, hw, params.step_px, lg)
         # Rays far off the expected rim are occluders, clutter or a bad
         # coarse circle: the ones close to it are the initial inlier set.
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
@@ -378,11 +379,21 @@ def refine_blob(
         r = fit.radius_px
         if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not np.all(np.isfinite(rexp)):
             return None
+        if it == 0:
+            hw = _second_round_window(params, int(near.sum()), np.count_nonzero(fit.weights > 0.5), n_rays)
         it += 1
     # The coarse blob of a split ball is one piece of it, filling little of
     # its circle: the visible rim (in the score) is the better judge then.
     fill = max(blob.fill, 0.6) if moved else blob.fill
     return score_candidate(img, lut, s, fill, rim, fit, cam, params, rim_gains=lg)
+
+
+def _second_round_window(params: BallParams, n_near: int, n_kept: int, n_rays: int) -> float:
+    """The local window of the second round of rays: :attr:`~.params.BallParams.whole_rim_half_window_px` when
+    the first round found the rim nearly whole (``whole_rim_share`` of the rays near the circle and kept by
+    its fit), else :attr:`~.params.BallParams.local_half_window_px`."""
+    whole = min(n_near, n_kept) >= params.whole_rim_share * n_rays
+    return params.whole_rim_half_window_px if whole else params.local_half_window_px
 
 
 def _refine_pinhole(
@@ -405,10 +416,11 @@ def _refine_pinhole(
     rexp = np.full(n_rays, r)
     slope_lim = math.tan(math.radians(params.max_rim_slope_deg)) * 2.0 * math.pi / max(n_rays, 1)
     K, dist = cam.camera.K, cam.camera.dist
+    hw = params.local_half_window_px
     for it in range(2):
         tol0 = max(1.5, 0.15 * r) if it == 0 else max(0.75, 0.05 * r)
         status, n_near, inner, d, w, cos_t, rms, outline, cu, cv_, radii, r_fit, finite = sweep(
-            img, lut, gain, cx, cy, ang, rexp, params.local_half_window_px, params.step_px, tol0, slope_lim,
+            img, lut, gain, cx, cy, ang, rexp, hw, params.step_px, tol0, slope_lim,
             cam.Kinv, K, dist, cam.f)
         if it == 0 and n_near < params.recentre_below * n_rays and cut is not None:
             cut.append(blob)
@@ -417,6 +429,8 @@ def _refine_pinhole(
         cx, cy, rexp, r = cu, cv_, radii, r_fit
         if not (0.7 * params.min_radius_px <= r <= 1.5 * max_r) or not finite:
             return None
+        if it == 0:
+            hw = _second_round_window(params, n_near, np.count_nonzero(w > 0.5), n_rays)
     fit = Fit(outline, np.array([cx, cy]), radii, r, w, rms, d, cos_t, None)
     n_in, eb, eg, er, shading, uv = measure(img, lut, gain, w, inner, cx, cy, ang, radii, 2.0 * params.hue_tol_deg, K,
                                             dist, d)

@@ -85,6 +85,23 @@ class BallParams:
     #: edge: room for the blur of optics, pixels and JPEG, little for the
     #: background to change within.
     local_half_window_px: float = 2.5
+    #: The local window (half-width, pixels) of the second round of rays of a
+    #: ball whose rim the first round found nearly whole (at least
+    #: ``whole_rim_share`` of its rays near the circle and kept by the fit):
+    #: the ball and background colours are then taken nearer the edge, where
+    #: they are the colours that mix in its pixels (a lit sphere's shading
+    #: changes fast at its limb).  First-look centres of whole balls 0.082 ->
+    #: 0.075 px on the Blender set and 0.041 -> 0.030 px on mutloc's renderer
+    #: (docs/benchmarks.md).  A partly hidden ball keeps the wider window: its
+    #: rays near the occluder need it (its poses got worse on both renderers
+    #: with every ray narrowed).  At least ``4 * step_px``: the shading trend
+    #: of the unmixing needs eight samples (1.75 px cost mutloc's renderer
+    #: 0.03 -> 0.07 px).
+    whole_rim_half_window_px: float = 2.0
+    #: Share of a ball's rays that must be near its circle and kept by the fit
+    #: for :attr:`whole_rim_half_window_px` (0.9: only half the gain; 0.6:
+    #: the same centres as 0.8 but more partly hidden poses change).
+    whole_rim_share: float = 0.8
     #: Without a camera, fitted ellipses more elongated than this are
     #: refused (a sphere's image reaches 1.4 only 45 deg off-axis).
     max_axis_ratio: float = 1.6
@@ -166,8 +183,8 @@ class BallParams:
         _positive_int("max_candidates", self.max_candidates)
         if self.downscale is not None:
             _positive_int("downscale", self.downscale)
-        for what in ("mix_gamma", "step_px", "local_half_window_px", "max_axis_ratio", "fallback_max_radius_px",
-                     "recheck_pair_error", "cut_size_tolerance"):
+        for what in ("mix_gamma", "step_px", "local_half_window_px", "whole_rim_half_window_px", "max_axis_ratio",
+                     "fallback_max_radius_px", "recheck_pair_error", "cut_size_tolerance"):
             _positive(what, getattr(self, what))
         _positive_int("max_joint_options", self.max_joint_options)
         _positive_int("max_joint_combos", self.max_joint_combos)
@@ -187,7 +204,7 @@ class BallParams:
                 raise InputError(f"white_balance colour must be 3 values in (0, 255], got {wb!r}")
             object.__setattr__(self, "white_balance", rgb)
         for what in ("min_score", "good_enough", "alternative_ratio", "min_nominal_saturation", "min_nominal_value",
-                     "min_visible_fraction", "recentre_below", "auto_white_balance_below"):
+                     "min_visible_fraction", "recentre_below", "auto_white_balance_below", "whole_rim_share"):
             val = getattr(self, what)
             if isinstance(val, bool) or not (isinstance(val, Real) and 0 <= val <= 1):
                 raise InputError(f"{what} must be a number in [0, 1], got {val!r}")
