@@ -16,7 +16,7 @@ Light-centre error: in every frame from the first second on in which a light is 
 (px) from the centre the tracker measured there (reported under the light's name, not predicted) to
 the true projection of the light's centre; ``dv`` its signed vertical part (+: down, along the rod).
 A lit light not reported as measured counts as missed.  Prints per renderer, mount (metal / matte
-rod) and light colour: median / p90 error, median dv, lit frames and missed; writes them and a row
+rod, or metal with a camera's glow) and light colour: median / p90 error, median dv, lit frames and missed; writes them and a row
 per sequence and light to ``--json`` (default bench/results/lights_blender_results.json).
 """
 
@@ -140,7 +140,7 @@ def main() -> None:
           f"{'missed':>6s}")
     summary = {}
     for ren in renderers:
-        for fin in ("metal", "matte"):
+        for fin in ("metal", "matte", "glow"):
             for col in [*COLOURS.values(), "all"]:
                 sel = [r for r in rows if r["renderer"] == ren and r["finish"] == fin
                        and (col == "all" or r["colour"] == col)]

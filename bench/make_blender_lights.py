@@ -10,11 +10,14 @@ The rig is ``standard_rig("lights")`` (p carries M3 red 5 Hz and M4 green 7.5 Hz
 2 Hz and M2 yellow 3 Hz; spheres of 2 cm radius, emissive when lit).  Each light sits on a vertical
 mounting rod (8 mm thick, 12 cm long, touching the light from below).  World ``i`` (robots 2-3 m
 apart, facing each other within 10 degrees, lateral offset up to 15 % of the distance, room seed per
-world, even light) is rendered twice, the rods' finish the only difference:
+world, even light) is rendered three times, the rods' finish and the glow the only differences:
 
 - ``metal_ii``: polished metal rods (Cycles reflects the lit light in them and the light's own
   emission lights the rod: a bright tail below the light);
-- ``matte_ii``: the same rods matte grey (the control).
+- ``matte_ii``: the same rods matte grey (the control);
+- ``glow_ii``: the polished rods again, with a camera's glow (bloom) around whatever is bright -- the lit
+  light and its reflection in the rod alike (Blender's compositor, :func:`mutloc.sim.blender.scene_spec`'s
+  ``glare``): the light's halo, which the detector measures a glowing light by, meets the rod's.
 
 mutloc's own renderer has no polished metal and its lights light nothing (their glow is the sensor's
 bloom), so its two images of a world differ only in noise: its rows are a control of the detector.
@@ -51,7 +54,7 @@ from mutloc.sim.synthetic import facing_pose
 from mutloc.sim.world import Prop, World, ball_radius, standard_rig
 
 ROOT = Path(__file__).resolve().parent
-FINISHES = ("metal", "matte")
+FINISHES = ("metal", "matte", "glow")
 STATES = ("00", "01", "10", "11")
 #: The lights each observer sees, in the order of a state's digits.
 OBSERVED = {"q": ("M3", "M4"), "p": ("M1", "M2")}
@@ -122,12 +125,13 @@ def make(out: Path, finish: str, i: int, samples: int, python: str | None) -> di
         return json.loads((folder / "truth.json").read_text())
     folder.mkdir(parents=True, exist_ok=True)
     w, d = world_of(i)
-    metal = list(range(len(w.props))) if finish == "metal" else []
+    metal = list(range(len(w.props))) if finish in ("metal", "glow") else []
+    glare = {} if finish == "glow" else None
     seconds = 0.0
     for s in STATES:
         ws = in_state(w, s)
         spec = scene_spec(ws, {o: folder / f"blender_{o}_{s}.png" for o in ("p", "q")},
-                          texture_dir=out / "textures", metal=metal, samples=samples, seed=i)
+                          texture_dir=out / "textures", metal=metal, samples=samples, seed=i, glare=glare)
         t0 = time.time()
         render_spec(spec, python=python)
         seconds += time.time() - t0
@@ -140,15 +144,18 @@ def make(out: Path, finish: str, i: int, samples: int, python: str | None) -> di
     return truth
 
 
-def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26) -> None:
+def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26, glow_half: int = 40) -> None:
     """The test subset: per scene, observer and light, the Blender images with that light lit
-    (the other dark) and with both dark, cropped around the light (PNG), and ``truth.json`` with the
-    light's true centre in crop pixels and the crop's intrinsics (principal point moved by its corner)."""
+    (the other dark) and with both dark, cropped around the light (PNG; ``half`` pixels each side,
+    ``glow_half`` for the ``glow`` scenes, whose halo the tracker measures out to there), and
+    ``truth.json`` with the light's true centre in crop pixels and the crop's intrinsics (principal
+    point moved by its corner)."""
     dest.mkdir(parents=True, exist_ok=True)
     rig = standard_rig("lights")
     index = {}
     for name in scenes:
         truth = json.loads((out / name / "truth.json").read_text())
+        hw = glow_half if truth["finish"] == "glow" else half
         for obs, lights in truth["lights"].items():
             for k, m in enumerate(OBSERVED[obs]):
                 if m not in lights:
@@ -158,8 +165,8 @@ def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26) -> No
                 img_on = cv2.imread(str(out / name / f"blender_{obs}_{on}.png"))
                 img_off = cv2.imread(str(out / name / f"blender_{obs}_00.png"))
                 H, W = img_on.shape[:2]
-                x0, y0 = max(0, round(b["u"]) - half), max(0, round(b["v"]) - half)
-                x1, y1 = min(W, round(b["u"]) + half + 1), min(H, round(b["v"]) + half + 1)
+                x0, y0 = max(0, round(b["u"]) - hw), max(0, round(b["v"]) - hw)
+                x1, y1 = min(W, round(b["u"]) + hw + 1), min(H, round(b["v"]) + hw + 1)
                 key = f"{name}_{obs}_{m}"
                 for tag, img in (("on", img_on), ("off", img_off)):
                     K = write_crop(dest / f"{key}_{tag}.png", img, x0, y0, x1, y1, rig.robot(obs).camera.K)
@@ -171,8 +178,8 @@ def export_crops(out: Path, dest: Path, scenes: list[str], half: int = 26) -> No
 
 
 def main() -> None:
-    ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_lights", "comma-separated finishes (metal, matte)")
-    ap.add_argument("--worlds", type=int, default=3, help="worlds (each rendered with metal and matte rods)")
+    ap = set_parser(__doc__.splitlines()[0], ROOT / "blender_lights", "comma-separated finishes (metal, matte, glow)")
+    ap.add_argument("--worlds", type=int, default=3, help="worlds (each rendered with metal, matte and glowing metal rods)")
     args = ap.parse_args()
     finishes = subset_or_export(args, export_crops, FINISHES, "finish")
     if finishes is None:

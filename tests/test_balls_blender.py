@@ -108,7 +108,7 @@ def test_blender_hidden_ball_reports_less_visible_rim():
 def test_scene_spec_draws_the_world_s_own_geometry(tmp_path, monkeypatch):
     """The spec Blender renders holds the world's balls where the world has them, its props, and each
     view's camera as the rig's (no bpy needed); without bpy, rendering is a one-line MissingExtraError."""
-    from mutloc.errors import MissingExtraError
+    from mutloc.errors import InputError, MissingExtraError
     from mutloc.sim.blender import blender_python, scene_spec
     from mutloc.sim.render import two_robot_world
     from mutloc.sim.scenes import occluder, with_props
@@ -129,6 +129,12 @@ def test_scene_spec_draws_the_world_s_own_geometry(tmp_path, monkeypatch):
     (view,) = spec["views"]
     assert np.allclose(view["K"], rig.robot("q").camera.K) and np.allclose(view["t"], w.pose("q").t)
     assert sum(o.get("texture") is not None for o in spec["objects"]) == 6  # the room's six surfaces
+    assert "glare" not in spec["render"]  # Cycles draws no glow unless asked
+    glow = scene_spec(w, {"q": tmp_path / "q.png"}, texture_dir=tmp_path / "tex", glare={"strength": 3})
+    assert glow["render"]["glare"] == {"threshold": 0.5, "size": 0.6, "strength": 3.0}
+    for bad in ({"size": 2.0}, {"strength": -1.0}, {"threshold": float("nan")}, {"radius": 3.0}, {"size": "big"}, 3):
+        with pytest.raises(InputError, match="glare"):
+            scene_spec(w, {"q": tmp_path / "q.png"}, texture_dir=tmp_path / "tex", glare=bad)
     monkeypatch.delenv("MUTLOC_BLENDER_PYTHON", raising=False)
     import importlib.util
 

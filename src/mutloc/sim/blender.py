@@ -90,14 +90,30 @@ def _texture_files(world: World, folder: Path) -> dict[str, tuple[str, tuple[flo
 
 def scene_spec(world: World, views: Mapping[str, str | os.PathLike], *, t: float = 0.0, texture_dir: str | os.PathLike,
                metal: Iterable[int] = (), samples: int = 16, seed: int = 0, bounces: int = 4,
-               threads: int = 2) -> dict[str, Any]:
+               threads: int = 2, glare: Mapping[str, float] | None = None) -> dict[str, Any]:
     """The Blender spec of ``world`` at time ``t``, to render robot ``name``'s view into ``views[name]``.
 
     ``metal``: indices into ``world.props`` drawn as polished metal; the
     rest of the props are matte in their colour.  ``samples`` Cycles
     samples per pixel (adaptive, then denoised); ``seed`` Cycles' sampling
     seed.  Room textures go into ``texture_dir`` (reused when present).
+    ``glare``: a lens's and sensor's glow around whatever is bright (the
+    lit lights and their reflections), drawn by Blender's compositor after
+    the render (its Glare node, Bloom): ``{"threshold": radiance above
+    which light glows (1 = white), "size": the glow's reach (the node's
+    Size, 0-1), "strength": its gain}``, by default 0.5 / 0.6 / 2 (about
+    mutloc's own sensor bloom around a light 2-3 m away).  None: no glow
+    (Cycles draws none).
     """
+    glare_spec = None
+    if glare is not None:
+        try:
+            glare_spec = {"threshold": 0.5, "size": 0.6, "strength": 2.0, **{k: float(v) for k, v in glare.items()}}
+        except (TypeError, ValueError, AttributeError):
+            raise InputError(f"glare must map threshold, size and strength to numbers, got {glare!r}") from None
+        if set(glare_spec) != {"threshold", "size", "strength"} or not all(
+                math.isfinite(v) and v > 0 for v in glare_spec.values()) or glare_spec["size"] > 1:
+            raise InputError(f"glare must give a positive threshold, strength and a size in (0, 1], got {dict(glare)!r}")
     metal = {int(i) for i in metal}
     if any(not 0 <= i < len(world.props) for i in metal):
         raise InputError(f"metal props {sorted(metal)} out of range: the world has {len(world.props)} props")
@@ -158,7 +174,7 @@ def scene_spec(world: World, views: Mapping[str, str | os.PathLike], *, t: float
         spec_views.append({"robot": name, "size": [int(x) for x in cam.size], "K": np.asarray(cam.K).tolist(),
                            "R": T.R.tolist(), "t": T.t.tolist(), "out": str(Path(out).resolve())})
     return {"render": {"samples": int(samples), "denoise": True, "seed": int(seed), "bounces": int(bounces),
-                       "threads": int(threads)},
+                       "threads": int(threads), **({"glare": glare_spec} if glare_spec else {})},
             "background": _lin_rgb(world.background), "objects": objects, "light": spec_light, "fill": fill,
             "views": spec_views}
 

@@ -173,6 +173,8 @@ def build(bpy, spec):
     sc.render.image_settings.file_format = "PNG"
     sc.render.image_settings.color_depth = "8"
     sc.render.image_settings.color_mode = "RGB"
+    if r.get("glare"):
+        _glare(bpy, sc, r["glare"])
     world = bpy.data.worlds.new("world")
     world.use_nodes = True
     bg = world.node_tree.nodes.get("Background")
@@ -241,6 +243,24 @@ def build(bpy, spec):
     sc.collection.objects.link(cam)
     sc.camera = cam
     return sc, cam
+
+
+def _glare(bpy, sc, g):
+    """The compositor's Bloom on the render: light above ``threshold`` spreads over ``size`` (Blender's Glare node)."""
+    tree = bpy.data.node_groups.new("glare", "CompositorNodeTree")
+    sc.compositing_node_group = tree
+    src = tree.nodes.new("CompositorNodeRLayers")
+    glare = tree.nodes.new("CompositorNodeGlare")
+    glare.inputs["Type"].default_value = "Bloom"
+    glare.inputs["Quality"].default_value = "High"
+    glare.inputs["Threshold"].default_value = float(g["threshold"])
+    glare.inputs["Size"].default_value = float(g["size"])
+    glare.inputs["Strength"].default_value = float(g["strength"])
+    out = tree.nodes.new("NodeGroupOutput")
+    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    tree.links.new(src.outputs["Image"], glare.inputs["Image"])
+    tree.links.new(glare.outputs["Image"], out.inputs[0])
+    sc.render.use_compositing = True
 
 
 def set_view(sc, cam, view):

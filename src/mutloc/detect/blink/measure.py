@@ -50,6 +50,40 @@ NEIGHBOUR_SHARE = 0.25
 EDGE_LEVELS = (0.75, 0.85, 0.95)
 EDGE_FALLBACK = True
 
+# A clipped streak leaving a glowing light's core (its reflection in a
+# polished mount) glows too, and pulls the halo's contours its way (0.3 px
+# down the rod, bench/bench_lights_blender.py's ``glow`` scenes): such a light
+# is measured by its core's edge instead, whose rays down the streak are
+# outliers.  A streak: at least STREAK_MIN_PX clipped pixels more than
+# STREAK_MARGIN_PX beyond the core's radius, in one direction (the mean of
+# their unit vectors at least STREAK_RESULTANT long), over a background that
+# was dark while the light was off (median below STREAK_DARK_BG in linear
+# light, own channel): clipping over a bright background is the glow's, which
+# the halo fit is for (mutloc's renderer: 0.37-0.46 there, Blender's rods
+# 0.03-0.11).
+STREAK_MIN_PX = 3
+STREAK_MARGIN_PX = 1.5
+STREAK_RESULTANT = 0.8
+STREAK_DARK_BG = 0.25
+
+
+def reflection_streak(clipped: np.ndarray, plate: np.ndarray, cx: float, cy: float, r_core: float) -> bool:
+    """Whether a clipped light's core has a streak of its own light (see :data:`STREAK_MIN_PX`):
+    ``clipped`` the window's clipped pixels, ``plate`` its background while the light was off (linear,
+    NaN where unknown), ``(cx, cy)`` the light's centre in window pixels and ``r_core`` its core's radius."""
+    ys, xs = np.nonzero(clipped)
+    dx, dy = xs - cx, ys - cy
+    rr = np.hypot(dx, dy)
+    out = rr > r_core + STREAK_MARGIN_PX
+    if np.count_nonzero(out) < STREAK_MIN_PX:
+        return False
+    ux, uy = float(np.mean(dx[out] / rr[out])), float(np.mean(dy[out] / rr[out]))
+    if math.hypot(ux, uy) < STREAK_RESULTANT:
+        return False
+    under = plate[ys[out], xs[out]]
+    under = under[np.isfinite(under)]
+    return under.size >= STREAK_MIN_PX and float(np.median(under)) < STREAK_DARK_BG
+
 
 def _circle_centre(g: np.ndarray, uv: np.ndarray, x0: int, y0: int, levels: np.ndarray, step: float, rmax: float,
                    min_used: int, min_quadrants: int, max_shift: float) -> np.ndarray | None:
@@ -328,7 +362,9 @@ class MeasureStage:
         measure where the glow crosses a few levels; the crossings are fitted
         robustly by circles (with second harmonics, for the slightly
         elliptical image of a sphere) of one common centre.  None if there
-        is no plate or too little fits.
+        is no plate or too little fits, or if a streak of the light's own
+        light leaves its core (:func:`reflection_streak`: the streak's glow
+        is no circle around the light).
         """
         col = self._colour
         max_age = round(self.fps)
@@ -376,6 +412,8 @@ class MeasureStage:
         unknown |= raw[:, :, c] >= CLIP_LEVEL
         unknown = cv2.dilate(unknown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
         g[unknown] = np.nan
+        if reflection_streak(raw[:, :, c] >= CLIP_LEVEL, bg[:, :, c], float(uv[0]) - x0, float(uv[1]) - y0, r_core):
+            return None
         b = bg[:, :, c]
         fin = np.isfinite(b)
         ref = float(np.median(b[fin])) if fin.any() else 0.0
