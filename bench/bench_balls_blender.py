@@ -3,6 +3,7 @@
 
     python bench/make_blender_set.py                 # once: renders bench/blender_set/ (see there)
     python bench/bench_balls_blender.py [--set bench/blender_set] [--json OUT.json] [--renderer blender]
+    python bench/bench_balls_blender.py --set bench/blender_set --set DRAW1 --set DRAW2 ...   # pooled draws
 
 Per scene and renderer (``blender_*.png``: Cycles; ``mutloc_*.png``: mutloc.sim.render, same world):
 
@@ -21,6 +22,11 @@ infinite), and how many scenes are beyond 5 sigma; also over the groups the issu
 (``hidden``: pole and box; ``light``: hard, dim, warm and backlit), whose pose median is also given as the
 mean of the two middle values (the other medians are the upper one of the two); writes the per-scene rows to ``--json``
 (default bench/results/balls_blender_results.json).
+
+With ``--set`` given more than once (the same scenes drawn again with other render noise:
+``make_blender_set.py --seed``), the table is over every draw's scenes pooled, and a last block gives
+per renderer the whole balls' first-look centre error (median / p90 px) and, per group, the pose median
+pooled and each draw's own (the mean of the two middle scenes throughout).
 """
 
 from __future__ import annotations
@@ -93,7 +99,8 @@ def q(x, p):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", type=Path, default=ROOT / "blender_set")
+    ap.add_argument("--set", type=Path, action="append", default=None,
+                    help="the set (default bench/blender_set); again for further draws of it, pooled")
     ap.add_argument("--renderer", choices=RENDERERS, action="append", default=None)
     ap.add_argument("--json", type=Path, default=ROOT / "results" / "balls_blender_results.json")
     ap.add_argument("--only", default=None, help="comma-separated conditions (default: every scene of the set)")
@@ -101,25 +108,30 @@ def main() -> None:
                     help="the detection noise the pose's covariance and consistency test assume (px, default 1)")
     args = ap.parse_args()
     renderers = args.renderer or list(RENDERERS)
+    sets = args.set or [ROOT / "blender_set"]
     rig = standard_rig("balls")
-    scenes = sorted(p.parent for p in args.set.glob("*/truth.json"))
-    if args.only:
-        keep = args.only.split(",")
-        scenes = [p for p in scenes if json.loads((p / "truth.json").read_text())["condition"] in keep]
-    if not scenes:
-        raise SystemExit(f"no scenes in {args.set}: run bench/make_blender_set.py first")
+    scenes = []
+    for st in sets:
+        found = sorted(p.parent for p in st.glob("*/truth.json"))
+        if args.only:
+            keep = args.only.split(",")
+            found = [p for p in found if json.loads((p / "truth.json").read_text())["condition"] in keep]
+        if not found:
+            raise SystemExit(f"no scenes in {st}: run bench/make_blender_set.py first")
+        scenes += [(st, p) for p in found]
     rows = []
-    for folder in scenes:
+    for st, folder in scenes:
         truth = json.loads((folder / "truth.json").read_text())
         for ren in renderers:
             imgs = {o: cv2.imread(str(folder / f"{ren}_{o}.png"), cv2.IMREAD_COLOR) for o in ("p", "q")}
-            row = {"scene": folder.name, "condition": truth["condition"], "renderer": ren,
+            row = {"scene": folder.name, "draw": str(st), "condition": truth["condition"], "renderer": ren,
                    "balls": ball_rows(rig, imgs, truth), **pose_row(rig, imgs, truth, args.pixel_sigma)}
             rows.append(row)
             errs = [f"{b['marker']}{'*' if b['hidden'] > HIDDEN else ''} "
                     + ("miss" if b["err_px"] is None else f"{b['err_px']:.2f}") for b in row["balls"]]
             sig = "-" if row["sigmas"] is None else f"{row['sigmas']:.1f}"
-            print(f"{folder.name:12s} {ren:7s} pose {row['cm']:.3f} cm ({row['status']}, {sig} sigma); px: "
+            draw = f" [{st.name}]" if len(sets) > 1 else ""
+            print(f"{folder.name:12s} {ren:7s} pose {row['cm']:.3f} cm ({row['status']}, {sig} sigma){draw}; px: "
                   + ", ".join(errs), flush=True)
     print()
     print(f"{'condition':10s} {'renderer':8s} {'1st med':>7s} {'1st p90':>7s} {'px med':>7s} {'px p90':>7s} "
@@ -150,8 +162,35 @@ def main() -> None:
                   f"{s['px_p90']:7.3f} {s['hidden_px_median']:7.3f} {s['hidden_px_p90']:7.3f} {missed:3d}/{len(balls):<2d} "
                   f"{s['cm_median']:7.3f} {s['cm_p90']:7.3f} {beyond:2d}/{len(sel):<3d}"
                   + (f"  (middle median {s['cm_median_mid']:.3f} cm)" if c in GROUPS else ""))
+    if len(sets) > 1:
+        summary["draws"] = draws_summary(rows, renderers, sets)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"set": str(args.set), "summary": summary, "rows": rows}, indent=1))
+    args.json.write_text(json.dumps({"set": [str(st) for st in sets], "summary": summary, "rows": rows}, indent=1))
+
+
+def draws_summary(rows: list[dict], renderers, sets) -> dict:
+    """Over several draws of the set: whole balls' first look and each group's pose median, pooled and
+    per draw (printed, and returned for the JSON)."""
+    print()
+    out = {}
+    for ren in renderers:
+        sel = [r for r in rows if r["renderer"] == ren]
+        whole = [b["err_px"] for r in sel for b in r["balls"] if b["hidden"] <= HIDDEN and b["err_px"] is not None]
+        s = {"whole_first_px_median": float(np.median(whole)), "whole_first_px_p90": float(np.quantile(whole, 0.9)),
+             "whole_balls": len(whole)}
+        txt = [f"whole balls' first look {s['whole_first_px_median']:.4f} / {s['whole_first_px_p90']:.3f} px ({len(whole)})"]
+        for g, conds in GROUPS.items():
+            cm = [r["cm"] for r in sel if r["condition"] in conds]
+            if not cm:
+                continue
+            per = [float(np.median(v)) for st in sets if (v := [r["cm"] for r in sel if r["condition"] in conds
+                                                                 and r["draw"] == str(st)])]
+            s[g] = {"cm_median": float(np.median(cm)), "scenes": len(cm), "per_draw": per}
+            txt.append(f"{g} {s[g]['cm_median']:.3f} cm ({len(cm)} scenes; draws " + " ".join(f"{x:.3f}" for x in per)
+                       + ")")
+        out[ren] = s
+        print(f"{len(sets)} draws, {ren}: " + "; ".join(txt))
+    return out
 
 
 if __name__ == "__main__":
