@@ -478,4 +478,3 @@ def test_mutual_localization_from_two_tags(seed: int, D: float) -> None:
     assert t_err < 0.002 * D
     assert r_err < 0.03
     assert est.reprojection_rms_px < 0.05
-
