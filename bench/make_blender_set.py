@@ -151,6 +151,8 @@ def main() -> None:
                          "scenes and truth drawn again, to tell the set's render noise from the detector's bias "
                          "(0: the fixed set)")
     args = ap.parse_args()
+    if args.seed < 0:
+        raise SystemExit(f"--seed must be 0 or more, got {args.seed}")
     conds = subset_or_export(args, export_crops, CONDITIONS, "condition")
     if conds is None:
         return

@@ -405,15 +405,16 @@ class MeasureStage:
                 break
         glow = cur - bg
         c = int(np.argmax(np.nansum(glow, axis=(0, 1))))
+        clipped = raw[:, :, c] >= CLIP_LEVEL
+        if reflection_streak(clipped, bg[:, :, c], float(uv[0]) - x0, float(uv[1]) - y0, r_core):
+            return None
         g = glow[:, :, c]
         unknown = np.isnan(g)
         g = np.where(unknown, np.float32(0.0), g)
         g = cv2.GaussianBlur(g, (5, 5), 1.0)
-        unknown |= raw[:, :, c] >= CLIP_LEVEL
+        unknown |= clipped
         unknown = cv2.dilate(unknown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
         g[unknown] = np.nan
-        if reflection_streak(raw[:, :, c] >= CLIP_LEVEL, bg[:, :, c], float(uv[0]) - x0, float(uv[1]) - y0, r_core):
-            return None
         b = bg[:, :, c]
         fin = np.isfinite(b)
         ref = float(np.median(b[fin])) if fin.any() else 0.0
