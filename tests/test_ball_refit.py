@@ -209,7 +209,8 @@ def test_second_look_solves_a_frame_with_one_ball_seen_from_each_side(i):
     ball where the rig puts it (mutloc.detect.balls.guided); the partly hidden balls it finds now are
     taken out of it here.)"""
     from mutloc.errors import TooFewObservationsError
-    from mutloc.track.second_look import PARTLY_HIDDEN, first_solve
+    from mutloc.track.second_look import PARTLY_HIDDEN
+    from mutloc.track.tag_look import first_solve
 
     rig = expanded_rig(RIG)
     w = _occluded_run(i)

@@ -34,22 +34,26 @@ TAG_SIZE = 0.12
 PSF_SIGMA_PX = 0.8
 
 
-def tag_rig(family: str = "tag36h11") -> Rig:
-    """Two robots, each with one 12 cm tag 12 cm below its camera, facing forward."""
+def tag_rig(family: str = "tag36h11", tilt_p_deg: float = 0.0) -> Rig:
+    """Two robots, each with one 12 cm tag 12 cm below its camera, facing forward (p's turned by
+    ``tilt_p_deg`` about its vertical axis: a slanted mount, seen that far off its normal by q)."""
     base = standard_rig("balls")
     robots = {}
     for rn, rob in base.robots.items():
         tn = "T" + rn.upper()
-        tag = {"family": family, "id": {"p": 11, "q": 10}[rn], "size": TAG_SIZE,
-               "rotation": list(DEFAULT_TAG_ROTATION)}
+        rot = np.array(DEFAULT_TAG_ROTATION, dtype=float)
+        if rn == "p":
+            rot[1] += np.deg2rad(tilt_p_deg)
+        tag = {"family": family, "id": {"p": 11, "q": 10}[rn], "size": TAG_SIZE, "rotation": rot.tolist()}
         robots[rn] = Robot(rn, rob.camera, {tn: Marker(tn, rn, np.array([0.0, 0.12, 0.0]), tag=tag)})
     return Rig(robots)
 
 
 def pair_scene(seed: int, distance: float, family: str = "tag36h11", jpeg: int | None = None,
-               psf_sigma_px: float = PSF_SIGMA_PX):
-    """(rig, T_qp, {observer: image}) of p and q facing each other ``distance`` apart, jittered by ``seed``."""
-    rig = tag_rig(family)
+               psf_sigma_px: float = PSF_SIGMA_PX, tilt_p_deg: float = 0.0):
+    """(rig, T_qp, {observer: image}) of p and q facing each other ``distance`` apart, jittered by ``seed``
+    (p's tag turned by ``tilt_p_deg``: :func:`tag_rig`)."""
+    rig = tag_rig(family, tilt_p_deg)
     rng = np.random.default_rng(seed)
     T = facing_pose(distance, yaw_p=rng.uniform(-0.25, 0.25), yaw_q=rng.uniform(-0.25, 0.25),
                     lateral=rng.uniform(-0.2, 0.2) * distance / 3, tilt=rng.normal(0, 0.04, 3))

@@ -87,6 +87,11 @@ class DetectionResult:
         return ObservationSet([observer] * len(dets), [d.marker for d in dets], uv, time,
                               [float(d.score) for d in dets], [float(d.sigma_scale) for d in dets])
 
+    def copy(self) -> "DetectionResult":
+        """A copy whose dicts and lists can be changed without changing this one (the detections are shared)."""
+        return DetectionResult(dict(self.detections), list(self.missing), dict(self.missing_reasons),
+                               {n: list(a) for n, a in self.alternatives.items()})
+
     @property
     def predicted(self) -> list[str]:
         """The markers whose positions are predicted from earlier images, not measured in this one."""

@@ -13,9 +13,10 @@ import numpy as np
 from ..api import Estimate, load_rig
 from ..core.rig import DETECTED_KINDS, Marker, MarkerKind, Rig
 from ..detect import image_detector
-from ..detect.base import Detection, DetectionResult, as_bgr, observations_of
+from ..detect.base import DetectionResult, as_bgr, observations_of
 from ..errors import FileFormatError, InputError, ObservationError
-from .second_look import first_solve, second_look
+from .second_look import second_look
+from .tag_look import first_solve, with_tags_looked_for
 from .sources import Frame
 
 __all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images", "observations_of"]
@@ -108,12 +109,11 @@ def _add_tag_corners(found: DetectionResult, tags: Mapping[str, Marker]) -> None
     """An oriented tag's corners are markers of their own (NAME#0..3) and
     replace its centre: the centre is computed from the corners, so keeping
     it would count the same measurement twice (an optimistic covariance)."""
-    from ..detect.tags import corner_marker_names, tag_corner_points
+    from ..detect.tags import corner_detections, tag_corner_points
 
     for name, det in list(found.detections.items()):
         if det.corners is not None and tag_corner_points(tags[name]) is not None:
-            for cname, uv in zip(corner_marker_names(name), det.corners):
-                found.detections[cname] = Detection(cname, np.asarray(uv, float), det.score)
+            found.detections.update(corner_detections(det))
             del found.detections[name]
 
 
@@ -167,13 +167,22 @@ def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target
 def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = None, target: str | None = None, *,
                     pixel_sigma: float = 1.0, **options: Any) -> FrameResult:
     """Detect the markers in one image per robot (arrays or file paths) and
-    localize ``source`` in ``target``'s frame (``options`` as :func:`mutloc.localize`)."""
+    localize ``source`` in ``target``'s frame (``options`` as :func:`mutloc.localize`).
+
+    After the first solve, what the first look missed is looked for where that pose puts it: an oriented
+    tag, in a window around its predicted corners at full resolution (:mod:`mutloc.track.tag_look`: steep
+    and small tags the whole-image search loses), and partly hidden or missing balls, measured again at
+    their predicted size (:mod:`mutloc.track.second_look`).  What was found so is named in
+    ``estimate.extra["second_look"]``."""
     rig, source, target = prepare_pair(rig, images, source, target, "image")
     _refuse_lights(rig, source, target)
     loaded = {r: read_image(images[r]) if isinstance(images[r], (str, Path)) else images[r] for r in (source, target)}
     detections = check_streams(rig, source, target, as_bgr(loaded[source], f"image of robot {source!r}"),
                                as_bgr(loaded[target], f"image of robot {target!r}"), what="images", option="--image")
     est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
+    # Tags the first look missed, looked for where the pose puts them (see .tag_look).
+    detections, est, error = with_tags_looked_for(rig, loaded, detections, est, error, source, target,
+                                                  pixel_sigma=pixel_sigma, **options)
     # Partly hidden balls are measured again where the pose puts them (only
     # when a ball is partly hidden or missing; see .second_look).
     better = second_look(rig, loaded, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)

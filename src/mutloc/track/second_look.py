@@ -41,9 +41,9 @@ from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult, observations_of
 from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
+from .tag_look import first_solve, missing_tags, with_tags_looked_for
 
-__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "first_solve", "look_again", "needs_second_look",
-           "second_look"]
+__all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "look_again", "needs_second_look", "second_look"]
 
 #: A ball whose first look saw less of its rim than this is measured again.
 PARTLY_HIDDEN = 0.9
@@ -95,11 +95,6 @@ def needs_second_look(rig: Rig, detections: Mapping[str, DetectionResult], sourc
                for n in _balls(rig, other))
 
 
-def _copy(det: DetectionResult) -> DetectionResult:
-    return DetectionResult(dict(det.detections), list(det.missing), dict(det.missing_reasons),
-                           {n: list(a) for n, a in det.alternatives.items()})
-
-
 def _size_errors(contexts: Mapping[str, Any], rig: Rig, detections: Mapping[str, DetectionResult],
                  centres: Mapping[str, Mapping[str, np.ndarray]], others: Mapping[str, str]
                  ) -> dict[tuple[str, str], float]:
@@ -146,7 +141,7 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
     out = {}
     touched = False
     for obs, det in detections.items():
-        new = _copy(det)
+        new = det.copy()
         balls = _balls(rig, others[obs])
         off = _rim_offset(obs, errors, detections)
         for name, X in centres[obs].items():
@@ -181,7 +176,7 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
     out = {}
     for obs, det in detections.items():
         balls = _balls(rig, target if obs == source else source)
-        new = _copy(det)
+        new = det.copy()
         whole = [float(d.info["distance_m"]) for n, d in det.detections.items()
                  if n in balls and not _hidden(det, n) and "distance_m" in d.info]
         if whole:
@@ -238,7 +233,7 @@ def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[st
                 new.missing.remove(name)
                 new.missing_reasons.pop(name, None)
         # Other kinds of marker keep what the first look found.
-        kept = _copy(detections[obs])
+        kept = detections[obs].copy()
         for name in balls:
             kept.detections.pop(name, None)
             kept.alternatives.pop(name, None)
@@ -288,7 +283,7 @@ def _near_mates(rig: Rig, images: Mapping[str, np.ndarray], contexts: Mapping[st
     for pick in itertools.product(*per_obs):
         if all(o is None for _, o in pick):
             continue
-        out = {o: _copy(d) for o, d in detections.items()}
+        out = {o: d.copy() for o, d in detections.items()}
         for obs, o in pick:
             if o is not None:
                 name, d = o
@@ -314,7 +309,7 @@ def _hypotheses(detections: Mapping[str, DetectionResult], est: Estimate | None,
     out: list[tuple[Pose, tuple[str, str] | None]] = []
     for obs, det in detections.items():
         for name in det.detections:
-            dets = {o: _copy(d) for o, d in detections.items()}
+            dets = {o: d.copy() for o, d in detections.items()}
             del dets[obs].detections[name]
             dets[obs].alternatives.pop(name, None)
             try:
@@ -450,26 +445,25 @@ def _changes(before: Mapping[str, DetectionResult], after: Mapping[str, Detectio
     return notes
 
 
-def first_solve(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str, *,
-                pixel_sigma: float = 1.0, **options: Any) -> tuple[Estimate | None, MutlocError | None]:
-    """The first look's pose, or why there is none: what :func:`second_look` starts from."""
-
-    try:
-        return localize(rig, observations_of(detections), source, target, pixel_sigma=pixel_sigma, **options), None
-    except MutlocError as exc:
-        return None, exc
-
-
 def look_again(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],
                source: str, target: str, *, pixel_sigma: float = 1.0, **options: Any
                ) -> tuple[dict[str, DetectionResult], list[str]]:
-    """``detections`` with the balls the second look measured again, where it verifies a pose (else
-    ``detections`` themselves), and notes on the first look's pixels it threw out -- for callers that
-    solve the frame their own way (the tracker's filter)."""
-    if not needs_second_look(rig, detections, source, target):
+    """``detections`` with the tags found where the frame's pose puts them (:mod:`.tag_look`) and the balls
+    the second look measured again, where each verifies a pose (else ``detections`` themselves), and notes
+    on what was found again or thrown out of the first look's pixels -- for callers that solve the frame their
+    own way (the tracker's filter)."""
+    tags = bool(missing_tags(rig, detections, source, target))
+    if not tags and not needs_second_look(rig, detections, source, target):
         return detections, []
     est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
+    notes: list[str] = []
+    if tags:
+        detections, est, error = with_tags_looked_for(rig, images, detections, est, error, source, target,
+                                                      pixel_sigma=pixel_sigma, **options)
+        notes = list(est.extra.get("second_look", [])) if est is not None else []
+        if not needs_second_look(rig, detections, source, target):
+            return detections, notes
     out = second_look(rig, images, detections, est, error, source, target, pixel_sigma=pixel_sigma, **options)
     if out is None:
-        return detections, []
-    return out[1], list(out[0].extra.get("second_look", []))
+        return detections, notes
+    return out[1], [*notes, *out[0].extra.get("second_look", [])]
