@@ -114,3 +114,61 @@ def test_nothing_is_looked_for_when_every_tag_was_found():
     assert missing_tags(ex, dets, "p", "q") == {}
     again, notes = look_again(ex, images, dets, "p", "q")
     assert again is dets and notes == []
+
+
+def test_look_where_tracked_finds_the_tag_where_a_prediction_puts_it_and_nothing_elsewhere():
+    """A record of q's camera alone (no pose of its own): the track's prediction places p's tag."""
+    from mutloc.core.pose import Pose
+    from mutloc.track.tag_look import look_where_tracked
+
+    checked = 0
+    for rig, T, images, truth in steep_scenes():
+        ex, dets, _ = first_look(rig, images)
+        if "TP#0" in dets["q"].detections:
+            continue
+        q_only = {"q": dets["q"]}
+        # The prediction a few centimetres and a degree off, as a filter's may be.
+        off = Pose.from_rotvec([0.0, np.radians(1.0), 0.0], [0.03, -0.02, 0.04])
+        found, notes = look_where_tracked(ex, images, q_only, lambda: {"q": Pose.identity(), "p": off @ T})
+        got = [found["q"].detections.get(c) for c in corner_marker_names("TP")]
+        if all(d is not None for d in got):
+            checked += 1
+            assert max(np.hypot(*(d.uv - x)) for d, x in zip(got, truth)) < 0.35
+            assert notes == [("p", "q saw tag TP where the track put it (looked for again)")]
+        # A prediction a metre to the side looks where the tag is not: nothing is made up.
+        far = Pose.from_rotvec([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]) @ T
+        none, notes = look_where_tracked(ex, images, q_only, {"q": Pose.identity(), "p": far})
+        assert "TP#0" not in none["q"].detections and notes == []
+    assert checked >= 5
+
+
+def test_team_tracker_predicts_confirmed_robots_only_and_never_backwards():
+    from mutloc.core.pose import Pose
+    from mutloc.sim.render import default_path
+    from mutloc.sim.tracking import observation_sequence
+    from mutloc.sim.world import standard_rig
+    from mutloc.track.filtering import FilterOptions
+    from mutloc.track.team import TeamTracker
+
+    rig = standard_rig()
+    path = default_path(2.0, 8.0, 0.3)
+    seq = observation_sequence(rig, path, duration=1.5, pixel_sigma=0.5, drop=0.0, blind=(), outliers=0.0)
+    tracker = TeamTracker(rig, "q")
+    assert tracker.predicted(0.0) == {}  # nothing tracked yet
+    for t, obs in zip(seq.times, seq.frames):
+        tracker.step(float(t), obs)
+    t_next = float(seq.times[-1]) + 1 / 30
+    pred = tracker.predicted(t_next)
+    assert set(pred) == {"q", "p"} and pred["q"].translation_error(Pose.identity()) == 0.0
+    # T_q_p predicted a frame ahead: as near the path there as the filter is now to the path now ...
+    now = tracker.filter.pose("p")
+    err_now = now.translation_error(path(float(seq.times[-1])))
+    assert pred["p"].translation_error(path(t_next)) < err_now + 0.002
+    assert pred["p"].rotation_error_deg(path(t_next)) < 0.5
+    # ... moved on from the filter's pose by the velocity it has measured (p sways at up to ~0.5 m/s).
+    assert 0.0005 < pred["p"].translation_error(now) < 0.03
+    assert tracker.predicted(float(seq.times[-1]) - 0.5) == {}  # the filter does not run backwards
+    assert tracker.filter.time == float(seq.times[-1])  # predicting did not move the filter
+    unfiltered = TeamTracker(rig, "q", options=FilterOptions(kind="none"))
+    unfiltered.step(0.0, seq.frames[0])
+    assert unfiltered.predicted(1 / 30) == {}

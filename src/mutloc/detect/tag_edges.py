@@ -104,9 +104,13 @@ def diagonal_centre(corners: Any, camera: Camera | None = None) -> np.ndarray:
 # Profile sample spacing across an edge, in pixels.
 _PROFILE_STEP = 0.25
 # Profile half-length: a fraction of a tag cell, so the profile stays inside
-# the one-cell black border and the (at least one-cell) white quiet zone.
+# the one-cell black border and the (at least one-cell) white quiet zone --
+# at least a pixel: a tag seen 55-62 degrees off its normal at 30 px has cells
+# under 2 px across its foreshortened sides, and a 1.5 px floor reached past
+# them (its worst corner's p90 0.36-0.38 px on sharp renders, 0.11-0.19 px
+# with the 1 px floor; blurred ones and face-on tags unchanged).
 _PROFILE_CELL_FRACTION = 0.6
-_PROFILE_MIN_PX = 1.5
+_PROFILE_MIN_PX = 1.0
 _PROFILE_MAX_PX = 6.0
 # A refined corner further than this (pixels, or this fraction of a cell) from
 # OpenCV's is not trusted: the edge fit latched onto something else.  Not

@@ -19,7 +19,7 @@ predicted outline lies inside the image and faces the camera.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -30,7 +30,8 @@ from ..detect.base import DetectionResult, observations_of
 from ..detect.tags import corner_detections, corner_marker_names, find_tag_near, tag_corner_points
 from ..errors import MutlocError, UnverifiedError
 
-__all__ = ["first_solve", "look_for_tags", "missing_tags", "with_tags_looked_for"]
+__all__ = ["find_missing_tags", "first_solve", "look_for_tags", "look_where_tracked", "missing_tags",
+           "with_tags_looked_for"]
 
 #: A predicted tag seen further than this off its normal (degrees) is not looked for: nothing decodes there.
 _MAX_VIEW_DEG = 85.0
@@ -53,20 +54,28 @@ def first_solve(rig: Rig, detections: Mapping[str, DetectionResult], source: str
         return None, exc
 
 
+def _missing(rig: Rig, det: DetectionResult, others: Iterable[str]) -> dict[str, list[str]]:
+    """``{robot: [its oriented tags det does not hold]}`` over ``others`` (robots with none left out)."""
+    out: dict[str, list[str]] = {}
+    for other in others:
+        names = [n for n, m in rig.robot(other).markers.items()
+                 if m.tag is not None and tag_corner_points(m) is not None and n not in det.detections
+                 and not any(c in det.detections for c in corner_marker_names(n))]
+        if names:
+            out[other] = names
+    return out
+
+
 def missing_tags(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str
                  ) -> dict[str, list[str]]:
     """``{observer: [tag markers of the other robot the observer's first look missed]}`` (those with a known
     ``rotation``: only they have corners to predict)."""
     out: dict[str, list[str]] = {}
     for obs, other in ((source, target), (target, source)):
-        det = detections.get(obs)
-        if det is None:
-            continue
-        names = [n for n, m in rig.robot(other).markers.items()
-                 if m.tag is not None and tag_corner_points(m) is not None and n not in det.detections
-                 and not any(c in det.detections for c in corner_marker_names(n))]
-        if names:
-            out[obs] = names
+        if obs in detections:
+            names = _missing(rig, detections[obs], [other]).get(other)
+            if names:
+                out[obs] = names
     return out
 
 
@@ -87,58 +96,110 @@ def _poses(est: Estimate | None, error: Exception | None) -> list[Pose]:
     return out
 
 
+def _predicted_corners(marker: Any, T: Pose, cam: Any, size: tuple[int, int]) -> np.ndarray | None:
+    """The tag's corners (4, 2) in the observer's image under ``T`` (the tag's robot -> the observer's
+    camera), or None when it lies behind, edge-on, or not wholly inside the image."""
+    X = tag_corner_points(marker)
+    Xc = T.apply(X)
+    if np.any(Xc[:, 2] <= 0.0):
+        return None
+    n_c = T.R @ np.cross(X[1] - X[0], X[3] - X[0])  # the tag's z (x cross y): into the tag
+    centre = Xc.mean(axis=0)
+    # Seen from its front: the line of sight runs along the tag's z.
+    if float(n_c @ centre) < np.cos(np.radians(_MAX_VIEW_DEG)) * np.linalg.norm(n_c) * np.linalg.norm(centre):
+        return None
+    uv = cam.project(Xc)
+    w, h = size
+    if not (np.all(np.isfinite(uv)) and uv[:, 0].min() >= _BORDER_PX and uv[:, 1].min() >= _BORDER_PX
+            and uv[:, 0].max() <= w - 1 - _BORDER_PX and uv[:, 1].max() <= h - 1 - _BORDER_PX):
+        return None
+    return uv
+
+
+def find_missing_tags(rig: Rig, observer: str, image: np.ndarray, det: DetectionResult,
+                      poses: Mapping[str, Sequence[Pose]]) -> DetectionResult | None:
+    """``det`` (``observer``'s detections in ``image``) with the missing tags of the robots in ``poses`` found
+    where one of their poses puts them (``{robot: [T_observer_robot, ...]}``, tried in order), or None when
+    none was found.  A tag found is reported as the first look reports an oriented tag: its corners."""
+    wanted = _missing(rig, det, [r for r in poses if r != observer])
+    if not wanted:
+        return None
+    cam = rig.robot(observer).camera
+    size = cam.size if cam.size is not None else (image.shape[1], image.shape[0])
+    out = None
+    for other, names in wanted.items():
+        for name in names:
+            marker = rig.robot(other).markers[name]
+            for T in poses[other]:
+                uv = _predicted_corners(marker, T, cam, size)
+                if uv is None:
+                    continue
+                found = find_tag_near(image, marker, uv, camera=cam)
+                if found is None:
+                    # A pose from one small tag can be off by more than the window: once more, wider.
+                    side = float(np.mean(np.linalg.norm(uv - np.roll(uv, -1, axis=0), axis=1)))
+                    found = find_tag_near(image, marker, uv, camera=cam,
+                                          margin_px=max(_WIDE_SIDES * side, _WIDE_MIN_PX))
+                if found is not None:
+                    out = det.copy() if out is None else out
+                    corners = corner_detections(found)
+                    out.detections.update(corners)
+                    gone = {name, *corners}
+                    out.missing = [m for m in out.missing if m not in gone]
+                    for m in gone:
+                        out.missing_reasons.pop(m, None)
+                    break
+    return out
+
+
 def look_for_tags(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[str, DetectionResult],
                   est: Estimate | None, error: Exception | None, source: str, target: str
                   ) -> dict[str, DetectionResult] | None:
     """``detections`` with the missing tags found where a pose of the frame (``est``, or the candidates of
     an unverified one) puts them, or None when none was found.  ``images``: BGR images per observer."""
-    wanted = missing_tags(rig, detections, source, target)
-    poses = _poses(est, error)
-    if not wanted or not poses:
+    if not missing_tags(rig, detections, source, target):
         return None
-    out = {o: d.copy() for o, d in detections.items()}
+    poses = _poses(est, error)
+    if not poses:
+        return None
+    out = dict(detections)
     found = False
-    for obs, names in wanted.items():
-        other = target if obs == source else source
-        cam = rig.robot(obs).camera
-        for name in names:
-            marker = rig.robot(other).markers[name]
-            X = tag_corner_points(marker)
-            normal = X[1] - X[0]
-            normal = np.cross(normal, X[3] - X[0])  # x cross y: into the tag
-            for pose in poses:
-                T = pose if obs == target else pose.inverse()  # the other robot's points -> the observer's
-                Xc = T.apply(X)
-                if np.any(Xc[:, 2] <= 0.0):
-                    continue
-                n_c = T.R @ normal
-                centre = Xc.mean(axis=0)
-                # Seen from its front: the line of sight runs along the tag's z, into the tag.
-                cos_view = float((n_c @ centre) / (np.linalg.norm(n_c) * np.linalg.norm(centre)))
-                if cos_view < np.cos(np.radians(_MAX_VIEW_DEG)):
-                    continue
-                uv = cam.project(Xc)
-                w, h = cam.size if cam.size is not None else (images[obs].shape[1], images[obs].shape[0])
-                if not (np.all(np.isfinite(uv)) and uv[:, 0].min() >= _BORDER_PX and uv[:, 1].min() >= _BORDER_PX
-                        and uv[:, 0].max() <= w - 1 - _BORDER_PX and uv[:, 1].max() <= h - 1 - _BORDER_PX):
-                    continue
-                det = find_tag_near(images[obs], marker, uv, camera=cam)
-                if det is None:
-                    # A pose from one small tag can be off by more than the window: once more, wider.
-                    side = float(np.mean(np.linalg.norm(uv - np.roll(uv, -1, axis=0), axis=1)))
-                    det = find_tag_near(images[obs], marker, uv, camera=cam,
-                                        margin_px=max(_WIDE_SIDES * side, _WIDE_MIN_PX))
-                if det is not None:
-                    # As the first look reports an oriented tag: its corners, in place of its centre.
-                    corners = corner_detections(det)
-                    out[obs].detections.update(corners)
-                    gone = {name, *corners}
-                    out[obs].missing = [m for m in out[obs].missing if m not in gone]
-                    for m in gone:
-                        out[obs].missing_reasons.pop(m, None)
-                    found = True
-                    break
+    for obs, other in ((source, target), (target, source)):
+        if obs not in detections or obs not in images:
+            continue
+        T = poses if obs == target else [p.inverse() for p in poses]  # the other robot -> the observer
+        more = find_missing_tags(rig, obs, images[obs], detections[obs], {other: T})
+        if more is not None:
+            out[obs], found = more, True
     return out if found else None
+
+
+def look_where_tracked(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[str, DetectionResult],
+                       predicted: Mapping[str, Pose] | Callable[[], Mapping[str, Pose]]
+                       ) -> tuple[dict[str, DetectionResult], list[tuple[str, str]]]:
+    """``detections`` with the missing tags found where a tracker's prediction puts them, and a note
+    ``(robot, text)`` for each, ``robot`` the tag's.  ``predicted``: each tracked robot's pose in a common frame
+    (``{robot: T_ref_robot}``, the reference's too: :meth:`mutloc.track.team.TeamTracker.predicted`), or a
+    callable giving it, called only when a tracked robot's tag is missing.  For records whose own pose is
+    missing (a camera at its own time, a record a pose cannot be solved from alone): a tag is decoded from its
+    own pixels, so a wrong prediction finds nothing rather than something wrong."""
+    if not any(_missing(rig, det, [r for r in rig.robots if r != obs]) for obs, det in detections.items()):
+        return dict(detections), []
+    poses_ref = predicted() if callable(predicted) else predicted
+    out = dict(detections)
+    notes: list[tuple[str, str]] = []
+    for obs, det in detections.items():
+        if obs not in poses_ref or obs not in images:
+            continue
+        inv = poses_ref[obs].inverse()
+        poses = {o: [inv @ T] for o, T in poses_ref.items() if o != obs}
+        more = find_missing_tags(rig, obs, images[obs], det, poses)
+        if more is not None:
+            notes += [(robot, f"{obs} saw tag {n} where the track put it (looked for again)")
+                      for robot, names in _missing(rig, det, poses).items() for n in names
+                      if corner_marker_names(n)[0] in more.detections]
+            out[obs] = more
+    return out, notes
 
 
 def with_tags_looked_for(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str, DetectionResult],

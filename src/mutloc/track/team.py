@@ -93,6 +93,7 @@ from .solving import CONFIRM_SPREAD
 from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, observations_of
 from .sources import Frame
 from .status import FrameStatus
+from .tag_look import look_where_tracked
 from .rows import TrackRow
 from .trajectory import Trajectory
 
@@ -590,6 +591,20 @@ class TeamTracker:
         return Estimate(source=a, target=b, pose=pose, covariance=cov, pixel_sigma=self.pixel_sigma,
                         reprojection_rms_px=0.0, markers_used=[], candidates=Pose.concatenate([pose]),
                         consistency=None, extra={"filter": "cv", "team_reference": self.reference})
+
+    def predicted(self, t: float) -> dict[str, Pose]:
+        """Where the filter expects each robot of a confirmed track at ``t`` (``{robot: T_ref_robot}``, the
+        reference's identity included; the filter itself is not moved), e.g. to look for a marker the
+        record's first look missed (:func:`mutloc.track.tag_look.look_where_tracked`).  Empty without the
+        filter, before any robot is confirmed, or for a ``t`` before the filter's time."""
+        if not self.filtering or self.filter.time is None or t < self.filter.time:
+            return {}
+        confirmed = [r for r, tr in self.tracks.items() if tr.confirmed and self.filter.is_tracked(r)]
+        if not confirmed:
+            return {}
+        f = self.filter.copy()
+        f.predict(t)
+        return {self.reference: Pose.identity(), **{r: f.pose(r) for r in confirmed}}
 
     # -- without the filter: every record on its own ---------------------------
 
@@ -1415,6 +1430,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                     detections[r] = dets[r].detect(fr)
                     if writer is not None:
                         last[r] = (fr.image, fr.t)
+            # Tags missed looked for where the track expects them (see .tag_look).
+            detections, looked = look_where_tracked(rig, {r: group[r].image for r in detections}, detections,
+                                                    lambda: tracker.predicted(t))
             # What the log (and a live node's message) holds: pixels, each weighed alike, so that a
             # track from its log, or a live run, gives the same poses.
             obs = observations_of(detections, t).with_sigma_scale(None) if detections else None
@@ -1428,6 +1446,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             for r, row in out.items():
                 if r not in group:
                     row.reason = _join(row.reason, f"no {r} frame in this record")
+                for robot, text in looked:
+                    if robot == r:
+                        row.reason = _join(row.reason, text)
                 row.detections = {o: d for o, d in detections.items()}
                 rows[r].append(row)
             emitter.add(out, True, dict(last) if writer is not None else None)

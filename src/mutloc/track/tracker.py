@@ -31,6 +31,7 @@ from .filtering import FilterOptions
 from .frames import DEFAULT_FPS, ObserverDetector, check_streams, expanded_rig, frame_rate, observations_of, \
     prepare_pair
 from .second_look import look_again
+from .tag_look import look_where_tracked
 from .sources import Frame
 from .rows import TrackRow
 from .status import FrameStatus
@@ -188,12 +189,16 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                     check_streams(rig, source, target, last[source], last[target])
                     checked = True
                 row.detections = {r: dets[r].detect(present[r]) for r in images}
+                # Tags missed looked for where the track expects them (see .tag_look), then, with both
+                # cameras' frames, where the record's own pose puts them, and partly hidden balls
+                # measured again where a verified pose puts them (see .second_look).
+                row.detections, tracked = look_where_tracked(rig, images, row.detections,
+                                                             lambda: tracker.team.predicted(t))
+                notes = [text for _, text in tracked]
                 if len(images) == 2:
-                    # Partly hidden balls measured again where a verified pose puts them (see .second_look).
-                    row.detections, notes = look_again(rig, images, row.detections, source, target,
+                    row.detections, again = look_again(rig, images, row.detections, source, target,
                                                        pixel_sigma=pixel_sigma, confidence=confidence)
-                else:
-                    notes = []
+                    notes += again
                 # pixels only, as the log holds them (see track.team)
                 row.observations = observations_of(row.detections, row.t).with_sigma_scale(None)
                 if log is not None:
