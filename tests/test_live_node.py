@@ -656,3 +656,72 @@ def test_a_replay_decodes_the_next_image_once_the_node_is_done_with_a_frame(sim)
         assert decoded[k + 1] - handled[k] < 0.6 * period  # but at once after (not near frame k + 1's release)
     # frame 3 without a word: decoded late in frame 2's period, and frame 3 still came (taken above)
     assert decoded[3] - decoded[2] > 0.5 * period
+
+
+def _renamed(rig, names):
+    """``rig`` with its robots renamed (``{old: new}``): robot names no other test's /tf uses."""
+    from mutloc.core.rig import Marker, Rig, Robot
+
+    return Rig({names[r]: Robot(names[r], rob.camera, {n: Marker(n, names[r], m.position, tag=m.tag)
+                                                        for n, m in rob.markers.items()})
+                for r, rob in rig.robots.items()})
+
+
+def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it():
+    """q's node misses p's tag seen 52 degrees off its normal at 3 m; with the localizer's pose of p on /tf
+    (stamped with the frame's time) it finds the tag there and publishes its corners -- against the
+    rendered corners.  Transforms of other frames are ignored and counted; a pose a metre off finds nothing."""
+    from types import SimpleNamespace
+
+    from mutloc.core.pose import Pose
+    from mutloc.detect.tags import corner_marker_names, find_tag_near
+    from mutloc.live.messages import TF_TOPIC, pose_messages
+    from test_tag_look import first_look, steep_scenes
+
+    T = ros_types()
+    # Frames whose first look missed the tag, where it can be decoded at all (one of the eight cannot).
+    scenes = [(rig, T_qp, images, truth) for rig, T_qp, images, truth in steep_scenes()
+              if "TP#0" not in first_look(rig, images)[1]["q"].detections
+              and find_tag_near(images["q"], rig.robot("p").markers["TP"], truth) is not None][:3]
+    assert len(scenes) == 3
+    names = {"p": "tagp_live", "q": "tagq_live"}
+    rig = _renamed(scenes[0][0], names)
+    bus = Bus(BASE_DOMAIN + 2, loopback=True)
+    try:
+        tf_writer = bus.writer(TF_TOPIC, T.TFMessage)
+        node = Node(rig, names["q"], SimpleNamespace(fps=15.0, name="frames of a test"), bus, rig_id="tag-look-test")
+        _wait_matched(tf_writer)
+        k = 0
+
+        def publish_and_process(T_qp, image, extra=()):
+            nonlocal k
+            t = time.time()
+            _, tf = pose_messages(t, T_qp, None, names["p"], names["q"])
+            tf.transforms.extend(extra)
+            tf_writer.write(tf)
+            msg = None
+            for _ in range(40):  # until the transform has arrived (loopback: milliseconds)
+                k += 1
+                msg = node.process(LiveFrame(k, t + 0.001 * k, image))
+                if any(o.marker == "TP#0" for o in msg.observations) or node._tf:
+                    break
+                time.sleep(0.01)
+            return msg
+
+        foreign = T.TransformStamped(header=T.Header(stamp=stamp(time.time()), frame_id="odom"),
+                                     child_frame_id="base_link")
+        for rig_k, T_qp, images, truth in scenes:
+            node._tf.clear()
+            looked = node.stats.looked_again
+            msg = publish_and_process(T_qp, images["q"], [foreign])
+            seen = _seen(msg)
+            assert all(c in seen for c in corner_marker_names("TP"))
+            assert max(np.hypot(*(np.array(seen[c]) - x)) for c, x in zip(corner_marker_names("TP"), truth)) < 0.35
+            assert node.stats.looked_again == looked + 1
+        assert node.stats.tf_foreign >= 3 and node.stats.tf_malformed == 0
+        # A pose a metre to the side: the window holds no tag, nothing is published for it.
+        node._tf.clear()
+        msg = publish_and_process(Pose.from_rotvec([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]) @ scenes[0][1], scenes[0][2]["q"])
+        assert "TP#0" not in _seen(msg)
+    finally:
+        bus.close()

@@ -9,6 +9,14 @@ on ``/mutloc/NAME/observations`` -- also when nothing was seen -- stamped
 with the frame's capture time.  Frames it has no time for are dropped at the
 camera (never queued) and counted.
 
+A tag of another robot the detector missed (small, seen far off its normal)
+is looked for again where the localizer's latest poses put it: the node
+reads ``/tf`` (the localizer publishes every robot's pose there) and, for a
+frame within :data:`TF_MAX_AGE` of those poses, searches a window around the
+predicted tag (:func:`mutloc.track.tag_look.look_where_tracked`).  The tag
+is decoded from the frame's own pixels; transforms between frames that are
+not robots of the rig (other ROS nodes' trees) are ignored and counted.
+
 >>> from mutloc.live.dds import Bus
 >>> from mutloc.live.cameras import open_camera
 >>> bus = Bus(7, loopback=True)                                     # doctest: +SKIP
@@ -32,19 +40,24 @@ import numpy as np
 from ..api import load_rig
 from ..core.camera import Camera
 from ..core.observations import ObservationSet
+from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
 from ..errors import InputError, MutlocError
+from ..detect.tags import tag_corner_points
 from ..track.frames import expanded_rig
 from ..track.sources import Frame
+from ..track.tag_look import look_where_tracked
 from ..track.tracker import DEFAULT_FPS, ObserverDetector
 from .cameras import CameraSource, LiveFrame, ReplaySource
-from .messages import (DIAGNOSTICS_TOPIC, OK, WARN, RobotStatus, diagnostics_message, observations_message,
-                       observations_topic, rig_id as rig_file_id, ros_types)
+from .messages import (DIAGNOSTICS_TOPIC, OK, TF_TOPIC, WARN, RobotStatus, diagnostics_message,
+                       observations_message, observations_topic, rig_id as rig_file_id, ros_types, stamp_of)
 
-__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "LATENCY_WINDOW"]
+__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "LATENCY_WINDOW", "TF_MAX_AGE"]
 
 #: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
 LATENCY_WINDOW = 108_000
+#: A robot's pose from ``/tf`` predicts where its tags are in frames at most this far (s) from its stamp.
+TF_MAX_AGE = 0.25
 
 
 def percentile_ms(values: Any, q: float) -> float:
@@ -70,6 +83,11 @@ class NodeStats:
     corrupt: int = 0
     out_of_order: int = 0
     unexpressed: int = 0  # detections left out: the rig's camera cannot express their ray (--camera-info use)
+    #: Tags found again where the localizer's poses (``/tf``) put them; transforms on ``/tf`` not between two
+    #: robots of the rig (ignored); ``/tf`` samples that could not be decoded.
+    looked_again: int = 0
+    tf_foreign: int = 0
+    tf_malformed: int = 0
     markers_seen: int = 0  # in the last processed frame
     latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     #: Per published message, seconds: ``(capture -> taken by the node, detection (wall), detection (this
@@ -112,7 +130,8 @@ class NodeStats:
         """The line printed at exit."""
         extra = "".join(f", {n} {what}" for n, what in (
             (self.corrupt, "corrupt"), (self.out_of_order, "out of order"),
-            (self.unexpressed, "detections outside the rig's camera")) if n)
+            (self.unexpressed, "detections outside the rig's camera"),
+            (self.looked_again, "tags found again where the localizer's poses put them")) if n)
         lat = ""
         if self.latencies:
             lat = (f"; capture->publish p50 {percentile_ms(self.latencies, 50):.1f} ms, "
@@ -218,6 +237,12 @@ class Node:
         self.use_info = bool(getattr(source, "use_info", False))
         #: The camera the detectors work in when it is not the rig's (``use_info``: the camera_info's).
         self.camera: Camera | None = None
+        # The localizer's poses, to look for missed tags where they put them: only with oriented tags to find.
+        tags = any(m.tag is not None and tag_corner_points(m) is not None
+                   for o in self.others for m in self.rig.robot(o).markers.values())
+        self.tf = bus.reader(TF_TOPIC, T.TFMessage) if tags else None
+        #: child robot -> (parent robot, stamp, T_parent_child), the newest of each.
+        self._tf: dict[str, tuple[str, float, Pose]] = {}
 
     def warm_up(self) -> None:
         """Run a throwaway copy of the detectors on a blank and a noise image,
@@ -273,6 +298,8 @@ class Node:
         t0, c0 = time.time(), time.thread_time()
         self.detector.feed(seen)
         found = self.detector.detect(seen)
+        if self.tf is not None:
+            found = self._look_where_tracked(frame, found)
         t1, c1 = time.time(), time.thread_time()
         obs = found.observations(self.robot, frame.t)
         if self.camera is not None:
@@ -286,6 +313,43 @@ class Node:
         s.processed += 1
         s.markers_seen = len(msg.observations)
         return msg
+
+    def _read_tf(self) -> None:
+        """Keep the newest pose of each robot of the rig from ``/tf``; count the rest."""
+        robots = self.rig.robots
+        for msg in self.tf.take():
+            for tr in msg.transforms:
+                parent, child = tr.header.frame_id, tr.child_frame_id
+                if parent not in robots or child not in robots or parent == child:
+                    self.stats.tf_foreign += 1
+                    continue
+                t = stamp_of(tr.header)
+                q, x = tr.transform.rotation, tr.transform.translation
+                try:
+                    pose = Pose.from_quaternion_xyzw([q.x, q.y, q.z, q.w], [x.x, x.y, x.z])
+                except MutlocError:
+                    self.stats.tf_foreign += 1
+                    continue
+                if not np.all(np.isfinite(pose.t)) or (child in self._tf and self._tf[child][1] > t):
+                    continue
+                self._tf[child] = (parent, t, pose)
+        self.stats.tf_malformed = self.tf.malformed
+
+    def _look_where_tracked(self, frame: LiveFrame, found: Any) -> Any:
+        """``found`` with the missed tags found where the localizer's poses put them."""
+        self._read_tf()
+        recent = {c: (p, T) for c, (p, t, T) in self._tf.items() if abs(frame.t - t) <= TF_MAX_AGE}
+        refs = {p for p, _ in recent.values()}
+        if len(refs) != 1:
+            return found  # none yet, or poses of two localizers with different references: no common frame
+        (ref,) = refs
+        predicted = {ref: Pose.identity(), **{c: T for c, (_, T) in recent.items()}}
+        if self.robot not in predicted:
+            return found
+        out, notes = look_where_tracked(self.detector.rig, {self.robot: frame.image}, {self.robot: found},
+                                        predicted)
+        self.stats.looked_again += len(notes)
+        return out[self.robot]
 
     def _check_camera(self, frame: LiveFrame) -> None:
         """Detect in the camera the source announced (the first frame: the
@@ -339,6 +403,8 @@ class Node:
         message = notes[0] if notes else ("running" if s.processed else "waiting for frames")
         values = {"captured": s.captured, "processed": s.processed, "dropped": s.dropped, "corrupt": s.corrupt,
                   "fps": f"{s.fps:.2f}", "source": s.source, "topic": s.topic}
+        if self.tf is not None:
+            values.update(tags_found_again=s.looked_again, tf_ignored=s.tf_foreign, tf_malformed=s.tf_malformed)
         if s.latencies:
             values["latency_p50_ms"] = f"{percentile_ms(list(s.latencies)[-300:], 50):.1f}"
         self.diagnostics.write(diagnostics_message(time.time(), [RobotStatus(self.robot, level, message, values)],
