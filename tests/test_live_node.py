@@ -710,15 +710,19 @@ def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it():
 
         foreign = T.TransformStamped(header=T.Header(stamp=stamp(time.time()), frame_id="odom"),
                                      child_frame_id="base_link")
+        # Between the rig's robots, but no rotation (a zero quaternion): not a pose either.
+        zero = T.TransformStamped(header=T.Header(stamp=stamp(time.time()), frame_id=names["q"]),
+                                  child_frame_id=names["p"],
+                                  transform=T.Transform(rotation=T.Quaternion(x=0.0, y=0.0, z=0.0, w=0.0)))
         for rig_k, T_qp, images, truth in scenes:
             node._tf.clear()
             looked = node.stats.looked_again
-            msg = publish_and_process(T_qp, images["q"], [foreign])
+            msg = publish_and_process(T_qp, images["q"], [foreign, zero])
             seen = _seen(msg)
             assert all(c in seen for c in corner_marker_names("TP"))
             assert max(np.hypot(*(np.array(seen[c]) - x)) for c, x in zip(corner_marker_names("TP"), truth)) < 0.35
             assert node.stats.looked_again == looked + 1
-        assert node.stats.tf_foreign >= 3 and node.stats.tf_malformed == 0
+        assert node.stats.tf_foreign >= 6 and node.stats.tf_malformed == 0
         # A pose a metre to the side: the window holds no tag, nothing is published for it.
         node._tf.clear()
         msg = publish_and_process(Pose.from_rotvec([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]) @ scenes[0][1], scenes[0][2]["q"])

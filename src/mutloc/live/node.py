@@ -324,14 +324,15 @@ class Node:
                     self.stats.tf_foreign += 1
                     continue
                 t = stamp_of(tr.header)
-                q, x = tr.transform.rotation, tr.transform.translation
-                try:
-                    pose = Pose.from_quaternion_xyzw([q.x, q.y, q.z, q.w], [x.x, x.y, x.z])
-                except MutlocError:
-                    self.stats.tf_foreign += 1
+                r, x = tr.transform.rotation, tr.transform.translation
+                quat, trans = np.array([r.x, r.y, r.z, r.w], float), np.array([x.x, x.y, x.z], float)
+                if not (np.all(np.isfinite(quat)) and np.all(np.isfinite(trans)) and math.isfinite(t)
+                        and abs(float(np.linalg.norm(quat)) - 1.0) < 1e-3):
+                    self.stats.tf_foreign += 1  # not a pose: a non-unit or non-finite quaternion, a bad stamp
                     continue
-                if not np.all(np.isfinite(pose.t)) or (child in self._tf and self._tf[child][1] > t):
+                if child in self._tf and self._tf[child][1] > t:
                     continue
+                pose = Pose.from_quaternion_xyzw(quat, trans)
                 self._tf[child] = (parent, t, pose)
         self.stats.tf_malformed = self.tf.malformed
 
