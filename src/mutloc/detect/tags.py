@@ -319,8 +319,10 @@ def detect_tags(image: Any, markers: Mapping[str, Marker] | Robot, *, refine: st
     Quality: ``score`` is the AprilTag library's decision margin / 100,
     capped at 1 (1 on the OpenCV path, which has no margin); ``info`` holds
     ``family``, ``id``, ``library``, ``side_px`` (mean side length),
-    ``refine`` (the method that produced the corners: the library's own when
-    the edge fit was rejected), ``decision_margin`` and ``hamming`` (bits
+    ``refine`` (the method that produced the corners: ``edges_enlarged`` when
+    the edge fit did not follow the sides -- failed, or RMS above 0.08 px, as on
+    steep small tags -- and a second one did in an enlarged window around the
+    tag (:func:`find_tag_near`); the library's own when both were rejected), ``decision_margin`` and ``hamming`` (bits
     corrected; AprilTag library), ``edge_rms_px`` (edge fit: RMS distance of
     the edge points from the fitted sides -- noise, blur and occlusion raise
     it) and, when the id was seen more than once, ``duplicates`` (the
@@ -415,8 +417,19 @@ def detect_tags(image: Any, markers: Mapping[str, Marker] | Robot, *, refine: st
             quad, extra = max(quads, key=lambda q: abs(cv2.contourArea(q[0].astype(np.float32))))
             if len(quads) > 1:
                 extra = {**extra, "duplicates": len(quads)}
-            result.detections[name] = _detection(name, family, tid, libs[family], quad, extra, gray, refine, camera,
-                                                 gamma)
+            det = _detection(name, family, tid, libs[family], quad, extra, gray, refine, camera, gamma)
+            if refine == "edges" and (det.info["refine"] != "edges"
+                                      or det.info["edge_rms_px"] > _NEAR_MAX_EDGE_RMS_PX):
+                # The edge fit did not follow the sides (a steep or small tag): once more in a window around
+                # it, enlarged, where the library's quad and the fit have more pixels to go on.
+                again = find_tag_near(gray, markers[name], det.corners, camera=camera, gamma=gamma)
+                if again is not None:
+                    again.info.pop("looked_again", None)
+                    again.info["refine"] = "edges_enlarged"
+                    if "duplicates" in extra:
+                        again.info["duplicates"] = extra["duplicates"]
+                    det = again
+            result.detections[name] = det
 
     # Report in the caller's marker order, whatever the family grouping.
     order = [n for n in markers if markers[n].tag is not None]
