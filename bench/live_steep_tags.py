@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT.parent / "tests"))
 
 from _machine import machine  # noqa: E402
+from tags_second_look import looks_switched_off  # noqa: E402
 from test_tags_real import tag_rig  # noqa: E402
 
 from mutloc.io import save_rig  # noqa: E402
@@ -65,19 +66,12 @@ def render_sequence(folder: Path, tilt: float, distance: float, frames: int):
 
 
 def offline_tracks(rig, folder: Path, world) -> dict:
-    import mutloc.track.second_look as second_look
     import mutloc.track.tracker as tracker
 
     out = {}
     for looks in (True, False):
-        saved = tracker.look_where_tracked, second_look.missing_tags
-        if not looks:
-            tracker.look_where_tracked = lambda rig, images, dets, predicted: (dict(dets), [])
-            second_look.missing_tags = lambda *a, **k: {}
-        try:
+        with looks_switched_off(not looks):
             traj = tracker.track(rig, open_streams({"p": folder / "p", "q": folder / "q"}), progress=False)
-        finally:
-            tracker.look_where_tracked, second_look.missing_tags = saved
         e = [100 * r.estimate.pose.translation_error(relative_pose(world, "p", "q", r.t)) for r in traj.rows
              if r.estimate is not None and r.t >= 0.5]
         out["looks" if looks else "no looks"] = {"rows": len(e), "cm_median": float(np.median(e)),

@@ -38,6 +38,7 @@ row with a pose after the first 0.5 s (median / p90 cm) and how many rows had on
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -106,11 +107,26 @@ SETTINGS = {"first look": first_look, "looked again": looked_again, "full resolu
 CHECKS = {"localize_images": user_call}
 
 
+@contextlib.contextmanager
+def looks_switched_off(off: bool = True):
+    """Within: the trackers' tag looks find nothing (the ablation of ``--track``; ``off=False``: as shipped)."""
+    import mutloc.track.second_look as second_look
+    import mutloc.track.tracker as tracker
+
+    saved = tracker.look_where_tracked, second_look.missing_tags
+    if off:
+        tracker.look_where_tracked = lambda rig, images, dets, predicted: (dict(dets), [])
+        second_look.missing_tags = lambda *a, **k: {}
+    try:
+        yield
+    finally:
+        tracker.look_where_tracked, second_look.missing_tags = saved
+
+
 def track_rows(tilt: float, distance: float, frames: int, q_offset: float, psf: float, looks: bool):
     """(rows with a pose after 0.5 s, median cm, p90 cm) of one tracked sequence."""
     import dataclasses
 
-    import mutloc.track.second_look as second_look
     import mutloc.track.tracker as tracker
     from mutloc.sim.render import moving_world, relative_pose, render
     from mutloc.track.sources import Frame
@@ -122,14 +138,8 @@ def track_rows(tilt: float, distance: float, frames: int, q_offset: float, psf: 
     fps = 15.0
     streams = {r: [Frame(k, k / fps + off, render(world, r, k / fps + off, seed=1 + k, noise_sigma=2.0))
                    for k in range(frames)] for r, off in (("p", 0.0), ("q", q_offset))}
-    saved = tracker.look_where_tracked, second_look.missing_tags
-    if not looks:
-        tracker.look_where_tracked = lambda rig, images, dets, predicted: (dict(dets), [])
-        second_look.missing_tags = lambda *a, **k: {}
-    try:
+    with looks_switched_off(not looks):
         traj = tracker.track(rig, streams, progress=False)
-    finally:
-        tracker.look_where_tracked, second_look.missing_tags = saved
     e = [100 * r.estimate.pose.translation_error(relative_pose(world, "p", "q", r.t)) for r in traj.rows
          if r.estimate is not None and r.t >= 0.5]
     return len(e), float(np.median(e)), float(np.quantile(e, 0.9, method="higher"))
