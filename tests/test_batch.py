@@ -61,7 +61,7 @@ def test_root_filter_keeps_true_root_in_valid_geometry():
         for flt in (False, True):
             Rc = np.empty((16, 3, 3))
             tc = np.empty((16, 3))
-            n = minimal_candidates_kernel(side, X[0], b[0], subsets, flt, Rc, tc)
+            n = minimal_candidates_kernel(side, X[0], b[0], np.zeros((3, 3)), subsets, flt, Rc, tc)
             out.append(tc[:n])
         assert np.min(np.linalg.norm(out[1] - t[i], axis=1)) < 1e-6
         kept += len(out[1])

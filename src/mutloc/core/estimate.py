@@ -22,7 +22,7 @@ from .pose import Pose
 from .camera import undistort_kernel
 from .minimal import solve_minimal_kernel
 from .observations import unit_scales
-from .refine import MODE_BEARING, MODE_PIXEL, WS_SIZE, cost_into, information, lm_refine, tangent_bases
+from .refine import MODE_BEARING, MODE_PIXEL, MODE_RAY, WS_SIZE, cost_into, information, lm_refine, tangent_bases
 
 __all__ = ["PairProblem", "Solution", "estimate", "minimal_subsets"]
 
@@ -43,6 +43,11 @@ class PairProblem:
     the rays looked up.
 
     ``pixels``/``K``/``dist`` are only needed for the pixel objective.
+    ``frames`` (n, 4, 3), for robots with several cameras or any lens
+    (:mod:`mutloc.core.rays`): each row's two tangent directions weighted by
+    its lens's Jacobian, its ray direction (= ``bearings``) and its origin,
+    in the observing robot's frame; the objective is then the pixel error to
+    first order around rays that leave their own camera centres.
     ``sigma_scale`` (n,) is each observation's detection noise relative to
     the stated ``pixel_sigma`` (None: 1 for all): the objective weighs each
     observation by its inverse, so the information matrix (and the
@@ -58,6 +63,7 @@ class PairProblem:
     dist: tuple[np.ndarray, np.ndarray] | None = None
     labels: list[str] | None = None  # where each row came from, for messages
     sigma_scale: np.ndarray | None = None
+    frames: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.side = np.ascontiguousarray(self.side, dtype=np.int64)
@@ -91,7 +97,7 @@ class PairProblem:
 
     @classmethod
     def trusted(cls, side, points, bearings, pixels=None, K=None, dist=None, labels=None,
-                sigma_scale=None) -> "PairProblem":
+                sigma_scale=None, frames=None) -> "PairProblem":
         """Build without validation, for callers that already validated
         (contiguous float arrays, unit bearings, at least three rows, positive
         scales).  ``bearings`` may be None with pixels: the solver computes them."""
@@ -99,6 +105,7 @@ class PairProblem:
         obj.side, obj.points, obj.bearings = side, points, bearings
         obj.pixels, obj.K, obj.dist, obj.labels = pixels, K, dist, labels
         obj.sigma_scale = sigma_scale
+        obj.frames = frames
         return obj
 
     @property
@@ -126,13 +133,25 @@ class PairProblem:
 
     @property
     def mode(self) -> int:
+        if self.frames is not None:
+            return MODE_RAY
         return MODE_PIXEL if self.pixels is not None else MODE_BEARING
+
+    @property
+    def origins(self) -> np.ndarray:
+        """(n, 3) where each row's ray starts in its observer's frame (zeros: every ray from its robot's origin)."""
+        if self.frames is None:
+            return np.zeros((len(self.side), 3))
+        return np.ascontiguousarray(self.frames[:, 3])
 
     def kernel_args(self) -> tuple:
         """Arguments shared by the residual kernels."""
-        basis = np.empty((len(self.side), 3, 3))
-        tangent_bases(self.bearings, basis)
-        if self.pixels is not None:
+        if self.frames is not None:
+            basis = self.frames
+        else:
+            basis = np.empty((len(self.side), 3, 3))
+            tangent_bases(self.bearings, basis)
+        if self.pixels is not None and self.frames is None:
             meas = self.pixels
             Kp, Kq = self.K
             dp, dq = self.dist
@@ -203,8 +222,31 @@ def _subsets(side_t: tuple[int, ...], max_subsets: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc, tc):
+def _one_centre_per_side(sd, O):
+    """Whether the subset's rays of each robot leave one centre (then the
+    problem is the central mutual one in frames moved to those centres)."""
+    for j in range(3):
+        for l in range(j + 1, 3):
+            if sd[j] == sd[l] and (O[j, 0] != O[l, 0] or O[j, 1] != O[l, 1] or O[j, 2] != O[l, 2]):
+                return False
+    return True
+
+
+@njit(cache=True)
+def _non_central(sd, b, X, O, Rs, ts):
+    """T_qp of a subset whose rays of one robot leave several centres (TEMP)."""
+    return 0
+
+
+@njit(cache=True)
+def minimal_candidates_kernel(side, points, bearings, origins, subsets, root_filter, Rc, tc):
     """Solve every minimal subset; candidates into Rc/tc, returns the count.
+
+    ``origins`` (n, 3): where each row's ray starts in its observer's frame
+    (zeros for robots whose frame is their one camera's).  A subset whose
+    rays of each robot leave one centre is the central problem in frames
+    moved to those centres; one whose rays leave several centres of a robot
+    is the generalized (non-central) P3P.
 
     With ``root_filter`` the paper's Section III-D filter is applied: the
     range to an observed marker is at least the distance of the observer's
@@ -213,9 +255,12 @@ def minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc, 
     sd = np.empty(3, dtype=np.int64)
     b = np.empty((3, 3))
     X = np.empty((3, 3))
+    O = np.empty((3, 3))
     Rs = np.empty((PER_SUBSET, 3, 3))
     ts = np.empty((PER_SUBSET, 3))
     rg = np.empty((PER_SUBSET, 3))
+    c0 = np.zeros(3)  # the centre of p's rays in the subset
+    c1 = np.zeros(3)  # of q's
     nc = 0
     for si in range(subsets.shape[0]):
         for j in range(3):
@@ -223,9 +268,30 @@ def minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc, 
             sd[j] = side[k]
             b[j] = bearings[k]
             X[j] = points[k]
-        ns = solve_minimal_kernel(sd, b, X, Rs, ts, rg)
+            O[j] = origins[k]
+        if not _one_centre_per_side(sd, O):
+            ns = _non_central(sd, b, X, O, Rs, ts)
+            root_ok = False  # ranges from several centres: the filter does not apply
+        else:
+            c0[:] = 0.0
+            c1[:] = 0.0
+            for j in range(3):
+                if sd[j] == 0:
+                    c0[:] = O[j]
+                else:
+                    c1[:] = O[j]
+            # Markers seen by p are q's: in the frame moved to q's centre, and vice versa.
+            for j in range(3):
+                for a in range(3):
+                    X[j, a] -= c1[a] if sd[j] == 0 else c0[a]
+            ns = solve_minimal_kernel(sd, b, X, Rs, ts, rg)
+            # x_q - c1 = R (x_p - c0) + t'  =>  t = t' - R c0 + c1
+            for i in range(ns):
+                for a in range(3):
+                    ts[i, a] += c1[a] - (Rs[i, a, 0] * c0[0] + Rs[i, a, 1] * c0[1] + Rs[i, a, 2] * c0[2])
+            root_ok = root_filter
         for i in range(ns):
-            if root_filter:
+            if root_ok:
                 ok = True
                 for j in range(3):
                     for l in range(3):
@@ -484,28 +550,36 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, wt, accept, max_iter
 
 
 @njit(cache=True)
-def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, wt, subsets, root_filter, n_extra, n_refine,
-                 max_iter, Rc, tc, order, costs, Rbest, tbest, H, Hinv):
+def solve_kernel(side, points, meas, bearings, frames, Kp, dp, Kq, dq, mode, wt, subsets, root_filter, n_extra,
+                 n_refine, max_iter, Rc, tc, order, costs, Rbest, tbest, H, Hinv):
     """The whole estimate in one compiled call: rays from pixels (pixel
     mode), candidates of every minimal subset (after the ``n_extra`` given
     ones at the front of Rc/tc), ranking, refinement, information matrix and
     its checked inverse.
 
     Returns (status, index, candidates, distinct candidates, best cost);
-    status 1 means the pixel ``index`` cannot be undistorted.
+    status 1 means the pixel ``index`` cannot be undistorted.  ``frames``
+    (n, 4, 3) are the rows' ray frames in :data:`MODE_RAY` (else unused).
     """
     n = side.shape[0]
     if mode == MODE_PIXEL:
         i = bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings)
         if i >= 0:
             return _UNDISTORT, i, 0, 0, np.inf
-    basis = np.empty((n, 3, 3))
-    tangent_bases(bearings, basis)
+    if mode == MODE_RAY:
+        basis = frames
+        origins = np.ascontiguousarray(frames[:, 3, :])
+    else:
+        basis = np.empty((n, 3, 3))
+        tangent_bases(bearings, basis)
+        origins = np.zeros((n, 3))
     nc = n_extra
     if subsets.shape[0] > 0:
-        nc += minimal_candidates_kernel(side, points, bearings, subsets, root_filter, Rc[n_extra:], tc[n_extra:])
+        nc += minimal_candidates_kernel(side, points, bearings, origins, subsets, root_filter, Rc[n_extra:],
+                                        tc[n_extra:])
+    # Three rays of robots whose frames are their cameras': prefer the cameras facing each other.
     nd, best = rank_refine_kernel(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc, tc, nc, n_refine, max_iter,
-                                  n == 3, order, costs, Rbest, tbest)
+                                  n == 3 and mode != MODE_RAY, order, costs, Rbest, tbest)
     if nd == 0 or not np.isfinite(best):
         return _NO_CANDIDATE, -1, nc, nd, best
     if not information(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rbest, tbest, H):
@@ -518,6 +592,8 @@ def solve_kernel(side, points, meas, bearings, Kp, dp, Kq, dq, mode, wt, subsets
 _EYE = np.eye(3)
 _NO_DIST = np.zeros(8)
 _NO_SUBSETS = np.empty((0, 3), dtype=np.int64)
+#: ``frames`` of a problem that is not in ray mode.
+NO_FRAMES = np.empty((0, 4, 3))
 
 
 def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_iter: int = 50,
@@ -540,7 +616,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
     """
     n = len(obs.side)
     if (accept is not None and refine and use_minimal and extra_candidates is None and not root_filter
-            and n > 3 and obs.pixels is not None):
+            and n > 3 and obs.pixels is not None and obs.frames is None):
         R = np.empty((3, 3))
         t = np.empty(3)
         H = np.empty((6, 6))
@@ -570,7 +646,12 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
     tbest = np.empty(3)
     H = np.empty((6, 6))
     Hinv = np.empty((6, 6))
-    if obs.pixels is not None:
+    frames = NO_FRAMES
+    if obs.frames is not None:
+        Kp = Kq = _EYE
+        dp = dq = _NO_DIST
+        meas, mode, bearings, frames = np.zeros((n, 2)), MODE_RAY, obs.bearings, obs.frames
+    elif obs.pixels is not None:
         (Kp, Kq), (dp, dq) = obs.K, obs.dist
         meas, mode = obs.pixels, MODE_PIXEL
         bearings = obs.bearings if obs.bearings is not None else np.empty((n, 3))
@@ -579,7 +660,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         dp = dq = _NO_DIST
         meas, mode, bearings = np.zeros((n, 2)), MODE_BEARING, obs.bearings
     status, index, nc, nd, best = solve_kernel(
-        obs.side, obs.points, meas, bearings, Kp, dp, Kq, dq, mode, obs.wt, subsets, root_filter, n_extra,
+        obs.side, obs.points, meas, bearings, frames, Kp, dp, Kq, dq, mode, obs.wt, subsets, root_filter, n_extra,
         n_refine if refine else 1, max_iter if refine else 0, Rc, tc, order, costs, Rbest, tbest, H, Hinv)
     if status == _UNDISTORT:
         u, v = meas[index]
@@ -619,7 +700,7 @@ def _ranked(obs: PairProblem) -> tuple[Pose, np.ndarray]:
     size = max(len(subsets) * PER_SUBSET, 1)
     Rc = np.empty((size, 3, 3))
     tc = np.empty((size, 3))
-    nc = minimal_candidates_kernel(obs.side, obs.points, bearings, subsets, False, Rc, tc)
+    nc = minimal_candidates_kernel(obs.side, obs.points, bearings, obs.origins, subsets, False, Rc, tc)
     order = np.empty(size, dtype=np.int64)
     costs = np.empty(size)
     nd, _ = rank_refine_kernel(*obs.kernel_args(), Rc, tc, nc, 0, 0, len(obs.side) == 3, order, costs,

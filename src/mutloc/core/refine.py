@@ -5,9 +5,13 @@ Objective (paper, eq. proboptimization): the sum over both cameras of the
 squared distance between each observed marker and the projection of that
 marker under the pose.  Residuals are either pixels (through each camera's
 ``K`` and OpenCV distortion, the maximum-likelihood objective for Gaussian
-detection noise) or, for ``solve_bearings``, the gnomonic tangent-plane error
+detection noise), or, for ``solve_bearings``, the gnomonic tangent-plane error
 around each observed ray (radians to first order), which fits any central
-camera model.
+camera model, or (``MODE_RAY``: robots with several cameras, any lens) that
+tangent-plane error around rays leaving their own origins in the robot
+frames, each row's two tangent directions scaled by its lens's Jacobian at the
+observed pixel so that the residual is the pixel error to first order (see
+:mod:`mutloc.core.rays`).
 
 Parameters: a rotation vector applied on the *left* of ``R`` and a
 translation increment, ``R <- exp(dtheta) R``, ``t <- t + dt`` (SPEC), so the
@@ -25,6 +29,10 @@ from .camera import intrinsics, project_jac_scalar, project_scalar
 WS_SIZE = 29
 MODE_PIXEL = 0
 MODE_BEARING = 1
+#: Rays from several centres: ``basis[i]`` (4, 3) holds the row's weighted
+#: tangent directions (two rows), its ray direction and its origin, in the
+#: observing robot's frame.
+MODE_RAY = 2
 
 
 @njit(cache=True)
@@ -123,6 +131,11 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, want
                     for c in range(3):
                         dX[a, 3 + c] = 1.0 if a == c else 0.0
             cam = cq
+        if mode == MODE_RAY:
+            # The ray leaves its own camera's centre, not the robot's origin.
+            X0 -= basis[i, 3, 0]
+            X1 -= basis[i, 3, 1]
+            X2 -= basis[i, 3, 2]
         if mode == MODE_PIXEL:
             if want_jac:
                 ok, u, v, Jp[0, 0], Jp[0, 1], Jp[0, 2], Jp[1, 0], Jp[1, 1], Jp[1, 2] = project_jac_scalar(

@@ -1,6 +1,11 @@
-"""The rig model: robots, each a camera plus markers in its camera frame.
+"""The rig model: robots, each a camera plus markers in its camera frame, or
+a body: several cameras (any lens), each with its pose in the robot's frame,
+plus markers in that frame (SPEC "Robots with several cameras, any lens").
 
-Pure data and validation; reading rig files lives in :mod:`mutloc.io.rig`.
+Observations name their observer ``ROBOT`` (a robot with one camera) or
+``ROBOT/CAMERA``; :meth:`Rig.observer` resolves either to the robot and the
+camera.  Pure data and validation; reading rig files lives in
+:mod:`mutloc.io.rig`.
 """
 
 from __future__ import annotations
@@ -16,7 +21,12 @@ from ..errors import ObservationError, RigError, UnknownMarkerError
 from .camera import Camera
 from .pose import Pose
 
-__all__ = ["Marker", "MarkerKind", "Robot", "Rig", "PairTable", "DETECTED_KINDS"]
+__all__ = ["Marker", "MarkerKind", "Mount", "Robot", "Rig", "PairTable", "DETECTED_KINDS", "CAMERA_SEPARATOR"]
+
+#: Between a robot's and a camera's name in an observer key: ``p/front``.
+CAMERA_SEPARATOR = "/"
+# A pose's rotation may be off orthonormal by this much (rounding in a file).
+_ROTATION_TOL = 1e-6
 
 # Markers closer than this (metres) on one robot cannot be told apart.
 COINCIDENT_TOL_M = 1e-6
@@ -44,7 +54,8 @@ DETECTED_KINDS = (MarkerKind.BALL, MarkerKind.LIGHT, MarkerKind.TAG, MarkerKind.
 
 @dataclass(frozen=True, eq=False)
 class Marker:
-    """A fiducial marker; ``position`` is its centre in its robot's camera frame."""
+    """A fiducial marker; ``position`` is its centre in its robot's frame (the camera's optical frame for a
+    robot with one camera given with ``camera:``)."""
 
     name: str
     robot: str
@@ -94,14 +105,81 @@ class Marker:
 
 
 @dataclass(frozen=True, eq=False)
-class Robot:
-    """A robot: its camera and the markers it carries."""
+class Mount:
+    """A camera on a robot: its lens model and ``pose`` = ``T_robot_camera``
+    (``x_robot = R @ x_camera + t``, the camera frame its OpenCV optical frame)."""
 
     name: str
-    camera: Camera
+    camera: Any  # Camera, FisheyeCamera or OmniCamera: one interface (project, pixels_to_bearings, ...)
+    pose: Pose
+
+    def __post_init__(self) -> None:
+        R, t = np.asarray(self.pose.R, dtype=float), np.asarray(self.pose.t, dtype=float)
+        if R.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            raise RigError(f"camera {self.name!r}: pose must be one rotation and translation of finite numbers")
+        if np.abs(R.T @ R - np.eye(3)).max() > _ROTATION_TOL or np.linalg.det(R) < 0.0:
+            raise RigError(f"camera {self.name!r}: pose R is not a rotation (orthonormal, determinant +1)")
+
+    @property
+    def is_identity(self) -> bool:
+        """Whether the camera's frame is the robot's."""
+        return bool(np.array_equal(self.pose.R, np.eye(3)) and not np.any(self.pose.t))
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """A robot: its camera and the markers it carries, or (``cameras``) a body
+    with several cameras posed in its frame.
+
+    ``camera`` is the one camera of a robot whose frame is that camera's
+    optical frame (rig ``camera:``), None for a body; ``cameras`` the body's
+    cameras by name (rig ``cameras:``), None otherwise.  :attr:`mounts` gives
+    either as mounts.
+    """
+
+    name: str
+    camera: Any
     markers: Mapping[str, Marker]
     #: Pose of the camera in the robot's base frame (``x_base = R @ x_camera + t``), if the rig gives it.
     base_from_camera: Pose | None = None
+    cameras: Mapping[str, Mount] | None = None
+
+    def __post_init__(self) -> None:
+        if (self.camera is None) == (self.cameras is None):
+            raise RigError(f"robot {self.name!r}: give either one camera or several cameras, not "
+                           f"{'both' if self.camera is not None else 'neither'}")
+        if self.cameras is not None:
+            if not self.cameras:
+                raise RigError(f"robot {self.name!r}: cameras is empty")
+            for cname in self.cameras:
+                if not cname or CAMERA_SEPARATOR in cname:
+                    raise RigError(f"robot {self.name!r}: camera name {cname!r} must be non-empty and without "
+                                   f"{CAMERA_SEPARATOR!r}")
+            if self.base_from_camera is not None:
+                raise RigError(f"robot {self.name!r}: base_from_camera is for a robot with one camera; a body's "
+                               "cameras have their poses")
+
+    @property
+    def mounts(self) -> dict[str, Mount]:
+        """The robot's cameras by name; a robot given with one ``camera`` has one, named ``""``, at the identity."""
+        if self.cameras is not None:
+            return dict(self.cameras)
+        return {"": Mount("", self.camera, Pose.identity())}
+
+    @property
+    def is_body(self) -> bool:
+        """Whether the robot's frame is a body frame (``cameras``), not its one camera's optical frame."""
+        return self.cameras is not None
+
+    @property
+    def central_pinhole(self) -> bool:
+        """Whether the robot is one pinhole camera whose frame is the robot's (what every path of mutloc
+        handles; the others need the ray solvers of :mod:`mutloc.core.rays`)."""
+        return self.cameras is None and getattr(self.camera, "model", "pinhole") == "pinhole"
+
+    def observer_key(self, camera: str) -> str:
+        """The observation key of this robot's camera ``camera`` (``ROBOT`` for a robot given with one camera)."""
+        return self.name if camera == "" else f"{self.name}{CAMERA_SEPARATOR}{camera}"
 
     def marker_positions(self, names: list[str] | None = None) -> np.ndarray:
         names = list(self.markers) if names is None else names
@@ -119,8 +197,8 @@ class PairTable:
     marker_names: tuple[str, ...]
     index: dict[str, tuple[int, int]]
     points: np.ndarray
-    K: tuple[np.ndarray, np.ndarray]
-    dist: tuple[np.ndarray, np.ndarray]
+    K: tuple[np.ndarray, np.ndarray] | None
+    dist: tuple[np.ndarray, np.ndarray] | None
     sizes: tuple[tuple[int, int] | None, tuple[int, int] | None]
 
     def names(self, rows: np.ndarray) -> list[str]:
@@ -180,12 +258,66 @@ class Rig:
     def marker(self, name: str) -> Marker:
         return self.robots[self.owner(name)].markers[name]
 
+    @property
+    def central_pinhole(self) -> bool:
+        """Whether every robot is one pinhole camera whose frame is the robot's."""
+        return all(r.central_pinhole for r in self.robots.values())
+
+    def observer(self, key: str) -> tuple[str, str]:
+        """``(robot, camera)`` of an observation key: ``ROBOT/CAMERA``, or ``ROBOT`` for a robot with one camera
+        (the camera then ``""`` for a robot given with ``camera:``).  ObservationError naming the key otherwise."""
+        robot = self.robots.get(key)
+        if robot is not None:
+            if robot.cameras is None:
+                return key, ""
+            if len(robot.cameras) == 1:
+                return key, next(iter(robot.cameras))
+            raise ObservationError(f"observations: robot {key!r} has cameras {', '.join(robot.cameras)}: key its "
+                                   f"observations by camera ({key}{CAMERA_SEPARATOR}{next(iter(robot.cameras))}, ...)")
+        rname, sep, cname = str(key).rpartition(CAMERA_SEPARATOR)
+        robot = self.robots.get(rname) if sep else None
+        if robot is None:
+            raise ObservationError(f"observations: unknown robot {key!r} (rig has {sorted(self.robots)})")
+        if robot.cameras is None or cname not in robot.cameras:
+            has = (f"cameras {', '.join(robot.cameras)}" if robot.cameras is not None else
+                   f"one camera: key its observations {rname!r}")
+            raise ObservationError(f"observations: unknown camera {key!r} (robot {rname!r} has {has})")
+        return rname, cname
+
+    def mount(self, key: str) -> Mount:
+        """The camera an observation key names (see :meth:`observer`)."""
+        rname, cname = self.observer(key)
+        return self.robots[rname].mounts[cname]
+
+    def observer_keys(self) -> list[str]:
+        """Every camera's observation key, robot by robot in rig order."""
+        return [r.observer_key(c) for r in self.robots.values() for c in r.mounts]
+
+    def require_central(self, what: str) -> None:
+        """RigError (one line) unless every robot is one pinhole camera whose frame is the robot's: for the
+        paths that do not yet handle robots with several cameras or wide-angle lenses."""
+        for r in self.robots.values():
+            if not r.central_pinhole:
+                has = (f"cameras {', '.join(r.cameras)}" if r.cameras is not None
+                       else f"a {r.camera.model} lens")
+                raise RigError(f"robot {r.name!r} has {has}: {what} handles only robots with one pinhole camera "
+                               "so far")
+
     def pair_table(self, source: str, target: str) -> "PairTable":
-        """What the solver needs of the pair (source p, target q), built once per rig."""
+        """What the solver needs of the pair (source p, target q), built once per rig.  For robots that are
+        not one pinhole camera (see :attr:`Robot.central_pinhole`) ``K``/``dist``/``sizes`` are None: their
+        observations are rays (:mod:`mutloc.core.rays`)."""
         key = (source, target)
         table = self._pairs.get(key)
         if table is None:
             p, q = self.robot(source), self.robot(target)
+            if not (p.central_pinhole and q.central_pinhole):
+                names = list(q.markers) + list(p.markers)
+                index = {n: (0 if i < len(q.markers) else 1, i) for i, n in enumerate(names)}
+                points = np.ascontiguousarray(np.vstack([q.marker_positions(), p.marker_positions()]).reshape(-1, 3))
+                table = PairTable(source, target, tuple(names), index, points, None, None, (None, None))
+                self._pairs[key] = table
+                return table
             names = list(q.markers) + list(p.markers)
             index = {n: (0 if i < len(q.markers) else 1, i) for i, n in enumerate(names)}
             points = np.ascontiguousarray(np.vstack([q.marker_positions(), p.marker_positions()]).reshape(-1, 3))
@@ -228,7 +360,9 @@ class Rig:
         return {
             "robots": {
                 rname: {
-                    "camera": robot.camera.to_dict(),
+                    **({"camera": robot.camera.to_dict()} if robot.cameras is None else
+                       {"cameras": {c: {**m.camera.to_dict(), "pose": {"R": m.pose.R.tolist(), "t": m.pose.t.tolist()}}
+                                    for c, m in robot.cameras.items()}}),
                     **({} if robot.base_from_camera is None else
                        {"base_from_camera": {"R": robot.base_from_camera.R.tolist(),
                                              "t": robot.base_from_camera.t.tolist()}}),

@@ -515,8 +515,9 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
     H6 = np.empty((6, 6))
     Hinv = np.empty((6, 6))
     bearings = np.empty((n, 3))
-    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, Ks[r], ds[r], Ks[c], ds[c], MODE_PIXEL, w,
-                                       subsets, False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest, H6, Hinv)
+    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, np.empty((0, 4, 3)), Ks[r], ds[r], Ks[c], ds[c],
+                                       MODE_PIXEL, w, subsets, False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest,
+                                       H6, Hinv)
     if status != 0:
         return np.inf
     # r's ties as a problem of their own
