@@ -15,6 +15,7 @@ from .core.estimate import PairProblem, Solution, estimate
 from .core.geometry import skew
 from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
+from .core.rays import pair_rays
 from .core.rig import Rig
 from .core.robust import largest_consistent_set, observation_errors
 from .errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, UnverifiedError,
@@ -158,6 +159,13 @@ def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: n
     """The solver's form of the given rows (rays are computed by the solver)."""
     table = pair.table
     labels = _Labels(pair, rows)
+    if table.mounts is not None:  # robots with several cameras or wide-angle lenses: rays in robot frames
+        parent = pair.parent
+        bearings, frames = pair_rays(table.mounts, [parent.observer[r] for r in rows.tolist()], parent.uv[rows],
+                                     labels.__getitem__)
+        scale = pair.sigma_scale if rows is pair.rows else parent.scales_of(rows)
+        return PairProblem.trusted(side, np.ascontiguousarray(table.points[prow]), bearings, None, None, None, labels,
+                                   None if scale is None else np.ascontiguousarray(scale), frames)
     if rows is pair.rows:  # the named observations: their arrays are kept on the pair
         return PairProblem.trusted(side, pair.points, None, pair.uv, table.K, table.dist, labels, pair.sigma_scale)
     scale = pair.parent.scales_of(rows)

@@ -356,15 +356,14 @@ class ObservationSet:
         for i in range(len(self)):
             o, m = self.observer[i], self.marker[i]
             where = f"observations[{o!r}]" + ("" if m is None else f"[{m!r}]")
-            if o not in rig.robots:
-                raise ObservationError(f"observations: unknown robot {o!r} (rig has {sorted(rig.robots)})")
+            robot = rig.observer(o)[0]
             if m is not None:
                 owner = rig.owner(m)
-                if owner == o:
-                    raise ObservationError(f"{where}: robot {o!r} cannot observe its own marker {m!r}")
+                if owner == robot:
+                    raise ObservationError(f"{where}: robot {robot!r} cannot observe its own marker {m!r}")
             rows.setdefault(o, []).append(i)
         for o, idx in rows.items():
-            camera = rig.robots[o].camera
+            camera = rig.mount(o).camera
             _check_pixels(self, idx, camera.K, camera.size)
         return self
 
@@ -396,6 +395,8 @@ class ObservationSet:
 
     def _pair(self, rig: Any, source: str, target: str) -> "PairObservations":
         table = rig.pair_table(source, target)
+        if table.mounts is not None:
+            return self._pair_rays(rig, table)
         index = table.index
         robots = rig.robots
         side: list[int] = []
@@ -445,6 +446,58 @@ class ObservationSet:
             scale = None if np.all(scale == 1.0) else np.ascontiguousarray(scale)
         return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
                                 np.array(rows, dtype=np.int64), anonymous, table, scale)
+
+
+    def _pair_rays(self, rig: Any, table: Any) -> "PairObservations":
+        """:meth:`_pair` for robots that are not one pinhole camera: rows keyed ``ROBOT/CAMERA`` (or ``ROBOT``
+        for a robot with one camera), each checked against its own camera's image."""
+        index, mounts = table.index, table.mounts
+        side: list[int] = []
+        prow: list[int] = []
+        rows: list[int] = []
+        anonymous: dict[int, list[int]] = {}
+        seen: set[tuple[str, str]] = set()
+        duplicates = False
+        per_camera: dict[str, list[int]] = {}
+        for i, (o, m) in enumerate(zip(self.observer, self.marker)):
+            entry = mounts.get(o)
+            if entry is None:
+                robot, _ = rig.observer(o)  # unknown robot or camera: raises
+                if m is not None and rig.owner(m) == robot:
+                    raise ObservationError(f"observations[{o!r}][{m!r}]: robot {robot!r} cannot observe its own "
+                                           f"marker {m!r}")
+                continue  # a third robot's camera
+            s = entry[0]
+            per_camera.setdefault(o, []).append(i)
+            if m is None:
+                anonymous.setdefault(s, []).append(i)
+                continue
+            mark = index.get(m)
+            if mark is None:
+                rig.owner(m)  # unknown marker: raises; else a third robot's marker
+                continue
+            if mark[0] != s:
+                raise ObservationError(f"observations[{o!r}][{m!r}]: robot {rig.observer(o)[0]!r} cannot observe "
+                                       f"its own marker {m!r}")
+            if (o, m) in seen:
+                duplicates = True
+            seen.add((o, m))
+            side.append(s)
+            prow.append(mark[1])
+            rows.append(i)
+        for o, idx in per_camera.items():
+            camera = mounts[o][1].camera
+            _check_pixels(self, idx, camera.K, camera.size)
+        if duplicates and not np.all(np.isnan(self.time)) and len(self.times) > 1:
+            raise ObservationError("observations of several times: localize one frame at a time (at_time)")
+        if duplicates:
+            return self.best().pair(rig, table.source, table.target)
+        scale = self.scales_of(rows)
+        if scale is not None:
+            scale = None if np.all(scale == 1.0) else np.ascontiguousarray(scale)
+        return PairObservations(self, table.source, table.target, np.array(side, dtype=np.int64),
+                                np.array(prow, dtype=np.int64), np.array(rows, dtype=np.int64), anonymous, table,
+                                scale)
 
 
 def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size: tuple[int, int] | None,

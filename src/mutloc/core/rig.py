@@ -200,6 +200,8 @@ class PairTable:
     K: tuple[np.ndarray, np.ndarray] | None
     dist: tuple[np.ndarray, np.ndarray] | None
     sizes: tuple[tuple[int, int] | None, tuple[int, int] | None]
+    #: Rays (robots that are not one pinhole camera): each observation key of either robot -> (side, its camera).
+    mounts: dict[str, tuple[int, Mount]] | None = None
 
     def names(self, rows: np.ndarray) -> list[str]:
         """The markers at ``rows`` of :attr:`points`."""
@@ -315,7 +317,13 @@ class Rig:
                 names = list(q.markers) + list(p.markers)
                 index = {n: (0 if i < len(q.markers) else 1, i) for i, n in enumerate(names)}
                 points = np.ascontiguousarray(np.vstack([q.marker_positions(), p.marker_positions()]).reshape(-1, 3))
-                table = PairTable(source, target, tuple(names), index, points, None, None, (None, None))
+                mounts: dict[str, tuple[int, Mount]] = {}
+                for side, robot in enumerate((p, q)):
+                    for cname, mount in robot.mounts.items():
+                        mounts[robot.observer_key(cname)] = (side, mount)
+                    if len(robot.mounts) == 1:  # a robot with one camera may be named alone
+                        mounts[robot.name] = (side, next(iter(robot.mounts.values())))
+                table = PairTable(source, target, tuple(names), index, points, None, None, (None, None), mounts)
                 self._pairs[key] = table
                 return table
             names = list(q.markers) + list(p.markers)

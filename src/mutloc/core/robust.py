@@ -44,6 +44,8 @@ def observation_errors_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, 
 
 
 def _args(problem: PairProblem) -> tuple:
+    if problem.frames is not None:  # rays from several centres: already in pixel units
+        return problem.kernel_args()
     n = len(problem.side)
     basis = np.empty((n, 3, 3))
     tangent_bases(problem.bearings, basis)
@@ -73,9 +75,10 @@ class RobustResult:
 def _sub(problem: PairProblem, idx: np.ndarray) -> PairProblem:
     labels = problem.labels
     return PairProblem.trusted(problem.side[idx], problem.points[idx], problem.bearings[idx],
-                               problem.pixels[idx], problem.K, problem.dist,
+                               None if problem.pixels is None else problem.pixels[idx], problem.K, problem.dist,
                                None if labels is None else [labels[int(i)] for i in idx],
-                               None if problem.sigma_scale is None else problem.sigma_scale[idx])
+                               None if problem.sigma_scale is None else problem.sigma_scale[idx],
+                               None if problem.frames is None else np.ascontiguousarray(problem.frames[idx]))
 
 
 def largest_consistent_set(problem: PairProblem, first: Solution, sigma: float,
