@@ -143,6 +143,24 @@ def test_fisheye_max_angle_is_where_theta_d_stops_increasing():
     assert np.all(np.isnan(ideal.project([0.0, 0.0, -1.0])))
 
 
+def test_fisheye_pixel_grid_round_trip():
+    """Every pixel of the frame inside the image of max_angle maps to a ray
+    and back; the corners beyond it (past the lens's fold) give NaN."""
+    K = _with_skew(FISH_K, 0.3)
+    cam = FisheyeCamera(K, FISH_D, size=(W, H))
+    u, v = np.meshgrid(np.linspace(-0.5, W - 0.5, 65), np.linspace(-0.5, H - 0.5, 41))
+    uv = np.column_stack([u.ravel(), v.ravel()])
+    b = cam.pixels_to_bearings(uv)
+    yd = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    rd = np.hypot((uv[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0], yd)
+    t = cam.max_angle
+    rd_max = t * (1 + FISH_D[0] * t**2 + FISH_D[1] * t**4 + FISH_D[2] * t**6 + FISH_D[3] * t**8)
+    ok = np.all(np.isfinite(b), axis=1)
+    assert np.array_equal(ok, rd < rd_max) and 0 < np.sum(~ok) < 0.2 * len(ok)
+    assert np.max(np.abs(cam.bearings_to_pixels(b[ok]) - uv[ok])) < 1e-8
+    assert np.any(b[ok, 2] < -0.5)  # the frame reaches well past 90 degrees
+
+
 def test_fisheye_principal_point_and_axis():
     cam = FisheyeCamera(_with_skew(FISH_K, 0.5), FISH_D)
     assert np.array_equal(cam.pixels_to_bearings([FISH_K[0, 2], FISH_K[1, 2]]), [0.0, 0.0, 1.0])
