@@ -34,6 +34,14 @@ __all__ = [
     "project_jac_many",
     "undistort_many",
     "VALID_DIST_LENGTHS",
+    "distort_terms",
+    "undistort_normalized",
+    "intrinsic_matrix",
+    "image_size",
+    "as_points",
+    "readonly_copy",
+    "pixels_in_image",
+    "intrinsics_repr",
 ]
 
 VALID_DIST_LENGTHS = (0, 4, 5, 8)
@@ -65,7 +73,7 @@ def intrinsics(K, dist):
 
 
 @numba.njit(cache=True, fastmath=False)
-def _distort_terms(k1, k2, p1, p2, k3, k4, k5, k6, x, y):
+def distort_terms(k1, k2, p1, p2, k3, k4, k5, k6, x, y):
     """Distorted point, its 2x2 Jacobian (a b; c d) wrt (x, y), and the radial factor."""
     x2 = x * x
     y2 = y * y
@@ -96,7 +104,7 @@ def _distort(dist, x, y):
 @numba.njit(cache=True, fastmath=False)
 def _distort_jac(dist, x, y):
     """Distorted point, its 2x2 Jacobian (a b; c d) wrt (x, y), and the radial factor."""
-    return _distort_terms(dist[0], dist[1], dist[2], dist[3], dist[4], dist[5], dist[6], dist[7], x, y)
+    return distort_terms(dist[0], dist[1], dist[2], dist[3], dist[4], dist[5], dist[6], dist[7], x, y)
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -108,7 +116,7 @@ def project_scalar(c, X0, X1, X2):
         return False, np.nan, np.nan
     x = X0 / X2
     y = X1 / X2
-    xd, yd, _, _, _, _, _ = _distort_terms(c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], x, y)
+    xd, yd, _, _, _, _, _ = distort_terms(c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], x, y)
     u = c[0] * xd + c[1] * yd + c[2]
     v = c[3] * yd + c[4]
     return math.isfinite(u) and math.isfinite(v), u, v
@@ -123,7 +131,7 @@ def project_jac_scalar(c, X0, X1, X2):
     iz = 1.0 / X2
     x = X0 * iz
     y = X1 * iz
-    xd, yd, a, b, cc, d, _ = _distort_terms(c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], x, y)
+    xd, yd, a, b, cc, d, _ = distort_terms(c[5], c[6], c[7], c[8], c[9], c[10], c[11], c[12], x, y)
     fx = c[0]
     s = c[1]
     fy = c[3]
@@ -168,7 +176,7 @@ def project_jac_kernel(K, dist, X, uv, J) -> bool:
 
 
 @numba.njit(cache=True, fastmath=False)
-def _undistort_normalized(dist, xd, yd):
+def undistort_normalized(dist, xd, yd):
     """Invert the distortion: (ok, x, y) with distort(x, y) == (xd, yd)."""
     # One OpenCV-style fixed-point step as the start: for barrel distortion
     # it undershoots the radius, which keeps Newton on the branch connected
@@ -251,7 +259,7 @@ def undistort_kernel(K, dist, uv, b) -> bool:
     fy = K[1, 1]
     yd = (uv[1] - K[1, 2]) / fy
     xd = (uv[0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
-    ok, x, y = _undistort_normalized(dist, xd, yd)
+    ok, x, y = undistort_normalized(dist, xd, yd)
     if not ok:
         b[0] = np.nan
         b[1] = np.nan
@@ -292,7 +300,7 @@ def undistort_many(K, dist, uv, out) -> int:
 # ---------------------------------------------------------------------------
 
 
-def _as_points(a: Any, dim: int, what: str, allow_nonfinite: bool = False) -> tuple[np.ndarray, bool]:
+def as_points(a: Any, dim: int, what: str, allow_nonfinite: bool = False) -> tuple[np.ndarray, bool]:
     """``a`` as a C-contiguous float64 (n, dim) array, and whether it was 1-D."""
     try:
         arr = np.asarray(a, dtype=np.float64)
@@ -309,10 +317,59 @@ def _as_points(a: Any, dim: int, what: str, allow_nonfinite: bool = False) -> tu
     return np.ascontiguousarray(arr), single
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
+def readonly_copy(a: np.ndarray) -> np.ndarray:
+    """A read-only, C-contiguous float64 copy of ``a``."""
     a = np.ascontiguousarray(a, dtype=np.float64).copy()
     a.flags.writeable = False
     return a
+
+
+def intrinsic_matrix(K: Any) -> np.ndarray:
+    """``K`` checked as a camera's 3x3 intrinsic matrix: finite, positive
+    focal lengths, ``K[1, 0] = 0`` and bottom row ``[0, 0, 1]`` (skew
+    ``K[0, 1]`` allowed).  Raises RigError (message starting "camera ")."""
+    try:
+        Kf = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise RigError("camera K must be a 3x3 matrix of numbers") from None
+    if Kf.shape != (3, 3):
+        raise RigError(f"camera K must be 3x3, got shape {Kf.shape}")
+    if not np.all(np.isfinite(Kf)):
+        raise RigError("camera K contains NaN or inf")
+    if not (Kf[0, 0] > 0.0 and Kf[1, 1] > 0.0):
+        raise RigError(f"camera focal lengths must be positive, got fx={Kf[0, 0]}, fy={Kf[1, 1]}")
+    if Kf[1, 0] != 0.0 or Kf[2, 0] != 0.0 or Kf[2, 1] != 0.0 or Kf[2, 2] != 1.0:
+        raise RigError(
+            f"camera K must have K[1,0] = 0 and bottom row [0, 0, 1], got K[1,0]={Kf[1, 0]}, "
+            f"bottom row {Kf[2].tolist()}"
+        )
+    return Kf
+
+
+def image_size(size: Any) -> tuple[int, int] | None:
+    """``size`` checked as an image ``(width, height)`` of positive integers, or None."""
+    if size is None:
+        return None
+    try:
+        items = list(size)
+    except TypeError:
+        raise RigError(f"camera size must be [width, height], got {size!r}") from None
+    if len(items) != 2 or not all(_is_int(s) and int(s) > 0 for s in items):
+        raise RigError(f"camera size must be two positive integers [width, height], got {size!r}")
+    return (int(items[0]), int(items[1]))
+
+
+def pixels_in_image(size: tuple[int, int] | None, uv: Any) -> np.ndarray | bool:
+    """Mask of pixels ``uv`` inside an image of ``size`` (see :meth:`Camera.in_image`)."""
+    U, single = as_points(uv, 2, "pixels", allow_nonfinite=True)
+    mask = np.all(np.isfinite(U), axis=1)
+    if size is not None:
+        w, h = size
+        u = U[:, 0]
+        v = U[:, 1]
+        with np.errstate(invalid="ignore"):
+            mask &= (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+    return bool(mask[0]) if single else mask
 
 
 class Camera:
@@ -331,21 +388,7 @@ class Camera:
     _size: tuple[int, int] | None
 
     def __init__(self, K: Any, dist: Any = None, size: Any = None) -> None:
-        try:
-            Kf = np.asarray(K, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise RigError("camera K must be a 3x3 matrix of numbers") from None
-        if Kf.shape != (3, 3):
-            raise RigError(f"camera K must be 3x3, got shape {Kf.shape}")
-        if not np.all(np.isfinite(Kf)):
-            raise RigError("camera K contains NaN or inf")
-        if not (Kf[0, 0] > 0.0 and Kf[1, 1] > 0.0):
-            raise RigError(f"camera focal lengths must be positive, got fx={Kf[0, 0]}, fy={Kf[1, 1]}")
-        if Kf[1, 0] != 0.0 or Kf[2, 0] != 0.0 or Kf[2, 1] != 0.0 or Kf[2, 2] != 1.0:
-            raise RigError(
-                f"camera K must have K[1,0] = 0 and bottom row [0, 0, 1], got K[1,0]={Kf[1, 0]}, "
-                f"bottom row {Kf[2].tolist()}"
-            )
+        Kf = intrinsic_matrix(K)
 
         if dist is None:
             d = np.zeros(0)
@@ -369,18 +412,10 @@ class Camera:
         d8 = np.zeros(8)
         d8[: d.size] = d
 
-        sz: tuple[int, int] | None = None
-        if size is not None:
-            try:
-                items = list(size)
-            except TypeError:
-                raise RigError(f"camera size must be [width, height], got {size!r}") from None
-            if len(items) != 2 or not all(_is_int(s) and int(s) > 0 for s in items):
-                raise RigError(f"camera size must be two positive integers [width, height], got {size!r}")
-            sz = (int(items[0]), int(items[1]))
+        sz = image_size(size)
 
-        object.__setattr__(self, "_K", _readonly(Kf))
-        object.__setattr__(self, "_dist", _readonly(d8))
+        object.__setattr__(self, "_K", readonly_copy(Kf))
+        object.__setattr__(self, "_dist", readonly_copy(d8))
         object.__setattr__(self, "_n_dist", int(d.size))
         object.__setattr__(self, "_size", sz)
 
@@ -412,16 +447,19 @@ class Camera:
         """Image ``(width, height)`` in pixels, or None if unknown."""
         return self._size
 
+    @property
+    def model(self) -> str:
+        """The lens model's name in rig files: ``"pinhole"``."""
+        return "pinhole"
+
+    @property
+    def max_angle(self) -> float:
+        """Bound on the angle (radians) off the optical axis of the directions
+        the lens images: only those strictly inside it (z > 0) are, so ``pi/2``."""
+        return math.pi / 2.0
+
     def __repr__(self) -> str:
-        K = self._K
-        parts = [f"fx={K[0, 0]:g}", f"fy={K[1, 1]:g}", f"cx={K[0, 2]:g}", f"cy={K[1, 2]:g}"]
-        if K[0, 1] != 0.0:
-            parts.append(f"skew={K[0, 1]:g}")
-        if self._n_dist:
-            parts.append("dist=[" + ", ".join(f"{c:g}" for c in self._dist[: self._n_dist]) + "]")
-        if self._size is not None:
-            parts.append(f"size={self._size}")
-        return "Camera(" + ", ".join(parts) + ")"
+        return "Camera(" + ", ".join(intrinsics_repr(self._K, self._dist[: self._n_dist], self._size)) + ")"
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form ``{"K", "dist", "size"}`` accepted back by ``Camera(**d)``."""
@@ -440,14 +478,14 @@ class Camera:
 
         A single point (3,) gives a (2,) result.
         """
-        P, single = _as_points(X, 3, "points")
+        P, single = as_points(X, 3, "points")
         out = np.empty((P.shape[0], 2))
         project_many(self._K, self._dist, P, out)
         return out[0] if single else out
 
     def project_jacobian(self, X: Any) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (n, 2) and Jacobians d(u, v)/dX (n, 2, 3); NaN where z <= 0."""
-        P, single = _as_points(X, 3, "points")
+        P, single = as_points(X, 3, "points")
         out = np.empty((P.shape[0], 2))
         J = np.empty((P.shape[0], 2, 3))
         project_jac_many(self._K, self._dist, P, out, J)
@@ -463,7 +501,7 @@ class Camera:
         A single pixel (2,) gives a (3,) result.  Raises InputError if a pixel
         lies where the distortion cannot be inverted.
         """
-        U, single = _as_points(uv, 2, "pixels")
+        U, single = as_points(uv, 2, "pixels")
         out = np.empty((U.shape[0], 3))
         bad = undistort_many(self._K, self._dist, U, out)
         if bad >= 0:
@@ -481,15 +519,19 @@ class Camera:
         every finite pixel is inside when ``size`` is None.  A single pixel
         (2,) gives a scalar bool.
         """
-        U, single = _as_points(uv, 2, "pixels", allow_nonfinite=True)
-        mask = np.all(np.isfinite(U), axis=1)
-        if self._size is not None:
-            w, h = self._size
-            u = U[:, 0]
-            v = U[:, 1]
-            with np.errstate(invalid="ignore"):
-                mask &= (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
-        return bool(mask[0]) if single else mask
+        return pixels_in_image(self._size, uv)
+
+
+def intrinsics_repr(K: np.ndarray, dist: np.ndarray, size: tuple[int, int] | None) -> list[str]:
+    """``["fx=..", "fy=..", "cx=..", "cy=..", ("skew=..",) ("dist=[..]",) ("size=..")]`` for a ``__repr__``."""
+    parts = [f"fx={K[0, 0]:g}", f"fy={K[1, 1]:g}", f"cx={K[0, 2]:g}", f"cy={K[1, 2]:g}"]
+    if K[0, 1] != 0.0:
+        parts.append(f"skew={K[0, 1]:g}")
+    if dist.size:
+        parts.append("dist=[" + ", ".join(f"{c:g}" for c in dist) + "]")
+    if size is not None:
+        parts.append(f"size={size}")
+    return parts
 
 
 def _is_int(s: Any) -> bool:
