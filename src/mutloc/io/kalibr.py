@@ -75,7 +75,8 @@ def load_kalibr_camchain(path: PathLike, *, pose: Pose | None = None, where: str
     n = len(data)
     missing = [f"cam{i}" for i in range(n) if f"cam{i}" not in data]
     if missing:
-        raise RigError(f"{w}: cameras must be cam0 to cam{n - 1} without gaps, {missing[0]} is missing")
+        raise RigError(f"{w}: cameras must be cam0, cam1, ... without gaps: {missing[0]} is missing "
+                       f"(the file has {', '.join(sorted(data, key=lambda k: int(k[3:])))})")
 
     robot_from_cam = Pose.identity() if pose is None else pose
     cameras: list[tuple[str, Any, Pose]] = []

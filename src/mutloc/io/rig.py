@@ -427,7 +427,9 @@ def _cameras(spec: Any, w: str, base: Path) -> dict[str, Mount]:
     ``{kalibr: FILE, pose?}``."""
     from .kalibr import load_kalibr_camchain
 
-    if not isinstance(spec, Mapping) or not spec:
+    if isinstance(spec, Mapping) and not spec:
+        raise RigError(f"{w}: is empty (give at least one camera)")
+    if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping of camera name to camera (inline, a file, or {{file, pose}}), or "
                        f"{{kalibr: FILE}}, got {short(spec)}")
     if "kalibr" in spec:
