@@ -46,6 +46,7 @@ from ._files import (
     short,
     to_builtin,
 )
+from .kalibr import load_kalibr_camchain
 
 __all__ = ["load_rig", "save_rig", "load_camera_file", "rig_from_dict"]
 
@@ -425,8 +426,6 @@ def _file_path(spec: str, w: str, base: Path) -> tuple[Path, str]:
 def _cameras(spec: Any, w: str, base: Path) -> dict[str, Mount]:
     """A robot's ``cameras``: name -> camera with its pose (inline, a camera file, ``{file, pose}``), or
     ``{kalibr: FILE, pose?}``."""
-    from .kalibr import load_kalibr_camchain
-
     if isinstance(spec, Mapping) and not spec:
         raise RigError(f"{w}: is empty (give at least one camera)")
     if not isinstance(spec, Mapping):
