@@ -38,6 +38,9 @@ TESTED = {
     "cameras/p_camera_info.yaml": "test_camera_files",
     "cameras/q_opencv.xml": "test_camera_files",
     "rig_marker_kinds.yaml": "test_marker_kinds",
+    "rig_cameras.yaml": "test_cameras_example",
+    "cameras/p_back_camera_info.yaml": "test_cameras_example",
+    "cameras/q_camchain.yaml": "test_cameras_example",
     "log.jsonl": "test_log_example",
     "log_truth.tum": "test_log_example",
     "trajectory.csv": "test_log_example",
@@ -101,6 +104,27 @@ def test_camera_files():
     a = mutloc.localize(inline, mutloc.load_observations(ex("observations.json")))
     b = mutloc.localize(from_files, mutloc.load_observations(ex("observations.json")))
     np.testing.assert_allclose(a.t, b.t, atol=1e-12)
+
+
+def test_cameras_example():
+    """Each camera where the example's comments put it: the optical axis (camera z) and right (camera x) of each
+    camera in its robot's base_link (x forward, y left, z up), the lens from its file."""
+    rig = mutloc.load_rig(ex("rig_cameras.yaml"))
+    assert rig.observer_keys() == ["p/front", "p/back", "q/left", "q/right"]
+    where = {  # key: (centre, axis, right)
+        "p/front": ([0.12, 0, 0.30], [1, 0, 0], [0, -1, 0]),
+        "p/back": ([-0.12, 0, 0.30], [-1, 0, 0], [0, 1, 0]),
+        "q/left": ([0.10, 0.05, 0.25], [1, 0, 0], [0, -1, 0]),
+        "q/right": ([0.10, -0.05, 0.25], [1, 0, 0], [0, -1, 0]),
+    }
+    for key, (centre, axis, right) in where.items():
+        m = rig.mount(key)
+        assert m.camera.model == "fisheye" and m.camera.size == (1280, 800)
+        np.testing.assert_allclose(m.pose.t, centre, atol=1e-12)
+        np.testing.assert_allclose(m.pose.R[:, 2], axis, atol=1e-12)
+        np.testing.assert_allclose(m.pose.R[:, 0], right, atol=1e-12)
+    np.testing.assert_array_equal(rig.mount("p/back").camera.dist, [0.011, -0.0035, 0.0005, -0.0001])
+    np.testing.assert_array_equal(rig.mount("q/right").camera.K, [[290.1, 0, 641.2], [0, 290.3, 398.8], [0, 0, 1]])
 
 
 def test_marker_kinds():

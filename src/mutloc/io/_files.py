@@ -30,6 +30,8 @@ __all__ = [
     "load_file",
     "is_number",
     "as_float_array",
+    "as_rotation",
+    "ROTATION_TOL",
     "short",
     "one_line",
     "key_name",
@@ -245,6 +247,25 @@ def as_float_array(value: Any) -> np.ndarray | None:
         return np.array(value, dtype=float)
     except (ValueError, TypeError, OverflowError):
         return None
+
+
+#: A rotation read from a file may be off orthonormal by this much (rounding); it is then made exact.
+ROTATION_TOL = 1e-6
+
+
+def as_rotation(R: np.ndarray) -> np.ndarray | None:
+    """``R`` (3x3, finite) as an exact rotation if it is one within
+    :data:`ROTATION_TOL` (orthonormal, determinant +1): the nearest rotation
+    (polar factor) when off by rounding, ``R`` itself when exact; else None."""
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        return None
+    off = float(np.abs(R @ R.T - np.eye(3)).max())
+    if off > ROTATION_TOL or np.linalg.det(R) <= 0.0:
+        return None
+    if off <= 1e-15:
+        return R
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
 
 
 def key_name(key: Any) -> str | None:

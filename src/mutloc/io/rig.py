@@ -1,10 +1,16 @@
 """Reading and writing rig files (YAML or JSON), see SPEC "Rig file".
 
-A camera is given inline (``{K, dist?, size?}``) or as a path, relative to the
-rig file's folder, to a calibration file: a ROS ``camera_info`` YAML (ROS 1
-``camera_matrix: {rows, cols, data}`` form or the ROS 2 message form
-``k``/``d``/``width``/``height``) or an OpenCV ``FileStorage`` calibration
+A camera is given inline (``{model?, K, dist?, size?, xi?}``) or as a path,
+relative to the rig file's folder, to a calibration file: a ROS
+``camera_info`` YAML (ROS 1 ``camera_matrix: {rows, cols, data}`` form or the
+ROS 2 message form ``k``/``d``/``width``/``height``; ``distortion_model``
+``equidistant`` is the fisheye model) or an OpenCV ``FileStorage`` calibration
 (YAML or XML, read with :class:`cv2.FileStorage`).
+
+A robot has one ``camera`` (its frame is that camera's optical frame) or
+``cameras``: a body with cameras by name, each with its ``pose``
+(``T_robot_camera``), inline, in a camera file, or a Kalibr camera chain
+(``cameras: {kalibr: FILE, pose?: T_robot_cam0}``, :mod:`.kalibr`).
 
 Every problem raises a one-line error that says where it is (file, robot,
 key, marker): an unreadable or unparsable file raises FileFormatError, a
@@ -21,14 +27,15 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from ..core.camera import Camera
 from ..core.geometry import so3_exp, so3_log
+from ..core.lenses import MODELS, Lens, make_camera
 from ..core.pose import Pose
-from ..core.rig import MAX_MARKER_DISTANCE_M, Marker, Rig, Robot
+from ..core.rig import CAMERA_SEPARATOR, MAX_MARKER_DISTANCE_M, Marker, Mount, Rig, Robot
 from ..errors import FileFormatError, MutlocError, RigError
 from ._files import (
     PathLike,
     as_float_array,
+    as_rotation,
     is_number,
     is_path,
     load_file,
@@ -39,6 +46,7 @@ from ._files import (
     short,
     to_builtin,
 )
+from .kalibr import load_kalibr_camchain
 
 __all__ = ["load_rig", "save_rig", "load_camera_file", "rig_from_dict"]
 
@@ -51,8 +59,16 @@ EXTRA_MARKER_KEYS = ("radius", "phase", "intensity", "cylinder", "position_sigma
 # Keys of the user's own (kept in Marker.extra, never interpreted) start with this.
 USER_KEY_PREFIX = "x_"
 TAG_KEYS = ("family", "id", "size", "rotation", "rotation_sigma")
-ROBOT_KEYS = ("camera", "markers", "base_from_camera")
+ROBOT_KEYS = ("camera", "cameras", "markers", "base_from_camera")
+# A pose (base_from_camera, a camera's pose): t and one of R, rotation, quaternion_xyzw.
 BASE_KEYS = ("R", "rotation", "quaternion_xyzw", "t")
+# A camera under a robot's cameras: inline, or a camera file with its pose beside it.
+CAMERA_KEYS = ("model", "K", "dist", "size", "xi", "pose")
+CAMERA_FILE_KEYS = ("file", "pose")
+# cameras: {kalibr: FILE, pose?}: a Kalibr camera chain, pose = T_robot_cam0.
+KALIBR_KEYS = ("kalibr", "pose")
+# A quaternion's norm may be off 1 by this much (rounding); it is then normalised.
+QUATERNION_TOL = 1e-6
 # Where a marker's position (and a tag's rotation) is given: the camera's optical frame or the robot's base.
 MARKER_FRAMES = ("camera", "base")
 RIG_KEYS = ("robots",)
@@ -64,8 +80,11 @@ _K_KEYS = ("K", "camera_matrix", "cameraMatrix", "k", "intrinsic_matrix")
 _DIST_KEYS = ("dist", "distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "d", "distortion")
 _SIZE_KEYS = ("size", "image_size", "imageSize")
 _WH_KEYS = (("image_width", "image_height"), ("width", "height"))
-# Distortion models that are OpenCV's (k1, k2, p1, p2[, k3[, k4, k5, k6]]).
-_PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "pinhole", "radtan", "none", "")
+# ROS camera_info distortion models (and their like in calibration files) -> lens model:
+# OpenCV's pinhole (k1, k2, p1, p2[, k3[, k4, k5, k6]]) or fisheye (k1..k4).
+_DISTORTION_MODELS = {"plumb_bob": "pinhole", "rational_polynomial": "pinhole", "pinhole": "pinhole",
+                      "radtan": "pinhole", "none": "pinhole", "": "pinhole", "equidistant": "fisheye",
+                      "fisheye": "fisheye"}
 
 
 # ---------------------------------------------------------------------------
@@ -106,16 +125,28 @@ def save_rig(rig: Rig | Mapping[str, Any], path: PathLike) -> None:
     path.write_text(text, encoding="utf-8")
 
 
-def load_camera_file(path: PathLike, *, where: str | None = None) -> Camera:
-    """A :class:`Camera` from a calibration file: ROS ``camera_info`` YAML,
-    OpenCV ``FileStorage`` (YAML/XML/JSON), or a YAML/JSON ``{K, dist?, size?}``."""
-    p = Path(path).expanduser()
+def load_camera_file(path: PathLike, *, where: str | None = None) -> Lens:
+    """A camera from a calibration file: ROS ``camera_info`` YAML, OpenCV
+    ``FileStorage`` (YAML/XML/JSON), or a YAML/JSON ``{model?, K, dist?, size?, xi?}``.
+
+    The lens model is the file's ``model`` (``pinhole``, ``fisheye``, ``omni``),
+    else its ``distortion_model`` (ROS: ``plumb_bob``, ``rational_polynomial`` ->
+    pinhole :class:`~mutloc.core.camera.Camera`; ``equidistant`` ->
+    :class:`~mutloc.core.lenses.FisheyeCamera`), else OpenCV's
+    ``fisheye_model: 1`` (fisheye) or an ``xi`` entry (omnidir:
+    :class:`~mutloc.core.lenses.OmniCamera`); pinhole without any.  A ``pose``
+    in the file is not read here (see rig files' ``cameras``)."""
     where = where if where is not None else f"camera file {str(path)!r}"
+    return _camera_from_mapping(_read_camera_file(Path(path).expanduser(), where), where, in_file=True)
+
+
+def _read_camera_file(p: Path, where: str) -> Mapping[str, Any]:
+    """A calibration file's entries as a mapping."""
     name = p.name.lower()
     if name.endswith(".gz"):
         if not p.is_file():
             raise FileFormatError(f"{where}: cannot read file: No such file")
-        return _camera_from_mapping(_read_filestorage(p, where), where, in_file=True)
+        return _read_filestorage(p, where)
     text = read_text(p, where)
     head = text.lstrip()[:256]
     opencv = (
@@ -134,7 +165,7 @@ def load_camera_file(path: PathLike, *, where: str | None = None) -> Camera:
                 f"{where}: expected a camera calibration mapping (ROS camera_info or {{K, dist, size}}), "
                 f"got {type(data).__name__}"
             )
-    return _camera_from_mapping(data, where, in_file=True)
+    return data
 
 
 def check_keys(spec: Mapping, known: tuple[str, ...], w: str) -> None:
@@ -188,25 +219,44 @@ def _robot(name: str, spec: Any, where: str, base: Path) -> Robot:
     if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping with keys 'camera' and 'markers', got {short(spec)}")
     check_keys(spec, ROBOT_KEYS, w)
-    for key in ("camera", "markers"):
-        if key not in spec:
-            raise RigError(f"{w}: missing key {key!r}")
-    camera = _camera(spec["camera"], f"{w}: camera", base)
-    bfc = _base_from_camera(spec.get("base_from_camera"), f"{w}: base_from_camera")
+    if "camera" in spec and "cameras" in spec:
+        raise RigError(f"{w}: give either 'camera' (one camera, whose optical frame is the robot's) or 'cameras' "
+                       "(several, each with its pose in the robot frame), not both")
+    if "camera" not in spec and "cameras" not in spec:
+        raise RigError(f"{w}: missing key 'camera' (or 'cameras' for several)")
+    if "markers" not in spec:
+        raise RigError(f"{w}: missing key 'markers'")
+    body = "cameras" in spec
+    if body:
+        if spec.get("base_from_camera") is not None:
+            raise RigError(f"{w}: base_from_camera is for a robot with one camera: with 'cameras', give each "
+                           "camera's pose in the robot frame")
+        camera, mounts, bfc = None, _cameras(spec["cameras"], f"{w}: cameras", base), None
+    else:
+        camera, mounts = _camera(spec["camera"], f"{w}: camera", base), None
+        bfc = _base_from_camera(spec.get("base_from_camera"), f"{w}: base_from_camera")
 
     mspec = spec["markers"]
     if not isinstance(mspec, Mapping):
         raise RigError(f"{w}: 'markers' must be a mapping of marker name to {{position, ...}}, got {short(mspec)}")
     markers: dict[str, Marker] = {}
     for mname, mval in named_items(mspec, "marker", f"{w}: markers", RigError):
-        markers[mname] = _marker(mname, name, mval, f"{w}: marker {mname!r}", bfc)
-    return Robot(name=name, camera=camera, markers=markers, base_from_camera=bfc)
+        markers[mname] = _marker(mname, name, mval, f"{w}: marker {mname!r}", bfc, body=body)
+    try:
+        return Robot(name=name, camera=camera, markers=markers, base_from_camera=bfc, cameras=mounts)
+    except MutlocError as exc:
+        raise type(exc)(f"{where}: {exc}") from None
 
 
 def _base_from_camera(spec: Any, w: str) -> Pose | None:
-    """The camera's pose in the robot's base frame: ``{R | rotation | quaternion_xyzw, t}``."""
-    if spec is None:
-        return None
+    """The camera's pose in the robot's base frame (see :func:`_pose`); None if not given."""
+    return None if spec is None else _pose(spec, w)
+
+
+def _pose(spec: Any, w: str) -> Pose:
+    """A pose ``{t, R | rotation | quaternion_xyzw}``: ``x_to = R @ x_from + t``
+    (``rotation`` a rotation vector in radians).  A rotation off by rounding
+    (1e-6) is made exact, a quaternion normalised; more is a one-line RigError."""
     if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping {{R or rotation or quaternion_xyzw, t}}, got {short(spec)}")
     check_keys(spec, BASE_KEYS, w)
@@ -218,7 +268,7 @@ def _base_from_camera(spec: Any, w: str) -> Pose | None:
     if t is None or t.shape != (3,) or not np.all(np.isfinite(t)):
         raise RigError(f"{w}: t must be 3 finite numbers (metres), got {short(spec['t'])}")
     if float(np.linalg.norm(t)) > MAX_MARKER_DISTANCE_M:
-        raise RigError(f"{w}: t is {float(np.linalg.norm(t)):g} m from the base: positions are in metres "
+        raise RigError(f"{w}: t is {float(np.linalg.norm(t)):g} m long: positions are in metres "
                        "(millimetres given?)")
     key = given[0]
     v = as_float_array(spec[key])
@@ -227,17 +277,20 @@ def _base_from_camera(spec: Any, w: str) -> Pose | None:
         raise RigError(f"{w}: {key} must be {'a 3x3 matrix' if key == 'R' else f'{shape[0]} finite numbers'}, "
                        f"got {short(spec[key])}")
     if key == "R":
-        if not (np.allclose(v @ v.T, np.eye(3), atol=1e-6) and np.linalg.det(v) > 0):
+        R = as_rotation(v)
+        if R is None:
             raise RigError(f"{w}: R is not a rotation matrix (orthonormal, determinant +1)")
-        return Pose(v, t)
+        return Pose(R, t)
     if key == "rotation":
         return Pose.from_rotvec(v, t)
-    if not float(np.linalg.norm(v)) > 0:
-        raise RigError(f"{w}: quaternion_xyzw must not be zero")
-    return Pose.from_quaternion_xyzw(v, t)
+    norm = float(np.linalg.norm(v))
+    if not abs(norm - 1.0) <= QUATERNION_TOL:
+        raise RigError(f"{w}: quaternion_xyzw must be a unit quaternion [x, y, z, w], its norm is {norm:.9g}")
+    return Pose.from_quaternion_xyzw(v / norm, t)
 
 
-def _marker(name: str, robot: str, spec: Any, w: str, base_from_camera: Pose | None = None) -> Marker:
+def _marker(name: str, robot: str, spec: Any, w: str, base_from_camera: Pose | None = None, *,
+            body: bool = False) -> Marker:
     if not isinstance(spec, Mapping):
         raise RigError(f"{w}: must be a mapping with at least 'position', got {short(spec)}")
     check_keys(spec, MARKER_KEYS + EXTRA_MARKER_KEYS, w)
@@ -252,10 +305,13 @@ def _marker(name: str, robot: str, spec: Any, w: str, base_from_camera: Pose | N
     color = _color(spec.get("color"), w)
     blink = _blink(spec.get("blink_hz"), w)
     tag = _tag(spec.get("tag"), w)
-    frame = spec.get("frame", "camera")
+    frame = spec.get("frame", "base" if body else "camera")
     if frame not in MARKER_FRAMES:
         raise RigError(f"{w}: frame must be 'camera' or 'base', got {short(frame)}")
-    if frame == "base":
+    if body and frame == "camera":
+        raise RigError(f"{w}: a robot with 'cameras' has its markers in its robot (base) frame: frame 'camera' is "
+                       "for a robot given with one 'camera'")
+    if frame == "base" and not body:
         # Stored in the camera frame like every marker: the solvers never see the base.
         if base_from_camera is None:
             raise RigError(f"{w}: frame 'base' needs the robot's base_from_camera")
@@ -339,19 +395,94 @@ def _tag(value: Any, w: str) -> dict[str, Any] | None:
 # ---------------------------------------------------------------------------
 
 
-def _camera(spec: Any, w: str, base: Path) -> Camera:
+def _camera(spec: Any, w: str, base: Path) -> Lens:
+    """A robot's one ``camera``: inline or a file; its frame is the robot's, so no pose."""
     if isinstance(spec, str):
-        if not spec.strip():
-            raise RigError(f"{w}: camera file path is empty")
-        ref = Path(spec).expanduser()
-        path = ref if ref.is_absolute() else base / ref
-        cw = f"{w}: file {spec!r}" + ("" if ref.is_absolute() else f" ({path})")
-        return load_camera_file(path, where=cw)
+        path, cw = _file_path(spec, w, base)
+        data = _read_camera_file(path, cw)
+        if "pose" in data:
+            raise RigError(f"{cw}: has a pose: a robot given with 'camera' has that camera's frame (its pose in a "
+                           "base frame is the robot's base_from_camera; several posed cameras are 'cameras')")
+        return _camera_from_mapping(data, cw, in_file=True)
     if isinstance(spec, Mapping):
+        if "pose" in spec:
+            raise RigError(f"{w}: pose is for the cameras of a robot given with 'cameras': a robot's one 'camera' "
+                           "has the robot's frame (its pose in a base frame is base_from_camera)")
         return _camera_from_mapping(spec, w, in_file=False)
     raise RigError(
-        f"{w}: must be a mapping {{K, dist?, size?}} or a calibration file path, got {short(spec)}"
+        f"{w}: must be a mapping {{model?, K, dist?, size?, xi?}} or a calibration file path, got {short(spec)}"
     )
+
+
+def _file_path(spec: str, w: str, base: Path) -> tuple[Path, str]:
+    """A file named in the rig, resolved against the rig's folder, and how errors name it."""
+    if not spec.strip():
+        raise RigError(f"{w}: file path is empty")
+    ref = Path(spec).expanduser()
+    path = ref if ref.is_absolute() else base / ref
+    return path, f"{w}: file {spec!r}" + ("" if ref.is_absolute() else f" ({path})")
+
+
+def _cameras(spec: Any, w: str, base: Path) -> dict[str, Mount]:
+    """A robot's ``cameras``: name -> camera with its pose (inline, a camera file, ``{file, pose}``), or
+    ``{kalibr: FILE, pose?}``."""
+    if isinstance(spec, Mapping) and not spec:
+        raise RigError(f"{w}: is empty (give at least one camera)")
+    if not isinstance(spec, Mapping):
+        raise RigError(f"{w}: must be a mapping of camera name to camera (inline, a file, or {{file, pose}}), or "
+                       f"{{kalibr: FILE}}, got {short(spec)}")
+    if "kalibr" in spec:
+        check_keys(spec, KALIBR_KEYS, f"{w} (a Kalibr camera chain)")
+        if not isinstance(spec["kalibr"], str):
+            raise RigError(f"{w}: kalibr must be the path of a Kalibr camchain file, got {short(spec['kalibr'])}")
+        path, cw = _file_path(spec["kalibr"], f"{w}: kalibr", base)
+        pose = _pose(spec["pose"], f"{w}: pose") if "pose" in spec else None
+        return load_kalibr_camchain(path, pose=pose, where=cw)
+    mounts: dict[str, Mount] = {}
+    for cname, cspec in named_items(spec, "camera", w, RigError):
+        cw = f"{w}: camera {cname!r}"
+        if CAMERA_SEPARATOR in cname:
+            raise RigError(f"{cw}: a camera name must not contain {CAMERA_SEPARATOR!r} (observations name it "
+                           f"ROBOT{CAMERA_SEPARATOR}CAMERA)")
+        pose_spec: Any = None
+        if isinstance(cspec, str) or (isinstance(cspec, Mapping) and "file" in cspec):
+            if isinstance(cspec, Mapping):
+                check_keys(cspec, CAMERA_FILE_KEYS, cw)
+                if not isinstance(cspec["file"], str):
+                    raise RigError(f"{cw}: file must be a calibration file path, got {short(cspec['file'])}")
+                path, fw = _file_path(cspec["file"], cw, base)
+                pose_spec = cspec.get("pose")
+            else:
+                path, fw = _file_path(cspec, cw, base)
+            data = _read_camera_file(path, fw)
+            if "pose" in data:
+                if pose_spec is not None:
+                    raise RigError(f"{cw}: pose given both in the file {path.name!r} and beside it: give one")
+                pose_spec, pw = data["pose"], f"{fw}: pose"
+            else:
+                pw = f"{cw}: pose"
+            camera = _camera_from_mapping(data, fw, in_file=True)
+        elif isinstance(cspec, Mapping):
+            check_keys(cspec, CAMERA_KEYS, cw)
+            camera = _camera_from_mapping({k: v for k, v in cspec.items() if k != "pose"}, cw, in_file=False)
+            pose_spec, pw = cspec.get("pose"), f"{cw}: pose"
+        else:
+            raise RigError(f"{cw}: must be a mapping {{model?, K, dist?, size?, xi?, pose?}}, a calibration file "
+                           f"path or {{file, pose}}, got {short(cspec)}")
+        pose = Pose.identity() if pose_spec is None else _pose(_plain_pose(pose_spec), pw)
+        try:
+            mounts[cname] = Mount(cname, camera, pose)
+        except MutlocError as exc:
+            raise type(exc)(f"{cw}: {exc}") from None
+    return mounts
+
+
+def _plain_pose(spec: Any) -> Any:
+    """A pose read from an OpenCV FileStorage file: its (3, 1) / (1, 3) matrices flattened."""
+    if not isinstance(spec, Mapping):
+        return spec
+    return {k: (v.ravel() if isinstance(v, np.ndarray) and v.ndim == 2 and 1 in v.shape else v)
+            for k, v in spec.items()}
 
 
 def _first(d: Mapping[str, Any], keys: tuple[str, ...]) -> tuple[str | None, Any]:
@@ -386,15 +517,43 @@ def _matrix(value: Any, w: str, what: str) -> np.ndarray:
     return arr
 
 
-def _camera_from_mapping(d: Mapping[str, Any], w: str, *, in_file: bool) -> Camera:
-    # distortion model (ROS camera_info): only OpenCV's pinhole model is supported
-    model = d.get("distortion_model")
+def _lens_model(d: Mapping[str, Any], w: str, *, in_file: bool) -> tuple[Any, str]:
+    """The camera's lens model (as given, for :func:`make_camera`, which names the nearest on a misspelling)
+    and how it was said, for error messages: ``model``, a ROS ``distortion_model``, and in a file OpenCV's
+    ``fisheye_model: 1`` or an omnidir ``xi``."""
+    import difflib
+
+    said: list[tuple[str, str]] = []  # (lens model, how it was said)
+    dmodel = d.get("distortion_model")
+    if dmodel is not None:
+        name = dmodel.strip().lower() if isinstance(dmodel, str) else None
+        if name not in _DISTORTION_MODELS:
+            known = [k for k in _DISTORTION_MODELS if k]
+            near = difflib.get_close_matches(name or "", known, n=1, cutoff=0.5)
+            hint = f"; did you mean {near[0]!r}?" if near else ""
+            raise RigError(f"{w}: distortion_model {dmodel!r} is not supported (plumb_bob, rational_polynomial: "
+                           f"pinhole; equidistant: fisheye){hint}")
+        said.append((_DISTORTION_MODELS[name], f"distortion_model {dmodel!r}"))
+    if in_file and "model" not in d:
+        fisheye = d.get("fisheye_model")
+        if is_number(fisheye) and float(fisheye) == 1.0:
+            said.append(("fisheye", "fisheye_model 1"))
+        elif "xi" in d and not said:
+            said.append(("omni", "xi (omnidir)"))
+    model = d.get("model")
     if model is not None:
-        if not isinstance(model, str) or model.strip().lower() not in _PINHOLE_MODELS:
-            raise RigError(
-                f"{w}: distortion_model {model!r} is not supported "
-                f"(pinhole models only: plumb_bob, rational_polynomial)"
-            )
+        name = model.strip().lower() if isinstance(model, str) else None
+        for other, how in said:
+            if name in MODELS and name != other:
+                raise RigError(f"{w}: model {model!r} but {how} (model {other!r}): give one")
+        return model, f"model {model!r}"
+    if said:
+        return said[0]
+    return None, "pinhole"
+
+
+def _camera_from_mapping(d: Mapping[str, Any], w: str, *, in_file: bool) -> Lens:
+    model, said = _lens_model(d, w, in_file=in_file)
 
     kkey, kval = _first(d, _K_KEYS)
     if kkey is None:
@@ -424,13 +583,15 @@ def _camera_from_mapping(d: Mapping[str, Any], w: str, *, in_file: bool) -> Came
         dist = arr if arr.size else None
 
     size = _size(d, w)
+    xi = d.get("xi")
+    if isinstance(xi, np.ndarray) and xi.size == 1:  # OpenCV omnidir writes xi as a 1x1 matrix
+        xi = float(xi.ravel()[0])
 
     try:
-        return Camera(K, dist=dist, size=size)
-    except MutlocError as exc:
-        msg = str(exc)
-        msg = msg[len("camera ") :] if msg.startswith("camera ") else msg
-        raise type(exc)(f"{w}: {msg}") from None
+        return make_camera(model, K, dist, size, xi, where=w if model is None or said.startswith("model") else
+                           f"{w} ({said})")
+    except MutlocError:
+        raise
     except (ValueError, TypeError) as exc:  # defensive: keep it one line and typed
         raise RigError(f"{w}: {one_line(exc)}") from None
 
