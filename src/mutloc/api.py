@@ -15,6 +15,7 @@ from .core.estimate import PairProblem, Solution, estimate
 from .core.geometry import skew
 from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
+from .core.refine import tangent_bases
 from .core.rays import pair_rays
 from .core.rig import Rig
 from .core.robust import largest_consistent_set, observation_errors
@@ -432,17 +433,26 @@ def _solve(obs: PairProblem, *, refine: bool, root_filter: bool, initializer: st
 
 
 def solve_bearings(bearings_p: Any, points_q: Any, bearings_q: Any, points_p: Any, *,
-                   refine: bool = True, root_filter: bool = False) -> Pose:
+                   origins_p: Any = None, origins_q: Any = None, refine: bool = True,
+                   root_filter: bool = False) -> Pose:
     """Every candidate ``T_qp`` from unit rays, best first (a :class:`Pose` stack).
 
     ``bearings_p`` (n, 3): rays in p's frame towards q's markers at
     ``points_q`` (n, 3) in q's frame; likewise ``bearings_q`` (m, 3) and
     ``points_p`` (m, 3); ``n + m >= 3``, either may be empty.  With more than
     three rays the first pose is refined on the tangent-plane ray error.
+
+    ``origins_p`` (n, 3) and ``origins_q`` (m, 3): where each ray starts in
+    its robot's frame (robots with several cameras: each camera's centre);
+    default every ray from its robot's origin.  Minimal subsets whose rays of
+    one robot leave several centres are solved by the generalized P3P.
     """
     arrs = []
+    n_p = np.shape(bearings_p)[0] if np.ndim(bearings_p) == 2 else 0
+    n_q = np.shape(bearings_q)[0] if np.ndim(bearings_q) == 2 else 0
     for name, a in (("bearings_p", bearings_p), ("points_q", points_q), ("bearings_q", bearings_q),
-                    ("points_p", points_p)):
+                    ("points_p", points_p), ("origins_p", np.zeros((n_p, 3)) if origins_p is None else origins_p),
+                    ("origins_q", np.zeros((n_q, 3)) if origins_q is None else origins_q)):
         try:
             x = np.asarray(a if a is not None else np.empty((0, 3)), dtype=float)
         except (TypeError, ValueError, OverflowError):
@@ -452,16 +462,28 @@ def solve_bearings(bearings_p: Any, points_q: Any, bearings_q: Any, points_p: An
         if x.ndim != 2 or x.shape[1] != 3:
             raise InputError(f"{name} must have shape (n, 3), got {x.shape}")
         arrs.append(x)
-    bp, pq, bq, pp = arrs
-    if bp.shape[0] != pq.shape[0]:
-        raise InputError(f"bearings_p has {bp.shape[0]} rows but points_q has {pq.shape[0]}")
-    if bq.shape[0] != pp.shape[0]:
-        raise InputError(f"bearings_q has {bq.shape[0]} rows but points_p has {pp.shape[0]}")
+    bp, pq, bq, pp, op, oq = arrs
+    if bp.shape[0] != pq.shape[0] or bp.shape[0] != op.shape[0]:
+        raise InputError(f"bearings_p has {bp.shape[0]} rows but points_q has {pq.shape[0]} and origins_p "
+                         f"{op.shape[0]}")
+    if bq.shape[0] != pp.shape[0] or bq.shape[0] != oq.shape[0]:
+        raise InputError(f"bearings_q has {bq.shape[0]} rows but points_p has {pp.shape[0]} and origins_q "
+                         f"{oq.shape[0]}")
     obs = PairProblem(
         side=np.r_[np.zeros(len(bp), np.int64), np.ones(len(bq), np.int64)],
         points=np.vstack([pq, pp]),
         bearings=np.vstack([bp, bq]),
     )
+    origins = np.vstack([op, oq])
+    if not np.all(np.isfinite(origins)):
+        raise InputError("origins_p and origins_q must be finite")
+    if np.any(origins):  # rays from several centres: each ray's unit tangent frame and origin
+        frames = np.empty((len(origins), 4, 3))
+        basis = np.empty((len(origins), 3, 3))
+        tangent_bases(obs.bearings, basis)
+        frames[:, :3] = basis
+        frames[:, 3] = origins
+        obs.frames = frames
     for s, pts in ((0, pq), (1, pp)):
         for i in range(len(pts)):
             for j in range(i + 1, len(pts)):

@@ -20,6 +20,7 @@ from numba import njit
 from ..errors import DegenerateGeometryError, InputError, NoSolutionError, ObservationError, TooFewObservationsError
 from .pose import Pose
 from .camera import undistort_kernel
+from .generalized import GP3P_WORK_SIZE, generalized_p3p_kernel
 from .minimal import solve_minimal_kernel
 from .observations import unit_scales
 from .refine import MODE_BEARING, MODE_PIXEL, MODE_RAY, WS_SIZE, cost_into, information, lm_refine, tangent_bases
@@ -233,12 +234,6 @@ def _one_centre_per_side(sd, O):
 
 
 @njit(cache=True)
-def _non_central(sd, b, X, O, Rs, ts):
-    """T_qp of a subset whose rays of one robot leave several centres (TEMP)."""
-    return 0
-
-
-@njit(cache=True)
 def minimal_candidates_kernel(side, points, bearings, origins, subsets, root_filter, Rc, tc):
     """Solve every minimal subset; candidates into Rc/tc, returns the count.
 
@@ -259,6 +254,7 @@ def minimal_candidates_kernel(side, points, bearings, origins, subsets, root_fil
     Rs = np.empty((PER_SUBSET, 3, 3))
     ts = np.empty((PER_SUBSET, 3))
     rg = np.empty((PER_SUBSET, 3))
+    gws = np.empty(GP3P_WORK_SIZE)
     c0 = np.zeros(3)  # the centre of p's rays in the subset
     c1 = np.zeros(3)  # of q's
     nc = 0
@@ -270,7 +266,7 @@ def minimal_candidates_kernel(side, points, bearings, origins, subsets, root_fil
             X[j] = points[k]
             O[j] = origins[k]
         if not _one_centre_per_side(sd, O):
-            ns = _non_central(sd, b, X, O, Rs, ts)
+            ns = generalized_p3p_kernel(sd, O, b, X, Rs, ts, gws)  # kinds: 0 = p's ray (U = p, W = q)
             root_ok = False  # ranges from several centres: the filter does not apply
         else:
             c0[:] = 0.0
