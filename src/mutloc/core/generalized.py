@@ -54,7 +54,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .polynomial import WORK_SIZE as _ROOT_WORK, positive_roots_ws
+from .polynomial import WORK_SIZE as _ROOT_WORK, positive_roots_ws, real_roots_ws
 
 __all__ = ["generalized_p3p", "generalized_p3p_kernel", "GP3P_MAX_SOLUTIONS", "GP3P_WORK_SIZE", "KIND_U_RAY",
            "KIND_W_RAY"]
@@ -67,8 +67,12 @@ KIND_W_RAY = 1
 GP3P_MAX_SOLUTIONS = 8
 # Largest range searched, in units of the problem's scale L.
 _MAX_RANGE = 1e4
-# Relative residual (to the size of the quadric's terms) of an accepted solution.
-_ACCEPT_TOL = 1e-9
+# Relative residual (to the size of the quadric's terms) of an accepted
+# solution (Newton reaches ~1e-16; an ill-conditioned solution -- two nearby
+# ones -- polished to only 1e-9 can still be 1e-7 off).
+_ACCEPT_TOL = 1e-11
+# Newton iterations at most (linear convergence near a double root).
+_NEWTON_ITERS = 30
 # Relative residual of a back-substituted start worth polishing.
 _START_TOL = 1e-2
 # Critical points of the univariate with |p| below this relative level are
@@ -81,9 +85,9 @@ _MAX_SOLS = 16
 _WS_ROOT = 0  # the root finder's scratch
 _WS_POLY = _WS_ROOT + _ROOT_WORK  # 13 slots of 9: the univariate and its ingredients (_univariate)
 _WS_CAND = _WS_POLY + 13 * 9  # 16: the univariate's roots
-_WS_SOLS = _WS_CAND + 16  # _MAX_SOLS x 3: distinct polished ranges
+_WS_SOLS = _WS_CAND + 16  # _MAX_SOLS x 4: distinct polished ranges and their residuals
 #: Size of the scratch array ``ws`` of :func:`generalized_p3p_kernel` (floats).
-GP3P_WORK_SIZE = _WS_SOLS + 3 * _MAX_SOLS
+GP3P_WORK_SIZE = _WS_SOLS + 4 * _MAX_SOLS
 
 
 @njit(cache=True, inline="always")
@@ -259,6 +263,7 @@ def _univariate(f01, f02, f12, ws, o):
 def _newton(f01, f02, f12, s0, s1, s2, iters):
     """Newton's method on the three quadrics from (s0, s1, s2); the polished
     ranges and the largest relative residual."""
+    prev = np.inf
     for _ in range(iters):
         r0 = _feval(f01, s0, s1)
         r1 = _feval(f02, s0, s2)
@@ -279,9 +284,15 @@ def _newton(f01, f02, f12, s0, s1, s2, iters):
         s0 -= d0
         s1 -= d1
         s2 -= d2
-        # quadratic convergence: after a step this small the error is far below it
-        if abs(d0) + abs(d1) + abs(d2) <= 1e-13 * (abs(s0) + abs(s1) + abs(s2)):
+        # Quadratic convergence: after a step this small the error is far
+        # below it.  Near a double root convergence is linear and rounding
+        # keeps the steps at ~1e-13 (relative) for ever: stop when they no
+        # longer shrink.
+        step = abs(d0) + abs(d1) + abs(d2)
+        size = abs(s0) + abs(s1) + abs(s2)
+        if step <= 1e-14 * size or (step >= prev and step <= 1e-9 * size):
             break
+        prev = step
     err = max(_rel(f01, s0, s1), max(_rel(f02, s0, s2), _rel(f12, s1, s2)))
     return s0, s1, s2, err
 
@@ -289,7 +300,9 @@ def _newton(f01, f02, f12, s0, s1, s2, iters):
 @njit(cache=True)
 def _try_start(f01, f02, f12, s0, s1, s2, sols, nsol):
     """Polish the start (s0, s1, s2) if it is near a solution with positive
-    ranges not found yet, and add it to the flat list ``sols``; the new count."""
+    ranges, and add it to the list ``sols`` (rows s0, s1, s2, residual) unless
+    that solution is there already (then the more accurate of the two is
+    kept); the new count."""
     if not (np.isfinite(s0) and np.isfinite(s1)):
         return nsol
     big = max(abs(s0), max(abs(s1), abs(s2)))
@@ -298,19 +311,25 @@ def _try_start(f01, f02, f12, s0, s1, s2, sols, nsol):
     if max(_rel(f01, s0, s1), max(_rel(f02, s0, s2), _rel(f12, s1, s2))) > _START_TOL:
         return nsol
     for k in range(nsol):
-        if abs(sols[3 * k] - s0) + abs(sols[3 * k + 1] - s1) + abs(sols[3 * k + 2] - s2) <= 1e-7 * big:
-            return nsol  # a solution found already
-    p0, p1, p2, err = _newton(f01, f02, f12, s0, s1, s2, 12)
+        if abs(sols[4 * k] - s0) + abs(sols[4 * k + 1] - s1) + abs(sols[4 * k + 2] - s2) <= 1e-9 * big:
+            return nsol  # found already (and polished to convergence)
+    p0, p1, p2, err = _newton(f01, f02, f12, s0, s1, s2, _NEWTON_ITERS)
     if not (err <= _ACCEPT_TOL and p0 > 0.0 and p1 > 0.0 and p2 > 0.0 and max(p0, max(p1, p2)) < _MAX_RANGE):
         return nsol
     for k in range(nsol):
-        if abs(sols[3 * k] - p0) + abs(sols[3 * k + 1] - p1) + abs(sols[3 * k + 2] - p2) <= 1e-7 * (p0 + p1 + p2):
+        if abs(sols[4 * k] - p0) + abs(sols[4 * k + 1] - p1) + abs(sols[4 * k + 2] - p2) <= 1e-7 * (p0 + p1 + p2):
+            if err < sols[4 * k + 3]:
+                sols[4 * k] = p0
+                sols[4 * k + 1] = p1
+                sols[4 * k + 2] = p2
+                sols[4 * k + 3] = err
             return nsol
-    if 3 * nsol + 3 > sols.shape[0]:
+    if 4 * nsol + 4 > sols.shape[0]:
         return nsol
-    sols[3 * nsol] = p0
-    sols[3 * nsol + 1] = p1
-    sols[3 * nsol + 2] = p2
+    sols[4 * nsol] = p0
+    sols[4 * nsol + 1] = p1
+    sols[4 * nsol + 2] = p2
+    sols[4 * nsol + 3] = err
     return nsol + 1
 
 
@@ -361,6 +380,38 @@ def _absolute_orientation(P0, P1, P2, Q0, Q1, Q2, Rs, ts, k):
     for i in range(3):
         ts[k, i] = cq[i] - (Rs[k, i, 0] * cp[0] + Rs[k, i, 1] * cp[1] + Rs[k, i, 2] * cp[2])
     return True
+
+
+@njit(cache=True)
+def _roots(poly, cand, work, fast):
+    """Positive roots of the univariate into ``cand`` (sign changes, then
+    merged double roots): ``(n_roots, n_near)``.
+
+    Roots need only ~1e-9: Newton on the three quadrics polishes them.  The
+    root finder's fast path (Laguerre from above, deflating) is tried for
+    mixed splits only: for 3-0 and 0-3 the univariate is nearly even (exactly
+    in the central case), its complex roots near the positive axis defeat the
+    fast path's certificate almost always (98 % of random problems), and the
+    derivative chain alone is then faster.  The fast path's roots are
+    checked on the univariate itself: deflating from the largest root is
+    unstable when the roots' sizes spread over many orders (a few 1e4 beside
+    a few 1), and a root that is none sends us to the derivative chain.
+    """
+    if fast:
+        nr, nn = positive_roots_ws(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-9, 1e-7, work)
+        ok = True
+        for i in range(nr + nn):
+            x = cand[i]
+            p = poly[8]
+            a = abs(poly[8])
+            for j in range(7, -1, -1):
+                p = p * x + poly[j]
+                a = a * x + abs(poly[j])
+            if not abs(p) <= 1e-6 * a:
+                ok = False
+        if ok:
+            return nr, nn
+    return real_roots_ws(poly, 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-9, 1e-7, work)
 
 
 @njit(cache=True, inline="always")
@@ -428,10 +479,8 @@ def generalized_p3p_kernel(kinds, origins, directions, points, Rs, ts, ws):
     o = _WS_POLY
     _univariate(f01, f02, f12, ws, o)
     cand = ws[_WS_CAND:_WS_CAND + 16]
-    # Roots need only ~1e-9: Newton on the three quadrics polishes them.
-    nr, nn = positive_roots_ws(ws[o + 108:o + 117], 1e-12, _MAX_RANGE, cand, _NEAR_TOL, 1e-9, 1e-7,
-                               ws[_WS_ROOT:_WS_POLY])
-    sols = ws[_WS_SOLS:_WS_SOLS + 3 * _MAX_SOLS]
+    nr, nn = _roots(ws[o + 108:o + 117], cand, ws[_WS_ROOT:_WS_POLY], lone >= 0)
+    sols = ws[_WS_SOLS:_WS_SOLS + 4 * _MAX_SOLS]
     nsol = 0
     R0, R1 = o + 18, o + 27  # g mod f12 = r1(s2) s1 + r0(s2)
     for ir in range(nr + nn):
@@ -460,7 +509,7 @@ def generalized_p3p_kernel(kinds, origins, directions, points, Rs, ts, ws):
     for k in range(nsol):
         if nout >= min(Rs.shape[0], GP3P_MAX_SOLUTIONS):
             break
-        r0, r1, r2 = sols[3 * k] * L, sols[3 * k + 1] * L, sols[3 * k + 2] * L
+        r0, r1, r2 = sols[4 * k] * L, sols[4 * k + 1] * L, sols[4 * k + 2] * L
         if _absolute_orientation(_axpy(oU0, r0, uU0), _axpy(oU1, r1, uU1), _axpy(oU2, r2, uU2),
                                  _axpy(oW0, r0, uW0), _axpy(oW1, r1, uW1), _axpy(oW2, r2, uW2), Rs, ts, nout):
             nout += 1
