@@ -42,7 +42,9 @@ the order "majority kind, majority kind, lone kind", so that ``s2`` is the
 lone ray's range: in the central mutual problem that is the range that
 separates the usual mounting's solution pairs (see :mod:`.minimal`); the
 order does not change the solution set.  :func:`generalized_p3p` is the
-NumPy convenience wrapper.
+NumPy convenience wrapper.  Per call (bench/bench_gp3p.py, one loaded AMD
+EPYC core): 2.8 us for 2-1 / 1-2, 5-6 us for 3-0 / 0-3 (the root finder's
+derivative chain), against 1-1.7 us for the central ``solve_minimal_kernel``.
 
 At most :data:`GP3P_MAX_SOLUTIONS` = 8 poses: the three quadrics have Bezout
 number 8, so a non-degenerate problem has at most 8 isolated solutions
