@@ -33,7 +33,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
-from mutloc.core.generalized import GP3P_MAX_SOLUTIONS, GP3P_WORK_SIZE, generalized_p3p, generalized_p3p_kernel  # noqa: E402
+from mutloc.core.generalized import (GP3P_MAX_SOLUTIONS, GP3P_WORK_SIZE, generalized_p3p,  # noqa: E402
+                                     generalized_p3p_kernel)
 from mutloc.core.minimal import WORK_SIZE as MINIMAL_WORK_SIZE, solve_minimal_kernel, solve_minimal_ws  # noqa: E402
 from mutloc.sim.synthetic import batch_minimal_problems, batch_scenes  # noqa: E402
 
