@@ -18,7 +18,7 @@ from .core.pose import Pose
 from .core.refine import tangent_bases
 from .core.rays import pair_rays
 from .core.rig import Rig
-from .core.robust import largest_consistent_set, observation_errors
+from .core.robust import largest_consistent_set, observation_errors, other_consistent_poses
 from .errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, UnverifiedError,
                      confidence_level, positive_number)
 
@@ -72,13 +72,18 @@ class Estimate:
     identity_ambiguous: bool | None = None
     assignment: dict[str, dict[str, Any]] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    #: Other poses that fit the observations as well (each passes the test, and this pose's covariance rules it
+    #: out): the observations do not decide between them; None when not searched.
+    alternatives: Pose | None = None
 
     @property
     def status(self) -> str:
-        """``"solved"`` (passed its consistency test), ``"unverified"``
-        (three observations: nothing to test), or ``"rejected"`` (failed it;
-        only ever seen on the estimate an InconsistentObservationsError carries)."""
+        """``"solved"`` (passed its consistency test, and no other pose does), ``"unverified"``
+        (three observations: nothing to test; or another pose fits as well, see :attr:`alternatives`), or
+        ``"rejected"`` (failed it; only ever seen on the estimate an InconsistentObservationsError carries)."""
         passed = None if self.consistency is None else self.consistency.passed
+        if passed and self.alternatives is not None and len(self.alternatives):
+            return "unverified"
         return "unverified" if passed is None else ("solved" if passed else "rejected")
 
     @property
@@ -109,6 +114,7 @@ class Estimate:
             identity_ambiguous=self.identity_ambiguous,
             assignment=self.assignment,
             extra=dict(self.extra),
+            alternatives=None if self.alternatives is None else self.alternatives.inverse(),
         )
 
     def __getstate__(self) -> dict[str, Any]:
@@ -136,6 +142,8 @@ class Estimate:
         if self.identity_ambiguous is not None:
             d["identity_ambiguous"] = bool(self.identity_ambiguous)
             d["assignment"] = self.assignment
+        if self.alternatives is not None and len(self.alternatives):
+            d["alternatives"] = [p.to_dict() for p in self.alternatives]
         return d
 
 
@@ -328,7 +336,20 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     )
     if passed is False:
         raise InconsistentObservationsError(_inconsistency_message(est, pair, rows, sol, pixel_sigma), est)
+    if passed and pair.table.mounts is not None and not pair.anonymous:
+        # Robots with several cameras or wide-angle lenses: a far robot seen through four markers by one
+        # camera fits two poses more often than not; only a unique pose is solved.
+        other = other_consistent_poses(_problem(pair, pair.side, prow, rows), sol, pixel_sigma,
+                                       confidence if confidence < 1.0 else DEFAULT_CONFIDENCE)
+        est.alternatives = Pose.concatenate([o.pose for o in other]) if other else Pose(np.empty((0, 3, 3)),
+                                                                                        np.empty((0, 3)))
+        passed = None if other else passed
     if passed is None and not allow_unverified:
+        if est.alternatives is not None and len(est.alternatives):
+            raise UnverifiedError(
+                f"{n} marker observations between {source!r} and {target!r} ({', '.join(names)}) fit "
+                f"{len(est.alternatives) + 1} different poses within their noise: nothing says which; accept "
+                "the risk with --allow-unverified (allow_unverified=True) or observe more markers", est)
         k = len(est.candidates)
         fit = "a pose fits them exactly" if k == 1 else f"{k} poses fit them exactly"
         raise UnverifiedError(

@@ -496,6 +496,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     from .api import load_rig
 
     rig = load_rig(rig)
+    rig.require_central("calibrate-markers")
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
     huber = positive_number(huber, "huber")
     if prior_sigma is not None:

@@ -121,6 +121,7 @@ def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, l
     Checked with NumPy over all rows at once; anything unusual (an error to
     name, several candidates for one marker, unnamed markers) takes the
     row-by-row path, which raises the error naming observer and marker."""
+    rig.require_central("the team solver")
     names = list(rig.robots)
     index = {n: i for i, n in enumerate(names)}
     mrow: dict[str, int] = {}

@@ -569,6 +569,29 @@ class FisheyeCamera(_WideLens):
         _fisheye_unproject_many(self._params, U, out)
 
 
+def _omni_radial_z_min(k1: float, k2: float, xi: float) -> float:
+    """The unit vector's smallest ``z_s`` whose radial distortion is still one-to-one: past the radius where
+    ``r (1 + k1 r^2 + k2 r^4)`` stops increasing (2 % inside it) a pixel has two directions; -1 when it never
+    stops.  ``r = sin(theta) / (cos(theta) + xi)`` grows with the angle off the axis on the imaged part."""
+    roots = np.roots([5.0 * k2, 3.0 * k1, 1.0]) if k2 != 0.0 else (np.array([-1.0 / (3.0 * k1)]) if k1 else [])
+    s2 = [float(r.real) for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0.0]
+    if not s2:
+        return -1.0
+    r_max = 0.98 * math.sqrt(min(s2))
+    # solve sin(th) / (cos(th) + xi) = r_max for th by bisection on [0, the geometric limit]
+    lo, hi = 0.0, math.pi if xi <= 0.0 else math.acos(max(-min(xi, 1.0 / xi), -1.0))
+    den = math.cos(hi) + xi
+    if den > 1e-12 and math.sin(hi) / den <= r_max:
+        return -1.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if math.sin(mid) / (math.cos(mid) + xi) < r_max:
+            lo = mid
+        else:
+            hi = mid
+    return math.cos(lo)
+
+
 class OmniCamera(_WideLens):
     """Mei's unified (omnidirectional) camera (immutable): OpenCV's
     ``cv::omnidir``, Kalibr ``omni-radtan``.
@@ -603,6 +626,7 @@ class OmniCamera(_WideLens):
         if xif < 0.0:
             raise RigError(f"camera xi must be >= 0, got {xif:g}")
         z_min = -min(xif, 1.0 / xif) if xif > 0.0 else 0.0
+        z_min = max(z_min, _omni_radial_z_min(float(d4[0]), float(d4[1]), xif))
         self._init(K, d4, n, size, (xif, z_min))
         d8 = np.zeros(8)
         d8[:4] = d4

@@ -148,7 +148,8 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, want
             r[2 * i + 1] = v - meas[i, 1]
         else:
             den = basis[i, 2, 0] * X0 + basis[i, 2, 1] * X1 + basis[i, 2, 2] * X2
-            if not den > 0.0:
+            # (a point at the observer's centre, or a right angle off its ray: no residual)
+            if not den > 1e-150:
                 return False
             for k in range(2):
                 num = basis[i, k, 0] * X0 + basis[i, k, 1] * X1 + basis[i, k, 2] * X2

@@ -11,16 +11,18 @@ rest tested again one by one, and what is left out is named.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
+from scipy.spatial.transform import Rotation
 
 from ..errors import MutlocError
 from .consistency import Consistency, chi2_quantile, consistency
 from .estimate import PairProblem, Solution, estimate
 from .refine import MODE_PIXEL, WS_SIZE, residuals, tangent_bases
 
-__all__ = ["RobustResult", "observation_errors", "largest_consistent_set", "MIN_VERIFIABLE"]
+__all__ = ["RobustResult", "observation_errors", "largest_consistent_set", "other_consistent_poses", "MIN_VERIFIABLE"]
 
 #: Fewest observations whose fit can be tested (2n - 6 > 0).
 MIN_VERIFIABLE = 4
@@ -123,10 +125,55 @@ def largest_consistent_set(problem: PairProblem, first: Solution, sigma: float,
     return best
 
 
+def other_consistent_poses(problem: PairProblem, first: Solution, sigma: float, confidence: float,
+                           tries: int = 6) -> list[Solution]:
+    """Optima other than ``first`` that pass the chi-square test too and that
+    ``first``'s covariance rules out (beyond its 99.9 % ellipsoid): refined
+    from the best-ranked of ``first``'s candidates outside that ellipsoid
+    (at most ``tries`` refinements).  Not empty means the observations fit
+    two different poses (a robot seen by one camera through four markers at
+    range, typically) and neither may be reported as solved."""
+    n = len(problem.side)
+    dof = 2 * n - 6
+    if dof <= 0:
+        return []
+    gate = chi2_quantile(confidence, dof) * sigma**2
+    info = first.information / sigma**2
+    limit = chi2_quantile(0.999, 6)
+    cand = first.candidates
+    # ranked by their cost before refinement: a start far above the gate lies in no consistent basin
+    keep = np.flatnonzero(first.candidate_costs <= 50.0 * gate)
+    if not len(keep):
+        return []
+    Rs, ts = cand.R[keep], cand.t[keep]
+
+    def mahalanobis(R: np.ndarray, t: np.ndarray, pose: Any) -> np.ndarray:
+        d = np.concatenate([Rotation.from_matrix(R @ pose.R.T).as_rotvec(), t - pose.t], axis=-1)
+        return np.einsum("...i,ij,...j->...", d, info, d)
+
+    far = mahalanobis(Rs, ts, first.pose) > limit
+    found: list[Solution] = []
+    attempts = 0
+    for i in np.flatnonzero(far):
+        if attempts >= tries:
+            break
+        if any(mahalanobis(Rs[i], ts[i], f.pose) <= limit for f in found):
+            continue
+        attempts += 1
+        try:
+            sol = estimate(problem, extra_candidates=(Rs[i], ts[i]), use_minimal=False)
+        except MutlocError:
+            continue
+        if sol.cost <= gate and all(mahalanobis(sol.pose.R, sol.pose.t, o.pose) > limit for o in (first, *found)):
+            found.append(sol)
+    return found
+
+
 def _pose_difference(a: Solution, b: Solution) -> np.ndarray:
     """(left rotation vector, translation) from b to a, the covariance's parametrisation."""
     from .geometry import so3_log
 
+    
     return np.r_[so3_log(a.pose.R @ b.pose.R.T), a.pose.t - b.pose.t]
 
 

@@ -241,6 +241,7 @@ class Localizer:
             rig_id = rig_id_of(rig)
         self.rig_id = str(rig_id)
         self.rig = expanded_rig(load_rig(rig))
+        self.rig.require_central("the live localizer")
         names = list(self.rig.robots)
         if len(names) < 2:
             raise InputError(f"the localizer needs two robots or more; the rig has {len(names)}")

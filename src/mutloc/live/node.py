@@ -219,6 +219,7 @@ class Node:
                 raise InputError("a node given a loaded rig needs its rig_id (of the rig file the localizer reads)")
             rig_id = rig_file_id(rig)
         self.rig: Rig = expanded_rig(load_rig(rig))
+        self.rig.require_central("the live node")
         self.rig.robot(robot)
         self.others = [r for r in self.rig.robots if r != robot]
         if not self.others:

@@ -109,10 +109,21 @@ def body_observations(rig: Rig, poses: Mapping[str, Pose], *, sigma: float = 0.0
                     uv = np.asarray(mount.camera.project(X), float)
                     if not np.all(np.isfinite(uv)) or not mount.camera.in_image(uv):
                         continue
+                    # where a lens's polynomial folds back (past its calibrated field) it images nothing
+                    if not _round_trips(mount.camera, uv, X):
+                        continue
                     if sigma > 0:
                         uv = uv + sigma * rng.standard_normal(2)
                     out.setdefault(robot.observer_key(cname), {})[mname] = uv.tolist()
     return out
+
+
+def _round_trips(camera: Any, uv: np.ndarray, X: np.ndarray) -> bool:
+    try:
+        b = np.asarray(camera.pixels_to_bearings(uv), float)
+    except Exception:  # noqa: BLE001 -- a pinhole Camera raises where it cannot undistort
+        return False
+    return bool(np.all(np.isfinite(b)) and b @ X / np.linalg.norm(X) > np.cos(1e-6))
 
 
 def pixel_information(rig: Rig, observations: Mapping[str, Mapping[str, Any]], source: str, target: str,

@@ -155,6 +155,7 @@ def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target
     """The expanded rig and the (source, target) pair, checking that every
     input names a robot of the rig and both robots of the pair have one."""
     rig = expanded_rig(load_rig(rig))
+    rig.require_central("detection in images")
     source, target = rig.default_pair(source, target)
     for robot in inputs:
         rig.robot(robot)

@@ -1324,6 +1324,7 @@ def sync_streams(streams: Mapping[str, Iterable[Frame]], tolerance: float) -> It
 
 def _team_setup(rig: Any, reference: str | None, names: Iterable[str], what: str) -> tuple[Rig, str]:
     rig = expanded_rig(load_rig(rig))
+    rig.require_central("the tracker")
     for robot in names:
         rig.robot(robot)
     if reference is not None and (not isinstance(reference, str) or reference not in rig.robots):

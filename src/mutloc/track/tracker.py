@@ -235,6 +235,7 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
     ObservationSets stamped with their time); ``filter``, ``rerun`` and
     ``sink`` (rows as they become final) as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
+    rig.require_central("the tracker")
     source, target = rig.default_pair(source, target)
     if rerun is not None:
         writable_path(rerun, "rerun")  # before the work, not after it
