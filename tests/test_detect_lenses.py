@@ -32,7 +32,7 @@ SS = 4  # sub-pixels per pixel side
 FISHEYE = FisheyeCamera([[290, 0, 639.5], [0, 290, 399.5], [0, 0, 1]], [0.012, -0.004, 0.0006, -0.0001],
                         (1280, 800))
 #: Mei's model, xi = 1 (a 180-degree-plus mirror lens), 1024x768.
-OMNI = OmniCamera([[560, 0, 511.5], [0, 560, 383.5], [0, 0, 1]], [-0.05, 0.01, 0.0005, -0.0003], 1.0,
+OMNI = OmniCamera([[450, 0, 511.5], [0, 450, 383.5], [0, 0, 1]], [-0.05, 0.01, 0.0005, -0.0003], 1.0,
                   (1024, 768))
 TAG_SIZE = 0.12
 BALL_RADIUS = 0.05
@@ -165,10 +165,11 @@ def _ball_marker() -> dict[str, Marker]:
 
 # Tags at 1.5-2 m (17-22 px at 290 px/rad: a 0.12 m tag farther is below the detector's size limit
 # in any image), turned 20 degrees off facing the camera.
-TAG_CASES = [(0.0, 0.0, 1.5), (45.0, 20.0, 2.0), (70.0, 200.0, 2.0), (85.0, 0.0, 2.0), (92.0, 180.0, 2.0)]
+TAG_CASES = [(0.0, 0.0, 1.5), (45.0, 20.0, 2.0), (70.0, 200.0, 2.0), (85.0, 0.0, 2.0), (92.0, 180.0, 2.0),
+             (85.0, 0.0, 0.7), (92.0, 180.0, 0.7)]
 #: Tolerances (px) on the worst corner: the edge fit's sub-pixel accuracy plus the rectification's
 #: bilinear resampling; the measured errors are printed (-s) and recorded in the report.
-TAG_TOL_PX = 0.35
+TAG_TOL_PX = 0.3
 
 
 def _corner_errors(camera, off, az, dist, tid=3, seed=0, detect=None):
@@ -189,7 +190,7 @@ def test_fisheye_tag_corners_out_to_the_rim(off, az, dist):
     assert err.max() < TAG_TOL_PX
 
 
-@pytest.mark.parametrize("off, az, dist", [(0.0, 0.0, 3.0), (60.0, 90.0, 2.5), (85.0, 180.0, 2.0)])
+@pytest.mark.parametrize("off, az, dist", [(0.0, 0.0, 1.0), (60.0, 90.0, 1.5), (85.0, 180.0, 1.5), (85.0, 0.0, 0.8)])
 def test_omni_tag_corners(off, az, dist):
     err, _ = _corner_errors(OMNI, off, az, dist, seed=int(off) + 7)
     assert err is not None, f"omni: tag {off} degrees off the axis not found"
@@ -199,8 +200,10 @@ def test_omni_tag_corners(off, az, dist):
 
 def test_rim_tags_need_the_views():
     """The mutation: the detector run on the raw fisheye image itself (no views; it cannot take the lens,
-    so without a camera) misses the rim tags or measures their corners pixels off."""
-    for off, az, dist in TAG_CASES[3:]:
+    so without a camera) measures the rim tags' corners off, by the sides' curvature: 1.2-1.3 px at
+    60 px (0.7 m), against <= 0.2 px through the views.  (Small rim tags, ~20 px, are nearly straight-sided:
+    there the raw image's corners are as good.)"""
+    for off, az, dist in TAG_CASES[5:]:
         err, _ = _corner_errors(FISHEYE, off, az, dist, seed=int(off),
                                 detect=lambda i, m: detect_tags(i, m))
         assert err is None or err.max() > 3 * TAG_TOL_PX, (off, err)
@@ -229,9 +232,9 @@ def test_fisheye_ball_centres_out_to_the_rim(off, az, dist):
 
 
 def test_omni_ball_centre():
-    err = _ball_error(OMNI, 80.0, 60.0, 1.3, seed=11)
+    err = _ball_error(OMNI, 85.0, 0.0, 1.0, seed=11)
     assert err is not None
-    print(f"omni ball 80 deg: centre error {err:.3f} px")
+    print(f"omni ball 85 deg: centre error {err:.3f} px")
     assert err < BALL_TOL_PX
 
 

@@ -65,7 +65,7 @@ HALF_FOV_DEG = 50.0
 _RINGS = ((70.0, 6, 0.0), (120.0, 6, 30.0))
 #: Field (degrees off the axis) up to which the views so far keep every direction >= 8 degrees inside one
 #: view (measured on a dense sample of directions): the axis view alone, then with each ring.
-_REACH = (35.0, 100.0, 150.0)
+_REACH = (35.0, 104.0, 150.0)
 #: Views cached per camera (the remap tables are the big part: ~6 bytes per view pixel).
 _CACHE_SIZE = 8
 #: Raw pixels kept around the part of a view that shows the image (view pixels).
@@ -207,20 +207,38 @@ def _axes(field_deg: float) -> list[np.ndarray]:
     return axes
 
 
-def _density(camera: Any, R: np.ndarray) -> float:
+def _density(camera: Any, R: np.ndarray, field_deg: float) -> float:
     """Raw pixels per radian along a view's axis: the geometric mean of the singular values of the lens's
     Jacobian restricted to the directions across the axis (the view then has as many pixels per unit of
-    solid angle there as the raw image)."""
-    _, J = camera.project_jacobian(R[:, 2])
-    if not np.all(np.isfinite(J)):
-        return float(np.mean(np.diag(camera.K)[:2]))
-    return float(math.sqrt(abs(np.linalg.det(J @ R[:, :2]))))
+    solid angle there as the raw image).  An axis beyond the field is taken where the field ends on its
+    way (what the view shows is there), and the density is capped at twice the density on the optical
+    axis (a lens whose rim is stretched, as Mei's with a large ``xi``, would else make views of
+    millions of pixels)."""
+    a = R[:, 2]
+    tilt = math.acos(max(-1.0, min(1.0, float(a[2]))))
+    edge = math.radians(field_deg) - math.radians(2.0)
+    if tilt > edge:
+        across = np.array([a[0], a[1], 0.0])
+        n = np.linalg.norm(across)
+        across = across / n if n > 1e-9 else np.array([1.0, 0.0, 0.0])
+        a = np.array([*(math.sin(edge) * across[:2]), math.cos(edge)])
+        R = _look(a)
+
+    def at(R: np.ndarray) -> float:
+        _, J = camera.project_jacobian(R[:, 2])
+        return float(math.sqrt(abs(np.linalg.det(J @ R[:, :2])))) if np.all(np.isfinite(J)) else math.nan
+
+    centre = at(np.eye(3))
+    d = at(R)
+    if not math.isfinite(d):
+        d = centre
+    return min(d, 2.0 * centre) if math.isfinite(centre) else d
 
 
 def _build_view(camera: Any, index: int, R: np.ndarray, field_deg: float, half_fov: float,
                 density: float) -> View | None:
     w, h = camera.size
-    f = density * _density(camera, R)
+    f = density * _density(camera, R, field_deg)
     half = int(math.ceil(f * math.tan(half_fov)))
     n = 2 * half + 1
     c = float(half)
