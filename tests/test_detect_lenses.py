@@ -169,7 +169,7 @@ TAG_CASES = [(0.0, 0.0, 1.5), (45.0, 20.0, 2.0), (70.0, 200.0, 2.0), (85.0, 0.0,
              (85.0, 0.0, 0.7), (92.0, 180.0, 0.7)]
 #: Tolerances (px) on the worst corner: the edge fit's sub-pixel accuracy plus the rectification's
 #: bilinear resampling; the measured errors are printed (-s) and recorded in the report.
-TAG_TOL_PX = 0.3
+TAG_TOL_PX = 0.25
 
 
 def _corner_errors(camera, off, az, dist, tid=3, seed=0, detect=None):
@@ -210,7 +210,7 @@ def test_rim_tags_need_the_views():
 
 
 BALL_CASES = [(0.0, 0.0, 2.0), (45.0, 30.0, 1.8), (70.0, 200.0, 1.5), (85.0, 0.0, 1.3), (92.0, 180.0, 1.3)]
-BALL_TOL_PX = 0.5
+BALL_TOL_PX = 0.2
 
 
 def _ball_error(camera, off, az, dist, seed=0, detect=None):
