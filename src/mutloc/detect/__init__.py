@@ -15,7 +15,7 @@ from ..core.rig import MarkerKind
 from .base import Detection, DetectionResult, as_bgr
 
 __all__ = ["Detection", "DetectionResult", "as_bgr", "detect_balls", "detect_tags", "detect_cylinders",
-           "BlinkTracker", "IMAGE_DETECTORS", "SEQUENCE_DETECTORS", "image_detector"]
+           "BlinkTracker", "IMAGE_DETECTORS", "SEQUENCE_DETECTORS", "image_detector", "detect_image"]
 
 #: kind -> (module, function) of the detector that finds it in one image.
 IMAGE_DETECTORS: dict[MarkerKind, tuple[str, str]] = {
@@ -37,6 +37,24 @@ def image_detector(kind: MarkerKind) -> Callable[..., DetectionResult] | None:
     if entry is None:
         return None
     return getattr(importlib.import_module(f".{entry[0]}", __name__), entry[1])
+
+
+def detect_image(kind: MarkerKind, image: Any, markers: Any, camera: Any = None,
+                 **options: Any) -> DetectionResult:
+    """Find the markers of ``kind`` in one image taken through any lens (the raw image's pixels).
+
+    ``camera``: the lens that took the image (:class:`~mutloc.core.camera.Camera`, ``FisheyeCamera``,
+    ``OmniCamera``) or None.  A pinhole camera (or none) calls the kind's detector exactly as before; a
+    wide-angle lens runs it on the lens's rectified views (:func:`.views.detect_in_views`).  ``options``
+    go to the detector.  ValueError for a kind that has no single-image detector (blinking lights)."""
+    detector = image_detector(kind)
+    if detector is None:
+        raise ValueError(f"markers of kind {kind.value!r} are not found in single images")
+    from .views import detect_in_views, needs_views
+
+    if needs_views(camera):
+        return detect_in_views(detector, image, markers, camera, **options)
+    return detector(image, markers, camera=camera, **options)
 
 
 def __getattr__(name: str) -> Any:

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 
 from ..api import Estimate, load_rig
-from ..core.rig import DETECTED_KINDS, Marker, MarkerKind, Rig
-from ..detect import image_detector
+from ..core.rig import CAMERA_SEPARATOR, DETECTED_KINDS, Marker, MarkerKind, Rig
+from ..detect import detect_image, image_detector
 from ..detect.base import DetectionResult, as_bgr, observations_of
 from ..errors import FileFormatError, InputError, ObservationError
 from .second_look import second_look
@@ -44,11 +44,12 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-def _check_size(rig: Rig, robot: str, image: np.ndarray, where: str) -> None:
-    size = rig.robot(robot).camera.size
+def _check_size(camera: Any, image: np.ndarray, where: str, observer: str) -> None:
+    size = camera.size
     if size is not None and (image.shape[1], image.shape[0]) != tuple(size):
+        what = "camera" if CAMERA_SEPARATOR in observer else "robot"
         raise InputError(
-            f"{where}: image is {image.shape[1]}x{image.shape[0]} but robot {robot!r}'s calibration is "
+            f"{where}: image is {image.shape[1]}x{image.shape[0]} but {what} {observer!r}'s calibration is "
             f"{size[0]}x{size[1]}"
         )
 
@@ -56,11 +57,19 @@ def _check_size(rig: Rig, robot: str, image: np.ndarray, where: str) -> None:
 def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str] | None = None) -> DetectionResult:
     """Every marker of the other robots (or of ``targets``) that ``observer``'s
     image shows, each found by the detector of its kind (``mutloc.detect``'s
-    table).  Blinking lights need a sequence: from one image they are missing."""
+    table).  Blinking lights need a sequence: from one image they are missing.
+
+    ``observer`` is an observation key: ``ROBOT`` (a robot with one camera) or
+    ``ROBOT/CAMERA``; the camera may have any lens (a fisheye or omni image is
+    searched through rectified views, :func:`mutloc.detect.detect_image`), and
+    the pixels reported are always the raw image's."""
     image = as_bgr(image, f"image of robot {observer!r}")
-    _check_size(rig, observer, image, f"image of robot {observer!r}")
-    camera = rig.robot(observer).camera
-    others = targets if targets is not None else [r for r in rig.robots if r != observer]
+    if CAMERA_SEPARATOR not in observer:
+        rig.robot(observer)  # an unknown robot: the rig's own error, as ever
+    robot, _ = rig.observer(observer)
+    camera = rig.mount(observer).camera
+    _check_size(camera, image, f"image of robot {observer!r}", observer)
+    others = targets if targets is not None else [r for r in rig.robots if r != robot]
     by_kind: dict[MarkerKind, dict[str, Marker]] = {}
     for r in others:
         for n, m in rig.robot(r).markers.items():
@@ -68,11 +77,10 @@ def detect_markers(rig: Rig, observer: str, image: np.ndarray, targets: list[str
                 by_kind.setdefault(m.kind, {})[n] = m
     result = DetectionResult()
     for kind, markers in by_kind.items():
-        detector = image_detector(kind)
-        if detector is None:
+        if image_detector(kind) is None:
             result.missing.extend(n for n in markers if n not in result.missing)
             continue
-        found = detector(image, markers, camera=camera)
+        found = detect_image(kind, image, markers, camera)
         if kind == MarkerKind.TAG:
             _add_tag_corners(found, markers)
         elif kind == MarkerKind.CYLINDER:
