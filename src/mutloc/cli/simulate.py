@@ -13,6 +13,9 @@ ORDER = 70
 # As mutloc.sim.world.MARKER_KINDS (not imported: keep `mutloc --help` light;
 # tests/test_cli.py checks the two agree).
 MARKER_KINDS = ("balls", "lights", "tags", "cylinders")
+# As mutloc.sim.body_scenes.CAMERA_SETS and FACINGS (tests/test_simulate_cli.py checks they agree).
+CAMERA_SETS = ("single", "back-to-back-fisheye")
+FACINGS = ("toward", "away")
 
 
 def _image_size(text: str) -> tuple[int, int]:
@@ -41,7 +44,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
             "Render two robots p and q facing each other in a textured room with the built-in "
             "ray caster. Writes rig.yaml, the images (p.png and q.png, or p/ and q/ folders for a "
             "sequence with frames.csv), truth.json (T_qp and exact marker pixels per frame) and, "
-            "for sequences, truth.tum (pose of p in q's frame, TUM format)."
+            "for sequences, truth.tum (pose of p in q's frame, TUM format). --cameras back-to-back-fisheye: robots "
+            "with two fisheye cameras each, one image per camera (p_front.png, p_back.png, ...), rig.yaml with "
+            "cameras:, observations keyed p/front ...; --facing away puts them back to back."
         ),
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
@@ -64,11 +69,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="pass each image through JPEG at quality Q (files stay PNG)")
     p.add_argument("--blur", type=nonnegative_float, default=0.0, metavar="PX",
                    help="horizontal motion blur length in pixels (default 0)")
-    p.add_argument("--k1", type=_finite_float, default=0.0, help="radial distortion k1 of both cameras (default 0)")
-    p.add_argument("--size", type=_image_size, default=(960, 540), metavar="WxH",
-                   help="image size (default 960x540)")
-    p.add_argument("--focal", type=positive_float, default=800.0, metavar="PX",
-                   help="focal length in pixels (default 800)")
+    p.add_argument("--k1", type=_finite_float, default=None,
+                   help="radial distortion k1 of both cameras (default 0; pinhole cameras only)")
+    p.add_argument("--size", type=_image_size, default=None, metavar="WxH",
+                   help="image size (default 960x540; 1280x800 for fisheyes)")
+    p.add_argument("--focal", type=positive_float, default=None, metavar="PX",
+                   help="focal length in pixels (default 800; pinhole cameras only)")
+    p.add_argument("--cameras", choices=CAMERA_SETS, default="single",
+                   help="cameras of each robot: single (one pinhole camera, the robot's frame is its optical "
+                        "frame; default) or back-to-back-fisheye (robots with several cameras: two fisheyes of "
+                        "about 200 degrees, front and back, 1280x800; the robots' frames are base_link bodies; "
+                        "writes an image per camera, p_front.png ... or p_front/ ... folders, and rig.yaml with "
+                        "cameras:; with --markers balls or lights)")
+    p.add_argument("--facing", choices=FACINGS, default="toward",
+                   help="toward: the robots face each other (default); away: back to back, so only the back "
+                        "cameras see the other robot (needs --cameras back-to-back-fisheye)")
     p.add_argument("--no-room", action="store_true", help="robots on a black background, no room")
     p.add_argument("--robots", type=int_in_range(2, 64, "--robots"), default=2, metavar="N",
                    help="more than 2: a team of N robots r0..rN-1 in a room, with --markers balls (four coloured "
@@ -87,12 +102,35 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Render and write the files; prints a one-line summary."""
+    from ..errors import InputError
     from ..sim.scenario import write_simulation, write_team_simulation
 
+    if args.cameras != "single":
+        if args.robots > 2:
+            raise InputError(f"--cameras {args.cameras}: a pair only (not with --robots)")
+        for given, option in ((args.k1, "--k1"), (args.focal, "--focal"), (args.speed, "--speed"),
+                              (args.turn_rate, "--turn-rate")):
+            if given is not None:
+                raise InputError(f"{option} is for --cameras single, not {args.cameras}")
+        if args.camera_fps or args.camera_offset:
+            raise InputError(f"--camera-fps/--camera-offset are for --cameras single, not {args.cameras}")
+        from ..sim.body_scenes import write_cameras_simulation
+
+        print(write_cameras_simulation(args.out, cameras=args.cameras, facing=args.facing, markers=args.markers,
+                                       distance=args.distance, frames=args.frames, fps=args.fps, seed=args.seed,
+                                       noise=args.noise, jpeg=args.jpeg, blur=args.blur, size=args.size,
+                                       room=not args.no_room, progress=args.progress))
+        return 0
+    if args.facing != "toward":
+        raise InputError("--facing away: one camera per robot would see nothing; use --cameras back-to-back-fisheye")
+    if args.size is None:
+        args.size = (960, 540)
+    if args.focal is None:
+        args.focal = 800.0
+    if args.k1 is None:
+        args.k1 = 0.0
     if args.robots > 2:
         if args.markers not in ("balls", "tags"):
-            from ..errors import InputError
-
             raise InputError("--robots: a team carries balls or tags (--markers balls|tags)")
         print(write_team_simulation(args.out, robots=args.robots, markers=args.markers, frames=args.frames,
                                     fps=args.fps, seed=args.seed, noise=args.noise, jpeg=args.jpeg,
@@ -103,8 +141,6 @@ def run(args: argparse.Namespace) -> int:
                                     speed=args.speed, turn_rate=args.turn_rate))
         return 0
     if args.speed is not None or args.turn_rate is not None:
-        from ..errors import InputError
-
         raise InputError("--speed/--turn-rate move a team: use them with --robots 3 or more")
     summary = write_simulation(
         args.out, markers=args.markers, distance=args.distance, frames=args.frames, fps=args.fps,

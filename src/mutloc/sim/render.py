@@ -70,7 +70,10 @@ __all__ = [
     "render",
     "srgb_to_linear",
     "surface_distance",
+    "true_observations",
     "two_robot_world",
+    "body_box",
+    "BODY_BOX",
 ]
 
 # Sub-pixel rays per axis on edge pixels.
@@ -87,6 +90,9 @@ _BODY_HALF_WIDTH = 0.12
 _BODY_TOP = 0.06
 _BODY_Z = (-0.30, -0.02)
 _HOUSING = ((-0.04, 0.04), (-0.03, 0.03), (-0.07, -0.005))
+#: Body of a robot with several cameras (its base_link frame: x forward, y left, z up), before
+#: :func:`body_box` cuts it clear of the cameras and markers: (lo, hi) corners, metres.
+BODY_BOX = ((-0.20, -0.15, 0.02), (0.20, 0.15, 0.36))
 
 
 # ---------------------------------------------------------------------------
@@ -677,6 +683,22 @@ _BEARINGS: OrderedDict[tuple, np.ndarray] = OrderedDict()
 _BEARINGS_MAX = 6
 
 
+def _is_wide(camera: Any) -> bool:
+    """Whether ``camera`` is a lens model other than the pinhole (no undistort kernel, no culling)."""
+    return getattr(camera, "model", "pinhole") != "pinhole"
+
+
+def _wide_subpixel_bearings(camera: Any, idx: np.ndarray, ss: int, W: int) -> np.ndarray:
+    """:func:`_subpixel_bearings` (same sub-pixel pattern, same row order) through any lens."""
+    inv = 1.0 / ss
+    sy, sx = np.divmod(np.arange(ss * ss), ss)
+    du = -0.5 + (sx + (sy + 0.5) * inv) * inv
+    dv = -0.5 + (sy + (sx + 0.5) * inv) * inv
+    v, u = np.divmod(idx, W)
+    uv = np.stack([(u[:, None] + du[None, :]).ravel(), (v[:, None] + dv[None, :]).ravel()], axis=1)
+    return np.ascontiguousarray(camera.pixels_to_bearings(uv.astype(float)))
+
+
 def _camera_size(camera: Camera, observer: str) -> tuple[int, int]:
     if camera.size is None:
         raise InputError(f"robot {observer!r}: camera has no image size: give 'size: [width, height]' in the rig")
@@ -688,18 +710,27 @@ def pixel_bearings(camera: Camera) -> np.ndarray:
 
     The same inverse as :meth:`Camera.pixels_to_bearings` (its kernel), but
     NaN instead of an error where the distortion cannot be inverted (e.g. the
-    corners of a strongly distorted lens): those pixels render black.
+    corners of a strongly distorted lens): those pixels render black.  Any
+    lens (:mod:`mutloc.core.lenses`: fisheye, omni): its own
+    ``pixels_to_bearings``, NaN (black) where it images nothing (outside
+    the fisheye circle, beyond ``max_angle``).
     """
     if camera.size is None:
         raise InputError("camera has no image size")
-    key = (camera.K.tobytes(), camera.dist.tobytes(), camera.size)
+    wide = _is_wide(camera)
+    key = (camera.K.tobytes(), camera.dist.tobytes(), camera.size) if not wide else \
+        ("wide", type(camera).__name__, camera.params, camera.size)
     hit = _BEARINGS.get(key)
     if hit is not None:
         _BEARINGS.move_to_end(key)
         return hit
     w, h = camera.size
-    out = np.empty((h, w, 3))
-    _bearing_grid(camera.K, camera.dist, out)
+    if wide:
+        vv, uu = np.mgrid[0:h, 0:w]
+        out = camera.pixels_to_bearings(np.column_stack([uu.ravel(), vv.ravel()]).astype(float)).reshape(h, w, 3)
+    else:
+        out = np.empty((h, w, 3))
+        _bearing_grid(camera.K, camera.dist, out)
     out.flags.writeable = False
     _BEARINGS[key] = out
     while len(_BEARINGS) > _BEARINGS_MAX:
@@ -854,6 +885,46 @@ def _overlaps(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray) 
     return bool(np.all(lo < hi2) and np.all(lo2 < hi))
 
 
+def body_box(robot: Any, *, margin: float = 0.01) -> tuple[np.ndarray, np.ndarray] | None:
+    """The grey box drawn for a robot with several cameras: ``(lo, hi)`` corners in its body frame, or None.
+
+    The body frame is taken to be a ``base_link`` (x forward, y left, z up,
+    origin on the floor): the box is :data:`BODY_BOX` (40 x 30 cm, 2 to
+    36 cm above the floor), then cut back so that every camera is outside it
+    (the face its optical axis points through moves ``margin`` behind the
+    camera: a camera on the body's surface sees out, never the inside of the
+    box) and no marker is swallowed (the face needing the least cut moves
+    clear of it).  None when nothing sensible is left.
+    """
+    lo = np.array(BODY_BOX[0], float)
+    hi = np.array(BODY_BOX[1], float)
+    for mount in robot.mounts.values():
+        c = np.asarray(mount.pose.t, float)
+        if not (np.all(c > lo - margin) and np.all(c < hi + margin)):
+            continue
+        axis = mount.pose.R[:, 2]
+        a = int(np.argmax(np.abs(axis)))
+        if axis[a] > 0:
+            hi[a] = min(hi[a], c[a] - margin)
+        else:
+            lo[a] = max(lo[a], c[a] + margin)
+    for m in robot.markers.values():
+        mlo, mhi = _marker_extent(m)
+        if not _overlaps(lo, hi, mlo - margin, mhi + margin):
+            continue
+        # cut the face that needs the least cut
+        cuts = [(hi[a] - (mlo[a] - margin), a, 1) for a in range(3)] + \
+               [((mhi[a] + margin) - lo[a], a, 0) for a in range(3)]
+        _, a, top = min(cuts)
+        if top:
+            hi[a] = mlo[a] - margin
+        else:
+            lo[a] = mhi[a] + margin
+    if np.any(hi - lo < 0.02):
+        return None
+    return lo, hi
+
+
 def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: dict[Any, int],
                t_now: float) -> None:
     """Append robot ``wr``'s body and markers at pose ``T`` (camera -> world), time ``t_now``."""
@@ -862,7 +933,15 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
     markers = list(wr.robot.markers.values())
     boxes = [_marker_extent(m) for m in markers]
 
-    if wr.body:
+    if wr.body and wr.robot.is_body:
+        box = body_box(wr.robot)
+        if box is not None:
+            lo, hi = box
+            c = 0.5 * (lo + hi)
+            half = 0.5 * (hi - lo)
+            scene.add(_box_row(R @ c + t, R, half, _lin_bgr(wr.body_color)), (_BOX, -1, 0), (name, None),
+                      R @ c + t, float(np.linalg.norm(half)))
+    elif wr.body:
         # Height of the camera above the floor along the robot's "down" axis.
         down_z = R[2, 1]
         height = t[2] / -down_z if (world.room is not None and down_z < -0.3) else 0.45
@@ -946,10 +1025,12 @@ def _add_prop(scene: _Scene, prop: Prop) -> None:
 
 def _compile(world: World, t: float, observer: str | None = None
              ) -> tuple[_Scene, tuple[np.ndarray, np.ndarray, dict[Any, int]]]:
-    """The world at time ``t`` as flat arrays (culled for ``observer``'s camera if given)."""
+    """The world at time ``t`` as flat arrays (culled for ``observer``'s camera if given and a pinhole:
+    nothing behind its image plane)."""
     atlas = _atlas(world)
     ids = atlas[2]
-    scene = _Scene(world.pose(observer, t).inverse() if observer is not None else None)
+    cull = observer is not None and not _is_wide(world.camera(observer))
+    scene = _Scene(world.camera_pose(observer, t).inverse() if cull else None)
     if world.room is not None:
         for name, c, u, v, hu, hv in world.room.surfaces():
             row = _quad_row(c, u, v, hu, hv, np.ones(3), world.room.texel)
@@ -1017,12 +1098,29 @@ def _force_small_spheres(scene: _Scene, T_cw: Pose, camera: Camera, force: np.nd
     """Mark the neighbourhood of spheres too small for the edge test to catch."""
     H, W = force.shape
     fx = camera.K[0, 0]
+    wide = _is_wide(camera)
     for k in range(len(scene.rows)):
         if scene.pi[k, 0] != _SPHERE:
             continue
         X = T_cw.apply(scene.pf[k, :3])
         r = scene.pf[k, 3]
         d = float(np.linalg.norm(X))
+        if wide:
+            # Any lens: the image radius from the projection's Jacobian (its largest stretch).
+            if d <= r:
+                continue
+            uv, J = camera.project_jacobian(X)
+            if not (np.all(np.isfinite(uv)) and np.all(np.isfinite(J))):
+                continue
+            rho = float(np.linalg.svd(J, compute_uv=False)[0]) * d * math.asin(min(1.0, r / d))
+            if rho >= _SMALL_SPHERE_PX:
+                continue
+            m = 1.5 * rho + 2.0
+            u0, u1 = int(max(0, math.floor(uv[0] - m))), int(min(W - 1, math.ceil(uv[0] + m)))
+            v0, v1 = int(max(0, math.floor(uv[1] - m))), int(min(H - 1, math.ceil(uv[1] + m)))
+            if u0 <= u1 and v0 <= v1:
+                force[v0:v1 + 1, u0:u1 + 1] = True
+            continue
         if X[2] <= r or d <= r:
             continue
         rho = fx * math.asin(min(1.0, r / d)) / max(X[2] / d, 0.1)
@@ -1046,13 +1144,15 @@ def _light_params(world: World) -> np.ndarray:
 
 
 def render_linear(world: World, observer: str, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Anti-aliased linear-light BGR radiance (H, W, 3) and the lights' emission, before the sensor."""
+    """Anti-aliased linear-light BGR radiance (H, W, 3) and the lights' emission, before the sensor.
+
+    ``observer``: ``ROBOT`` or ``ROBOT/CAMERA`` (see :func:`render`)."""
     t = _check_time(t)
     camera = world.camera(observer)
     w, h = _camera_size(camera, observer)
     bear = pixel_bearings(camera)
     scene, (tex, tinfo, _ids) = _compile(world, t, observer)
-    T_wc = world.pose(observer, t)
+    T_wc = world.camera_pose(observer, t)
     R = np.ascontiguousarray(T_wc.R)
     o = np.ascontiguousarray(T_wc.t)
     lp = _light_params(world)
@@ -1073,8 +1173,11 @@ def render_linear(world: World, observer: str, t: float = 0.0) -> tuple[np.ndarr
     idx = idx[:n]
     ss = SUPERSAMPLE
     if n:
-        sub_b = np.empty((n * ss * ss, 3))
-        _subpixel_bearings(idx, ss, w, camera.K, camera.dist, sub_b)
+        if _is_wide(camera):
+            sub_b = _wide_subpixel_bearings(camera, idx, ss, w)
+        else:
+            sub_b = np.empty((n * ss * ss, 3))
+            _subpixel_bearings(idx, ss, w, camera.K, camera.dist, sub_b)
         sub_rgb = np.empty((n * ss * ss, 3))
         sub_emit = np.empty((n * ss * ss, 3))
         sub_key = np.empty(n * ss * ss, np.int64)
@@ -1086,7 +1189,14 @@ def render_linear(world: World, observer: str, t: float = 0.0) -> tuple[np.ndarr
 
 def render(world: World, observer: str, t: float = 0.0, *, seed: int = 0, noise_sigma: float = 0.0,
            jpeg_quality: int | None = None, blur_px: float = 0.0) -> np.ndarray:
-    """What robot ``observer``'s camera sees at time ``t``: uint8 BGR (H, W, 3).
+    """What camera ``observer`` sees at time ``t``: uint8 BGR (H, W, 3).
+
+    ``observer`` is an observer key as in observations (SPEC): ``"p"`` for a
+    robot with one camera, ``"p/front"`` for camera ``front`` of a robot with
+    several cameras, whose pose in the world is ``T_world_robot @
+    mount.pose``.  Any lens (pinhole, fisheye, omni): each pixel's ray is the
+    lens's own inverse (:func:`pixel_bearings`), and pixels the lens does not
+    image (outside a fisheye's circle) are black.
 
     Pipeline: anti-aliased ray casting (linear light) -> bloom around lit
     lights -> linear motion blur of ``blur_px`` pixels along
@@ -1135,13 +1245,17 @@ def render(world: World, observer: str, t: float = 0.0, *, seed: int = 0, noise_
 
 
 def relative_pose(world: World, source: str, target: str, t: float = 0.0) -> Pose:
-    """``T_target_source`` at time ``t``: ``x_target = R @ x_source + t`` (SPEC's T_qp for p=source, q=target)."""
+    """``T_target_source`` at time ``t``: ``x_target = R @ x_source + t`` (SPEC's T_qp for p=source, q=target),
+    between robot frames (body frames for robots with several cameras)."""
     t = _check_time(t)
     return world.pose(target, t).inverse() @ world.pose(source, t)
 
 
 def _visible_through_lens(camera: Camera, X: np.ndarray, uv: np.ndarray) -> bool:
     """True if pixel ``uv`` really is where ``X`` is seen, not a fold-over of the distortion."""
+    if _is_wide(camera):
+        b = camera.pixels_to_bearings(np.asarray(uv, float))
+        return bool(np.all(np.isfinite(b))) and float(b @ (X / np.linalg.norm(X))) > math.cos(1e-7)
     b = np.empty(3)
     if not undistort_kernel(camera.K, camera.dist, np.asarray(uv, float), b):
         return False
@@ -1150,9 +1264,12 @@ def _visible_through_lens(camera: Camera, X: np.ndarray, uv: np.ndarray) -> bool
 
 def project_markers(world: World, observer: str, t: float = 0.0, *,
                     check_occlusion: bool = False) -> dict[str, tuple[float, float]]:
-    """Exact pixels of every other robot's marker centre seen by ``observer`` at ``t``.
+    """Exact pixels of every other robot's marker centre seen by camera ``observer`` at ``t``.
 
-    A marker is listed when its centre is in front of the camera, inside the
+    ``observer``: ``ROBOT`` or ``ROBOT/CAMERA`` (see :func:`render`); pixels
+    are that camera's raw pixels through its lens, with its mount pose.
+    A marker is listed when its centre is imaged (a pinhole: in front of the
+    camera; any lens: less than ``max_angle`` off its axis), inside the
     image, and truly imaged there (not a fold-over of a strong distortion).
     This is the observer's entry of a SPEC observations file.  With
     ``check_occlusion`` a marker is also dropped when something else hides
@@ -1160,18 +1277,20 @@ def project_markers(world: World, observer: str, t: float = 0.0, *,
     """
     t = _check_time(t)
     camera = world.camera(observer)
-    T_cw = world.pose(observer, t).inverse()
+    own, _ = world.observer(observer)
+    wide = _is_wide(camera)
+    T_cw = world.camera_pose(observer, t).inverse()
     scene = None
     if check_occlusion:
         scene, _ = _compile(world, t, observer)
     out: dict[str, tuple[float, float]] = {}
     for rname, wr in world.robots.items():
-        if rname == observer:
+        if rname == own:
             continue
         T_cr = T_cw @ wr.pose_at(t)
         for m in wr.robot.markers.values():
             X = T_cr.apply(m.position)
-            if not X[2] > 0:
+            if not (wide or X[2] > 0):
                 continue
             uv = camera.project(X)
             if not camera.in_image(uv) or not _visible_through_lens(camera, X, uv):
@@ -1182,8 +1301,25 @@ def project_markers(world: World, observer: str, t: float = 0.0, *,
     return out
 
 
+def true_observations(world: World, t: float = 0.0, *, check_occlusion: bool = True
+                      ) -> dict[str, dict[str, tuple[float, float]]]:
+    """Exact pixels of every marker every camera of every robot sees at ``t``, in the SPEC observations form:
+    keyed by observer (``ROBOT`` for a robot given with one ``camera``, ``ROBOT/CAMERA`` otherwise), each
+    :func:`project_markers` of that camera (unhidden ones only with ``check_occlusion``, the default).
+    Cameras seeing nothing are left out.  The true poses between robot frames: :func:`relative_pose`."""
+    t = _check_time(t)
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for wr in world.robots.values():
+        for cname in wr.robot.mounts:
+            key = wr.robot.observer_key(cname)
+            seen = project_markers(world, key, t, check_occlusion=check_occlusion)
+            if seen:
+                out[key] = seen
+    return out
+
+
 def _occluded(scene: _Scene, world: World, observer: str, rname: str, marker: Any, t: float) -> bool:
-    T_wc = world.pose(observer, t)
+    T_wc = world.camera_pose(observer, t)
     c = world.pose(rname, t).apply(marker.position)
     d = c - T_wc.t
     dist = float(np.linalg.norm(d))
@@ -1349,7 +1485,7 @@ def ball_visibility(world: World, observer: str, marker: str, t: float = 0.0, *,
     owner = next((rn for rn, wr in world.robots.items() if marker in wr.robot.markers), None)
     if owner is None:
         raise ObservationError(f"unknown marker {marker!r}")
-    T_wc = world.pose(observer, t)
+    T_wc = world.camera_pose(observer, t)
     c = world.pose(owner, t).apply(world.robot(owner).robot.markers[marker].position)
     d = c - T_wc.t
     dist = float(np.linalg.norm(d))

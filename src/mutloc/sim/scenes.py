@@ -121,7 +121,7 @@ def occluder(world: World, observer: str, marker: str, share: float, kind: str =
     if not 0.0 < share < 1.0:
         raise InputError(f"share must be in (0, 1), got {share!r}")
     B, r = _ball(world, marker, t)
-    C = world.pose(observer, t).t
+    C = world.camera_pose(observer, t).t
     D = float(np.linalg.norm(B - C))
     u = (B - C) / D
     s = D - gap - r
@@ -183,7 +183,7 @@ def same_hue_clutter(world: World, observer: str, marker: str, *, t: float = 0.0
     col = next(wr.robot.markers[marker].color for wr in world.robots.values() if marker in wr.robot.markers)
     if col is None:
         raise InputError(f"marker {marker!r} has no colour")
-    C = world.pose(observer, t).t
+    C = world.camera_pose(observer, t).t
     u = (B - C) / np.linalg.norm(B - C)
     up = np.array([0.0, 0.0, 1.0])
     e = np.cross(u, up)

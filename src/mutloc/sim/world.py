@@ -44,7 +44,7 @@ import numpy as np
 
 from ..core.camera import Camera
 from ..core.pose import Pose
-from ..core.rig import Marker, MarkerKind, Rig, Robot
+from ..core.rig import CAMERA_SEPARATOR, Marker, MarkerKind, Mount, Rig, Robot
 from ..errors import InputError, ObservationError, RigError
 from ..detect.tags import aruco_dictionary, square_corners, tag_cells, tag_library, tag_rotation
 from ..detect.tags import tag_spec as detect_tag_spec
@@ -474,7 +474,16 @@ def camera_to_world_facing(position: Any, yaw: float = 0.0, pitch: float = 0.0) 
 
 @dataclass
 class WorldRobot:
-    """A robot in the world: rig robot + camera->world pose (constant or ``pose(t)``)."""
+    """A robot in the world: rig robot + robot->world pose (constant or ``pose(t)``).
+
+    For a robot given with one ``camera`` the robot's frame is that camera's
+    optical frame, so ``pose`` is the camera's pose; for a robot with
+    ``cameras`` it is the body frame's pose (z up: ``base_link``), and each
+    camera is at ``pose @ mount.pose``.  ``body`` draws a grey box: below and
+    behind a one-camera robot's camera, or (robot with ``cameras``) a box
+    standing on the robot's origin, clear of its cameras and markers (see
+    :func:`mutloc.sim.render.body_box`).
+    """
 
     robot: Robot
     pose: PoseLike
@@ -486,7 +495,7 @@ class WorldRobot:
         return self.robot.name
 
     def pose_at(self, t: float = 0.0) -> Pose:
-        """Camera -> world pose at time ``t``."""
+        """Robot -> world pose at time ``t`` (the camera's for a robot with one camera)."""
         p = self.pose(float(t)) if callable(self.pose) else self.pose
         if not isinstance(p, Pose):
             raise InputError(f"robot {self.name!r}: pose must be a Pose (or return one), got {type(p).__name__}")
@@ -513,12 +522,50 @@ class World:
         except KeyError:
             raise ObservationError(f"unknown robot {name!r} (world has {sorted(self.robots)})") from None
 
-    def camera(self, name: str) -> Camera:
-        return self.robot(name).robot.camera
+    def observer(self, key: str) -> tuple[str, str]:
+        """``(robot, camera)`` of an observer key: ``ROBOT`` (a robot with one camera; camera ``""`` for one
+        given with ``camera:``) or ``ROBOT/CAMERA``, as :meth:`mutloc.core.rig.Rig.observer`."""
+        wr = self.robots.get(key)
+        if wr is not None:
+            cams = wr.robot.cameras
+            if cams is None:
+                return key, ""
+            if len(cams) == 1:
+                return key, next(iter(cams))
+            raise ObservationError(f"robot {key!r} has cameras {', '.join(cams)}: name one "
+                                   f"({key}{CAMERA_SEPARATOR}{next(iter(cams))}, ...)")
+        rname, sep, cname = str(key).rpartition(CAMERA_SEPARATOR)
+        wr = self.robots.get(rname) if sep else None
+        if wr is None:
+            raise ObservationError(f"unknown robot {key!r} (world has {sorted(self.robots)})")
+        if wr.robot.cameras is None or cname not in wr.robot.cameras:
+            has = (f"cameras {', '.join(wr.robot.cameras)}" if wr.robot.cameras is not None
+                   else f"one camera: name it {rname!r}")
+            raise ObservationError(f"unknown camera {key!r} (robot {rname!r} has {has})")
+        return rname, cname
+
+    def mount(self, key: str) -> Mount:
+        """The camera (lens and pose in its robot's frame) an observer key names."""
+        rname, cname = self.observer(key)
+        return self.robots[rname].robot.mounts[cname]
+
+    def camera(self, name: str) -> Any:
+        """The lens of observer ``name`` (``ROBOT`` or ``ROBOT/CAMERA``): a Camera, FisheyeCamera or OmniCamera."""
+        return self.mount(name).camera
 
     def pose(self, name: str, t: float = 0.0) -> Pose:
-        """Camera -> world pose of robot ``name`` at time ``t``."""
+        """Robot -> world pose of robot ``name`` at time ``t`` (for a robot given with one ``camera``: its
+        camera's; for a robot with ``cameras``: its body frame's, see :meth:`camera_pose`)."""
         return self.robot(name).pose_at(t)
+
+    def camera_pose(self, key: str, t: float = 0.0) -> Pose:
+        """Camera -> world pose of observer ``key`` at ``t``: ``T_world_robot @ T_robot_camera``
+        (the robot's pose itself for a robot given with one ``camera``)."""
+        rname, cname = self.observer(key)
+        T = self.robot(rname).pose_at(t)
+        if cname == "":
+            return T
+        return T @ self.robots[rname].robot.cameras[cname].pose
 
     def light_position(self) -> np.ndarray:
         """World position of the point light (default: near the ceiling above the robots at t = 0)."""
