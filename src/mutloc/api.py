@@ -341,7 +341,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         # camera fits two poses more often than not; only a unique pose is solved.
         other = other_consistent_poses(_problem(pair, pair.side, prow, rows), sol, pixel_sigma,
                                        confidence if confidence < 1.0 else DEFAULT_CONFIDENCE)
-        est.alternatives = Pose.concatenate([o.pose for o in other]) if other else Pose(np.empty((0, 3, 3)),
+        est.alternatives = Pose.concatenate(other) if other else Pose(np.empty((0, 3, 3)),
                                                                                         np.empty((0, 3)))
         passed = None if other else passed
     if passed is None and not allow_unverified:

@@ -20,7 +20,8 @@ from scipy.spatial.transform import Rotation
 from ..errors import MutlocError
 from .consistency import Consistency, chi2_quantile, consistency
 from .estimate import PairProblem, Solution, estimate
-from .refine import MODE_PIXEL, WS_SIZE, residuals, tangent_bases
+from .pose import Pose
+from .refine import MODE_PIXEL, WS_SIZE, lm_refine, residuals, tangent_bases
 
 __all__ = ["RobustResult", "observation_errors", "largest_consistent_set", "other_consistent_poses", "MIN_VERIFIABLE"]
 
@@ -126,7 +127,7 @@ def largest_consistent_set(problem: PairProblem, first: Solution, sigma: float,
 
 
 def other_consistent_poses(problem: PairProblem, first: Solution, sigma: float, confidence: float,
-                           tries: int = 6) -> list[Solution]:
+                           tries: int = 6) -> list[Pose]:
     """Optima other than ``first`` that pass the chi-square test too and that
     ``first``'s covariance rules out (beyond its 99.9 % ellipsoid): refined
     from the best-ranked of ``first``'s candidates outside that ellipsoid
@@ -152,20 +153,19 @@ def other_consistent_poses(problem: PairProblem, first: Solution, sigma: float, 
         return np.einsum("...i,ij,...j->...", d, info, d)
 
     far = mahalanobis(Rs, ts, first.pose) > limit
-    found: list[Solution] = []
+    args = problem.kernel_args()
+    found: list[Pose] = []
     attempts = 0
     for i in np.flatnonzero(far):
         if attempts >= tries:
             break
-        if any(mahalanobis(Rs[i], ts[i], f.pose) <= limit for f in found):
+        if any(mahalanobis(Rs[i], ts[i], f) <= limit for f in found):
             continue
         attempts += 1
-        try:
-            sol = estimate(problem, extra_candidates=(Rs[i], ts[i]), use_minimal=False)
-        except MutlocError:
-            continue
-        if sol.cost <= gate and all(mahalanobis(sol.pose.R, sol.pose.t, o.pose) > limit for o in (first, *found)):
-            found.append(sol)
+        R, t = Rs[i].copy(), ts[i].copy()
+        c, _ = lm_refine(*args, R, t, 50)
+        if c <= gate and all(mahalanobis(R, t, o) > limit for o in (first.pose, *found)):
+            found.append(Pose(R, t))
     return found
 
 
