@@ -25,7 +25,8 @@ The model (both robots alike, only the cameras change):
   room is at most 8 m across.
 * **Set-ups.** One forward pinhole of 60 degrees (horizontal; 960x540, the paper's set-up), one of 90
   degrees; two back-to-back fisheyes of 190 degrees (Kannala-Brandt, 1280x800, the image circle inside the
-  image); three pinholes of 120 degrees (960x540) looking at 0, 120 and 240 degrees.
+  image); three pinholes of 120 degrees (960x540) looking at 0, 120 and 240 degrees, and the same with
+  125 degrees (fields overlapping by 5 degrees).
 
 Every set-up is evaluated on the same samples.  Writes bench/results/visibility.json (fractions with
 95 % Wilson intervals).
@@ -102,6 +103,8 @@ def setups() -> dict[str, dict[str, Mount]]:
         "two back-to-back 190 deg fisheyes": mounts([("front", fisheye(190), 0), ("back", fisheye(190), 180)]),
         "three 120 deg pinholes": mounts([("c0", pinhole(120), 0), ("c120", pinhole(120), 120),
                                           ("c240", pinhole(120), 240)]),
+        "three 125 deg pinholes (overlapping)": mounts([("c0", pinhole(125), 0), ("c120", pinhole(125), 120),
+                                                        ("c240", pinhole(125), 240)]),
     }
 
 
@@ -295,7 +298,7 @@ def plot(results: dict, path: str, resolution_title: str = "") -> None:
         panels.append(("uniform_resolution", resolution_title))
     names = list(results["uniform"])
     labels = [k.replace(" (paper)", "\n(the paper)").replace("back-to-back ", "back-to-back\n")
-              .replace("three ", "three\n").replace("one ", "one\n") for k in names]
+              .replace("three ", "three\n").replace(" (overlapping)", "\n(overlapping)").replace("one ", "one\n") for k in names]
     x = np.arange(len(names))
     fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 3.8), dpi=110, sharey=True,
                              squeeze=False)

@@ -224,7 +224,7 @@ GUIDES = EXAMPLES.parent / "guides"
 
 
 def _blocks(text: str, lang: str) -> list[str]:
-    return re.findall(rf"^```{lang}\n(.*?)^```", text, re.S | re.M)
+    return re.findall(rf"^```{lang}\n(.*?)^```", text, re.DOTALL | re.MULTILINE)
 
 
 def test_cameras_guide_code_runs(capsys):
@@ -238,7 +238,7 @@ def test_cameras_guide_code_runs(capsys):
     for code in blocks:
         exec(compile(code, "docs/guides/cameras.md", "exec"), ns)  # noqa: S102 -- the manual's own code
     printed = capsys.readouterr().out.splitlines()
-    shown = re.search(r"It prints:\s*```text\n(.*?)```", text, re.S)
+    shown = re.search(r"It prints:\s*```text\n(.*?)```", text, re.DOTALL)
     assert shown, "the guide shows no output after 'It prints:'"
     expected = shown.group(1).strip().splitlines()
     assert printed[: len(expected)] == expected
