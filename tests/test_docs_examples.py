@@ -9,6 +9,9 @@ printed for them.  A change that breaks an example -- a renamed key, a
 format the reader no longer accepts, an output that no longer matches the
 command -- fails here.  docs/formats.md names the command that wrote each
 output file: run it again when a deliberate change moves the output.
+
+The code blocks of docs/guides/cameras.md run as written (its ``python``
+blocks in order, in one namespace) and print what the guide says they print.
 """
 
 from __future__ import annotations
