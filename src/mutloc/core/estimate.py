@@ -487,34 +487,35 @@ def first_subset(side, bearings, sub):
 
 
 @njit(cache=True)
-def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, wt, accept, max_iter, R, t, H, Hinv):
+def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, accept, max_iter, R, t, H, Hinv):
     """The estimate from one well-chosen minimal subset (pixel objective, at
     least four observations): its roots ranked on every observation, the
     best refined.  Accepted (status 0, the cost) only when the refined cost
     is at most ``accept`` and no other root starts close enough to it to
     lie in another basin; anything else returns :data:`_FALL_BACK` and the
     caller solves every subset (:func:`solve_kernel`), which also reports
-    the failures."""
+    the failures.  ``mode`` is :data:`MODE_PIXEL` or :data:`MODE_RAY` (rays
+    and their frames given in ``frames``)."""
     n = side.shape[0]
-    bearings = np.empty((n, 3))
-    if bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings) >= 0:
+    if mode == MODE_RAY:
+        bearings = np.ascontiguousarray(frames[:, 2, :])
+        origins = np.ascontiguousarray(frames[:, 3, :])
+    else:
+        bearings = np.empty((n, 3))
+        if bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings) >= 0:
+            return _FALL_BACK, np.inf
+        origins = np.zeros((n, 3))
+    sub = np.empty((1, 3), dtype=np.int64)
+    if not first_subset(side, bearings, sub[0]):
         return _FALL_BACK, np.inf
-    sub = np.empty(3, dtype=np.int64)
-    if not first_subset(side, bearings, sub):
-        return _FALL_BACK, np.inf
-    sd = np.empty(3, dtype=np.int64)
-    b = np.empty((3, 3))
-    X = np.empty((3, 3))
-    for j in range(3):
-        sd[j] = side[sub[j]]
-        b[j] = bearings[sub[j]]
-        X[j] = points[sub[j]]
     Rc = np.empty((PER_SUBSET, 3, 3))
     tc = np.empty((PER_SUBSET, 3))
-    rg = np.empty((PER_SUBSET, 3))
-    nc = solve_minimal_kernel(sd, b, X, Rc, tc, rg)
-    basis = np.empty((n, 3, 3))
-    tangent_bases(bearings, basis)
+    nc = minimal_candidates_kernel(side, points, bearings, origins, sub, False, Rc, tc)
+    if mode == MODE_RAY:
+        basis = frames
+    else:
+        basis = np.empty((n, 3, 3))
+        tangent_bases(bearings, basis)
     r = np.empty(2 * n)
     J = np.empty((1, 6))
     ws = np.empty(WS_SIZE)
@@ -523,7 +524,7 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, wt, accept, max_iter
     if nc > 1:  # a lone root needs no ranking: the refinement evaluates it
         i0 = -1
         for i in range(nc):
-            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, Rc[i], tc[i], r, J, ws)
+            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc[i], tc[i], r, J, ws)
             if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
                 i0 = i
     if nc == 0 or i0 < 0:
@@ -531,7 +532,7 @@ def first_subset_kernel(side, points, meas, Kp, dp, Kq, dq, wt, accept, max_iter
     R[:, :] = Rc[i0]
     t[:] = tc[i0]
     # H: J^T J at the refined pose, as information() would compute it.
-    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, MODE_PIXEL, wt, R, t, max_iter, H)
+    c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, max_iter, H)
     if not c <= accept:
         return _FALL_BACK, c
     # Another root that starts within the margin solve_kernel refines
@@ -612,14 +613,18 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
     """
     n = len(obs.side)
     if (accept is not None and refine and use_minimal and extra_candidates is None and not root_filter
-            and n > 3 and obs.pixels is not None and obs.frames is None):
+            and n > 3 and (obs.pixels is not None or obs.frames is not None)):
         R = np.empty((3, 3))
         t = np.empty(3)
         H = np.empty((6, 6))
         Hinv = np.empty((6, 6))
-        (Kp, Kq), (dp, dq) = obs.K, obs.dist
-        status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, Kp, dp, Kq, dq, obs.wt, accept, max_iter,
-                                        R, t, H, Hinv)
+        if obs.frames is not None:
+            status, c = first_subset_kernel(obs.side, obs.points, np.zeros((n, 2)), obs.frames, _EYE, _NO_DIST, _EYE,
+                                            _NO_DIST, MODE_RAY, obs.wt, accept, max_iter, R, t, H, Hinv)
+        else:
+            (Kp, Kq), (dp, dq) = obs.K, obs.dist
+            status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, NO_FRAMES, Kp, dp, Kq, dq, MODE_PIXEL,
+                                            obs.wt, accept, max_iter, R, t, H, Hinv)
         if status == _OK:
             return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True, {"first_subset": True},
                             ranked=lambda: _ranked(obs))
