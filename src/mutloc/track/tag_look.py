@@ -142,8 +142,11 @@ def _through_view(image: np.ndarray, marker: Any, T: Pose, cam: Any) -> Any:
     """The tag of ``marker`` looked for in a rectified view of the wide-angle ``cam`` centred where ``T`` (the
     tag's robot -> the camera) puts it, its corners in the raw image; None if not found (or not imaged)."""
     centre = T.apply(marker.position)
-    if not np.all(np.isfinite(cam.project(centre))):
-        return None  # outside the lens's field
+    uv = cam.project(T.apply(tag_corner_points(marker)))
+    w, h = cam.size
+    if not (np.all(np.isfinite(uv)) and uv[:, 0].min() >= _BORDER_PX and uv[:, 1].min() >= _BORDER_PX
+            and uv[:, 0].max() <= w - 1 - _BORDER_PX and uv[:, 1].max() <= h - 1 - _BORDER_PX):
+        return None  # outside the lens's field or the image: no view is built for it
     _, _, size_m = tag_spec(marker)
     half = np.degrees(np.arctan(0.5 * size_m / np.linalg.norm(centre))) * _VIEW_SIDES + _VIEW_PAD_DEG
     view = view_towards(cam, centre, half_fov_deg=float(np.clip(half, *_VIEW_HALF_FOV_DEG)))
