@@ -21,7 +21,6 @@ import cv2
 import numpy as np
 import pytest
 
-import mutloc
 from mutloc.cli.main import main
 from mutloc.core.camera import Camera
 from mutloc.core.geometry import so3_exp, so3_log
@@ -72,10 +71,9 @@ def _body(name: str, tags: dict[str, tuple[list[float], np.ndarray, int]]) -> Ro
 
 def facing_away():
     """q turned back to p, p turned away from q: each robot's back camera sees the other's back tags."""
-    rig = Rig({"p": _body("p", {"P1": ([-0.22, 0.18, 0.42], FACING_BACK, 0), "P2": ([-0.22, -0.18, 0.42], FACING_BACK, 1),
-                                "P3": ([-0.22, 0.0, 0.7], FACING_BACK, 2)}),
-               "q": _body("q", {"Q1": ([-0.22, 0.18, 0.42], FACING_BACK, 3), "Q2": ([-0.22, -0.18, 0.42], FACING_BACK, 4),
-                                "Q3": ([-0.22, 0.0, 0.7], FACING_BACK, 5)})})
+    spots = ([-0.22, 0.18, 0.42], [-0.22, -0.18, 0.42], [-0.22, 0.0, 0.7])
+    rig = Rig({r: _body(r, {f"{r.upper()}{i + 1}": (pos, FACING_BACK, first + i) for i, pos in enumerate(spots)})
+               for r, first in (("p", 0), ("q", 3))})
     return rig, {"q": Pose(_yaw(math.pi), [0, 0, 0]), "p": Pose(_yaw(0.12), [1.3, 0.15, 0.0])}
 
 

@@ -36,8 +36,8 @@ from ..api import Estimate, localize
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..detect.base import DetectionResult, observations_of
-from ..detect.views import detection_to_raw, needs_views, view_towards
 from ..detect.tags import corner_detections, corner_marker_names, find_tag_near, tag_corner_points, tag_spec
+from ..detect.views import detection_to_raw, needs_views, view_towards
 from ..errors import MutlocError, UnverifiedError
 
 __all__ = ["find_missing_tags", "first_solve", "look_for_tags", "look_where_tracked", "missing_tags",
