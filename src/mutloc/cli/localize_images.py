@@ -13,15 +13,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     """Register ``localize-images``."""
     p = subparsers.add_parser(
         "localize-images", parents=[RIG, PAIR, TEAM, NOISE, TRUST, OUTPUT],
-        help="detect markers in one image per robot, then localize; prints the result JSON",
+        help="detect markers in one image per robot (or camera), then localize; prints the result JSON",
         description="Detect each robot's view of the other robot's markers (coloured balls, printed "
         "tags or banded cylinders, as the rig says) and print the relative pose as the result JSON. "
         "With more than two robots (and no --source/--target) or --reference: every image is searched for "
         "every other robot's markers and the team result JSON is printed.",
     )
-    p.add_argument("--image", required=True, action="append", type=robot_value, metavar="ROBOT=PATH",
-                   help="the image of a robot's camera; give one per robot")
-    p.add_argument("--detections-out", metavar="FILE", help="write what was detected (JSON)")
+    p.add_argument("--image", required=True, action="append", type=robot_value, metavar="ROBOT[/CAMERA]=PATH",
+                   help="the image of a camera: ROBOT=PATH for a robot with one camera, ROBOT/CAMERA=PATH for each "
+                   "camera of a robot with several (any lens); one per robot at least")
+    p.add_argument("--detections-out", metavar="FILE", help="write what was detected (JSON, keyed by camera)")
     return p
 
 

@@ -56,7 +56,8 @@ from ..core.camera import Camera
 from ..errors import InputError
 from .base import Detection, DetectionResult, as_bgr
 
-__all__ = ["View", "ViewSet", "needs_views", "views_for", "detect_in_views", "HALF_FOV_DEG"]
+__all__ = ["View", "ViewSet", "needs_views", "views_for", "view_towards", "detection_to_raw", "detect_in_views",
+           "HALF_FOV_DEG"]
 
 #: Half the field of view of a virtual view (degrees; the views are square).
 HALF_FOV_DEG = 50.0
@@ -316,6 +317,27 @@ def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: floa
     while len(_cache) > _CACHE_SIZE:
         _cache.popitem(last=False)
     return vs
+
+
+def view_towards(camera: Any, direction: Any, *, half_fov_deg: float = 20.0, density: float = 1.0) -> View | None:
+    """One rectified view of the wide-angle ``camera`` centred on ``direction`` (camera frame), ``2 *
+    half_fov_deg`` square (not cached): for a second look around a predicted marker, where a pose says it
+    is.  None when the lens does not image that part of the sky (fewer than 64 view pixels show the image).
+    Detections in it go back to the raw image with :func:`detection_to_raw`."""
+    if not needs_views(camera):
+        raise InputError("views are for wide-angle lenses (fisheye, omni); a pinhole camera is used as it is")
+    if camera.size is None:
+        raise InputError(f"a {camera.model} camera needs its image size to be seen through rectified views")
+    d = np.asarray(direction, float).reshape(3)
+    if not (np.all(np.isfinite(d)) and np.linalg.norm(d) > 0.0) or not (0.0 < half_fov_deg < 80.0):
+        raise InputError("view_towards needs a finite non-zero direction and half_fov_deg in (0, 80)")
+    return _build_view(camera, -1, _look(d), _field_deg(camera, camera.size), math.radians(half_fov_deg), density)
+
+
+def detection_to_raw(det: Detection, view: View) -> Detection | None:
+    """``det`` found in ``view``'s pixels, in the raw image's (its corners too; ``sigma_scale`` widened where
+    the view is coarser than the raw image; ``info["view"]`` says where); None if it is not imaged."""
+    return _to_raw(det, view)
 
 
 def _to_raw(det: Detection, view: View) -> Detection | None:

@@ -19,12 +19,13 @@ from .second_look import second_look
 from .tag_look import first_solve, with_tags_looked_for
 from .sources import Frame
 
-__all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "localize_images", "observations_of"]
+__all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "image_keys", "localize_images",
+           "observations_of"]
 
 
 @dataclass
 class FrameResult:
-    """Detections per observing robot and the pose they give."""
+    """Detections per observing camera (``ROBOT`` or ``ROBOT/CAMERA``) and the pose they give."""
 
     estimate: Estimate
     detections: dict[str, DetectionResult]
@@ -159,35 +160,103 @@ def _refuse_lights(rig: Rig, source: str, target: str) -> None:
 
 
 def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target: str | None,
-                 what: str) -> tuple[Rig, str, str]:
+                 what: str, *, cameras: bool = False) -> tuple[Rig, str, str]:
     """The expanded rig and the (source, target) pair, checking that every
-    input names a robot of the rig and both robots of the pair have one."""
+    input names a robot of the rig and both robots of the pair have one.
+
+    With ``cameras`` the inputs are keyed by camera (``ROBOT`` or ``ROBOT/CAMERA``, :func:`image_keys`) and
+    robots with several cameras or any lens are welcome; else every robot must be one pinhole camera (the
+    paths not yet ported to bodies)."""
     rig = expanded_rig(load_rig(rig))
-    rig.require_central("detection in images")
+    if not cameras:
+        rig.require_central("the tracker" if what == "stream" else f"detection in {what}s")
     source, target = rig.default_pair(source, target)
-    for robot in inputs:
+    given = set(image_keys(rig, inputs, what).values()) if cameras else set(inputs)
+    for robot in inputs if not cameras else ():
         rig.robot(robot)
     for robot in (source, target):
-        if robot not in inputs:
+        if robot not in given:
             raise ObservationError(f"no {what} for robot {robot!r}")
     return rig, source, target
 
 
+def image_keys(rig: Rig, inputs: Mapping[str, Any], what: str = "image") -> dict[str, str]:
+    """``{key: robot}`` of inputs keyed by camera, as observations are (SPEC "Robots with several cameras"):
+    ``ROBOT/CAMERA``, or ``ROBOT`` for a robot with one camera.  ObservationError (one line, naming the key)
+    for an unknown robot or camera, a robot with several cameras named alone, or one camera given twice."""
+    out: dict[str, str] = {}
+    seen: dict[tuple[str, str], str] = {}
+    for key in inputs:
+        if not isinstance(key, str):
+            raise ObservationError(f"{what} key must be ROBOT or ROBOT{CAMERA_SEPARATOR}CAMERA, got {key!r}")
+        if CAMERA_SEPARATOR not in key:
+            robot = rig.robot(key)  # an unknown robot: the rig's own error, as ever
+            if robot.cameras is not None and len(robot.cameras) > 1:
+                first = next(iter(robot.cameras))
+                raise ObservationError(f"{what} {key!r}: robot {key!r} has cameras {', '.join(robot.cameras)}: "
+                                       f"give one {what} per camera ({key}{CAMERA_SEPARATOR}{first}=..., ...)")
+        rname, sep, cname = key.rpartition(CAMERA_SEPARATOR)
+        if sep:
+            robot = rig.robot(rname) if rname in rig.robots else None
+            if robot is None:
+                raise ObservationError(f"{what} {key!r}: unknown robot {rname!r} (rig has {sorted(rig.robots)})")
+            if robot.cameras is None or cname not in robot.cameras:
+                has = (f"cameras {', '.join(robot.cameras)}" if robot.cameras is not None else
+                       f"one camera: name it {rname!r} alone")
+                raise ObservationError(f"{what} {key!r}: unknown camera {cname!r} (robot {rname!r} has {has})")
+        resolved = rig.observer(key)
+        if resolved in seen:
+            raise ObservationError(f"{what}s {seen[resolved]!r} and {key!r} are of the same camera: give it once")
+        seen[resolved] = key
+        out[key] = resolved[0]
+    return out
+
+
+def _same_images(rig: Rig, loaded: Mapping[str, np.ndarray]) -> None:
+    """InputError when two cameras are given the same image (one file given twice)."""
+    keys = list(loaded)
+    for i, a in enumerate(keys):
+        for b in keys[i + 1:]:
+            x, y = loaded[a], loaded[b]
+            if x.shape == y.shape and np.array_equal(x, y):
+                raise InputError(f"the images of {a!r} and {b!r} are the same: one camera's image given for "
+                                 "both? (check --image)")
+
+
 def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = None, target: str | None = None, *,
                     pixel_sigma: float = 1.0, **options: Any) -> FrameResult:
-    """Detect the markers in one image per robot (arrays or file paths) and
+    """Detect the markers in one image per camera (arrays or file paths) and
     localize ``source`` in ``target``'s frame (``options`` as :func:`mutloc.localize`).
+
+    ``images`` is keyed as observations are: ``ROBOT`` for a robot with one camera, ``ROBOT/CAMERA`` for
+    each camera of a robot with several (any lens; not every camera needs an image, but each robot of the
+    pair one at least).  Each image is searched for the other robot's markers through its own lens
+    (:func:`detect_markers`), and the pose solved on the rays of all of them; ``detections`` are keyed
+    likewise.
 
     After the first solve, what the first look missed is looked for where that pose puts it: an oriented
     tag, in a window around its predicted corners at full resolution (:mod:`mutloc.track.tag_look`: steep
     and small tags the whole-image search loses), and partly hidden or missing balls, measured again at
     their predicted size (:mod:`mutloc.track.second_look`).  What was found so is named in
     ``estimate.extra["second_look"]``."""
-    rig, source, target = prepare_pair(rig, images, source, target, "image")
+    rig, source, target = prepare_pair(rig, images, source, target, "image", cameras=True)
     _refuse_lights(rig, source, target)
-    loaded = {r: read_image(images[r]) if isinstance(images[r], (str, Path)) else images[r] for r in (source, target)}
-    detections = check_streams(rig, source, target, as_bgr(loaded[source], f"image of robot {source!r}"),
-                               as_bgr(loaded[target], f"image of robot {target!r}"), what="images", option="--image")
+    robots = image_keys(rig, images)
+    keys = [k for k in images if robots[k] in (source, target)]
+    loaded = {k: as_bgr(read_image(images[k]) if isinstance(images[k], (str, Path)) else images[k],
+                        f"image of {'camera' if CAMERA_SEPARATOR in k else 'robot'} {k!r}") for k in keys}
+    central = [k for k in keys if rig.robot(robots[k]).central_pinhole]
+    if len(keys) == 2 and len(central) == 2:
+        # One pinhole camera per robot: as ever (same image twice, or swapped, said in one line).
+        detections = check_streams(rig, source, target, loaded[source], loaded[target], what="images",
+                                   option="--image")
+    else:
+        # Each camera's image through its own lens (detect_markers: rectified views for a wide-angle one),
+        # looked at for the other robot's markers.  (No "swapped" test: a body's camera may well see the
+        # robot's own markers, a mast in a fisheye's field, without the images being swapped.)
+        _same_images(rig, loaded)
+        detections = {k: detect_markers(rig, k, loaded[k], targets=[target if robots[k] == source else source])
+                      for k in keys}
     est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
     # Tags the first look missed, looked for where the pose puts them (see .tag_look).
     detections, est, error = with_tags_looked_for(rig, loaded, detections, est, error, source, target,

@@ -27,12 +27,25 @@ result disagrees with it.
 
 Only frames with a ball partly hidden (visible fraction below
 :data:`PARTLY_HIDDEN`) or missing pay for it.
+
+Observers are cameras (``ROBOT`` or ``ROBOT/CAMERA``, as observations are
+keyed): a ball's centre is predicted in the observing camera's frame through
+its mount (its pose on the robot), not at the robot's origin.  Only pinhole
+cameras are looked at again: the refit (rays cast from the predicted centre,
+the rim fitted as a cone of the predicted angle) runs on the image in the
+camera's own pixels, and the pixel figures it compares with the first look
+(``radius_px``, ``distance_m``) are, through a wide-angle lens, in the
+pixels of whichever rectified view the first look found the ball in.  Doing
+it right there means a refit in a rectified view around each prediction with
+the first look's figures taken to that view; until then a fisheye or omni
+camera's balls keep what the first look found (its detections are still
+solved with, and its missing balls stay missing).
 """
 
 from __future__ import annotations
 
 import itertools
-from typing import Any, Iterator, Mapping
+from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -76,10 +89,30 @@ def _balls(rig: Rig, robot: str) -> dict[str, Any]:
     return {n: m for n, m in rig.robot(robot).markers.items() if m.kind == MarkerKind.BALL and m.color is not None}
 
 
-def ball_centres(rig: Rig, pose: Pose, source: str, target: str) -> dict[str, dict[str, np.ndarray]]:
-    """``{observer: {ball: centre in the observer's camera frame}}`` for the balls of the pair under ``pose`` (T_qp)."""
+def _observers(rig: Rig, keys: Iterable[str], source: str, target: str) -> dict[str, str]:
+    """``{key: the other robot of the pair}`` of the observer keys (cameras) of the pair's robots that are looked
+    at again: pinhole cameras only (see the module's docstring)."""
+    out = {}
+    for key in keys:
+        robot = rig.observer(key)[0]
+        if robot in (source, target) and getattr(rig.mount(key).camera, "model", "pinhole") == "pinhole":
+            out[key] = target if robot == source else source
+    return out
+
+
+def ball_centres(rig: Rig, pose: Pose, source: str, target: str, keys: Iterable[str] | None = None
+                 ) -> dict[str, dict[str, np.ndarray]]:
+    """``{observer: {ball: centre in the observer's camera frame}}`` for the balls of the pair under ``pose``
+    (T_qp); ``keys``: the observers (camera keys, default the two robots), each camera's frame through its
+    mount."""
     out: dict[str, dict[str, np.ndarray]] = {}
-    for observer, other, T in ((target, source, pose), (source, target, pose.inverse())):
+    for observer in (target, source) if keys is None else keys:
+        robot = rig.observer(observer)[0]
+        other = target if robot == source else source
+        T = pose if robot == target else pose.inverse()
+        mount = rig.mount(observer)
+        if not mount.is_identity:
+            T = mount.pose.inverse() @ T  # the other robot -> the observing camera
         out[observer] = {n: T.apply(m.position) for n, m in _balls(rig, other).items()}
     return out
 
@@ -90,8 +123,9 @@ def _hidden(det: DetectionResult, name: str) -> bool:
 
 
 def needs_second_look(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str) -> bool:
-    """True when a ball of the pair is missing or partly hidden in the other robot's image."""
-    return any(_hidden(detections[obs], n) for obs, other in ((source, target), (target, source))
+    """True when a ball of the pair is missing or partly hidden in the other robot's image (the images of
+    pinhole cameras: the only ones looked at again)."""
+    return any(_hidden(detections[obs], n) for obs, other in _observers(rig, detections, source, target).items()
                for n in _balls(rig, other))
 
 
@@ -103,6 +137,8 @@ def _size_errors(contexts: Mapping[str, Any], rig: Rig, detections: Mapping[str,
 
     out = {}
     for obs, det in detections.items():
+        if obs not in contexts:
+            continue
         balls = _balls(rig, others[obs])
         for name, X in centres[obs].items():
             d = det.detections.get(name)
@@ -135,13 +171,16 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
     and whether any ball was measured again or dropped."""
     from ..detect.balls.refit import refit_ball
 
-    centres = ball_centres(rig, pose, source, target)
-    others = {source: target, target: source}
+    others = _observers(rig, contexts, source, target)
+    centres = ball_centres(rig, pose, source, target, others)
     errors = _size_errors(contexts, rig, detections, centres, others)
     out = {}
     touched = False
     for obs, det in detections.items():
         new = det.copy()
+        if obs not in others:
+            out[obs] = new  # not looked at again (see the module's docstring)
+            continue
         balls = _balls(rig, others[obs])
         off = _rim_offset(obs, errors, detections)
         for name, X in centres[obs].items():
@@ -174,9 +213,13 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
     from ..detect.balls.refit import refit_ball
 
     out = {}
+    others = _observers(rig, contexts, source, target)
     for obs, det in detections.items():
-        balls = _balls(rig, target if obs == source else source)
         new = det.copy()
+        out[obs] = new
+        if obs not in others:
+            continue
+        balls = _balls(rig, others[obs])
         whole = [float(d.info["distance_m"]) for n, d in det.detections.items()
                  if n in balls and not _hidden(det, n) and "distance_m" in d.info]
         if whole:
@@ -188,7 +231,6 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
                     if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
                         new.detections[name] = found
                         new.alternatives.pop(name, None)
-        out[obs] = new
     return out
 
 
@@ -222,9 +264,13 @@ def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[st
 
     params = BallParams(distance_range_m=(distance / _RANGE, distance * _RANGE))
     out = {}
+    others = _observers(rig, detections, source, target)
     for obs in detections:
-        balls = _balls(rig, target if obs == source else source)
-        cam = rig.robot(obs).camera
+        if obs not in others:
+            out[obs] = detections[obs].copy()
+            continue
+        balls = _balls(rig, others[obs])
+        cam = rig.mount(obs).camera
         new = detect_balls(images[obs], balls, camera=cam, params=params)
         for name in list(new.missing):
             found = detect_balls(images[obs], {name: balls[name]}, camera=cam, params=params)
@@ -262,8 +308,11 @@ def _near_mates(rig: Rig, images: Mapping[str, np.ndarray], contexts: Mapping[st
     from ..detect.balls.refit import balls_near
 
     options: dict[str, list[tuple[str, Any]]] = {}
+    others = _observers(rig, contexts, source, target)
     for obs, det in detections.items():
-        balls = _balls(rig, target if obs == source else source)
+        if obs not in others:
+            continue
+        balls = _balls(rig, others[obs])
         mates = {n: d for n, d in det.detections.items() if n in balls and "distance_m" in d.info}
         if not mates:
             continue
@@ -355,7 +404,9 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
     def solve(obs: Any) -> Estimate:
         return localize(rig, obs, source, target, pixel_sigma=pixel_sigma, **opts)
 
-    contexts = {obs: RefitContext.of(images[obs], rig.robot(obs).camera) for obs in detections}
+    # Pinhole cameras' images only (see the module's docstring).
+    contexts = {obs: RefitContext.of(images[obs], rig.mount(obs).camera)
+                for obs in _observers(rig, detections, source, target)}
 
     def bases() -> Iterator[tuple[dict[str, DetectionResult], Estimate | None, Exception | None]]:
         """What to start from, cheapest first: the first look; unless it is solved, the same with its

@@ -15,6 +15,15 @@ on more observations (or the first one failed).
 
 Only frames with a wanted tag missing pay for it, and only for tags whose
 predicted outline lies inside the image and faces the camera.
+
+Observers are cameras (``ROBOT`` or ``ROBOT/CAMERA``, as observations are
+keyed): a tag is predicted through the observing camera's mount -- its pose
+on the robot and its lens's ``project`` -- not at the robot's origin.  Through
+a wide-angle lens (fisheye, omni) the tag is looked for in one locally
+rectified pinhole view centred on its predicted direction
+(:func:`mutloc.detect.views.view_towards`): predicted, found and edge-fitted
+there as in a pinhole image, its corners then taken back to the raw image
+through their rays (:func:`mutloc.detect.views.detection_to_raw`).
 """
 
 from __future__ import annotations
@@ -27,7 +36,8 @@ from ..api import Estimate, localize
 from ..core.pose import Pose
 from ..core.rig import Rig
 from ..detect.base import DetectionResult, observations_of
-from ..detect.tags import corner_detections, corner_marker_names, find_tag_near, tag_corner_points
+from ..detect.tags import corner_detections, corner_marker_names, find_tag_near, tag_corner_points, tag_spec
+from ..detect.views import detection_to_raw, needs_views, view_towards
 from ..errors import MutlocError, UnverifiedError
 
 __all__ = ["find_missing_tags", "first_solve", "look_for_tags", "look_where_tracked", "missing_tags",
@@ -41,6 +51,19 @@ _BORDER_PX = 2.0
 _CANDIDATES = 4
 #: The second, wider window around a prediction: this many predicted sides, at least this many pixels.
 _WIDE_SIDES, _WIDE_MIN_PX = 2.0, 48.0
+#: A rectified view around a tag predicted through a wide-angle lens: half its field is the tag's angular
+#: half-size times this, plus this many degrees (the wide window's margin fits in it), within these bounds.
+_VIEW_SIDES, _VIEW_PAD_DEG, _VIEW_HALF_FOV_DEG = 3.0, 10.0, (12.0, 45.0)
+
+
+def _pair_observers(rig: Rig, keys: Iterable[str], source: str, target: str) -> list[tuple[str, str, str]]:
+    """``(key, its robot, the other robot of the pair)`` of every observer key of the pair's robots."""
+    out = []
+    for key in keys:
+        robot = rig.observer(key)[0]
+        if robot in (source, target):
+            out.append((key, robot, target if robot == source else source))
+    return out
 
 
 def first_solve(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str, *,
@@ -69,13 +92,12 @@ def _missing(rig: Rig, det: DetectionResult, others: Iterable[str]) -> dict[str,
 def missing_tags(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str
                  ) -> dict[str, list[str]]:
     """``{observer: [tag markers of the other robot the observer's first look missed]}`` (those with a known
-    ``rotation``: only they have corners to predict)."""
+    ``rotation``: only they have corners to predict); observers are the keys of ``detections`` (cameras)."""
     out: dict[str, list[str]] = {}
-    for obs, other in ((source, target), (target, source)):
-        if obs in detections:
-            names = _missing(rig, detections[obs], [other]).get(other)
-            if names:
-                out[obs] = names
+    for obs, _, other in _pair_observers(rig, detections, source, target):
+        names = _missing(rig, detections[obs], [other]).get(other)
+        if names:
+            out[obs] = names
     return out
 
 
@@ -116,30 +138,68 @@ def _predicted_corners(marker: Any, T: Pose, cam: Any, size: tuple[int, int]) ->
     return uv
 
 
+def _through_view(image: np.ndarray, marker: Any, T: Pose, cam: Any) -> Any:
+    """The tag of ``marker`` looked for in a rectified view of the wide-angle ``cam`` centred where ``T`` (the
+    tag's robot -> the camera) puts it, its corners in the raw image; None if not found (or not imaged)."""
+    centre = T.apply(marker.position)
+    uv = cam.project(T.apply(tag_corner_points(marker)))
+    w, h = cam.size
+    if not (np.all(np.isfinite(uv)) and uv[:, 0].min() >= _BORDER_PX and uv[:, 1].min() >= _BORDER_PX
+            and uv[:, 0].max() <= w - 1 - _BORDER_PX and uv[:, 1].max() <= h - 1 - _BORDER_PX):
+        return None  # outside the lens's field or the image: no view is built for it
+    _, _, size_m = tag_spec(marker)
+    half = np.degrees(np.arctan(0.5 * size_m / np.linalg.norm(centre))) * _VIEW_SIDES + _VIEW_PAD_DEG
+    view = view_towards(cam, centre, half_fov_deg=float(np.clip(half, *_VIEW_HALF_FOV_DEG)))
+    if view is None:
+        return None
+    Rv = view.R.T  # camera -> view
+    uv = _predicted_corners(marker, Pose(Rv @ T.R, Rv @ T.t), view.camera, view.camera.size)
+    if uv is None:
+        return None
+    img = view.rectify(image)
+    found = find_tag_near(img, marker, uv, camera=view.camera)
+    if found is None:
+        side = float(np.mean(np.linalg.norm(uv - np.roll(uv, -1, axis=0), axis=1)))
+        found = find_tag_near(img, marker, uv, camera=view.camera, margin_px=max(_WIDE_SIDES * side, _WIDE_MIN_PX))
+    return None if found is None else detection_to_raw(found, view)
+
+
+def _near(image: np.ndarray, marker: Any, T: Pose, cam: Any, size: tuple[int, int]) -> Any:
+    """The tag of ``marker`` looked for where ``T`` (the tag's robot -> the pinhole camera) puts it."""
+    uv = _predicted_corners(marker, T, cam, size)
+    if uv is None:
+        return None
+    found = find_tag_near(image, marker, uv, camera=cam)
+    if found is None:
+        # A pose from one small tag can be off by more than the window: once more, wider.
+        side = float(np.mean(np.linalg.norm(uv - np.roll(uv, -1, axis=0), axis=1)))
+        found = find_tag_near(image, marker, uv, camera=cam, margin_px=max(_WIDE_SIDES * side, _WIDE_MIN_PX))
+    return found
+
+
 def find_missing_tags(rig: Rig, observer: str, image: np.ndarray, det: DetectionResult,
                       poses: Mapping[str, Sequence[Pose]]) -> DetectionResult | None:
     """``det`` (``observer``'s detections in ``image``) with the missing tags of the robots in ``poses`` found
-    where one of their poses puts them (``{robot: [T_observer_robot, ...]}``, tried in order), or None when
-    none was found.  A tag found is reported as the first look reports an oriented tag: its corners."""
-    wanted = _missing(rig, det, [r for r in poses if r != observer])
+    where one of their poses puts them (``{robot: [T_observer_robot, ...]}``, tried in order, between robot
+    frames), or None when none was found.  ``observer`` is a camera's key (``ROBOT`` or ``ROBOT/CAMERA``): the
+    tags are predicted through its mount (pose on the robot, lens).  A tag found is reported as the first
+    look reports an oriented tag: its corners."""
+    robot = rig.observer(observer)[0]
+    wanted = _missing(rig, det, [r for r in poses if r != robot])
     if not wanted:
         return None
-    cam = rig.robot(observer).camera
+    mount = rig.mount(observer)
+    cam = mount.camera
+    cam_from_robot = None if mount.is_identity else mount.pose.inverse()
     size = cam.size if cam.size is not None else (image.shape[1], image.shape[0])
     out = None
     for other, names in wanted.items():
         for name in names:
             marker = rig.robot(other).markers[name]
             for T in poses[other]:
-                uv = _predicted_corners(marker, T, cam, size)
-                if uv is None:
-                    continue
-                found = find_tag_near(image, marker, uv, camera=cam)
-                if found is None:
-                    # A pose from one small tag can be off by more than the window: once more, wider.
-                    side = float(np.mean(np.linalg.norm(uv - np.roll(uv, -1, axis=0), axis=1)))
-                    found = find_tag_near(image, marker, uv, camera=cam,
-                                          margin_px=max(_WIDE_SIDES * side, _WIDE_MIN_PX))
+                Tc = T if cam_from_robot is None else cam_from_robot @ T  # the tag's robot -> the camera
+                found = _through_view(image, marker, Tc, cam) if needs_views(cam) else \
+                    _near(image, marker, Tc, cam, size)
                 if found is not None:
                     out = det.copy() if out is None else out
                     corners = corner_detections(found)
@@ -156,7 +216,8 @@ def look_for_tags(rig: Rig, images: Mapping[str, np.ndarray], detections: Mappin
                   est: Estimate | None, error: Exception | None, source: str, target: str
                   ) -> dict[str, DetectionResult] | None:
     """``detections`` with the missing tags found where a pose of the frame (``est``, or the candidates of
-    an unverified one) puts them, or None when none was found.  ``images``: BGR images per observer."""
+    an unverified one) puts them, or None when none was found.  ``images``: BGR images per observer (camera
+    key, as ``detections``)."""
     if not missing_tags(rig, detections, source, target):
         return None
     poses = _poses(est, error)
@@ -164,10 +225,10 @@ def look_for_tags(rig: Rig, images: Mapping[str, np.ndarray], detections: Mappin
         return None
     out = dict(detections)
     found = False
-    for obs, other in ((source, target), (target, source)):
-        if obs not in detections or obs not in images:
+    for obs, robot, other in _pair_observers(rig, detections, source, target):
+        if obs not in images:
             continue
-        T = poses if obs == target else [p.inverse() for p in poses]  # the other robot -> the observer
+        T = poses if robot == target else [p.inverse() for p in poses]  # the other robot -> the observer
         more = find_missing_tags(rig, obs, images[obs], detections[obs], {other: T})
         if more is not None:
             out[obs], found = more, True
