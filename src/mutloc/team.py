@@ -14,8 +14,8 @@ from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
-from .core.team import (MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor, other_poses,
-                        relative_jacobian, residual_norms, solve_team)
+from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor,
+                        other_poses, relative_jacobian, residual_norms, solve_team)
 from .errors import (DegenerateGeometryError, InconsistentObservationsError, ObservationError,
                      TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
@@ -256,6 +256,14 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
                 f"no robot is tied to the reference {reference!r} by three or more observations "
                 f"({len(problem.cam)} observations among {seen or 'no robots'})")
         test = _test(sol, pixel_sigma, confidence)
+        if test.passed is False:
+            # a weakly tied robot in a wrong basin fails the test as an
+            # outlier would: its other poses first (see other_poses)
+            try:
+                sol = other_poses(sub, sol, ref, sigma=pixel_sigma, confidence=confidence, max_iter=max_iter)[0]
+            except DegenerateGeometryError:
+                pass
+            test = _test(sol, pixel_sigma, confidence)
         if test.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
             break
         # drop the worst-fitting observation and solve again from scratch
@@ -314,9 +322,14 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
     # does a group of robots held to the reference's side by three: every
     # robot whose every tie to the reference crosses such a cut
     unverified = _weakly_tied(sol, problem, names.index(reference))
+    # a second consistent pose far beyond the covariance: the observations
+    # cannot tell which is right; closer ones only widen the candidates of a
+    # robot unverified already
     others = others or {}
-    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES or i in unverified or i in others]
-    ambiguous = {names[i]: Pose.concatenate([Pose(R, t) for R, t, _ in alts]) for i, alts in others.items()}
+    far = {i for i, alts in others.items() if max(a[3] for a in alts) > AMBIGUITY_SIGMAS}
+    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES or i in unverified or i in far]
+    ambiguous = {names[i]: Pose.concatenate([Pose(a[0], a[1]) for a in alts]) for i, alts in others.items()
+                 if names[i] in unverified}
     est = TeamEstimate(
         reference=reference, poses=poses, robots=robots,
         unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],

@@ -1276,34 +1276,39 @@ AMBIGUITY_SIGMAS = 5.0
 #: A second pose whose ties, the others held, fit this many times worse than
 #: their noise allows is re-optimized jointly (the others may move to it).
 _JOINT_FACTOR = 10.0
+#: Minima closer than this many standard deviations are one.
+_SAME = 0.5
 
 
 def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigma: float = 1.0,
                 confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 50
-                ) -> tuple[TeamSolution, dict[int, list[tuple[np.ndarray, np.ndarray, float]]]]:
+                ) -> tuple[TeamSolution, dict[int, list[tuple[np.ndarray, np.ndarray, float, float]]]]:
     """Every weakly tied robot's other poses that fit the observations as well.
 
     For each localized robot ``r`` tied to the others by at most
     :data:`AMBIGUITY_TIES` used observations (``problem`` the one ``sol``
     was solved on; ``sol.used`` indexes it), the others held at their
     optimum: every exact pose of every three of its ties (the generalized
-    minimal solver, rays of ``r``'s camera and of the cameras seeing it) is
-    refined on its ties (LM over ``r``'s pose); one more than
-    :data:`AMBIGUITY_SIGMAS` standard deviations from the optimum that
-    passes the chi-square test of ``r``'s ties (``2n - 6`` degrees of
-    freedom; exact, to rounding, for three) and the team's joint test is a
-    second consistent pose -- as are those that pass once every robot is
-    re-optimized from them.  As a pair on three markers, ``r`` is then not
-    verified by its observations.
+    minimal solver, rays of ``r``'s camera and of the cameras seeing it) and
+    the optimum turned about r's observed points (:func:`_seeds`) is refined
+    on its ties (LM over ``r``'s pose).  Each other minimum is re-optimized
+    jointly (every robot); one that stays apart from the optimum and passes
+    both the chi-square test of ``r``'s ties (``2n - 6`` degrees of freedom;
+    none for three) and the team's joint test is another consistent pose.
+    One more than :data:`AMBIGUITY_SIGMAS` standard deviations away (r's
+    covariance) leaves ``r`` unverified, as a pair on three markers: the
+    observations cannot tell which is right.
 
-    Returns the solution (jointly re-solved from a second pose that fits
-    better than the optimum: the start had missed the global one) and
-    ``{r: [(R, t, cost), ...]}`` -- the other poses ``T_ref_r`` of each
-    ambiguous robot with the joint cost at each, best first.  ``confidence``
-    1 (the test switched off) searches at :data:`DEFAULT_CONFIDENCE`."""
+    Returns the solution (jointly re-solved from another minimum that fits
+    better than the optimum, consistent or not: the start had missed the
+    global one) and ``{r: [(R, t, cost, sigmas), ...]}`` -- every other
+    consistent pose ``T_ref_r`` found, with the joint cost at it and its
+    distance from the optimum in standard deviations, best first.
+    ``confidence`` 1 (the test switched off) searches at
+    :data:`DEFAULT_CONFIDENCE`."""
     if confidence >= 1.0:
         confidence = DEFAULT_CONFIDENCE
-    found: dict[int, list[tuple[np.ndarray, np.ndarray, float]]] = {}
+    found: dict[int, list[tuple[np.ndarray, np.ndarray, float, float]]] = {}
     for _ in range(3):
         if sol.information.size == 0:
             return sol, found
@@ -1324,8 +1329,9 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
                 continue
             ties = used.take(rows)
             n_r = len(rows)
-            gate = sigma**2 * chi2_quantile(confidence, 2 * n_r - 6) if n_r > 3 else \
-                max(1e-9 * sigma**2 * n_r, 1e-12)
+            # r's own test (none on three ties: the others' noise alone may
+            # leave no exact pose near the truth, a double root turned complex)
+            gate = sigma**2 * chi2_quantile(confidence, 2 * n_r - 6) if n_r > 3 else np.inf
             tc = lambda R_, t_: team_cost(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist,  # noqa
                                           R_, t_)
             c0 = tc(sol.Rs, sol.ts)
@@ -1348,52 +1354,50 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
             info_r = np.linalg.inv(cov[6 * k:6 * k + 6, 6 * k:6 * k + 6])
             R0, t0 = sol.Rs[r].copy(), sol.ts[r].copy()
 
-            def distance(R: np.ndarray, t: np.ndarray) -> float:
-                d = np.r_[so3_log(R @ R0.T), t - t0]
+            def distance(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> float:
+                """Mahalanobis, r's covariance at the optimum."""
+                d = np.r_[so3_log(Ra @ Rb.T), ta - tb]
                 return float(np.sqrt(max(d @ info_r @ d, 0.0)))
 
             var = np.full(problem.n_robots, -1, dtype=np.int64)
             var[r] = 0
             H = np.empty((6, 6))
             Rtry, ttry = sol.Rs.copy(), sol.ts.copy()
-            seen: list[tuple[np.ndarray, np.ndarray, float]] = []
-            known = [(R0, t0)]  # the minima reached so far (the optimum's own basin first)
+            # r's minima on its ties, the others held: the optimum's basin first
+            minima: list[tuple[np.ndarray, np.ndarray, float]] = [(R0, t0, c0)]
             for R, t in _seeds(rays, R0, t0):
                 Rtry[r], ttry[r] = R, t
                 cost, _ = team_lm(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist, var,
                                   Rtry, ttry, max_iter, H)
-                if not np.isfinite(cost):
-                    continue
-                R1, t1 = Rtry[r].copy(), ttry[r].copy()
-                if any(_close(R1, t1, s[0], s[1]) for s in known):
-                    continue
-                known.append((R1, t1))
-                if distance(R1, t1) > AMBIGUITY_SIGMAS:
-                    seen.append((R1, t1, cost))
-            alts = []
-            for R1, t1, cost in seen:
+                if np.isfinite(cost) and not any(distance(Rtry[r], ttry[r], m[0], m[1]) < _SAME for m in minima):
+                    minima.append((Rtry[r].copy(), ttry[r].copy(), cost))
+            alts: list[tuple[np.ndarray, np.ndarray, float, float]] = []
+            for R1, t1, cost in minima[1:]:
                 Rj, tj = sol.Rs.copy(), sol.ts.copy()
                 Rj[r], tj[r] = R1, t1
                 total = sol.cost - c0 + cost
-                if not (cost <= gate and total <= joint_gate):
-                    if cost > _JOINT_FACTOR * gate:
-                        continue
-                    # the others held at the optimum may hold r off its own
-                    # optimum: every robot re-optimized from the second pose
-                    try:
-                        s = _solve_from(problem, reference, Rj, tj, sol.localized.copy(), sol.nuisance,
-                                        max_iter=max_iter)
-                    except NoSolutionError:
-                        continue
-                    if not np.array_equal(s.used, sol.used) or distance(s.Rs[r], s.ts[r]) <= AMBIGUITY_SIGMAS:
-                        continue
-                    cost = tc(s.Rs, s.ts)
-                    if not (cost <= gate and s.cost <= joint_gate):
-                        continue
-                    Rj, tj, total = s.Rs, s.ts, s.cost
-                alts.append((Rj[r].copy(), tj[r].copy(), float(total)))
                 if total < sol.cost * (1.0 - 1e-9) - 1e-12 and (better is None or total < better[2]):
-                    better = (Rj, tj, total)
+                    # lower than the optimum, fitting or not (the optimum may
+                    # fail its test from a wrong basin): solved again from it
+                    better = (Rj.copy(), tj.copy(), total)
+                if cost > _JOINT_FACTOR * gate:
+                    continue
+                # every robot re-optimized from the second pose (the others,
+                # held at the optimum, may hold r off its own minimum)
+                try:
+                    s = _solve_from(problem, reference, Rj, tj, sol.localized.copy(), sol.nuisance,
+                                    max_iter=max_iter)
+                except NoSolutionError:
+                    continue
+                d = distance(s.Rs[r], s.ts[r], R0, t0)
+                if not np.array_equal(s.used, sol.used) or d < _SAME or \
+                        any(distance(s.Rs[r], s.ts[r], a[0], a[1]) < _SAME for a in alts):
+                    continue
+                if not (tc(s.Rs, s.ts) <= gate and s.cost <= joint_gate):
+                    continue
+                alts.append((s.Rs[r].copy(), s.ts[r].copy(), float(s.cost), d))
+                if s.cost < sol.cost * (1.0 - 1e-9) - 1e-12 and (better is None or s.cost < better[2]):
+                    better = (s.Rs.copy(), s.ts.copy(), s.cost)
             if alts:
                 found[r] = sorted(alts, key=lambda a: a[2])
         if better is None:
