@@ -1276,8 +1276,6 @@ AMBIGUITY_SIGMAS = 5.0
 #: A second pose whose ties, the others held, fit this many times worse than
 #: their noise allows is re-optimized jointly (the others may move to it).
 _JOINT_FACTOR = 10.0
-#: Minima closer than this many standard deviations are one.
-_SAME = 0.5
 
 
 def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigma: float = 1.0,
@@ -1369,7 +1367,7 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
                 Rtry[r], ttry[r] = R, t
                 cost, _ = team_lm(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist, var,
                                   Rtry, ttry, max_iter, H)
-                if np.isfinite(cost) and not any(distance(Rtry[r], ttry[r], m[0], m[1]) < _SAME for m in minima):
+                if np.isfinite(cost) and not any(_close(Rtry[r], ttry[r], m[0], m[1]) for m in minima):
                     minima.append((Rtry[r].copy(), ttry[r].copy(), cost))
             alts: list[tuple[np.ndarray, np.ndarray, float, float]] = []
             for R1, t1, cost in minima[1:]:
@@ -1390,8 +1388,8 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
                 except NoSolutionError:
                     continue
                 d = distance(s.Rs[r], s.ts[r], R0, t0)
-                if not np.array_equal(s.used, sol.used) or d < _SAME or \
-                        any(distance(s.Rs[r], s.ts[r], a[0], a[1]) < _SAME for a in alts):
+                if not np.array_equal(s.used, sol.used) or _close(s.Rs[r], s.ts[r], R0, t0) or \
+                        any(_close(s.Rs[r], s.ts[r], a[0], a[1]) for a in alts):
                     continue
                 if not (tc(s.Rs, s.ts) <= gate and s.cost <= joint_gate):
                     continue
@@ -1457,9 +1455,11 @@ def _turns() -> list[np.ndarray]:
 
 
 def _close(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> bool:
-    """The same pose, to what refinement reaches (1e-6 rad, 1e-6 of the distance)."""
-    return (np.linalg.norm(Ra - Rb) < 1e-6 * np.sqrt(8.0)
-            and np.linalg.norm(ta - tb) < 1e-6 * max(1.0, float(np.linalg.norm(ta))))
+    """One minimum, to what refinement reaches (1e-5 rad, 1e-5 of the
+    distance): distinct exact poses of three ties may lie well within the
+    covariance, and are distinct candidates all the same."""
+    return (np.linalg.norm(Ra - Rb) < 1e-5 * np.sqrt(2.0)
+            and np.linalg.norm(ta - tb) < 1e-5 * max(1.0, float(np.linalg.norm(ta))))
 
 
 def _marginalised(H: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, int]:
