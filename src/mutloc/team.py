@@ -210,7 +210,11 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     (never guessed); a robot -- or a group of robots solved among
     themselves -- is tied once three observations, by any cameras, link it
     to robots already tied (see :func:`mutloc.core.team.initial_poses`);
-    held by exactly three, it is listed in ``unverified``.
+    held by exactly three, it is listed in ``unverified`` -- as is a robot
+    held by a few more (up to six) whose observations fit a second pose,
+    far beyond its covariance, within their noise: those other poses are in
+    ``ambiguous`` and :meth:`TeamEstimate.candidates`
+    (:func:`mutloc.core.team.other_poses`).
     ``initial`` (``{robot: T_ref_robot}``, e.g. the previous frame's poses)
     replaces the initialisation from the pair solvers; robots missing from
     it are unlocalized.  The joint residual is tested against its noise

@@ -36,6 +36,11 @@ unlocalized that three observations tie to the others, may come from a
 wrong exact pose of a placement on three observations: :func:`solve_team`
 then starts again from the other exact poses and other spanning trees and
 keeps the best (:func:`_restarts`).
+
+A robot held by few observations (:data:`AMBIGUITY_TIES`) may fit a second,
+distant pose within the noise as well as its optimum; :func:`other_poses`
+searches for one (as a pair's solver keeps every candidate of three
+markers), and mutloc.team leaves such a robot unverified.
 """
 
 from __future__ import annotations
