@@ -187,7 +187,11 @@ def test_tag_teams_that_failed_are_exact():
     for index in (5, 27, 34, 115):
         scene = _tag_scene(2, index)
         team = mutloc.localize_team(scene.rig, scene.observations())
-        assert team.unverified == [], index
+        # scene 115: the wrong basin still fits r1's four ties within 1 px
+        # (5.5 px^2, 6 m off): r1 is solved exactly but left unverified, the
+        # other pose among its candidates (issue 36, test_team_ambiguity.py)
+        assert set(team.unverified) <= set(team.ambiguous), index
+        assert index == 115 or team.unverified == [], index
         _assert_exact(team, scene, list(team.poses))
         assert len(team.poses) >= 3
 

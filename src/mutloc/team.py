@@ -14,8 +14,8 @@ from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
 from .core.rig import Rig
-from .core.team import (MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor, relative_jacobian,
-                        residual_norms, solve_team)
+from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor,
+                        other_poses, relative_jacobian, residual_norms, solve_team)
 from .errors import (DegenerateGeometryError, InconsistentObservationsError, ObservationError,
                      TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
@@ -31,7 +31,9 @@ class TeamEstimate:
     covariance is computed from it on first use.  ``unverified`` lists
     robots held by exactly three observations: several
     poses fit those exactly and nothing can confirm the one chosen (as a
-    pair's ``"unverified"`` status)."""
+    pair's ``"unverified"`` status) -- and robots whose few observations fit
+    a second, distant pose within their noise as well: ``ambiguous`` holds
+    those other poses (``T_ref_r``, best first; :meth:`candidates`)."""
 
     reference: str
     poses: dict[str, Pose]
@@ -43,6 +45,7 @@ class TeamEstimate:
     observations_used: int
     consistency: Consistency
     unverified: list[str] = field(default_factory=list)
+    ambiguous: dict[str, Pose] = field(default_factory=dict)
     rejected: list[dict[str, Any]] = field(default_factory=list)
     markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -62,6 +65,20 @@ class TeamEstimate:
         ``"unverified"`` (no redundancy: as many equations as unknowns)."""
         passed = self.consistency.passed
         return "unverified" if passed is None else ("solved" if passed else "rejected")
+
+    def robot_status(self, name: str) -> str:
+        """``name``'s own status: ``"unverified"`` when it is listed in
+        :attr:`unverified`, else the team's :attr:`status`."""
+        self._block(name)
+        return "unverified" if name in self.unverified else self.status
+
+    def candidates(self, name: str) -> Pose:
+        """Every pose ``T_ref_name`` the observations fit within their noise
+        (a stack): the estimate first, then the :attr:`ambiguous` others."""
+        self._block(name)
+        pose = self.poses[name]
+        return Pose.concatenate([pose, *self.ambiguous[name]]) if name in self.ambiguous else \
+            Pose.concatenate([pose])
 
     def _block(self, name: str) -> int:
         if name == self.reference:
@@ -111,6 +128,8 @@ class TeamEstimate:
                 "reprojection_rms_px": float(self.reprojection_rms_px), "pixel_sigma": float(self.pixel_sigma),
                 "observations_used": int(self.observations_used), "status": self.status,
                 "consistency": self.consistency.to_dict(), "unverified": list(self.unverified),
+                **({"ambiguous": {n: [T.to_dict() for T in P] for n, P in self.ambiguous.items()}}
+                   if self.ambiguous else {}),
                 **({"rejected": [dict(r) for r in self.rejected]} if self.rejected else {})}
 
 
@@ -192,7 +211,11 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
     (never guessed); a robot -- or a group of robots solved among
     themselves -- is tied once three observations, by any cameras, link it
     to robots already tied (see :func:`mutloc.core.team.initial_poses`);
-    held by exactly three, it is listed in ``unverified``.
+    held by exactly three, it is listed in ``unverified`` -- as is a robot
+    held by a few more (up to six) whose observations fit a second pose,
+    far beyond its covariance, within their noise: those other poses are in
+    ``ambiguous`` and :meth:`TeamEstimate.candidates`
+    (:func:`mutloc.core.team.other_poses`).
     ``initial`` (``{robot: T_ref_robot}``, e.g. the previous frame's poses)
     replaces the initialisation from the pair solvers; robots missing from
     it are unlocalized.  The joint residual is tested against its noise
@@ -238,6 +261,14 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
                 f"no robot is tied to the reference {reference!r} by three or more observations "
                 f"({len(problem.cam)} observations among {seen or 'no robots'})")
         test = _test(sol, pixel_sigma, confidence)
+        if test.passed is False:
+            # a weakly tied robot in a wrong basin fails the test as an
+            # outlier would: its other poses first (see other_poses)
+            try:
+                sol = other_poses(sub, sol, ref, sigma=pixel_sigma, confidence=confidence, max_iter=max_iter)[0]
+            except DegenerateGeometryError:
+                pass
+            test = _test(sol, pixel_sigma, confidence)
         if test.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
             break
         # drop the worst-fitting observation and solve again from scratch
@@ -247,8 +278,17 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         rejected.append({"observer": names[problem.cam[k]], "marker": markers[k], "residual_px": float(np.max(err))})
         keep = keep[keep != k]
         start = None
+    others: dict[int, list] = {}
+    if test.passed is not False:
+        # a weakly tied robot may fit a second pose as well as the optimum
+        # (as a pair on three markers): not verified, its poses the candidates
+        try:
+            sol, others = other_poses(sub, sol, ref, sigma=pixel_sigma, confidence=confidence, max_iter=max_iter)
+        except DegenerateGeometryError:
+            others = {}
+        test = _test(sol, pixel_sigma, confidence)
     try:
-        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, test)
+        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, test, others)
     except DegenerateGeometryError:
         if test.passed is not False:
             raise
@@ -272,7 +312,7 @@ def _test(sol: TeamSolution, sigma: float, confidence: float) -> Consistency:
 
 
 def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: TeamProblem, reference: str,
-              sigma: float, test: Consistency) -> TeamEstimate:
+              sigma: float, test: Consistency, others: Mapping[int, list] | None = None) -> TeamEstimate:
     robots = [names[i] for i in sol.order]
     poses = {names[i]: Pose(sol.Rs[i].copy(), sol.ts[i].copy()) for i in np.flatnonzero(sol.localized)}
     poses[reference] = Pose.identity()
@@ -287,14 +327,22 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
     # does a group of robots held to the reference's side by three: every
     # robot whose every tie to the reference crosses such a cut
     unverified = _weakly_tied(sol, problem, names.index(reference))
-    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES or i in unverified]
+    # a second consistent pose far beyond the covariance: the observations
+    # cannot tell which is right; closer ones only widen the candidates of a
+    # robot unverified already
+    others = others or {}
+    far = {i for i, alts in others.items() if max(a[3] for a in alts) > AMBIGUITY_SIGMAS}
+    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES or i in unverified or i in far]
+    ambiguous = {names[i]: Pose.concatenate([Pose(a[0], a[1]) for a in alts]) for i, alts in others.items()
+                 if names[i] in unverified}
     est = TeamEstimate(
         reference=reference, poses=poses, robots=robots,
         unlocalized=[n for i, n in enumerate(names) if not sol.localized[i]],
         information=sol.information, factor=checked_factor(sol.information) if sol.information.size else None,
         pixel_sigma=sigma,
         reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
-        consistency=test, unverified=unverified, markers_between=between, extra={"iterations": sol.iterations})
+        consistency=test, unverified=unverified, ambiguous=ambiguous, markers_between=between,
+        extra={"iterations": sol.iterations})
     return est
 
 
@@ -332,10 +380,17 @@ def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
     """UnverifiedError when some robot rests on three observations and the
     caller did not accept that (the command line without ``--allow-unverified``)."""
     if team.unverified and not allow_unverified:
+        few = [n for n in team.unverified if n not in team.ambiguous]
+        parts = []
+        if few:
+            parts.append(f"robot{'s' if len(few) > 1 else ''} {', '.join(few)}: only three observations tie it to "
+                         "the team, several poses fit them exactly and nothing can verify the one chosen")
+        for n, P in team.ambiguous.items():
+            far = max(float(np.max(np.atleast_1d(team.poses[n].rotation_error_deg(P)))), 0.0)
+            parts.append(f"robot {n}: its observations fit {len(P) + 1} poses within their noise (up to "
+                         f"{far:.0f} deg apart) and nothing can tell which is right")
         raise UnverifiedError(
-            f"robot{'s' if len(team.unverified) > 1 else ''} {', '.join(team.unverified)}: only three observations "
-            "tie it to the team, several poses fit them exactly and nothing can verify the one chosen; accept the "
-            "risk with --allow-unverified or observe a fourth marker", team)
+            "; ".join(parts) + "; accept the risk with --allow-unverified or observe more markers", team)
 
 
 def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | None = None,

@@ -36,6 +36,11 @@ unlocalized that three observations tie to the others, may come from a
 wrong exact pose of a placement on three observations: :func:`solve_team`
 then starts again from the other exact poses and other spanning trees and
 keeps the best (:func:`_restarts`).
+
+A robot held by few observations (:data:`AMBIGUITY_TIES`) may fit a second,
+distant pose within the noise as well as its optimum; :func:`other_poses`
+searches for one (as a pair's solver keeps every candidate of three
+markers), and mutloc.team leaves such a robot unverified.
 """
 
 from __future__ import annotations
@@ -50,12 +55,13 @@ from ..errors import DegenerateGeometryError, NoSolutionError
 from .camera import project_jac_kernel, project_kernel, undistort_kernel
 from .consistency import DEFAULT_CONFIDENCE, chi2_quantile
 from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
-from .geometry import matrix_from_quaternion_xyzw, so3_exp
+from .geometry import matrix_from_quaternion_xyzw, so3_exp, so3_log
 from .generalized import KIND_U_RAY, KIND_W_RAY, generalized_p3p
 from .refine import MODE_PIXEL, so3_exp_left
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
-           "relative_jacobian", "checked_factor", "inverse_from_factor", "MIN_TIES"]
+           "relative_jacobian", "checked_factor", "inverse_from_factor", "other_poses", "MIN_TIES",
+           "AMBIGUITY_TIES", "AMBIGUITY_SIGMAS"]
 
 #: Observations that tie a robot to the already placed ones, at least.
 MIN_TIES = 3
@@ -1260,6 +1266,209 @@ def _solve_from(problem: TeamProblem, reference: int, Rs: np.ndarray, ts: np.nda
         localized = localized & ~nuisance
     return TeamSolution(Rs=Rs, ts=ts, localized=localized, order=order, cost=cost, n_obs=len(used),
                         information=H, iterations=it, used=used, nuisance=nuisance, nuisance_params=params)
+
+
+#: A localized robot tied to the others by at most this many observations
+#: is searched for a second pose that fits them (:func:`other_poses`): its
+#: own redundancy ``2n - 6`` is then at most 6, few enough equations that
+#: two distant poses can both fit within the noise (random three-robot teams
+#: with one robot on four ties: 18% of them solved far from the truth at
+#: 1 px; on five, 2%; on six, none of 200).  Better-tied robots cost nothing.
+AMBIGUITY_TIES = 6
+#: A second consistent pose is another pose when it lies more than this many
+#: standard deviations (Mahalanobis, the robot's marginal covariance) from
+#: the optimum; closer, it is the optimum's own spread.
+AMBIGUITY_SIGMAS = 5.0
+#: A second pose whose ties, the others held, fit this many times worse than
+#: their noise allows is re-optimized jointly (the others may move to it).
+_JOINT_FACTOR = 10.0
+
+
+def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigma: float = 1.0,
+                confidence: float = DEFAULT_CONFIDENCE, max_iter: int = 50
+                ) -> tuple[TeamSolution, dict[int, list[tuple[np.ndarray, np.ndarray, float, float]]]]:
+    """Every weakly tied robot's other poses that fit the observations as well.
+
+    For each localized robot ``r`` tied to the others by at most
+    :data:`AMBIGUITY_TIES` used observations (``problem`` the one ``sol``
+    was solved on; ``sol.used`` indexes it), the others held at their
+    optimum: every exact pose of every three of its ties (the generalized
+    minimal solver, rays of ``r``'s camera and of the cameras seeing it) and
+    the optimum turned about r's observed points (:func:`_seeds`) is refined
+    on its ties (LM over ``r``'s pose).  Each other minimum is re-optimized
+    jointly (every robot); one that stays apart from the optimum and passes
+    both the chi-square test of ``r``'s ties (``2n - 6`` degrees of freedom;
+    none for three) and the team's joint test is another consistent pose.
+    One more than :data:`AMBIGUITY_SIGMAS` standard deviations away (r's
+    covariance) leaves ``r`` unverified, as a pair on three markers: the
+    observations cannot tell which is right.
+
+    Returns the solution (jointly re-solved from another minimum that fits
+    better than the optimum, consistent or not: the start had missed the
+    global one) and ``{r: [(R, t, cost, sigmas), ...]}`` -- every other
+    consistent pose ``T_ref_r`` found, with the joint cost at it and its
+    distance from the optimum in standard deviations, best first.
+    ``confidence`` 1 (the test switched off) searches at
+    :data:`DEFAULT_CONFIDENCE`."""
+    if confidence >= 1.0:
+        confidence = DEFAULT_CONFIDENCE
+    found: dict[int, list[tuple[np.ndarray, np.ndarray, float, float]]] = {}
+    for _ in range(3):
+        if sol.information.size == 0:
+            return sol, found
+        used = problem.take(sol.used)
+        cam, own = used.cam, used.own
+        weak = [int(i) for i in sol.order
+                if np.count_nonzero((cam == i) | (own == i)) <= AMBIGUITY_TIES]
+        if not weak:
+            return sol, found
+        joint_gate = sigma**2 * chi2_quantile(confidence, sol.dof) if sol.dof > 0 else \
+            max(1e-9 * sigma**2 * max(sol.n_obs, 1), 1e-12)
+        better = None
+        found = {}
+        for r in weak:
+            rows = np.flatnonzero((cam == r) | (own == r))
+            if len(rows) < MIN_TIES:
+                continue
+            ties = used.take(rows)
+            n_r = len(rows)
+            # r's own test (none on three ties: the others' noise alone may
+            # leave no exact pose near the truth, a double root turned complex)
+            gate = sigma**2 * chi2_quantile(confidence, 2 * n_r - 6) if n_r > 3 else np.inf
+            tc = lambda R_, t_: team_cost(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist,  # noqa
+                                          R_, t_)
+            c0 = tc(sol.Rs, sol.ts)
+            rays = []
+            for j in range(n_r):
+                a, b = int(ties.cam[j]), int(ties.own[j])
+                bear = _bearing(ties.K[a], ties.dist[a], ties.uv[j])
+                if bear is None:
+                    continue
+                if a == r:  # r's camera sees a placed marker: a ray of r's frame
+                    rays.append((KIND_U_RAY, np.zeros(3), bear, sol.Rs[b] @ ties.points[j] + sol.ts[b]))
+                else:  # a placed camera sees r's marker: a ray of the reference's frame
+                    rays.append((KIND_W_RAY, sol.ts[a], sol.Rs[a] @ bear, ties.points[j]))
+            # r's marginal information (the inverse of its covariance block)
+            k = int(np.flatnonzero(sol.order == r)[0])
+            E = np.zeros((sol.information.shape[0], 6))
+            E[6 * k:6 * k + 6] = np.eye(6)
+            try:
+                info_r = np.linalg.inv(sigma**2 * np.linalg.solve(sol.information, E)[6 * k:6 * k + 6])
+            except np.linalg.LinAlgError:
+                return sol, found
+            R0, t0 = sol.Rs[r].copy(), sol.ts[r].copy()
+
+            def distance(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> float:
+                """Mahalanobis, r's covariance at the optimum."""
+                d = np.r_[so3_log(Ra @ Rb.T), ta - tb]
+                return float(np.sqrt(max(d @ info_r @ d, 0.0)))
+
+            var = np.full(problem.n_robots, -1, dtype=np.int64)
+            var[r] = 0
+            H = np.empty((6, 6))
+            Rtry, ttry = sol.Rs.copy(), sol.ts.copy()
+            # r's minima on its ties, the others held: the optimum's basin first
+            minima: list[tuple[np.ndarray, np.ndarray, float]] = [(R0, t0, c0)]
+            for R, t in _seeds(rays, R0, t0):
+                Rtry[r], ttry[r] = R, t
+                cost, _ = team_lm(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist, var,
+                                  Rtry, ttry, max_iter, H)
+                if np.isfinite(cost) and not any(_close(Rtry[r], ttry[r], m[0], m[1]) for m in minima):
+                    minima.append((Rtry[r].copy(), ttry[r].copy(), cost))
+            alts: list[tuple[np.ndarray, np.ndarray, float, float]] = []
+            for R1, t1, cost in minima[1:]:
+                Rj, tj = sol.Rs.copy(), sol.ts.copy()
+                Rj[r], tj[r] = R1, t1
+                total = sol.cost - c0 + cost
+                if total < sol.cost * (1.0 - 1e-9) - 1e-12 and (better is None or total < better[2]):
+                    # lower than the optimum, fitting or not (the optimum may
+                    # fail its test from a wrong basin): solved again from it
+                    better = (Rj.copy(), tj.copy(), total)
+                if cost > _JOINT_FACTOR * gate:
+                    continue
+                # every robot re-optimized from the second pose (the others,
+                # held at the optimum, may hold r off its own minimum)
+                try:
+                    s = _solve_from(problem, reference, Rj, tj, sol.localized.copy(), sol.nuisance,
+                                    max_iter=max_iter)
+                except NoSolutionError:
+                    continue
+                d = distance(s.Rs[r], s.ts[r], R0, t0)
+                if not np.array_equal(s.used, sol.used) or _close(s.Rs[r], s.ts[r], R0, t0) or \
+                        any(_close(s.Rs[r], s.ts[r], a[0], a[1]) for a in alts):
+                    continue
+                if not (tc(s.Rs, s.ts) <= gate and s.cost <= joint_gate):
+                    continue
+                alts.append((s.Rs[r].copy(), s.ts[r].copy(), float(s.cost), d))
+                if s.cost < sol.cost * (1.0 - 1e-9) - 1e-12 and (better is None or s.cost < better[2]):
+                    better = (s.Rs.copy(), s.ts.copy(), s.cost)
+            if alts:
+                found[r] = sorted(alts, key=lambda a: a[2])
+        if better is None:
+            return sol, found
+        # a second pose fits better than the optimum: the start had missed
+        # the global one; solve from it and search again around it
+        try:
+            s = _solve_from(problem, reference, better[0].copy(), better[1].copy(), sol.localized.copy(),
+                            sol.nuisance, max_iter=max_iter)
+            if s.information.size:
+                checked_factor(s.information)
+        except (NoSolutionError, DegenerateGeometryError):
+            return sol, found
+        if not np.array_equal(s.used, sol.used) or s.cost >= sol.cost:
+            return sol, found
+        sol = s
+    return sol, found
+
+
+#: Turns of a weakly tied robot about its observed markers that seed the
+#: search for its other poses besides the minimal solutions (which vanish,
+#: a pair of roots turned complex, when noise moves a near-double root).
+SEED_TURNS = 64
+
+
+def _seeds(rays: list[tuple], R0: np.ndarray, t0: np.ndarray):
+    """Starts for :func:`other_poses`: on three rays whose known points
+    differ, their every exact pose (generalized minimal solver); then the
+    optimum ``(R0, t0)`` turned about the centre of the robot's observed
+    points by :data:`SEED_TURNS` seeded random rotations."""
+    from itertools import combinations
+
+    # the exact poses of three ties (on more, the turns below find every
+    # minimum as well -- the same on the draws of test_team_ambiguity -- at
+    # a fraction of the minimal solver's cost)
+    for tri in combinations(range(len(rays)), 3) if len(rays) == 3 else ():
+        kinds, origins, dirs, points = (np.array([rays[i][f] for i in tri]) for f in range(4))
+        # the same marker twice (seen by two cameras): no triangle to fit
+        if any(kinds[a] == kinds[b] and np.linalg.norm(points[a] - points[b]) < 1e-9
+               for a, b in ((0, 1), (0, 2), (1, 2))):
+            continue
+        Rc, tc = generalized_p3p(kinds, origins, dirs, points)
+        yield from zip(Rc, tc)
+    # the robot's own points: its markers others see, its camera centre
+    mine = [ray[3] if ray[0] == KIND_W_RAY else ray[1] for ray in rays]
+    c = np.mean(mine, axis=0)
+    for Q in _turns():
+        R = R0 @ Q
+        yield R, t0 + R0 @ c - R @ c
+
+
+_TURNS: list[np.ndarray] = []
+
+
+def _turns() -> list[np.ndarray]:
+    if not _TURNS:
+        rng = np.random.default_rng(20130913)
+        _TURNS.extend(_random_rotation(rng) for _ in range(SEED_TURNS))
+    return _TURNS
+
+
+def _close(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> bool:
+    """One minimum, to what refinement reaches (1e-5 rad, 1e-5 of the
+    distance): distinct exact poses of three ties may lie well within the
+    covariance, and are distinct candidates all the same."""
+    return (np.linalg.norm(Ra - Rb) < 1e-5 * np.sqrt(2.0)
+            and np.linalg.norm(ta - tb) < 1e-5 * max(1.0, float(np.linalg.norm(ta))))
 
 
 def _marginalised(H: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, int]:
