@@ -11,16 +11,16 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile, consistency
-from .core.estimate import PairProblem, Solution, estimate
+from .core.estimate import PairProblem, Solution, estimate, ranked_candidates
 from .core.geometry import skew
 from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
 from .core.refine import tangent_bases
 from .core.rays import pair_rays
 from .core.rig import Rig
-from .core.robust import largest_consistent_set, observation_errors, other_consistent_poses
-from .errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, UnverifiedError,
-                     confidence_level, positive_number)
+from .core.robust import MIN_VERIFIABLE, largest_consistent_set, observation_errors, other_consistent_poses
+from .errors import (InconsistentObservationsError, InputError, MutlocError, NoSolutionError, ObservationError,
+                     UnverifiedError, confidence_level, positive_number)
 
 __all__ = ["Estimate", "localize", "localize_batch", "solve_bearings", "load_rig", "invert_covariance"]
 
@@ -286,16 +286,31 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         cost_best, prow, sol, rows = results[0]
     else:
         prow, rows = pair.points_index, pair.rows
-        sol = _solve(_problem(pair, pair.side, prow, rows), refine=refine, root_filter=root_filter,
-                     initializer=initializer, accept=_accept(len(rows), pixel_sigma, confidence))
-        cost_best = sol.cost
-    test = consistency(sol.cost, sol.n_obs, pixel_sigma, confidence)
-    passed = test.passed
+        try:
+            sol = _solve(_problem(pair, pair.side, prow, rows), refine=refine, root_filter=root_filter,
+                         initializer=initializer, accept=_accept(len(rows), pixel_sigma, confidence))
+        except NoSolutionError:
+            # With several cameras a false detection (another object in a camera looking away) can put every
+            # pose's markers behind some camera: the largest consistent set then decides, from every
+            # subset's candidates, as for a failed test.
+            if pair.table.mounts is None or not reject_outliers or len(rows) <= MIN_VERIFIABLE:
+                raise
+            sol = None
+        cost_best = math.inf if sol is None else sol.cost
     rejected: list[dict[str, Any]] = []
+    if sol is None:
+        test, passed = None, False
+    else:
+        test = consistency(sol.cost, sol.n_obs, pixel_sigma, confidence)
+        passed = test.passed
     if passed is False and reject_outliers and not pair.anonymous:
         problem = _problem(pair, pair.side, pair.points_index, pair.rows)
         problem.ensure_bearings()
-        robust = largest_consistent_set(problem, sol, pixel_sigma, confidence)
+        robust = largest_consistent_set(problem, sol if sol is not None else _candidates_only(problem),
+                                        pixel_sigma, confidence)
+        if robust is None and sol is None:
+            raise NoSolutionError("no pose explains the observations: every solution puts a marker behind a camera, "
+                                  "and no consistent subset of them was found")
         if robust is not None:
             dropped = np.setdiff1d(np.arange(len(rows)), robust.keep)
             err = observation_errors(problem, robust.solution.pose.R, robust.solution.pose.t)[0]
@@ -359,6 +374,15 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     return est
 
 
+def _candidates_only(problem: PairProblem) -> Any:
+    """What :func:`largest_consistent_set` reads of a first solution (its candidates) when no pose fits all
+    observations: every minimal subset's distinct poses."""
+    from types import SimpleNamespace
+
+    cands, _ = ranked_candidates(problem)
+    return SimpleNamespace(candidates=cands)
+
+
 def _inconsistency_message(est: Estimate, pair: PairObservations, rows: np.ndarray, sol: Solution,
                            sigma: float) -> str:
     c = est.consistency
@@ -402,7 +426,7 @@ def _choose_alternatives(rig: Rig, obs: ObservationSet, source: str, target: str
         for combo in product(*choices):
             try:
                 est = localize(rig, obs.take(np.array(combo)), source, target, **strict)
-            except InconsistentObservationsError:
+            except MutlocError:  # this combination fits no pose (inconsistent, or every pose puts a marker behind)
                 continue
             if est.consistency is None or not est.consistency.passed:
                 continue

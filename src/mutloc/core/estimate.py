@@ -173,7 +173,7 @@ class Solution:
     and both are computed on first access.
     """
 
-    __slots__ = ("pose", "cost", "information", "information_inv", "n_obs", "refined", "extra", "_ranked")
+    __slots__ = ("pose", "cost", "information", "information_inv", "n_obs", "refined", "extra", "_candidates")
 
     def __init__(self, pose: Pose, cost: float, information: np.ndarray, information_inv: np.ndarray,
                  candidates: Pose | None, candidate_costs: np.ndarray | None, n_obs: int, refined: bool = True,
@@ -181,12 +181,12 @@ class Solution:
         self.pose, self.cost, self.n_obs, self.refined = pose, cost, n_obs, refined
         self.information, self.information_inv = information, information_inv
         self.extra = {} if extra is None else extra
-        self._ranked = ranked if candidates is None else (candidates, candidate_costs)
+        self._candidates = ranked if candidates is None else (candidates, candidate_costs)
 
     def _ranking(self) -> tuple[Pose, np.ndarray]:
-        if callable(self._ranked):
-            self._ranked = self._ranked()
-        return self._ranked
+        if callable(self._candidates):
+            self._candidates = self._candidates()
+        return self._candidates
 
     @property
     def candidates(self) -> Pose:
@@ -627,7 +627,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
                                             obs.wt, accept, max_iter, R, t, H, Hinv)
         if status == _OK:
             return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True, {"first_subset": True},
-                            ranked=lambda: _ranked(obs))
+                            ranked=lambda: ranked_candidates(obs))
     subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
     n_extra = 0
     size = len(subsets) * PER_SUBSET
@@ -692,7 +692,7 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
     )
 
 
-def _ranked(obs: PairProblem) -> tuple[Pose, np.ndarray]:
+def ranked_candidates(obs: PairProblem) -> tuple[Pose, np.ndarray]:
     """Every subset's distinct candidates, ranked as :func:`estimate` without
     ``accept`` ranks them (four or more observations: no preference for
     facing cameras)."""
