@@ -182,3 +182,18 @@ def test_unported_paths_refuse_bodies_in_one_line():
     rig = _pair_rig()
     with pytest.raises(mutloc.errors.RigError, match="robot 'p' has cameras front, back: the team solver"):
         mutloc.localize_team(rig, {"q/front": {"A": [600.0, 400.0]}})
+
+
+def test_a_false_detection_that_no_pose_explains_is_rejected():
+    """A camera looking away reports one of the other robot's markers (a poster of its colour): every pose
+    then puts a marker behind some camera; the largest consistent set keeps the true observations and names
+    the false one."""
+    rig = _pair_rig()
+    poses = {"q": Pose(np.eye(3), [0, 0, 0]), "p": Pose(so3_exp([0, 0, 0.2]), [2.5, 0.3, 0.0])}
+    obs = body_observations(rig, poses, sigma=0.3, rng=np.random.default_rng(1))
+    assert "p/front" not in obs
+    obs["p/front"] = {"D": [640.0, 420.0]}
+    T = poses["q"].inverse() @ poses["p"]
+    est = mutloc.localize(rig, obs, "p", "q")
+    assert est.status == "solved" and np.linalg.norm(est.t - T.t) < 0.02
+    assert est.rejected == [{"observer": "p/front", "marker": "D", "residual_px": None}]

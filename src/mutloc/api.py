@@ -11,7 +11,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile, consistency
-from .core.estimate import PairProblem, Solution, estimate, ranked_candidates
+from .core.estimate import PER_SUBSET, PairProblem, Solution, estimate, minimal_candidates_kernel, minimal_subsets
 from .core.geometry import skew
 from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
@@ -315,7 +315,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
             dropped = np.setdiff1d(np.arange(len(rows)), robust.keep)
             err = observation_errors(problem, robust.solution.pose.R, robust.solution.pose.t)[0]
             rejected = [{"observer": obs.observer[int(rows[k])], "marker": obs.marker[int(rows[k])],
-                         "residual_px": float(np.sqrt(err[k]))} for k in dropped]
+                         # None: the pose puts the marker behind the camera that saw it
+                         "residual_px": float(np.sqrt(err[k])) if np.isfinite(err[k]) else None} for k in dropped]
             sol, prow, rows, test = robust.solution, prow[robust.keep], rows[robust.keep], robust.test
             cost_best, passed = sol.cost, test.passed
     n = sol.n_obs
@@ -379,8 +380,12 @@ def _candidates_only(problem: PairProblem) -> Any:
     observations: every minimal subset's distinct poses."""
     from types import SimpleNamespace
 
-    cands, _ = ranked_candidates(problem)
-    return SimpleNamespace(candidates=cands)
+    subsets = minimal_subsets(problem.side)
+    Rc = np.empty((max(len(subsets) * PER_SUBSET, 1), 3, 3))
+    tc = np.empty((len(Rc), 3))
+    nc = minimal_candidates_kernel(problem.side, problem.points, problem.ensure_bearings(), problem.origins, subsets,
+                                   False, Rc, tc)
+    return SimpleNamespace(candidates=Pose(Rc[:nc], tc[:nc]))
 
 
 def _inconsistency_message(est: Estimate, pair: PairObservations, rows: np.ndarray, sol: Solution,
