@@ -167,3 +167,18 @@ def test_bad_arguments_are_typed_errors(tmp_path, capsys):
         run_demo(tmp_path / "x", frames=0)
     with pytest.raises(InputError):
         run_demo(tmp_path / "x", fps=float("nan"))
+
+
+def test_fisheye_robots_turned_away_are_localized(demo):
+    """The demo's robots with back-to-back fisheyes, back to back: the pose between their body frames from the
+    four images against the scene's own placement (not the demo's truth file)."""
+    from mutloc.sim.body_scenes import body_pair_pose
+
+    out, console = demo
+    T_wq, T_wp = body_pair_pose(2.0, 0, "away")
+    truth = T_wq.inverse() @ T_wp
+    result = json.loads((out / "fisheye" / "result.json").read_text())
+    assert result["status"] == "solved"
+    assert np.linalg.norm(np.array(result["t"]) - truth.t) < 0.01
+    assert rotation_error_deg(np.array(result["R"]), truth.R) < 0.3
+    assert "back cameras only: error" in console
