@@ -286,8 +286,9 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         cost_best, prow, sol, rows = results[0]
     else:
         prow, rows = pair.points_index, pair.rows
+        solved = _problem(pair, pair.side, prow, rows)
         try:
-            sol = _solve(_problem(pair, pair.side, prow, rows), refine=refine, root_filter=root_filter,
+            sol = _solve(solved, refine=refine, root_filter=root_filter,
                          initializer=initializer, accept=_accept(len(rows), pixel_sigma, confidence))
         except NoSolutionError:
             # With several cameras a false detection (another object in a camera looking away) can put every
@@ -298,6 +299,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
             sol = None
         cost_best = math.inf if sol is None else sol.cost
     rejected: list[dict[str, Any]] = []
+    kept_side = pair.side
     if sol is None:
         test, passed = None, False
     else:
@@ -318,6 +320,7 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
                          # None: the pose puts the marker behind the camera that saw it
                          "residual_px": float(np.sqrt(err[k])) if np.isfinite(err[k]) else None} for k in dropped]
             sol, prow, rows, test = robust.solution, prow[robust.keep], rows[robust.keep], robust.test
+            kept_side = pair.side[robust.keep]
             cost_best, passed = sol.cost, test.passed
     n = sol.n_obs
     names = pair.names if prow is pair.points_index else pair.table.names(prow)
@@ -355,7 +358,8 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     if passed and pair.table.mounts is not None and not pair.anonymous:
         # Robots with several cameras or wide-angle lenses: a far robot seen through four markers by one
         # camera fits two poses more often than not; only a unique pose is solved.
-        other = other_consistent_poses(_problem(pair, pair.side, prow, rows), sol, pixel_sigma,
+        problem = solved if rows is pair.rows else _problem(pair, kept_side, prow, rows)
+        other = other_consistent_poses(problem, sol, pixel_sigma,
                                        confidence if confidence < 1.0 else DEFAULT_CONFIDENCE)
         est.alternatives = Pose.concatenate(other) if other else Pose(np.empty((0, 3, 3)),
                                                                                         np.empty((0, 3)))

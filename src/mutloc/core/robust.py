@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 from numba import njit
-from scipy.spatial.transform import Rotation
 
 from ..errors import MutlocError
 from .consistency import Consistency, chi2_quantile, consistency
@@ -149,7 +148,7 @@ def other_consistent_poses(problem: PairProblem, first: Solution, sigma: float, 
     Rs, ts = cand.R[keep], cand.t[keep]
 
     def mahalanobis(R: np.ndarray, t: np.ndarray, pose: Any) -> np.ndarray:
-        d = np.concatenate([Rotation.from_matrix(R @ pose.R.T).as_rotvec(), t - pose.t], axis=-1)
+        d = np.concatenate([_rotvecs(R @ pose.R.T), t - pose.t], axis=-1)
         return np.einsum("...i,ij,...j->...", d, info, d)
 
     far = mahalanobis(Rs, ts, first.pose) > limit
@@ -167,6 +166,24 @@ def other_consistent_poses(problem: PairProblem, first: Solution, sigma: float, 
         if c <= gate and all(mahalanobis(R, t, o) > limit for o in (first.pose, *found)):
             found.append(Pose(R, t))
     return found
+
+
+def _rotvecs(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors of a stack of rotations (..., 3, 3), vectorised; near a half turn (where the axis
+    from the skew part is ill-conditioned) the length is right and the direction approximate, enough to
+    tell poses apart."""
+    c = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(c)
+    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    s = np.sin(angle)
+    small = s < 1e-8
+    scale = np.where(small, 0.5, angle / (2.0 * np.where(small, 1.0, s)))
+    v = w * scale[..., None]
+    near_pi = small & (angle > 1.0)
+    if np.any(near_pi):  # a half turn: the axis from the symmetric part
+        d = np.sqrt(np.clip((np.diagonal(R, axis1=-2, axis2=-1) + 1.0) / 2.0, 0.0, None))
+        v = np.where(near_pi[..., None], d * np.pi, v)
+    return v
 
 
 def _pose_difference(a: Solution, b: Solution) -> np.ndarray:
