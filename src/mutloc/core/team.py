@@ -9,6 +9,16 @@ of a pair (SPEC): ``R <- exp(dtheta) R``, ``t <- t + dt``, rotation first, so
 ``sigma^2 H^-1`` with ``H = J^T J`` is the joint covariance in the published
 convention.
 
+Robots with several cameras or any lens (``TeamProblem.frames``, ray
+mode): each observation is a ray of its observing robot's frame with a
+weighted tangent frame and an origin (:mod:`mutloc.core.rays`), and its
+residual is the gnomonic one of ``R_a^T (R_b P + t_b - t_a) - o`` around
+that ray, scaled by the lens's Jacobian so that it is the pixel error to
+first order: costs, the chi-square test and the covariance stay in pixels.
+Placements then run the pair solver in :data:`MODE_RAY` and the generalized
+minimal solver on rays from the cameras' centres.  One-pinhole robots keep
+the pixel residuals above (the same numbers as ever).
+
 Each residual touches at most two 6-blocks, so ``J`` is block-sparse and
 ``H`` is assembled block by block; the ``6k`` square damped system is then
 factorised by an envelope Cholesky with the robots in reverse Cuthill-McKee
