@@ -211,3 +211,45 @@ def test_a_pixel_outside_the_lens_is_named():
     with pytest.raises(ObservationError, match=rf"observations\['{key}'\]\['{m}'\]: pixel \({uv[0]:.2f}, "
                                                rf"{uv[1]:.2f}\) is outside what the fisheye lens images"):
         localize_team(rig, bad, "r0")
+
+
+def test_a_robot_held_only_by_two_markers_seen_from_two_robots():
+    """A robot that sees nobody, seen at two markers by each of two robots: no pair problem holds it, the
+    generalized minimal solver does (rays from cameras of two placed robots, each from its own centre)."""
+    rng = np.random.default_rng(8)
+    done = 0
+    while done < 3:
+        rig, poses = _team(rng)
+        obs = body_observations(rig, poses)
+        x = list(rig.robots)[-1]
+        # every other robot's views of x, by robot (one camera's rows first)
+        views: dict[str, list[tuple[str, str]]] = {}
+        for key, seen in obs.items():
+            a = rig.observer(key)[0]
+            if a != x:
+                views.setdefault(a, []).extend((key, m) for m in seen if rig.owner(m) == x)
+        holders = [a for a, v in views.items() if len({m for _, m in v}) >= 2]
+        if len(holders) < 2:
+            continue
+        kept: dict = {}
+        for key, seen in obs.items():
+            a = rig.observer(key)[0]
+            if a != x:
+                kept[key] = {m: uv for m, uv in seen.items() if rig.owner(m) != x}
+        used: set = set()
+        for a in holders[:2]:
+            marks = [(k, m) for k, m in views[a] if m not in used][:2]
+            if len(marks) < 2:
+                break
+            for k, m in marks:
+                kept[k][m] = obs[k][m]
+                used.add(m)
+        else:
+            kept = {k: v for k, v in kept.items() if v}
+            team = localize_team(rig, kept, "r0", confidence=1.0)
+            if any(n not in team.robots for n in rig.robots if n not in ("r0", x)):
+                continue  # the others must hold x
+            assert x in team.robots
+            for n in team.robots:
+                assert np.linalg.norm(team.poses[n].t - _truth(poses, "r0", n).t) < 1e-7, n
+            done += 1
