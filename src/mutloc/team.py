@@ -137,42 +137,84 @@ def team_problem(rig: Rig, observations: ObservationSet) -> tuple[TeamProblem, l
     """The solver's form of named observations (checked against the rig):
     the problem, the robot names (rig order) and each row's marker name.
 
+    Observations are keyed by camera (``ROBOT/CAMERA``, or ``ROBOT`` for a
+    robot with one camera; SPEC "Robots with several cameras").  When every
+    robot is one pinhole camera the problem is in pixels; otherwise each row
+    is a ray of its observing robot's frame (:func:`mutloc.core.rays.ray_frames`,
+    ``TeamProblem.frames``: ray mode, whatever the lens).
+
     Checked with NumPy over all rows at once; anything unusual (an error to
     name, several candidates for one marker, unnamed markers) takes the
     row-by-row path, which raises the error naming observer and marker."""
-    rig.require_central("the team solver")
+    central = rig.central_pinhole
     names = list(rig.robots)
     index = {n: i for i, n in enumerate(names)}
     mrow: dict[str, int] = {}
     mown: list[int] = []
     pts: list[Any] = []
-    sizes = np.full((len(names), 2), np.inf)
     for i, n in enumerate(names):
         robot = rig.robots[n]
-        if robot.camera.size is not None:
-            sizes[i] = robot.camera.size
         for m, marker in robot.markers.items():
             mrow[m] = len(pts)
             mown.append(i)
             pts.append(marker.position)
     obs = observations
+    if central:
+        sizes = np.full((len(names), 2), np.inf)
+        for i, n in enumerate(names):
+            if rig.robots[n].camera.size is not None:
+                sizes[i] = rig.robots[n].camera.size
     try:
-        cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
+        if central:
+            cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
+            key = cam
+        else:
+            # each camera its own key: its image size, its rows' rays
+            keys = {o: rig.observer(o) for o in dict.fromkeys(obs.observer)}
+            kindex = {o: i for i, o in enumerate(keys)}
+            sizes = np.full((len(keys), 2), np.inf)
+            for o, k in kindex.items():
+                size = rig.robots[keys[o][0]].mounts[keys[o][1]].camera.size
+                if size is not None:
+                    sizes[k] = size
+            key = np.array([kindex[o] for o in obs.observer], dtype=np.int64)
+            cam = np.array([index[keys[o][0]] for o in obs.observer], dtype=np.int64)
         row = np.array([mrow[m] for m in obs.marker], dtype=np.int64)
-    except (KeyError, TypeError):  # unknown robot or marker, unnamed marker
+    except (KeyError, TypeError, ObservationError):  # unknown robot, camera or marker, unnamed marker
         return _team_problem_rows(rig, obs, names)
     own = np.array(mown, dtype=np.int64)[row]
     u, v = obs.uv[:, 0], obs.uv[:, 1]
-    W, H = sizes[cam, 0], sizes[cam, 1]
+    W, H = sizes[key, 0], sizes[key, 1]
     bad = (cam == own) | ~((-0.5 * W <= u) & (u <= 1.5 * W) & (-0.5 * H <= v) & (v <= 1.5 * H))
     timed = ~np.isnan(obs.time)
     if (bad.any() or (timed.any() and not timed.all()) or np.unique(obs.time[timed]).size > 1
-            or np.unique(cam * len(pts) + row).size < len(row)):
+            or np.unique(key * len(pts) + row).size < len(row)):
         return _team_problem_rows(rig, obs, names)
-    K = np.array([rig.robots[n].camera.K for n in names])
-    dist = np.array([rig.robots[n].camera.dist for n in names])
     points = np.array(pts, dtype=float).reshape(-1, 3)[row]
-    return TeamProblem(cam, own, points, obs.uv, K, dist, 1.0 / obs.sigma_scale), names, list(obs.marker)
+    return _problem(rig, names, obs, cam, own, points), names, list(obs.marker)
+
+
+def _problem(rig: Rig, names: list[str], obs: ObservationSet, cam: np.ndarray, own: np.ndarray,
+             points: np.ndarray) -> TeamProblem:
+    """The TeamProblem of checked rows: pixels through each robot's one
+    pinhole camera, or rays (any cameras, any lens)."""
+    if rig.central_pinhole:
+        K = np.array([rig.robots[n].camera.K for n in names])
+        dist = np.array([rig.robots[n].camera.dist for n in names])
+        return TeamProblem(cam, own, points, obs.uv, K, dist, 1.0 / obs.sigma_scale)
+    from .core.rays import ray_frames
+
+    frames = np.empty((len(cam), 4, 3))
+    groups: dict[str, list[int]] = {}
+    for i, o in enumerate(obs.observer):
+        groups.setdefault(o, []).append(i)
+    for o, idx in groups.items():
+        ix = np.asarray(idx, dtype=np.int64)
+        _, frames[ix] = ray_frames(rig.mount(o), obs.uv[ix],
+                                   lambda k, ix=ix, o=o: f"observations[{o!r}][{obs.marker[int(ix[k])]!r}]")
+    # (K and dist are unused in ray mode)
+    K = np.tile(np.eye(3), (len(names), 1, 1))
+    return TeamProblem(cam, own, points, obs.uv, K, np.zeros((len(names), 8)), 1.0 / obs.sigma_scale, frames)
 
 
 def _team_problem_rows(rig: Rig, observations: ObservationSet, names: list[str]) -> tuple[TeamProblem, list[str],
@@ -188,13 +230,11 @@ def _team_problem_rows(rig: Rig, observations: ObservationSet, names: list[str])
     if times.size and np.unique(times).size > 1:
         raise ObservationError("observations of several times: localize one frame at a time (at_time)")
     index = {n: i for i, n in enumerate(names)}
-    cam = np.array([index[o] for o in obs.observer], dtype=np.int64)
+    cam = np.array([index[rig.observer(o)[0]] for o in obs.observer], dtype=np.int64)
     owners = [rig.owner(m) for m in obs.marker]
     own = np.array([index[o] for o in owners], dtype=np.int64)
     points = np.array([rig.robots[o].markers[m].position for o, m in zip(owners, obs.marker)]).reshape(-1, 3)
-    K = np.array([rig.robots[n].camera.K for n in names])
-    dist = np.array([rig.robots[n].camera.dist for n in names])
-    return TeamProblem(cam, own, points, obs.uv, K, dist, 1.0 / obs.sigma_scale), names, list(obs.marker)
+    return _problem(rig, names, obs, cam, own, points), names, list(obs.marker)
 
 
 def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], reference: str | None = None, *,
@@ -404,6 +444,7 @@ def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | N
     from .track.frames import FrameResult, detect_markers, expanded_rig, observations_of, read_image
 
     rig = expanded_rig(load_rig(rig))
+    rig.require_central("localize_team_images")
     detections = {}
     for observer, img in images.items():
         rig.robot(observer)

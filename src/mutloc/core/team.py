@@ -9,6 +9,16 @@ of a pair (SPEC): ``R <- exp(dtheta) R``, ``t <- t + dt``, rotation first, so
 ``sigma^2 H^-1`` with ``H = J^T J`` is the joint covariance in the published
 convention.
 
+Robots with several cameras or any lens (``TeamProblem.frames``, ray
+mode): each observation is a ray of its observing robot's frame with a
+weighted tangent frame and an origin (:mod:`mutloc.core.rays`), and its
+residual is the gnomonic one of ``R_a^T (R_b P + t_b - t_a) - o`` around
+that ray, scaled by the lens's Jacobian so that it is the pixel error to
+first order: costs, the chi-square test and the covariance stay in pixels.
+Placements then run the pair solver in :data:`MODE_RAY` and the generalized
+minimal solver on rays from the cameras' centres.  One-pinhole robots keep
+the pixel residuals above (the same numbers as ever).
+
 Each residual touches at most two 6-blocks, so ``J`` is block-sparse and
 ``H`` is assembled block by block; the ``6k`` square damped system is then
 factorised by an envelope Cholesky with the robots in reverse Cuthill-McKee
@@ -57,7 +67,7 @@ from .consistency import DEFAULT_CONFIDENCE, chi2_quantile
 from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
 from .geometry import matrix_from_quaternion_xyzw, so3_exp, so3_log
 from .generalized import KIND_U_RAY, KIND_W_RAY, generalized_p3p
-from .refine import MODE_PIXEL, so3_exp_left
+from .refine import MODE_PIXEL, MODE_RAY, so3_exp_left
 
 __all__ = ["TeamProblem", "TeamSolution", "initial_poses", "solve_team", "team_lm", "team_cost", "residual_norms",
            "relative_jacobian", "checked_factor", "inverse_from_factor", "other_poses", "MIN_TIES",
@@ -75,6 +85,8 @@ INIT_PER_SIDE = 3
 #: chains, half of all placements, up to ~900x); those in a wrong basin that
 #: the other candidates of the few could not rescue were 150x and more.
 FALLBACK_FACTOR = 25.0
+#: ``frames`` of a problem in pixel mode.
+NO_FRAMES = np.empty((0, 4, 3))
 # Condition number of the Jacobi-scaled information matrix beyond which
 # some pose is not isolated (as for a pair).
 _MAX_COND = 1e14
@@ -95,6 +107,12 @@ class TeamProblem:
     dist: np.ndarray
     #: (n,) each observation's weight, ``1 / sigma_scale`` (None: 1 for all).
     wt: np.ndarray | None = None
+    #: (n, 4, 3) each row's ray frame in its observing robot's frame
+    #: (:func:`mutloc.core.rays.ray_frames`: two weighted tangent rows, the
+    #: ray's direction, its origin): ray mode, for robots with several
+    #: cameras or any lens (``uv``, ``K``, ``dist`` then unused by the
+    #: residuals).  None: pixel mode, each robot one pinhole camera.
+    frames: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.cam = np.ascontiguousarray(self.cam, dtype=np.int64)
@@ -105,6 +123,22 @@ class TeamProblem:
         self.dist = np.ascontiguousarray(self.dist, dtype=float).reshape(-1, 8)
         n = self.cam.shape[0]
         self.wt = np.ones(n) if self.wt is None else np.ascontiguousarray(self.wt, dtype=float).reshape(n)
+        if self.frames is not None:
+            self.frames = np.ascontiguousarray(self.frames, dtype=float).reshape(n, 4, 3)
+
+    @property
+    def fr(self) -> np.ndarray:
+        """The kernels' ``frames`` argument: the ray frames, or none (pixel mode)."""
+        return NO_FRAMES if self.frames is None else self.frames
+
+    def ray(self, j: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Row ``j``'s ray in its observer's frame: ``(origin, unit direction)``;
+        None for a pixel that cannot be undistorted."""
+        if self.frames is not None:
+            return self.frames[j, 3].copy(), self.frames[j, 2].copy()
+        a = int(self.cam[j])
+        b = _bearing(self.K[a], self.dist[a], self.uv[j])
+        return None if b is None else (np.zeros(3), b)
 
     @property
     def n_robots(self) -> int:
@@ -113,7 +147,7 @@ class TeamProblem:
     def take(self, rows: np.ndarray) -> "TeamProblem":
         """The observations ``rows`` only (same robots)."""
         return TeamProblem(self.cam[rows], self.own[rows], self.points[rows], self.uv[rows], self.K, self.dist,
-                           self.wt[rows])
+                           self.wt[rows], None if self.frames is None else self.frames[rows])
 
     def counts(self) -> np.ndarray:
         """``C[a, b]``: observations camera ``a`` made of robot ``b``'s markers."""
@@ -136,7 +170,20 @@ def team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, want_jac)
     """Residuals (2n,) and, with ``want_jac``, each observation's Jacobians
     (n, 2, 6) with respect to the observer's pose (``Ja``) and the marker
     owner's pose (``Jb``), each observation's rows times its weight ``wt``
-    (pixel_sigma over its own noise).  False when a marker is behind its observer."""
+    (pixel_sigma over its own noise).  False when a marker is behind its
+    observer.  Pixel mode (:func:`team_residuals_any` for rays)."""
+    return team_residuals_any(cam, own, pts, meas, wt, Ks, ds, np.empty((0, 4, 3)), Rs, ts, r, Ja, Jb, want_jac)
+
+
+@njit(cache=True)
+def team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, want_jac):
+    """:func:`team_residuals` in pixel mode (``frames`` empty) or in ray mode
+    (``frames`` (n, 4, 3), :attr:`TeamProblem.frames`): the predicted point
+    in the observer's frame less the ray's origin, ``X = R_a^T (R_b P + t_b
+    - t_a) - o``, gives the gnomonic residual ``(e_k . X) / (b . X)`` on the
+    two weighted tangent rows ``e_k`` around the observed ray ``b`` (pixels
+    to first order, as :data:`mutloc.core.refine.MODE_RAY`)."""
+    ray = frames.shape[0] > 0
     Y = np.empty(3)
     d = np.empty(3)
     X = np.empty(3)
@@ -153,14 +200,27 @@ def team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, want_jac)
             d[i] = Y[i] + ts[b, i] - ts[a, i]
         for i in range(3):
             X[i] = Rs[a, 0, i] * d[0] + Rs[a, 1, i] * d[1] + Rs[a, 2, i] * d[2]
-        if want_jac:
-            if not project_jac_kernel(Ks[a], ds[a], X, uv, Jp):
-                return False
-        elif not project_kernel(Ks[a], ds[a], X, uv):
-            return False
         w = wt[j]
-        r[2 * j] = w * (uv[0] - meas[j, 0])
-        r[2 * j + 1] = w * (uv[1] - meas[j, 1])
+        if ray:
+            # the ray leaves its camera's centre; gnomonic residual around it
+            for i in range(3):
+                X[i] -= frames[j, 3, i]
+            den = frames[j, 2, 0] * X[0] + frames[j, 2, 1] * X[1] + frames[j, 2, 2] * X[2]
+            if not den > 1e-150:
+                return False
+            for k in range(2):
+                num = frames[j, k, 0] * X[0] + frames[j, k, 1] * X[1] + frames[j, k, 2] * X[2]
+                r[2 * j + k] = w * (num / den)
+                for i in range(3):
+                    Jp[k, i] = (frames[j, k, i] * den - num * frames[j, 2, i]) / (den * den)
+        else:
+            if want_jac:
+                if not project_jac_kernel(Ks[a], ds[a], X, uv, Jp):
+                    return False
+            elif not project_kernel(Ks[a], ds[a], X, uv):
+                return False
+            r[2 * j] = w * (uv[0] - meas[j, 0])
+            r[2 * j + 1] = w * (uv[1] - meas[j, 1])
         if want_jac:
             # M = d uv / d x_ref = Jp R_a^T (weighted)
             for k in range(2):
@@ -183,11 +243,17 @@ def team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, want_jac)
 
 @njit(cache=True)
 def team_cost(cam, own, pts, meas, wt, Ks, ds, Rs, ts):
-    """Sum of squared weighted pixel residuals (inf if a marker is behind its observer)."""
+    """Sum of squared weighted pixel residuals (inf if a marker is behind its observer); pixel mode."""
+    return team_cost_any(cam, own, pts, meas, wt, Ks, ds, np.empty((0, 4, 3)), Rs, ts)
+
+
+@njit(cache=True)
+def team_cost_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts):
+    """:func:`team_cost` in pixel or ray mode (see :func:`team_residuals_any`)."""
     n = cam.shape[0]
     r = np.empty(2 * n)
     J = np.empty((1, 2, 6))
-    if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, J, J, False):
+    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, J, J, False):
         return np.inf
     c = 0.0
     for k in range(2 * n):
@@ -288,9 +354,10 @@ def _cholesky_solve(A, first, b, x, L):
 
 
 @njit(cache=True)
-def team_lm(cam, own, pts, meas, wt, Ks, ds, var, Rs, ts, max_iter, H):
+def team_lm(cam, own, pts, meas, wt, Ks, ds, frames, var, Rs, ts, max_iter, H):
     """Levenberg-Marquardt over the poses of robots with ``var[i] >= 0``
-    (column block ``var[i]``), others fixed; Rs/ts updated in place, ``H``
+    (column block ``var[i]``), others fixed (pixel or ray mode: ``frames``, see
+    :func:`team_residuals_any`); Rs/ts updated in place, ``H``
     (6k, 6k) receives J^T J at the end.  Returns (cost, iterations); cost is
     inf when the start puts a marker behind its observer."""
     n = cam.shape[0]
@@ -307,7 +374,7 @@ def team_lm(cam, own, pts, meas, wt, Ks, ds, var, Rs, ts, max_iter, H):
     first = _envelope(cam, own, var, m)
     Rn = np.empty_like(Rs)
     tn = np.empty_like(ts)
-    if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True):
+    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True):
         return np.inf, 0
     c = 0.0
     for k in range(2 * n):
@@ -347,7 +414,7 @@ def team_lm(cam, own, pts, meas, wt, Ks, ds, var, Rs, ts, max_iter, H):
                     so3_exp_left(delta[6 * v:6 * v + 3], Rs[i], Rn[i])
                     for k in range(3):
                         tn[i, k] += delta[6 * v + 3 + k]
-            cn = team_cost(cam, own, pts, meas, wt, Ks, ds, Rn, tn)
+            cn = team_cost_any(cam, own, pts, meas, wt, Ks, ds, frames, Rn, tn)
             if cn <= c:
                 Rs[:, :, :] = Rn
                 ts[:, :] = tn
@@ -363,10 +430,10 @@ def team_lm(cam, own, pts, meas, wt, Ks, ds, var, Rs, ts, max_iter, H):
             lam *= 10.0
         if not improved or small:
             break
-        team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True)
+        team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True)
         _accumulate(cam, own, var, r, Ja, Jb, H, g)
     if it > 0:
-        team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True)
+        team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True)
         _accumulate(cam, own, var, r, Ja, Jb, H, g)
     return c, it
 
@@ -375,7 +442,8 @@ def _lm(problem: TeamProblem, var: np.ndarray, Rs: np.ndarray, ts: np.ndarray, m
                                                                                                       np.ndarray]:
     k = int(var.max()) + 1 if var.size else 0
     H = np.zeros((6 * k, 6 * k))
-    c, it = team_lm(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, var,
+    c, it = team_lm(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, problem.fr,
+                    var,
                     Rs, ts,
                     max_iter, H)
     return float(c), int(it), H
@@ -474,7 +542,8 @@ def _spread(rows, k):
 
 
 @njit(cache=True)
-def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, subsets, gate, max_iter, out_R, out_t):
+def _place_pass(cam, own, pts, uv, wt, Ks, ds, frames, Rs, ts, r, c, sees, seen, ties, subsets, gate, max_iter, out_R,
+                out_t):
     """One attempt at placing robot ``r`` (the body of :func:`initial_poses`):
     the pair problem of r's views ``sees`` (placed markers, expressed in
     camera ``c``'s frame) and c's views ``seen`` of r's markers, solved by
@@ -482,7 +551,10 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
     ``subsets``); its refined best pose, then -- if that does not fit r's
     ``ties`` within ``gate`` -- its other candidates, scored on the ties
     and the best of each refined on them (LM over r's pose only).  Returns
-    the best tie cost (inf: nothing fits), the pose in out_R/out_t."""
+    the best tie cost (inf: nothing fits), the pose in out_R/out_t.  In ray
+    mode (``frames`` not empty) the pair problem is one of rays
+    (:data:`MODE_RAY`: each row's frame in its observer's robot frame)."""
+    ray = frames.shape[0] > 0
     na = sees.shape[0]
     nb = seen.shape[0]
     n = na + nb
@@ -490,6 +562,7 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
     P = np.empty((n, 3))
     meas = np.empty((n, 2))
     w = np.empty(n)
+    fr = np.empty((n if ray else 0, 4, 3))
     Rc_, tc_ = Rs[c], ts[c]
     for i in range(na):
         j = sees[i]
@@ -503,6 +576,8 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
         meas[i, 0] = uv[j, 0]
         meas[i, 1] = uv[j, 1]
         w[i] = wt[j]
+        if ray:
+            fr[i] = frames[j]
     for i in range(nb):
         j = seen[i]
         side[na + i] = 1
@@ -511,6 +586,8 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
         meas[na + i, 0] = uv[j, 0]
         meas[na + i, 1] = uv[j, 1]
         w[na + i] = wt[j]
+        if ray:
+            fr[na + i] = frames[j]
     size = max(subsets.shape[0] * PER_SUBSET, 1)
     Rc = np.empty((size, 3, 3))
     tc = np.empty((size, 3))
@@ -521,8 +598,14 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
     H6 = np.empty((6, 6))
     Hinv = np.empty((6, 6))
     bearings = np.empty((n, 3))
-    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, np.empty((0, 4, 3)), Ks[r], ds[r], Ks[c], ds[c],
-                                       MODE_PIXEL, w, subsets, False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest,
+    mode = MODE_PIXEL
+    if ray:
+        mode = MODE_RAY
+        for i in range(n):
+            for k in range(3):
+                bearings[i, k] = fr[i, 2, k]
+    status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, fr, Ks[r], ds[r], Ks[c], ds[c],
+                                       mode, w, subsets, False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest,
                                        H6, Hinv)
     if status != 0:
         return np.inf
@@ -532,6 +615,7 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
     spts = pts[ties]
     suv = uv[ties]
     swt = wt[ties]
+    sfr = frames[ties] if ray else np.empty((0, 4, 3))
     var = np.full(Rs.shape[0], -1, dtype=np.int64)
     var[r] = 0
     H = np.empty((6, 6))
@@ -557,7 +641,7 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
                 for b in range(3):
                     Rtry[r, a, b] = Rc_[a, 0] * Rq[0, b] + Rc_[a, 1] * Rq[1, b] + Rc_[a, 2] * Rq[2, b]
                 ttry[r, a] = Rc_[a, 0] * tq[0] + Rc_[a, 1] * tq[1] + Rc_[a, 2] * tq[2] + tc_[a]
-            cost = team_cost(scam, sown, spts, suv, swt, Ks, ds, Rtry, ttry)
+            cost = team_cost_any(scam, sown, spts, suv, swt, Ks, ds, sfr, Rtry, ttry)
             if cost < best:
                 best = cost
                 bR[:, :] = Rtry[r]
@@ -566,7 +650,7 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, Rs, ts, r, c, sees, seen, ties, s
             continue
         Rtry[r] = bR
         ttry[r] = bt
-        cost, _ = team_lm(scam, sown, spts, suv, swt, Ks, ds, var, Rtry, ttry, max_iter, H)
+        cost, _ = team_lm(scam, sown, spts, suv, swt, Ks, ds, sfr, var, Rtry, ttry, max_iter, H)
         if np.isfinite(cost) and cost < best:
             best = cost
             bR[:, :] = Rtry[r]
@@ -613,18 +697,19 @@ def _attach(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.nda
     usable = []
     for j in ties.tolist():
         a, b = int(cam[j]), int(own[j])
-        bear = _bearing(problem.K[a], problem.dist[a], problem.uv[j])
-        if bear is None:
+        ray = problem.ray(j)
+        if ray is None:
             continue
+        o, bear = ray
         usable.append(len(kinds))
         if inm[a]:  # a camera of the group sees a placed marker
             kinds.append(KIND_U_RAY)
-            origins.append(tl[a])
+            origins.append(tl[a] if problem.frames is None else tl[a] + Rl[a] @ o)
             dirs.append(Rl[a] @ bear)
             points.append(Rs[b] @ problem.points[j] + ts[b])
         else:  # a placed camera sees a marker of the group
             kinds.append(KIND_W_RAY)
-            origins.append(ts[a])
+            origins.append(ts[a] if problem.frames is None else ts[a] + Rs[a] @ o)
             dirs.append(Rs[a] @ bear)
             points.append(Rl[b] @ problem.points[j] + tl[b])
     if len(usable) < MIN_TIES:
@@ -650,8 +735,8 @@ def _attach(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.nda
             Rc, tc = Rc[choice:choice + 1], tc[choice:choice + 1]
         for R, t in zip(Rc, tc):
             apply(R, t, Rtry, ttry)
-            cost = team_cost(tie_sub.cam, tie_sub.own, tie_sub.points, tie_sub.uv, tie_sub.wt, tie_sub.K, tie_sub.dist,
-                             Rtry, ttry)
+            cost = team_cost_any(tie_sub.cam, tie_sub.own, tie_sub.points, tie_sub.uv, tie_sub.wt, tie_sub.K,
+                                 tie_sub.dist, tie_sub.fr, Rtry, ttry)
             if cost < best:
                 best, bR, bt = cost, Rtry[members].copy(), ttry[members].copy()
         if best <= gate or choice is not None:
@@ -735,8 +820,8 @@ def _grow(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed: np.ndarr
                 continue
             subsets = minimal_subsets(np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)])
             R1, t1 = np.empty((3, 3)), np.empty(3)
-            cost = _place_pass(cam, own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, Rs, ts, r, c, a,
-                               b, ties, subsets, gate, max_iter, R1, t1)
+            cost = _place_pass(cam, own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, problem.fr, Rs,
+                               ts, r, c, a, b, ties, subsets, gate, max_iter, R1, t1)
             if cost < found:
                 found, out_R, out_t = cost, R1, t1
             if found <= gate:
@@ -825,30 +910,43 @@ def _isolated(H: np.ndarray, rank: bool = False) -> Any:
     return (out, int(np.count_nonzero(~small))) if rank else out
 
 
-def _relative_sample(rng: np.random.Generator, bearings: np.ndarray, points: np.ndarray) -> tuple[np.ndarray,
-                                                                                                  np.ndarray] | None:
+def _relative_sample(rng: np.random.Generator, bearings: np.ndarray, points: np.ndarray,
+                     origins: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """A random pose ``T_ab`` (R, t) that puts points ``points`` (b's frame)
-    exactly on rays ``bearings`` (a's camera): with two or more points, the
+    exactly on rays ``bearings`` (a's camera; from ``origins`` in a's frame
+    when given, else from its origin): with two or more points, the
     first two at depths drawn along their rays at their true distance and a
     random turn about the line through them; with one, a random depth and
     rotation."""
     R0 = _random_rotation(rng)
     if len(points) == 1 or np.linalg.norm(points[1] - points[0]) < 1e-9:
         lam = float(np.exp(rng.uniform(np.log(0.3), np.log(20.0))))
-        return R0, lam * bearings[0] - R0 @ points[0]
+        X = lam * bearings[0] if origins is None else origins[0] + lam * bearings[0]
+        return R0, X - R0 @ points[0]
     b1, b2 = bearings[0], bearings[1]
     d = float(np.linalg.norm(points[1] - points[0]))
     c = float(np.clip(b1 @ b2, -1.0, 1.0))
     s = np.sqrt(max(1.0 - c * c, 1e-12))
     lam1 = float(rng.uniform(0.02, 1.0)) * min(d / s, 50.0)
-    disc = lam1 * lam1 * (c * c - 1.0) + d * d
-    if disc < 0:
-        return None
-    roots = [r for r in (lam1 * c + np.sqrt(disc), lam1 * c - np.sqrt(disc)) if r > 1e-6]
+    if origins is None:
+        disc = lam1 * lam1 * (c * c - 1.0) + d * d
+        if disc < 0:
+            return None
+        roots = [r for r in (lam1 * c + np.sqrt(disc), lam1 * c - np.sqrt(disc)) if r > 1e-6]
+        X1 = lam1 * b1
+    else:
+        # |o2 + lam2 b2 - X1| = d: lam2^2 + 2 lam2 b2.w + |w|^2 - d^2 = 0, w = o2 - X1
+        X1 = origins[0] + lam1 * b1
+        w = origins[1] - X1
+        bw = float(b2 @ w)
+        disc = bw * bw - float(w @ w) + d * d
+        if disc < 0:
+            return None
+        roots = [r for r in (-bw + np.sqrt(disc), -bw - np.sqrt(disc)) if r > 1e-6]
     if not roots:
         return None
     lam2 = roots[int(rng.integers(len(roots)))]
-    X1, X2 = lam1 * b1, lam2 * b2
+    X2 = lam2 * b2 if origins is None else origins[1] + lam2 * b2
     u, v = (X2 - X1) / d, (points[1] - points[0]) / d
     # the rotation taking v to u, then a random turn about u
     w = np.cross(v, u)
@@ -895,7 +993,9 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
     C = problem.counts()
     cam, own = problem.cam, problem.own
     ties = C[:, placed].sum(axis=1) + C[placed, :].sum(axis=0)
-    bears = [_bearing(problem.K[cam[j]], problem.dist[cam[j]], problem.uv[j]) for j in range(len(cam))]
+    rays = [problem.ray(j) for j in range(len(cam))]
+    bears = [None if ray is None else ray[1] for ray in rays]
+    centred = problem.frames is None
     rng = np.random.default_rng(20131103)
     # a robot whose camera sees nothing and which is seen at fewer than three
     # distinct markers turns freely about them: never isolated, left out
@@ -929,7 +1029,8 @@ def _sampled_group(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray, placed:
                 if not use:
                     break
                 pick = rng.permutation(use)[:2]
-                got = _relative_sample(rng, np.array([bears[j] for j in pick]), problem.points[pick])
+                got = _relative_sample(rng, np.array([bears[j] for j in pick]), problem.points[pick],
+                                       None if centred else np.array([rays[j][0] for j in pick]))
                 if got is None:
                     break
                 R, t = got  # T_ab, or T_ba when flipped
@@ -1335,19 +1436,21 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
             # r's own test (none on three ties: the others' noise alone may
             # leave no exact pose near the truth, a double root turned complex)
             gate = sigma**2 * chi2_quantile(confidence, 2 * n_r - 6) if n_r > 3 else np.inf
-            tc = lambda R_, t_: team_cost(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist,  # noqa
-                                          R_, t_)
+            tc = lambda R_, t_: team_cost_any(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K,  # noqa
+                                              ties.dist, ties.fr, R_, t_)
             c0 = tc(sol.Rs, sol.ts)
             rays = []
             for j in range(n_r):
                 a, b = int(ties.cam[j]), int(ties.own[j])
-                bear = _bearing(ties.K[a], ties.dist[a], ties.uv[j])
-                if bear is None:
+                ray = ties.ray(j)
+                if ray is None:
                     continue
+                o, bear = ray
                 if a == r:  # r's camera sees a placed marker: a ray of r's frame
-                    rays.append((KIND_U_RAY, np.zeros(3), bear, sol.Rs[b] @ ties.points[j] + sol.ts[b]))
+                    rays.append((KIND_U_RAY, o, bear, sol.Rs[b] @ ties.points[j] + sol.ts[b]))
                 else:  # a placed camera sees r's marker: a ray of the reference's frame
-                    rays.append((KIND_W_RAY, sol.ts[a], sol.Rs[a] @ bear, ties.points[j]))
+                    rays.append((KIND_W_RAY, sol.ts[a] if ties.frames is None else sol.ts[a] + sol.Rs[a] @ o,
+                                 sol.Rs[a] @ bear, ties.points[j]))
             # r's marginal information (the inverse of its covariance block)
             k = int(np.flatnonzero(sol.order == r)[0])
             E = np.zeros((sol.information.shape[0], 6))
@@ -1371,7 +1474,7 @@ def other_poses(problem: TeamProblem, sol: TeamSolution, reference: int, *, sigm
             minima: list[tuple[np.ndarray, np.ndarray, float]] = [(R0, t0, c0)]
             for R, t in _seeds(rays, R0, t0):
                 Rtry[r], ttry[r] = R, t
-                cost, _ = team_lm(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist, var,
+                cost, _ = team_lm(ties.cam, ties.own, ties.points, ties.uv, ties.wt, ties.K, ties.dist, ties.fr, var,
                                   Rtry, ttry, max_iter, H)
                 if np.isfinite(cost) and not any(_close(Rtry[r], ttry[r], m[0], m[1]) for m in minima):
                     minima.append((Rtry[r].copy(), ttry[r].copy(), cost))
@@ -1493,20 +1596,22 @@ def residual_norms(problem: TeamProblem, Rs: np.ndarray, ts: np.ndarray) -> np.n
     """Each observation's reprojection error (pixels) at poses (Rs, ts);
     inf for a marker behind its observer."""
     out = np.full(len(problem.cam), np.inf)
-    _residual_norms(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist,
+    _residual_norms(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K, problem.dist, problem.fr,
                     np.ascontiguousarray(Rs, dtype=float), np.ascontiguousarray(ts, dtype=float), out)
     return out
 
 
 @njit(cache=True)
-def _residual_norms(cam, own, pts, meas, wt, Ks, ds, Rs, ts, out):
+def _residual_norms(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, out):
     """``out[j]``: observation ``j``'s reprojection error, each on its own (one
     behind its observer leaves its ``out[j]`` as it is)."""
     r = np.empty(2)
     J = np.empty((1, 2, 6))
     for j in range(cam.shape[0]):
-        if team_residuals(cam[j:j + 1], own[j:j + 1], pts[j:j + 1], meas[j:j + 1], wt[j:j + 1], Ks, ds, Rs, ts, r, J,
-                          J, False):
+        # (frames empty in pixel mode: so is its slice)
+        if team_residuals_any(cam[j:j + 1], own[j:j + 1], pts[j:j + 1], meas[j:j + 1], wt[j:j + 1], Ks, ds,
+                              frames[j:j + 1], Rs, ts,
+                              r, J, J, False):
             out[j] = np.hypot(r[0], r[1])
 
 
