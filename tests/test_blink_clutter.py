@@ -17,6 +17,7 @@ states:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -29,8 +30,10 @@ FPS = 30.0
 N = 60
 
 
-def _view(seed: int, observer: str = "q"):
+def _view(seed: int, observer: str = "q", *, poster_text: bool = True):
     rig, world = varied_world(standard_rig("lights"), seed, distance=2.0)
+    if not poster_text:
+        world = dataclasses.replace(world, room=dataclasses.replace(world.room, poster_text=False))
     markers = rig.robot("p" if observer == "q" else "q").markers
     frames, truth, lit = light_view(world, observer, list(markers), N, FPS, seed)
     return rig, markers, frames, truth, lit, observer
@@ -121,16 +124,23 @@ def test_a_coloured_light_over_a_pale_wall_is_named_by_its_own_colour(pale_wall_
 
 
 @pytest.mark.slow
-def test_a_stray_seen_lit_once_is_not_named(pale_wall_view):
-    """Same view, brightness channel: at the image's left edge the pan
-    uncovers a bright patch for five frames; the track there is taken for lit
-    once, and its history -- a single bump -- fits q's 2 Hz blink (score
-    0.58).  Named, it put M1 480 px from the light, predicted, before the
-    first second was out.  A light blinking half the time is seen lit in
-    about half its history: a track lit in under a quarter is not named."""
-    assert _identity(pale_wall_view, BRIGHT).wrong == 0
-    without = _identity(pale_wall_view, BlinkParams(by_colour=False, min_lit_fraction=0.0))
-    assert without.wrong >= 1
+def test_a_stray_seen_lit_once_is_not_named():
+    """Same view (posters without their words), brightness channel: at the
+    image's left edge the pan uncovers a bright patch for five frames; the
+    track there is taken for lit once, and its history -- a single bump --
+    fits q's 2 Hz blink.  Named, it put M1 480 px from the light, predicted,
+    before the first second was out.  A light blinking half the time is seen
+    lit in about half its history: a track lit in under a quarter is not
+    named.
+
+    The posters' words are left out because OpenCV draws them (putText) with
+    glyphs that change between releases (5.0 -> 5.1), and the stray's history
+    hangs on those pixels: with the words the case showed under 5.0 and not
+    under 5.1.  Without them the frames are the same under both."""
+    data = _view(24, "p", poster_text=False)
+    assert _identity(data, BRIGHT).wrong == 0
+    without = _identity(data, BlinkParams(by_colour=False, min_lit_fraction=0.0))
+    assert without.wrong >= 1, without.failures
 
 
 @pytest.mark.slow

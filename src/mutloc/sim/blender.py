@@ -76,6 +76,7 @@ def _texture_files(world: World, folder: Path) -> dict[str, tuple[str, tuple[flo
         return {}
     folder.mkdir(parents=True, exist_ok=True)
     key = f"room_{room.size[0]:g}x{room.size[1]:g}x{room.height:g}_s{room.seed}_t{room.texel:g}_d{room.floor_decals:g}"
+    key += "" if room.poster_text else "_nt"
     out = {}
     texs = None
     for name, _c, _u, _v, hu, hv in room.surfaces():

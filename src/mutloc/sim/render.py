@@ -824,7 +824,8 @@ def _atlas(world: World) -> tuple[np.ndarray, np.ndarray, dict[Any, int]]:
                 fam, tid, _, _ = tag_spec(m)
                 tags.append((fam, tid))
     room = world.room
-    key = (None if room is None else (tuple(room.size), room.height, room.seed, room.texel, room.floor_decals),
+    key = (None if room is None else (tuple(room.size), room.height, room.seed, room.texel, room.floor_decals,
+                                  room.poster_text),
            tuple(sorted(set(tags))))
     cached = _ATLASES.get(key)
     if cached is not None:

@@ -310,6 +310,14 @@ class Room:
     # Printed mats on the floor (per square metre): distinctive texture that
     # cameras facing each other both see, for feature-matching baselines.
     floor_decals: float = 0.0
+    # A word of text on each wall poster.  The words are drawn by OpenCV's
+    # text renderer (cv2.putText), whose glyphs are not the same from one
+    # OpenCV release to the next (5.1 rasterises FONT_HERSHEY_SIMPLEX unlike
+    # 5.0, up to 230 grey levels apart on a poster's letters); every other
+    # texture call is bit-identical across releases.  Without the words the
+    # textures, hence the rendered frames, do not depend on the OpenCV
+    # version: for tests that need a scene's exact pixels.
+    poster_text: bool = True
 
     def surfaces(self) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, float, float]]:
         """``(name, centre, u, v, half_u, half_v)`` of each inner surface.
@@ -345,7 +353,8 @@ def _random_text(rng: np.random.Generator, n: int) -> str:
     return "".join(letters[i] for i in rng.integers(0, len(letters), n))
 
 
-def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator, decals: float = 0.0) -> np.ndarray:
+def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator, decals: float = 0.0,
+             text: bool = True) -> np.ndarray:
     """sRGB uint8 (h, w, 3) BGR texture of one room surface (row 0 = top / far +v side)."""
     px = lambda metres: max(1, int(round(metres / texel)))
     if name == "floor":
@@ -373,7 +382,7 @@ def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator, 
         for _ in range(int(round(w * h * texel * texel * decals))):
             pw, ph = px(rng.uniform(0.2, 0.6)), px(rng.uniform(0.2, 0.6))
             x0, y0 = int(rng.integers(0, max(1, w - pw))), int(rng.integers(0, max(1, h - ph)))
-            _poster(img, rng, x0, y0, pw, ph, 8, 20)
+            _poster(img, rng, x0, y0, pw, ph, 8, 20, text)
         return img
     if name == "ceiling":
         img = np.full((h, w, 3), 205, np.float32)
@@ -400,13 +409,13 @@ def _texture(name: str, w: int, h: int, texel: float, rng: np.random.Generator, 
         pw, ph = px(rng.uniform(0.25, 0.9)), px(rng.uniform(0.25, 0.9))
         x0 = int(rng.integers(0, max(1, w - pw)))
         y0 = int(rng.integers(px(0.35), max(px(0.36), h - ph - px(0.4))))
-        _poster(img, rng, x0, y0, pw, ph, 3, 9)
+        _poster(img, rng, x0, y0, pw, ph, 3, 9, text)
     return img
 
 
 def _poster(img: np.ndarray, rng: np.random.Generator, x0: int, y0: int, pw: int, ph: int,
-            lo: int, hi: int) -> None:
-    """Draw a coloured card with ``lo..hi`` random shapes and a word of text."""
+            lo: int, hi: int, text: bool = True) -> None:
+    """Draw a coloured card with ``lo..hi`` random shapes and (``text``) a word of text."""
     col = tuple(int(c) for c in rng.integers(30, 240, 3))
     cv2.rectangle(img, (x0, y0), (x0 + pw, y0 + ph), col, -1)
     for _ in range(int(rng.integers(lo, hi))):
@@ -421,8 +430,11 @@ def _poster(img: np.ndarray, rng: np.random.Generator, x0: int, y0: int, pw: int
         else:
             cv2.line(img, (cx, cy), (x0 + int(rng.integers(0, pw)), y0 + int(rng.integers(0, ph))), c2,
                      int(rng.integers(1, 5)), cv2.LINE_AA)
+    word = _random_text(rng, int(rng.integers(3, 7)))  # drawn or not, the same draws
+    if not text:
+        return
     scale = max(0.3, ph / 160.0)
-    cv2.putText(img, _random_text(rng, int(rng.integers(3, 7))), (x0 + 4, y0 + ph - 6),
+    cv2.putText(img, word, (x0 + 4, y0 + ph - 6),
                 cv2.FONT_HERSHEY_SIMPLEX, scale, (20, 20, 20), max(1, int(scale * 2)), cv2.LINE_AA)
 
 
@@ -434,19 +446,19 @@ def room_textures(room: Room) -> dict[str, np.ndarray]:
     differ only in where they stand share their textures.
     """
     return _room_textures(tuple(map(float, room.size)), float(room.height), int(room.seed), float(room.texel),
-                          float(room.floor_decals))
+                          float(room.floor_decals), bool(room.poster_text))
 
 
 @functools.lru_cache(maxsize=4)
 def _room_textures(size: tuple[float, float], height: float, seed: int, texel: float,
-                   decals: float = 0.0) -> dict[str, np.ndarray]:
-    room = Room(size=size, height=height, seed=seed, texel=texel, floor_decals=decals)
+                   decals: float = 0.0, text: bool = True) -> dict[str, np.ndarray]:
+    room = Room(size=size, height=height, seed=seed, texel=texel, floor_decals=decals, poster_text=text)
     out = {}
     for k, (name, _c, _u, _v, hu, hv) in enumerate(room.surfaces()):
         rng = np.random.default_rng([seed & 0xFFFFFFFF, 7919, k])
         w = max(2, int(math.ceil(2 * hu / texel)))
         h = max(2, int(math.ceil(2 * hv / texel)))
-        tex = _texture(name, w, h, texel, rng, decals if name == "floor" else 0.0)
+        tex = _texture(name, w, h, texel, rng, decals if name == "floor" else 0.0, text)
         tex.flags.writeable = False
         out[name] = tex
     return out
