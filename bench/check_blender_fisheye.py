@@ -112,7 +112,7 @@ def main() -> None:
                 s = np.where(rr > 0, theta / np.maximum(rr, 1e-12), 0.0)
                 return np.column_stack([fx * s * P_cam[:, 0] + cx, fy * s * P_cam[:, 1] + cy])
 
-            fit = least_squares(lambda x: (model(x) - got).ravel(), [f * 1.05, f * 0.95, W / 2, H / 2])
+            fit = least_squares(lambda x, got=got: (model(x) - got).ravel(), [f * 1.05, f * 0.95, W / 2, H / 2])
             fres = (model(fit.x) - got)
             per_ring = {f"{t:g}": float(np.sqrt(np.mean(np.sum(res[th == t] ** 2, axis=1)))) for t in sorted(set(th))}
             report["lenses"][name] = {

@@ -59,9 +59,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..errors import InputError, MissingExtraError
 from ..core.pose import Pose
 from ..core.rig import CAMERA_SEPARATOR
+from ..errors import InputError, MissingExtraError
 from .render import ball_visibility, project_markers, scene_primitives, srgb_to_linear
 from .world import World, ball_radius, room_textures, tag_image
 
