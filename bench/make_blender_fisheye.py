@@ -2,7 +2,7 @@
 """Render the Blender fisheye sequences (issue 36): two robots with back-to-back fisheyes carrying tags.
 
     MUTLOC_BLENDER_PYTHON=.venv-render/bin/python PYTHONPATH=src python bench/make_blender_fisheye.py
-        [--out bench/blender_fisheye] [--frames 12] [--samples 8] [--only facing,side_by_side]
+        [--out bench/blender_fisheye] [--frames 8] [--samples 4] [--bounces 2] [--noise 1.5] [--only facing,side_by_side]
 
 Robots ``p`` and ``q`` (``base_link``: x forward, y left, z up, on the floor): a grey cylinder body
 (radius 0.215 m, 0.05-0.50 m up) with eight tag36h11 tags (0.14 m black square, 0.175 m card with its
