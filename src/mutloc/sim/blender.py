@@ -28,9 +28,19 @@ term becomes an area light under the ceiling.  Balls are matte
 (``world.ball_finish`` None) or glossy plastic; props listed in ``metal``
 are polished metal (lights' and balls' mounting rods).
 
-Cameras: pinhole only (OpenCV ``K``, no distortion); Blender's image centre
-is matched to OpenCV's pixel-centre convention, so a point projects where
-:meth:`~mutloc.core.camera.Camera.project` puts it.
+Cameras: pinhole (OpenCV ``K``, no distortion), or the ideal equidistant
+fisheye (:class:`~mutloc.core.lenses.FisheyeCamera` with k1..k4 = 0, ``r = f
+* theta``, centred, square pixels) of a robot with several cameras (views
+``ROBOT/CAMERA``): Cycles' panoramic camera, ``FISHEYE_EQUIDISTANT`` for a
+square image (its ``fisheye_fov`` spans the image's width, ``W / f``; black
+outside that circle) and ``FISHEYE_LENS_POLYNOMIAL`` (``theta = r / f`` on the
+sensor) for any other.  Blender's image centre is matched to OpenCV's
+pixel-centre convention, so a point projects where the camera's ``project``
+puts it (measured: ``bench/check_blender_fisheye.py``).
+
+Tags (printed cards) are textured quads drawn with the nearest texel; the
+card is matte paper, both sides printed (mutloc's renderer draws the back
+blank: a card is seen from behind only through the robot it is stuck on).
 """
 
 from __future__ import annotations
@@ -49,9 +59,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..core.pose import Pose
+from ..core.rig import CAMERA_SEPARATOR
 from ..errors import InputError, MissingExtraError
 from .render import ball_visibility, project_markers, scene_primitives, srgb_to_linear
-from .world import World, ball_radius, room_textures
+from .world import World, ball_radius, room_textures, tag_image
 
 __all__ = ["BLENDER_SCRIPT", "ball_truth", "blender_python", "render_spec", "scene_spec"]
 
@@ -140,7 +152,9 @@ def scene_spec(world: World, views: Mapping[str, str | os.PathLike], *, t: float
                 path, scale = texs[p["surface"]]
                 o.update(texture=path, uv_scale=list(scale), color=p["color"])
             elif "tag" in p:
-                raise InputError("tags are not drawn by the Blender renderer yet")
+                # The printed card, one texel per cell, drawn with the nearest texel: sharp cell edges.
+                o.update(texture=_tag_texture(p["tag"][0], int(p["tag"][1]), Path(texture_dir)), uv_scale=[1.0, 1.0],
+                         color=p["color"], interpolation="Closest")
             else:
                 o["color"] = p["color"]
             o.update(u=p["u"], v=p["v"], half_u=p["half_u"], half_v=p["half_v"])
@@ -168,16 +182,61 @@ def scene_spec(world: World, views: Mapping[str, str | os.PathLike], *, t: float
 
     spec_views = []
     for name, out in views.items():
-        cam = world.camera(name)
-        if np.any(np.asarray(cam.dist) != 0):
-            raise InputError(f"robot {name!r}: the Blender renderer draws pinhole cameras only (dist must be zero)")
-        T = world.pose(name, t)
+        cam, T = _view_camera(world, name, t)
         spec_views.append({"robot": name, "size": [int(x) for x in cam.size], "K": np.asarray(cam.K).tolist(),
-                           "R": T.R.tolist(), "t": T.t.tolist(), "out": str(Path(out).resolve())})
+                           "lens": _lens_spec(cam, name), "R": T.R.tolist(), "t": T.t.tolist(),
+                           "out": str(Path(out).resolve())})
     return {"render": {"samples": int(samples), "denoise": True, "seed": int(seed), "bounces": int(bounces),
                        "threads": int(threads), **({"glare": glare_spec} if glare_spec else {})},
             "background": _lin_rgb(world.background), "objects": objects, "light": spec_light, "fill": fill,
             "views": spec_views}
+
+
+def _tag_texture(family: str, tag_id: int, folder: Path) -> str:
+    """The printed tag (:func:`~mutloc.sim.world.tag_image`, one pixel per cell) as a PNG in ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"tag_{family}_{tag_id}.png"
+    if not path.exists():
+        cv2.imwrite(str(path), tag_image(family, tag_id))
+    return str(path.resolve())
+
+
+def _view_camera(world: World, key: str, t: float) -> tuple[Any, Pose]:
+    """``(camera, camera -> world pose)`` of view ``key``: a robot with one camera, or ``ROBOT/CAMERA`` of a
+    robot with several (its pose in the world is its body frame's; the camera's is ``pose @ mount.pose``)."""
+    if CAMERA_SEPARATOR not in key:
+        cam = world.camera(key)
+        if cam is None:
+            raise InputError(f"robot {key!r} has several cameras: name the view ROBOT/CAMERA")
+        return cam, world.pose(key, t)
+    robot, cname = key.split(CAMERA_SEPARATOR, 1)
+    mounts = world.robot(robot).robot.mounts
+    if cname not in mounts:
+        raise InputError(f"robot {robot!r} has no camera {cname!r} (it has {sorted(mounts)})")
+    mount = mounts[cname]
+    return mount.camera, world.pose(robot, t) @ mount.pose
+
+
+def _lens_spec(cam: Any, name: str) -> dict[str, Any]:
+    """How Blender draws ``cam``: ``{"model": "pinhole"}`` (OpenCV ``K``, no distortion) or, for a fisheye
+    of the ideal equidistant lens (Kannala-Brandt with k1..k4 = 0, ``r = f * theta``, square pixels, the
+    principal point at the image centre), ``{"model": "fisheye", "f": f}``."""
+    K = np.asarray(cam.K, float)
+    dist = np.asarray(cam.dist, float)
+    model = getattr(cam, "model", "pinhole")
+    if model == "pinhole":
+        if np.any(dist != 0):
+            raise InputError(f"camera {name!r}: the Blender renderer draws pinhole cameras without distortion only "
+                             "(dist must be zero)")
+        return {"model": "pinhole"}
+    if model != "fisheye":
+        raise InputError(f"camera {name!r}: the Blender renderer draws pinhole and fisheye cameras, not {model!r}")
+    W, H = (int(x) for x in cam.size)
+    if (np.any(dist != 0) or abs(K[0, 0] - K[1, 1]) > 1e-9 * K[0, 0] or K[0, 1] != 0
+            or abs(K[0, 2] - (W - 1) / 2) > 1e-9 or abs(K[1, 2] - (H - 1) / 2) > 1e-9):
+        raise InputError(f"camera {name!r}: the Blender renderer draws the ideal equidistant fisheye only "
+                         "(dist all zero, fx = fy, no skew, principal point at the image centre ((W-1)/2, (H-1)/2))")
+    return {"model": "fisheye", "f": float(K[0, 0])}
 
 
 def blender_python() -> str:

@@ -41,7 +41,7 @@ def _mat_diffuse(bpy, name, rgb, roughness=1.0, specular=0.0, metallic=0.0, emis
     return m
 
 
-def _mat_texture(bpy, name, path, tint):
+def _mat_texture(bpy, name, path, tint, interpolation="Linear"):
     m = bpy.data.materials.new(name)
     m.use_nodes = True
     nt = m.node_tree
@@ -51,6 +51,7 @@ def _mat_texture(bpy, name, path, tint):
     tex = nt.nodes.new("ShaderNodeTexImage")
     tex.image = bpy.data.images.load(path, check_existing=True)
     tex.extension = "EXTEND"
+    tex.interpolation = interpolation
     mix = nt.nodes.new("ShaderNodeMix")
     mix.data_type = "RGBA"
     mix.blend_type = "MULTIPLY"
@@ -195,7 +196,8 @@ def build(bpy, spec):
         fin = p.get("finish", "matte")
         col = p.get("color", [0.5, 0.5, 0.5])
         if "texture" in p:
-            mat = material(("tex", p["texture"]), lambda p=p: _mat_texture(bpy, p["texture"], p["texture"], p["color"]))
+            mat = material(("tex", p["texture"], tuple(p["color"])), lambda p=p: _mat_texture(
+                bpy, p["texture"], p["texture"], p["color"], p.get("interpolation", "Linear")))
         elif fin == "emissive":
             mat = material(("em", tuple(p["emission"])),
                            lambda p=p: _mat_diffuse(bpy, "emit", [0, 0, 0], emission=p["emission"]))
@@ -264,20 +266,41 @@ def _glare(bpy, sc, g):
 
 
 def set_view(sc, cam, view):
-    """Camera ``view``: OpenCV intrinsics (pinhole) and camera -> world pose (optical frame)."""
+    """Camera ``view``: OpenCV intrinsics (pinhole, or the equidistant fisheye ``r = f * theta`` centred on
+    the image) and camera -> world pose (optical frame)."""
     W, H = (int(x) for x in view["size"])
     K = view["K"]
     sc.render.resolution_x, sc.render.resolution_y = W, H
     sc.render.resolution_percentage = 100
     sc.render.pixel_aspect_x = sc.render.pixel_aspect_y = 1.0
     cd = cam.data
-    cd.type = "PERSP"
     cd.sensor_fit = "HORIZONTAL"
     cd.sensor_width = 36.0
-    cd.lens = K[0][0] * 36.0 / W
-    # Blender's image centre is OpenCV's ((W - 1) / 2, (H - 1) / 2); shifts are in units of the larger side.
-    cd.shift_x = ((W - 1) / 2.0 - K[0][2]) / max(W, H)
-    cd.shift_y = (K[1][2] - (H - 1) / 2.0) / max(W, H)
+    lens = view.get("lens", {"model": "pinhole"})
+    if lens["model"] == "fisheye":
+        # Cycles' fisheyes are centred on the image ((W - 1) / 2, (H - 1) / 2 in OpenCV's pixels) and image the
+        # optical frame's x right, y down as OpenCV does (measured: bench/check_blender_fisheye.py).
+        f = float(lens["f"])
+        cd.type = "PANO"
+        cd.shift_x = cd.shift_y = 0.0
+        if W == H:
+            # The equidistant fisheye's fisheye_fov spans the image's width (and, on a non-square image, its
+            # height too: unequal pixel scales), black outside that circle.
+            cd.panorama_type = "FISHEYE_EQUIDISTANT"
+            cd.fisheye_fov = W / f
+        else:
+            # theta = -(k0 + k1 r + ...) with r in mm on the sensor (sensor_width over W pixels, square pixels).
+            cd.panorama_type = "FISHEYE_LENS_POLYNOMIAL"
+            cd.fisheye_fov = 2.0 * math.pi
+            cd.fisheye_polynomial_k0 = 0.0
+            cd.fisheye_polynomial_k1 = -1.0 / (f * 36.0 / W)
+            cd.fisheye_polynomial_k2 = cd.fisheye_polynomial_k3 = cd.fisheye_polynomial_k4 = 0.0
+    else:
+        cd.type = "PERSP"
+        cd.lens = K[0][0] * 36.0 / W
+        # Blender's image centre is OpenCV's ((W - 1) / 2, (H - 1) / 2); shifts are in units of the larger side.
+        cd.shift_x = ((W - 1) / 2.0 - K[0][2]) / max(W, H)
+        cd.shift_y = (K[1][2] - (H - 1) / 2.0) / max(W, H)
     cd.clip_start = 0.01
     cd.clip_end = 100.0
     R, t = view["R"], view["t"]
