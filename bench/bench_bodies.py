@@ -40,7 +40,7 @@ from mutloc.core.camera import Camera  # noqa: E402
 from mutloc.core.geometry import so3_exp, so3_log  # noqa: E402
 from mutloc.core.pose import Pose  # noqa: E402
 from mutloc.core.rig import Marker, Rig, Robot  # noqa: E402
-from mutloc.sim.bodies import body_observations, pixel_information, random_body  # noqa: E402
+from mutloc.sim.bodies import body_observations, pixel_information, random_pair  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _machine import machine, result_file  # noqa: E402
@@ -51,12 +51,7 @@ BEYOND_5_SIGMA_NEES = 39.49
 
 
 def scene(rng: np.random.Generator):
-    rig = Rig({"p": random_body(rng, "p"), "q": random_body(rng, "q")})
-    d, a = rng.uniform(1.5, 5.0), rng.uniform(0, 2 * np.pi)
-    poses = {"q": Pose(so3_exp([0, 0, rng.uniform(0, 2 * np.pi)]), [0, 0, 0]),
-             "p": Pose(so3_exp([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.uniform(0, 2 * np.pi)]),
-                       [d * np.cos(a), d * np.sin(a), rng.normal(0, 0.05)])}
-    return rig, poses, poses["q"].inverse() @ poses["p"]
+    return random_pair(rng)
 
 
 def err(est, T):

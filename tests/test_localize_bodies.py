@@ -12,17 +12,12 @@ from mutloc.core.geometry import so3_exp, so3_log
 from mutloc.core.pose import Pose
 from mutloc.core.rig import Rig
 from mutloc.errors import ObservationError
-from mutloc.sim.bodies import back_to_back_fisheye, body_observations, pixel_information, random_body
+from mutloc.sim.bodies import back_to_back_fisheye, body_observations, pixel_information, random_pair
 from mutloc.team import localize_team_images
 
 
 def _scene(rng: np.random.Generator, dmin: float = 1.5, dmax: float = 5.0):
-    rig = Rig({"p": random_body(rng, "p"), "q": random_body(rng, "q")})
-    d, a = rng.uniform(dmin, dmax), rng.uniform(0, 2 * np.pi)
-    poses = {"q": Pose(so3_exp([0, 0, rng.uniform(0, 2 * np.pi)]), [0, 0, 0]),
-             "p": Pose(so3_exp([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.uniform(0, 2 * np.pi)]),
-                       [d * np.cos(a), d * np.sin(a), rng.normal(0, 0.05)])}
-    return rig, poses, poses["q"].inverse() @ poses["p"]
+    return random_pair(rng, dmin, dmax)
 
 
 def _err(est, T):

@@ -56,6 +56,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .minimal import triangle_frame
 from .polynomial import WORK_SIZE as _ROOT_WORK, positive_roots_ws, real_roots_ws
 
 __all__ = ["generalized_p3p", "generalized_p3p_kernel", "GP3P_MAX_SOLUTIONS", "GP3P_WORK_SIZE", "KIND_U_RAY",
@@ -336,41 +337,14 @@ def _try_start(f01, f02, f12, s0, s1, s2, sols, nsol):
 
 
 @njit(cache=True)
-def _frame(P0, P1, P2):
-    """Orthonormal frame (columns e1, e2, e3) of the triangle P0 P1 P2,
-    built on its longest edge; ``ok`` is False if the triangle is degenerate."""
-    d01 = _sub(P1, P0)
-    d12 = _sub(P2, P1)
-    d20 = _sub(P0, P2)
-    l01 = _dot(d01, d01)
-    l12 = _dot(d12, d12)
-    l20 = _dot(d20, d20)
-    if l01 >= l12 and l01 >= l20:
-        A, B, C, best = P0, P1, P2, l01
-    elif l12 >= l20:
-        A, B, C, best = P1, P2, P0, l12
-    else:
-        A, B, C, best = P2, P0, P1, l20
-    ln = np.sqrt(best)
-    zero = (0.0, 0.0, 0.0)
-    if not ln > 0.0:
-        return False, zero, zero, zero
-    ex = _scale(_sub(B, A), 1.0 / ln)
-    n = _cross(ex, _sub(C, A))
-    nn = np.sqrt(_dot(n, n))
-    if nn <= 1e-10 * ln:
-        return False, zero, zero, zero
-    n = _scale(n, 1.0 / nn)
-    return True, ex, _cross(n, ex), n
-
-
-@njit(cache=True)
 def _absolute_orientation(P0, P1, P2, Q0, Q1, Q2, Rs, ts, k):
     """Rigid motion with Q_i = R P_i + t for congruent triangles (what Arun's
     SVD method reduces to for exact data) into Rs[k], ts[k]; False if a
-    triangle is degenerate."""
-    okp, p1, p2, p3 = _frame(P0, P1, P2)
-    okq, q1, q2, q3 = _frame(Q0, Q1, Q2)
+    triangle is degenerate.  As :mod:`.minimal`'s, with the centroids taken
+    relative to the first points (rays from camera centres far from the
+    robot's origin)."""
+    okp, p1, p2, p3 = triangle_frame(P0, P1, P2)
+    okq, q1, q2, q3 = triangle_frame(Q0, Q1, Q2)
     if not (okp and okq):
         return False
     for i in range(3):

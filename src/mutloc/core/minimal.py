@@ -243,7 +243,7 @@ def _newton_polish(f01, f02, f12, s0, s1, s2, iters):
 
 
 @njit(cache=True)
-def _frame(P0, P1, P2):
+def triangle_frame(P0, P1, P2):
     """Orthonormal frame (columns e1, e2, e3) of the triangle P0 P1 P2,
     built on its longest edge; ``ok`` is False if the triangle is degenerate."""
     d01 = _sub(P1, P0)
@@ -276,8 +276,8 @@ def _absolute_orientation(P0, P1, P2, Q0, Q1, Q2, Rs, ts, k):
     """Rigid motion with Q_i = R P_i + t for congruent triangles (the closed
     form Arun's SVD method reduces to when the data are exact), written to
     Rs[k], ts[k].  False if a triangle is degenerate."""
-    okp, p1, p2, p3 = _frame(P0, P1, P2)
-    okq, q1, q2, q3 = _frame(Q0, Q1, Q2)
+    okp, p1, p2, p3 = triangle_frame(P0, P1, P2)
+    okq, q1, q2, q3 = triangle_frame(Q0, Q1, Q2)
     if not (okp and okq):
         return False
     # R maps p's frame onto q's: R = sum_k q_k p_k^T.

@@ -23,8 +23,8 @@ from ..core.lenses import FisheyeCamera, OmniCamera
 from ..core.pose import Pose
 from ..core.rig import Marker, Mount, Rig, Robot
 
-__all__ = ["OPTICAL_IN_BASE", "random_lens", "random_body", "back_to_back_fisheye", "body_observations",
-           "pixel_information"]
+__all__ = ["OPTICAL_IN_BASE", "random_lens", "random_body", "random_pair", "back_to_back_fisheye",
+           "body_observations", "pixel_information"]
 
 #: R_base_optical of a camera looking along the body's x axis (REP 103: optical z forward, x right, y down).
 OPTICAL_IN_BASE = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
@@ -78,6 +78,17 @@ def random_body(rng: np.random.Generator, name: str, n_markers: int = 4,
         pos = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.1, 0.6)])
         markers[f"{name}{j}"] = Marker(f"{name}{j}", name, pos)
     return Robot(name, None, markers, cameras=cams)
+
+
+def random_pair(rng: np.random.Generator, dmin: float = 1.5, dmax: float = 5.0) -> tuple[Rig, dict[str, Pose], Pose]:
+    """Robots ``p`` and ``q`` (:func:`random_body`) ``dmin``-``dmax`` m apart at any headings (often turned
+    away from each other), nearly upright: ``(rig, world poses, T_qp)``."""
+    rig = Rig({"p": random_body(rng, "p"), "q": random_body(rng, "q")})
+    d, a = rng.uniform(dmin, dmax), rng.uniform(0, 2 * np.pi)
+    poses = {"q": Pose(so3_exp(np.array([0.0, 0.0, rng.uniform(0, 2 * np.pi)])), np.zeros(3)),
+             "p": Pose(so3_exp(np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.uniform(0, 2 * np.pi)])),
+                       np.array([d * np.cos(a), d * np.sin(a), rng.normal(0, 0.05)]))}
+    return rig, poses, poses["q"].inverse() @ poses["p"]
 
 
 def back_to_back_fisheye(name: str, markers: Mapping[str, Any], *, fov_deg: float = 195.0) -> Robot:
