@@ -69,20 +69,20 @@ def same_set(Ra, ta, Rb, tb, tol=1e-6):
 
 @pytest.mark.parametrize("kinds", SPLITS)
 def test_true_pose_found_in_random_non_central_problems(kinds):
-    """5000 problems per split; the true pose within 1e-6 deg and 1e-8 of |t|.
-    Required >= 99.9 %; measured 100 % on every split (seeds below)."""
+    """2000 problems per split; the true pose within 1e-6 deg and 1e-8 of |t|.
+    Required >= 99.9 %; measured 100 % on every split (bench/bench_gp3p.py: 60 000 problems)."""
     rng = np.random.default_rng([2024, *kinds])
     Rs, ts, ws = np.empty((GP3P_MAX_SOLUTIONS, 3, 3)), np.empty((GP3P_MAX_SOLUTIONS, 3)), np.empty(GP3P_WORK_SIZE)
     kinds_a = np.array(kinds, dtype=np.int64)
     missed = []
-    for i in range(5000):
+    for i in range(2000):
         R, t, o, d, X = random_problem(rng, kinds)
         n = generalized_p3p_kernel(kinds_a, o, d, X, Rs, ts, ws)
         assert 0 <= n <= GP3P_MAX_SOLUTIONS
         er, et = pose_errors(R, t, Rs[:n], ts[:n])
         if not (er < 1e-6 and et < 1e-8):
             missed.append((i, n, er, et))
-    assert len(missed) <= 5, missed
+    assert len(missed) <= 2, missed
 
 
 @pytest.mark.parametrize("kinds", SPLITS)
@@ -131,7 +131,7 @@ def test_same_solutions_as_the_numpy_implementation(kinds):
     other's set, to 1e-6."""
     rng = np.random.default_rng([11, *kinds])
     copies = 0
-    for i in range(1000):
+    for i in range(400):
         R, t, o, d, X = random_problem(rng, kinds)
         Rs, ts = generalized_p3p(kinds, o, d, X)
         Ro, to = oracle_gp3p(kinds, o, d, X)
@@ -141,7 +141,7 @@ def test_same_solutions_as_the_numpy_implementation(kinds):
             if _dist(Rs, ts, Ri, ti) > 1e-6:
                 assert misfit(kinds, o, d, X, Ri, ti) > 1e-10 and _dist(Rs, ts, Ri, ti) < 1e-2, i
                 copies += 1
-    assert copies <= 40, copies
+    assert copies <= 16, copies
 
 
 @pytest.mark.parametrize("kinds", SPLITS)

@@ -87,7 +87,7 @@ def test_noisy_pairs_nees_and_efficiency():
     squared averages 6 (the covariance is honest) and the error is at the Cramer-Rao bound."""
     rng = np.random.default_rng(11)
     nees, err2, crlb = [], [], []
-    while len(nees) < 300:
+    while len(nees) < 200:
         rig, poses, T = _scene(rng, 1.5, 3.0)
         truth = body_observations(rig, poses)
         if not (any(k.startswith("p/") for k in truth) and any(k.startswith("q/") for k in truth)):
