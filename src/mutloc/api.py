@@ -502,11 +502,10 @@ def solve_bearings(bearings_p: Any, points_q: Any, bearings_q: Any, points_p: An
     one robot leave several centres are solved by the generalized P3P.
     """
     arrs = []
-    n_p = np.shape(bearings_p)[0] if np.ndim(bearings_p) == 2 else 0
-    n_q = np.shape(bearings_q)[0] if np.ndim(bearings_q) == 2 else 0
     for name, a in (("bearings_p", bearings_p), ("points_q", points_q), ("bearings_q", bearings_q),
-                    ("points_p", points_p), ("origins_p", np.zeros((n_p, 3)) if origins_p is None else origins_p),
-                    ("origins_q", np.zeros((n_q, 3)) if origins_q is None else origins_q)):
+                    ("points_p", points_p), ("origins_p", origins_p), ("origins_q", origins_q)):
+        if a is None and name.startswith("origins"):  # every ray from its robot's origin
+            a = np.zeros((len(arrs[0] if name == "origins_p" else arrs[2]), 3))
         try:
             x = np.asarray(a if a is not None else np.empty((0, 3)), dtype=float)
         except (TypeError, ValueError, OverflowError):
