@@ -9,6 +9,8 @@ light pixels and states."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from mutloc.detect.blink import BlinkTracker
@@ -21,11 +23,15 @@ FPS = 30.0
 N = 60
 
 
-def _view(seed: int, observer: str):
+def _view(seed: int, observer: str, *, poster_text: bool = True):
     """Robot ``observer``'s 60 frames of the other robot's lights at 2 m
-    (trust sequence ``seed``), their true pixels and on/off states."""
+    (trust sequence ``seed``), their true pixels and on/off states;
+    ``poster_text=False`` leaves the posters' words out (OpenCV draws them with
+    putText, whose glyphs change between releases: 5.0 -> 5.1)."""
     rig = standard_rig("lights")
     world = moving_world(rig, distance=2.0, seed=seed)
+    if not poster_text:
+        world = dataclasses.replace(world, room=dataclasses.replace(world.room, poster_text=False))
     markers = rig.robot("q" if observer == "p" else "p").markers
     frames, truth, lit = light_view(world, observer, list(markers), N, FPS, seed)
     return rig, markers, frames, truth, lit, observer
@@ -43,7 +49,7 @@ def panning_view():
     """Robot p's view of q at 2 m (trust sequence seed 6): q's blue 2 Hz
     light M1 is first seen switching off (frame 8) while p's camera pans by
     ~3 px a frame and keeps q in view."""
-    return _view(6, "p")
+    return _view(6, "p", poster_text=False)  # the case hangs on pixels near a poster's words
 
 
 def _identity(data, params=None):
