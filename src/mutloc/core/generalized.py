@@ -58,6 +58,7 @@ from numba import njit
 
 from .minimal import triangle_frame
 from .polynomial import WORK_SIZE as _ROOT_WORK, positive_roots_ws, real_roots_ws
+from .vec3 import row as _row, dot as _dot, sub as _sub, scale as _scale, axpy as _axpy, cross as _cross
 
 __all__ = ["generalized_p3p", "generalized_p3p_kernel", "GP3P_MAX_SOLUTIONS", "GP3P_WORK_SIZE", "KIND_U_RAY",
            "KIND_W_RAY"]
@@ -91,37 +92,6 @@ _WS_CAND = _WS_POLY + 13 * 9  # 16: the univariate's roots
 _WS_SOLS = _WS_CAND + 16  # _MAX_SOLS x 4: distinct polished ranges and their residuals
 #: Size of the scratch array ``ws`` of :func:`generalized_p3p_kernel` (floats).
 GP3P_WORK_SIZE = _WS_SOLS + 4 * _MAX_SOLS
-
-
-@njit(cache=True, inline="always")
-def _row(a, i):
-    return (a[i, 0], a[i, 1], a[i, 2])
-
-
-@njit(cache=True, inline="always")
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-@njit(cache=True, inline="always")
-def _sub(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-@njit(cache=True, inline="always")
-def _scale(a, s):
-    return (a[0] * s, a[1] * s, a[2] * s)
-
-
-@njit(cache=True, inline="always")
-def _axpy(a, s, b):
-    """a + s b"""
-    return (a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2])
-
-
-@njit(cache=True, inline="always")
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @njit(cache=True)

@@ -49,6 +49,7 @@ from numba import njit
 
 from .p3p import p3p_kernel
 from .polynomial import WORK_SIZE as _ROOT_WORK, positive_roots_ws
+from .vec3 import row as _row, dot as _dot, sub as _sub, scale as _scale, cross as _cross
 
 MAX_SOLUTIONS = 8
 # Relative residual of the distance equations for an accepted solution.
@@ -57,31 +58,6 @@ _ACCEPT_TOL = 1e-7
 _NEAR_TOL = 1e-9
 # Largest range searched, in units of the marker scale.
 _MAX_RANGE = 1e4
-
-
-@njit(cache=True, inline="always")
-def _row(a, i):
-    return (a[i, 0], a[i, 1], a[i, 2])
-
-
-@njit(cache=True, inline="always")
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-@njit(cache=True, inline="always")
-def _sub(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-@njit(cache=True, inline="always")
-def _scale(a, s):
-    return (a[0] * s, a[1] * s, a[2] * s)
-
-
-@njit(cache=True, inline="always")
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @njit(cache=True)
