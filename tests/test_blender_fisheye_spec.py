@@ -51,7 +51,7 @@ def test_lenses_blender_cannot_draw_are_refused(tmp_path):
     w = World({"p": WorldRobot(kb, T, body=False)})
     with pytest.raises(InputError, match="equidistant"):
         scene_spec(w, {"p/front": tmp_path / "p.png"}, texture_dir=tmp_path / "tex")
-    with pytest.raises(InputError, match="ROBOT/CAMERA"):
+    with pytest.raises(InputError, match="has cameras front, back: name one"):
         scene_spec(w, {"p": tmp_path / "p.png"}, texture_dir=tmp_path / "tex")
     with pytest.raises(InputError, match="no camera 'side'"):
         scene_spec(w, {"p/side": tmp_path / "p.png"}, texture_dir=tmp_path / "tex")
