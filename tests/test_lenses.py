@@ -188,14 +188,16 @@ def test_omni_projection_matches_mei_closed_form(xi):
     assert np.max(_angle(b, X)) < 1e-9
 
 
-@pytest.mark.skipif(not hasattr(cv2, "omnidir"), reason="cv2.omnidir needs opencv-contrib")
-def test_omni_projection_matches_opencv_omnidir():
-    rng = np.random.default_rng(5)
-    cam = OmniCamera(OMNI_K, OMNI_D, xi=0.8)
-    X = _directions(rng, 200, 0.0, 80.0)
-    ref, _ = cv2.omnidir.projectPoints(X.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), OMNI_K, 0.8,
-                                       np.array(OMNI_D).reshape(1, 4))
-    assert np.max(np.abs(cam.project(X) - ref.reshape(-1, 2))) < 1e-9
+def test_omni_stops_where_its_radial_distortion_folds():
+    """k1 < 0: r (1 + k1 r^2) stops increasing at r = 1 / sqrt(3 |k1|); past it (2 % inside) a pixel would have
+    two directions, so the lens images nothing there -- with xi = 1, r = tan(theta / 2): 136.3 deg for
+    k1 = -0.05.  Inside, every direction comes back from its pixel."""
+    cam = OmniCamera(OMNI_K, [-0.05, 0.0, 0.0, 0.0], xi=1.0)
+    fold = 2 * math.degrees(math.atan(0.98 / math.sqrt(3 * 0.05)))
+    assert math.degrees(cam.max_angle) == pytest.approx(fold, abs=1e-6)
+    inside = _directions(np.random.default_rng(8), 200, 0.0, fold - 1.0)
+    assert np.max(_angle(cam.pixels_to_bearings(cam.project(inside)), inside)) < 1e-9
+    assert np.all(np.isnan(cam.project(_directions(np.random.default_rng(9), 50, fold + 0.5, fold + 20.0))))
 
 
 @pytest.mark.parametrize("xi", [0.0, 0.6, 1.0, 2.0])
