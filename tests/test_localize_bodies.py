@@ -193,3 +193,13 @@ def test_a_false_detection_that_no_pose_explains_is_rejected():
     est = mutloc.localize(rig, obs, "p", "q")
     assert est.status == "solved" and np.linalg.norm(est.t - T.t) < 0.02
     assert est.rejected == [{"observer": "p/front", "marker": "D", "residual_px": None}]
+
+
+def test_too_few_observations_name_what_each_robot_saw_through_its_cameras():
+    rig = _pair_rig()
+    poses = {"q": Pose(np.eye(3), [0, 0, 0]), "p": Pose(so3_exp([0, 0, 0.2]), [2.5, 0.3, 0.0])}
+    obs = body_observations(rig, poses)
+    few = {"p/back": dict(list(obs["p/back"].items())[:1]), "q/front": dict(list(obs["q/front"].items())[:1])}
+    with pytest.raises(mutloc.errors.TooFewObservationsError,
+                       match=r"2 marker observations between 'p' and 'q' \(p saw \['[DEF]'\], q saw \['[ABC]'\]\)"):
+        mutloc.localize(rig, few, "p", "q")

@@ -586,9 +586,10 @@ class PairObservations:
     def require(self, needed: int = MIN_OBSERVATIONS) -> None:
         """TooFewObservationsError unless at least ``needed`` observations tie the pair."""
         if self.count < needed:
+            # observers keyed ROBOT or ROBOT/CAMERA: each robot's rows whatever camera saw them
             seen = {r: [self.parent.marker[i] or "?" for i in range(len(self.parent))
-                        if self.parent.observer[i] == r and (i in self.rows or
-                                                              i in self.anonymous.get(k, ()))]
+                        if self.parent.observer[i].split("/", 1)[0] == r and (i in self.rows or
+                                                                               i in self.anonymous.get(k, ()))]
                     for k, r in enumerate((self.source, self.target))}
             found = ", ".join(f"{r} saw {sorted(v)}" for r, v in seen.items())
             raise TooFewObservationsError(
