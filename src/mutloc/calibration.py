@@ -75,6 +75,18 @@ SAME_POSE_M = 0.01
 _AXIS_WORDS = (("moving {r}'s markers right (+x)", "moving {r}'s markers left (-x)"),
                ("lowering {r}'s markers (+y)", "raising {r}'s markers (-y)"),
                ("moving {r}'s markers forward (+z)", "moving {r}'s markers back (-z)"))
+# A body's frame (REP 103 base_link): x forward, y left, z up.
+_BODY_AXIS_WORDS = (("moving {r}'s markers forward (+x)", "moving {r}'s markers back (-x)"),
+                    ("moving {r}'s markers left (+y)", "moving {r}'s markers right (-y)"),
+                    ("raising {r}'s markers (+z)", "lowering {r}'s markers (-z)"))
+# What tilting means to a robot whose frame is its camera's, and to a body (said once every robot is one).
+_ROLL_WORDS = (("Roll one robot about its optical axis during the recording (or tilt it)",
+                "Tilt one robot (roll or pitch it) during the recording"),
+               ("roll one robot about its optical axis during the recording (or tilt it)",
+                "tilt one robot (roll or pitch it) during the recording"),
+               ("rolling one robot about its optical axis", "tilting one robot (roll or pitch)"),
+               ("roll one robot about its optical axis", "tilt one robot (roll or pitch it)"),
+               ("The robots hardly roll relative", "The robots hardly tilt relative"))
 
 
 # ---------------------------------------------------------------------------
@@ -224,9 +236,13 @@ class CalibrationResult:
                      + ", ".join(f"|{a}-{b}| = {d:g} m" for a, b, d in self.scale)
                      + f"; {self._noise_words()}"
                      + ("" if self.prior_sigma is None else f" and the given positions good to {self.prior_sigma:g} m"))
-        if self.outliers:
-            lines.append(f"{len(self.outliers)} observations down-weighted as outliers (largest "
-                         f"{max(o['residual_px'] for o in self.outliers):.1f} px)")
+        fitted = [o for o in self.outliers if o.get("residual_px") is not None]
+        if fitted:
+            lines.append(f"{len(fitted)} observations down-weighted as outliers (largest "
+                         f"{max(o['residual_px'] for o in fitted):.1f} px)")
+        if len(fitted) < len(self.outliers):
+            lines.append(f"{len(self.outliers) - len(fitted)} observations set aside: their pixels lie outside what "
+                         "their camera's lens images")
         for w in self.weak_directions:
             if w.held:
                 lines.append(f"not determined by the log: {w.description}. {w.advice}")
@@ -317,6 +333,18 @@ class _Model:
         """Every point in its robot's frame."""
         return {n: self.centre[b] + self.rotation[b] @ o for n, (b, o) in self.points.items()}
 
+    @property
+    def rays(self) -> bool:
+        """Whether observations are rays (robots with several cameras or any lens, :mod:`mutloc.core.rays`)
+        rather than pixels of one pinhole camera per robot."""
+        return not self.rig.central_pinhole
+
+    def camera_index(self, key: str) -> int:
+        """The row of the camera an observation key names in :meth:`Rig.observer_keys` (a robot's own
+        name for its one camera)."""
+        rname, cname = self.rig.observer(key)
+        return self.rig.observer_keys().index(self.rig.robots[rname].observer_key(cname))
+
 
 def _model(rig: Rig) -> _Model:
     from .detect.tags import tag_rotation
@@ -379,8 +407,8 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
     solver's consistency search sets wrong detections aside), and the pairs
     are chained, those with the most observations first."""
     counts: dict[tuple[str, str], int] = {}
-    for o, m in zip(obs.observer, obs.marker):
-        w = rig.owner(m)
+    for key, m in zip(obs.observer, obs.marker):
+        o, w = rig.observer(key)[0], rig.owner(m)
         key = (o, w) if order.index(o) < order.index(w) else (w, o)
         counts[key] = counts.get(key, 0) + 1
     from .api import localize
@@ -430,13 +458,16 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
 def _start_residuals(rig: Rig, positions: dict[str, np.ndarray], grp: _Group, obs: ObservationSet,
                      rows: list[int]) -> np.ndarray:
     """Pixel residual lengths of observations ``rows`` of ``obs`` at the
-    group's start; inf where the start puts the marker behind its camera."""
+    group's start, through the observing camera's mount and lens; inf where
+    the start puts the marker behind its camera (outside its lens's field)."""
     out = np.full(len(rows), np.inf)
     for k, i in enumerate(rows):
-        o, m = obs.observer[i], obs.marker[i]
-        X = (grp.poses[o].inverse() @ grp.poses[rig.owner(m)]).apply(positions[m])
-        if X[2] > 1e-6:
-            uv = rig.robots[o].camera.project(X)
+        key, m = obs.observer[i], obs.marker[i]
+        mount = rig.mount(key)
+        X = (grp.poses[rig.observer(key)[0]].inverse() @ grp.poses[rig.owner(m)]).apply(positions[m])
+        X = mount.pose.inverse().apply(X)
+        if X[2] > 1e-6 or mount.camera.model != "pinhole":
+            uv = mount.camera.project(X)
             if np.all(np.isfinite(uv)):
                 out[k] = float(np.linalg.norm(uv - obs.uv[i]))
     return out
@@ -496,7 +527,6 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     from .api import load_rig
 
     rig = load_rig(rig)
-    rig.require_central("calibrate-markers")
     pixel_sigma = positive_number(pixel_sigma, "pixel_sigma")
     huber = positive_number(huber, "huber")
     if prior_sigma is not None:
@@ -506,7 +536,8 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     frames = _read_frames(log_or_frames)
     named = _check_scale(model, parse_scale(scale))
     frames = _checked(model, frames)
-    data = _collect(model, frames, order, pixel_sigma)
+    frames, rays, unimaged = _frame_rays(model, frames)
+    data = _collect(model, frames, rays, order, pixel_sigma)
 
     # Unknowns: the observed markers (bodies), in rig order.
     observed = {model.points[r[4]][0] for r in data.rows}
@@ -537,7 +568,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         # Frames the given rig could not place, or placed wrongly: every frame
         # again from the calibrated markers (each on its own, as before).
         better = _model(load_rig(_moved_rig(model, names, fit.adjustment.markers, fit.adjustment.rotations)))
-        again = _collect(better, frames, order, pixel_sigma, required=False)
+        again = _collect(better, frames, rays, order, pixel_sigma, required=False)
         if again.groups and {better.points[r[4]][0] for r in again.rows} >= observed:
             data = again
             fit = _fit(data, prior, fit.adjustment.markers, fit.adjustment.rotations, *args)
@@ -547,7 +578,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     # pixels): measured from the residuals; the fit again while it moves.
     noise, measured = pixel_sigma, None
     held: tuple | None = None
-    motion = _motion_summary(fit.groups, fit.adjustment, order)
+    motion = _motion_summary(fit.groups, fit.adjustment, order, rig)
     for round_ in range(_NOISE_ROUNDS):
         # the held combinations are not estimated: no degrees of freedom spent on them
         dof = fit.dof + (0 if held is None else len(held[0]))
@@ -620,7 +651,7 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
         covariance=cov_post[:nb, :nb], covariance_markers=names, prior_sigma=prior_sigma, frames_total=len(frames),
         frames_used=fit.frames_used, observations_used=len(fit.rows),
         reprojection_rms_px=float(np.sqrt(np.mean(np.sum(adj.residuals**2, axis=1)))), chi2=adj.chi2,
-        dof=fit.dof, iterations=adj.iterations, converged=adj.converged, outliers=data.gross + fit.outliers,
+        dof=fit.dof, iterations=adj.iterations, converged=adj.converged, outliers=unimaged + data.gross + fit.outliers,
         unobserved=unobserved, skipped_frames=skipped, poses=poses)
 
 
@@ -658,6 +689,41 @@ def _checked(model: _Model, frames: list[ObservationSet]) -> list[ObservationSet
     return out
 
 
+def _frame_rays(model: _Model, frames: list[ObservationSet]
+                ) -> tuple[list[ObservationSet], list[np.ndarray] | None, list[dict[str, Any]]]:
+    """When the rig is not one pinhole camera per robot: the frames, each
+    frame's observations as rays of their observers' robot frames
+    (:func:`mutloc.core.rays.ray_frames`, (n, 4, 3) per frame), and the
+    observations set aside because no ray leaves their pixel (outside what
+    the lens images, e.g. past a fisheye polynomial's fold: a stray
+    detection near the rim), named.  Else the frames unchanged, None, []."""
+    if not model.rays:
+        return frames, None, []
+    from .core.rays import ray_frames
+
+    rig = model.expanded
+    out_frames, out_rays, aside = [], [], []
+    for k, obs in enumerate(frames):
+        F = np.empty((len(obs), 4, 3))
+        ok = np.ones(len(obs), dtype=bool)
+        for key in dict.fromkeys(obs.observer):
+            ix = np.array([i for i, o in enumerate(obs.observer) if o == key])
+            mount = rig.mount(key)
+            b = np.asarray(mount.camera.pixels_to_bearings(obs.uv[ix]), float).reshape(-1, 3)
+            good = np.all(np.isfinite(b), axis=1)
+            ok[ix[~good]] = False
+            if good.any():
+                F[ix[good]] = ray_frames(mount, obs.uv[ix[good]])[1]
+        for i in np.flatnonzero(~ok):
+            aside.append({"frame": k, "observer": obs.observer[i], "marker": obs.marker[i], "residual_px": None,
+                          "at": "lens"})
+        if not ok.all():
+            obs, F = obs.take(ok), F[ok]
+        out_frames.append(obs)
+        out_rays.append(np.ascontiguousarray(F))
+    return out_frames, out_rays, aside
+
+
 def _where(k: int, obs: ObservationSet) -> str:
     return f"frame {k}" + ("" if len(obs) == 0 or np.all(np.isnan(obs.time)) else f" (time {obs.time[0]:g})")
 
@@ -665,18 +731,19 @@ def _where(k: int, obs: ObservationSet) -> str:
 @dataclass
 class _Collected:
     groups: list[_Group]
-    rows: list[tuple]                     # group, observer slot, owner slot, camera, point, u, v
+    rows: list[tuple]                     # group, observer slot, owner slot, camera, point, u, v[, ray frame]
     row_info: list[tuple[int, str, str]]  # frame, observer, marker
     skipped: list[dict[str, Any]]
     gross: list[dict[str, Any]] = field(default_factory=list)  # set aside at the start
 
 
-def _collect(model: _Model, frames: list[ObservationSet], order: list[str], pixel_sigma: float,
-             required: bool = True) -> _Collected:
+def _collect(model: _Model, frames: list[ObservationSet], rays: list[np.ndarray] | None, order: list[str],
+             pixel_sigma: float, required: bool = True) -> _Collected:
     """Every frame on its own: its groups with their initial poses, and the
-    observation rows.  An observation the start puts behind the camera that
-    sees it is set aside; a group left with fewer than three observations
-    of a robot, and a frame nothing places, is skipped and named."""
+    observation rows (with their ray frames, ``rays``, when given).  An
+    observation the start puts behind the camera that sees it is set aside;
+    a group left with fewer than three observations of a robot, and a frame
+    nothing places, is skipped and named."""
     rig = model.expanded
     positions = model.point_positions()
     out = _Collected([], [], [], [], [])
@@ -686,7 +753,8 @@ def _collect(model: _Model, frames: list[ObservationSet], order: list[str], pixe
         for grp in fg:
             slot = {r: i for i, r in enumerate(grp.members)}
             slot[grp.anchor] = -1
-            idx = [i for i, (o, m) in enumerate(zip(obs.observer, obs.marker)) if o in slot and rig.owner(m) in slot]
+            robot = [rig.observer(key)[0] for key in obs.observer]
+            idx = [i for i, m in enumerate(obs.marker) if robot[i] in slot and rig.owner(m) in slot]
             res = _start_residuals(rig, positions, grp, obs, idx)
             for i, e in zip(idx, res):
                 if START_GATE_PX < e < math.inf:
@@ -695,7 +763,7 @@ def _collect(model: _Model, frames: list[ObservationSet], order: list[str], pixe
             idx = [i for i, e in zip(idx, res) if e <= START_GATE_PX]
             count: dict[str, int] = {}
             for i in idx:
-                for r in (obs.observer[i], rig.owner(obs.marker[i])):
+                for r in (robot[i], rig.owner(obs.marker[i])):
                     count[r] = count.get(r, 0) + 1
             if any(count.get(r, 0) < 3 for r in slot):
                 why = why or "the frame's poses put markers behind the cameras that see them"
@@ -706,7 +774,8 @@ def _collect(model: _Model, frames: list[ObservationSet], order: list[str], pixe
             for i in idx:
                 o, m = obs.observer[i], obs.marker[i]
                 u, v = obs.uv[i].tolist()
-                out.rows.append((gi, slot[o], slot[rig.owner(m)], order.index(o), m, u, v))
+                row = (gi, slot[robot[i]], slot[rig.owner(m)], model.camera_index(o), m, u, v)
+                out.rows.append(row if rays is None else row + (rays[k][i],))
                 out.row_info.append((k, o, m))
         if not placed:
             out.skipped.append({"frame": k, "reason": why or "no observations"})
@@ -837,12 +906,13 @@ def _refuse_undetermined(adj: Any, C: np.ndarray, names: list[str], marker_robot
     v = (Z @ U[:, 0])[: 3 * len(names)]
     if w[0] <= SINGULAR_RATIO * max(w[-1], 1e-300):
         raise UnobservableMarkersError(
-            f"the log cannot determine the markers: {_describe(v, names, marker_robot)} changes no pixel "
-            f"({frames_used} usable frames{motion.note}). {_advice(v, motion)}")
+            f"the log cannot determine the markers: {_describe(v, names, marker_robot, motion.bodies)} changes no "
+            "pixel "
+            f"({frames_used} usable frames{motion.note}). {_advice(v, motion, marker_robot)}")
     raise UnobservableMarkersError(
-        f"the log cannot determine the markers: {_describe(v, names, marker_robot)} is known only to "
+        f"the log cannot determine the markers: {_describe(v, names, marker_robot, motion.bodies)} is known only to "
         f"{pixel_sigma / math.sqrt(w[0]) * 1000:.0f} mm (1 sigma at {pixel_sigma:g} px; {frames_used} usable "
-        f"frames{motion.note}). {_advice(v, motion)}")
+        f"frames{motion.note}). {_advice(v, motion, marker_robot)}")
 
 
 def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: list[str], motion: "_Motion",
@@ -870,14 +940,16 @@ def _weak_directions(adj: Any, C: np.ndarray, names: list[str], marker_robot: li
         for v, s in zip(*held):
             s = float(s)
             weak.append(WeakDirection(
-                s, _describe(v, names, marker_robot)
+                s, _describe(v, names, marker_robot, motion.bodies)
                 + (f" (the log alone: {s * 1000:.0f} mm, 1 sigma)" if math.isfinite(s) else " (the log alone: not at all)")
                 + f" is taken from the given rig, good to {weak_sigma * 1000:g} mm along it",
-                _advice(v, motion), {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}, held=True))
+                _advice(v, motion, marker_robot), {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)},
+                held=True))
     for i in range(len(free)):
         if sig[i] > WEAK_RATIO * med and sig[i] > WEAK_MIN_M:
             v = V[:, i]
-            weak.append(WeakDirection(float(sig[i]), _describe(v, names, marker_robot), _advice(v, motion),
+            weak.append(WeakDirection(float(sig[i]), _describe(v, names, marker_robot, motion.bodies),
+                                      _advice(v, motion, marker_robot),
                                       {n: v[3 * j:3 * j + 3].tolist() for j, n in enumerate(names)}))
     return weak
 
@@ -902,19 +974,25 @@ def _problem(model: _Model, groups: list[_Group], rows: list[tuple], bindex: dic
     rotates = np.array([bool(model.rotates[model.bodies.index(n)]) for n in bindex], dtype=bool)
     simple = not rotates.any() and all(not np.any(model.points[n][1]) for n in pnames) and body == list(range(len(body)))
     arr = np.array([(r[0], r[1], r[2], r[3]) for r in rows], dtype=np.int64).reshape(-1, 4)
-    order = list(model.rig.robots)
+    if model.rays:
+        # rays: no camera matrix is used
+        K, dist = np.zeros((1, 3, 3)), np.zeros((1, 8))
+        frames = np.array([r[7] for r in rows], dtype=float).reshape(-1, 4, 3)
+    else:
+        order = list(model.rig.robots)
+        K = np.ascontiguousarray(np.stack([model.rig.robots[r].camera.K for r in order]))
+        dist = np.ascontiguousarray(np.stack([model.rig.robots[r].camera.dist for r in order]))
+        frames = None
     problem = BundleProblem(
         group=np.ascontiguousarray(arr[:, 0]), observer_slot=np.ascontiguousarray(arr[:, 1]),
         owner_slot=np.ascontiguousarray(arr[:, 2]), camera=np.ascontiguousarray(arr[:, 3]),
         marker=np.array([pindex[r[4]] for r in rows], dtype=np.int64),
         uv=np.array([(r[5], r[6]) for r in rows], dtype=float).reshape(-1, 2),
-        K=np.ascontiguousarray(np.stack([model.rig.robots[r].camera.K for r in order])),
-        dist=np.ascontiguousarray(np.stack([model.rig.robots[r].camera.dist for r in order])),
-        slot_used=slot_used, n_markers=len(pnames), constraints=constraints, prior=prior[0], prior_weight=prior[1],
-        prior_directions=prior[2],
+        K=K, dist=dist, slot_used=slot_used, n_markers=len(pnames), constraints=constraints, prior=prior[0],
+        prior_weight=prior[1], prior_directions=prior[2],
         point_body=None if simple else np.array(body, dtype=np.int64),
         point_offset=None if simple else np.array([model.points[n][1] for n in pnames], float).reshape(-1, 3),
-        body_rotates=None if simple else rotates)
+        body_rotates=None if simple else rotates, frames=frames)
     return problem, R0, t0
 
 
@@ -954,8 +1032,10 @@ def _default_scale(model: _Model, order: list[str], observed: set[str]) -> tuple
     return best[1], best[2], best[0]
 
 
-def _describe(v: np.ndarray, names: Sequence[str], marker_robot: Sequence[str]) -> str:
-    """A marker-space direction in words: per robot, how its markers move."""
+def _describe(v: np.ndarray, names: Sequence[str], marker_robot: Sequence[str],
+              bodies: frozenset[str] = frozenset()) -> str:
+    """A marker-space direction in words: per robot, how its markers move
+    (along a camera frame's axes, or a body's, ``bodies``)."""
     v = np.asarray(v, float).reshape(-1, 3)
     total = float(np.sum(v * v))
     parts = []
@@ -967,7 +1047,8 @@ def _describe(v: np.ndarray, names: Sequence[str], marker_robot: Sequence[str]) 
         mean = v[idx].mean(axis=0)
         if float(np.sum(mean**2)) * len(idx) >= 0.5 * float(np.sum(v[idx] ** 2)):
             k = int(np.argmax(np.abs(mean)))
-            parts.append(_AXIS_WORDS[k][0 if mean[k] > 0 else 1].format(r=r))
+            words = _BODY_AXIS_WORDS if r in bodies else _AXIS_WORDS
+            parts.append(words[k][0 if mean[k] > 0 else 1].format(r=r))
         else:
             each = []
             for j in idx:
@@ -984,6 +1065,21 @@ class _Motion:
     note: str
     advice: str
     specific: bool = True
+    #: The robots whose frames are bodies (x forward, y left, z up), not cameras' optical frames.
+    bodies: frozenset[str] = frozenset()
+    all_bodies: bool = False
+
+    def words(self, text: str) -> str:
+        """``text`` with a body's tilt for a camera's roll when every robot is a body."""
+        if self.all_bodies:
+            for camera_words, body_words in _ROLL_WORDS:
+                text = text.replace(camera_words, body_words)
+        return text
+
+
+def _vertical(robot: str, bodies: frozenset[str]) -> int:
+    """The axis of a robot's frame that points up (or down) on an upright robot: z of a body, y of a camera."""
+    return 2 if robot in bodies else 1
 
 
 _ROLL_ADVICE = ("The robots hardly roll relative to each other: roll one robot about its optical axis during the "
@@ -992,17 +1088,30 @@ _TURN_ADVICE = ("The robots hardly turn relative to each other: turn one robot i
                 "the other, record from more distances, or add a third robot that sees both")
 
 
-def _advice(v: np.ndarray, motion: _Motion) -> str:
+def _advice(v: np.ndarray, motion: _Motion, marker_robot: Sequence[str] = ()) -> str:
     """The motion that would determine direction ``v``: the log's own
-    shortcoming when it has an obvious one, else by the axis ``v`` moves along."""
+    shortcoming when it has an obvious one, else by the axis ``v`` moves
+    along (up and down: each marker's robot's vertical axis)."""
     if motion.specific:
         return motion.advice
-    shift = np.abs(np.asarray(v, float).reshape(-1, 3)).sum(axis=0)
-    return _ROLL_ADVICE if int(np.argmax(shift)) == 1 else _TURN_ADVICE
+    v = np.abs(np.asarray(v, float).reshape(-1, 3))
+    up = np.array([_vertical(r, motion.bodies) for r in marker_robot] or [1] * len(v))
+    vertical = float(v[np.arange(len(v)), up].sum())
+    other = v.sum(axis=0) - np.bincount(up, weights=v[np.arange(len(v)), up], minlength=3)
+    return motion.words(_ROLL_ADVICE) if vertical > other.max() else _TURN_ADVICE
 
 
-def _motion_summary(groups: list[_Group], adj: Any, order: list[str]) -> _Motion:
+def _motion_summary(groups: list[_Group], adj: Any, order: list[str], rig: Rig) -> _Motion:
     """What the log's relative poses did, and the motion that would add what is missing."""
+    bodies = frozenset(r for r, robot in rig.robots.items() if robot.is_body)
+    motion = _motion_words(groups, adj, bodies)
+    motion.bodies, motion.all_bodies = bodies, bodies == set(rig.robots)
+    motion.advice = motion.words(motion.advice)
+    return motion
+
+
+def _motion_words(groups: list[_Group], adj: Any, bodies: frozenset[str]) -> _Motion:
+    """:func:`_motion_summary`'s finding, in a camera frame's words."""
     general = ("Roll one robot about its optical axis during the recording (or tilt it), or add a third robot "
                "that sees both")
     pair = [(gi, g) for gi, g in enumerate(groups) if len(g.members) >= 1]
@@ -1037,5 +1146,5 @@ def _motion_summary(groups: list[_Group], adj: Any, order: list[str]) -> _Motion
             k = int(np.argmax(np.abs(axis)))
             member = pair[0][1].members[0]
             return _Motion(f"; the relative rotations all turn about one axis, {member}'s {'xyz'[k]}", general,
-                           specific=k == 1)
+                           specific=k == _vertical(member, bodies))
     return _Motion("", general, specific=False)

@@ -5,19 +5,25 @@ Unknowns.  A *group* is one frame's robots tied together by their mutual
 observations; its first robot is the group's *anchor* and every other member
 has a pose ``T_aj`` (``x_a = R @ x_j + t``, perturbed as refine does:
 ``R <- exp(dtheta) @ R``, ``t <- t + dt``) in a *slot* of the group.  Every
-marker is a *body* with one position (its centre) in its own robot's camera
-frame, shared by all frames; the observed *points* are fixed offsets in the
-body's frame: a ball is one point at its centre, a printed tag its four
+marker is a *body* with one position (its centre) in its own robot's frame
+(its camera's, or a body frame for robots with several cameras), shared by
+all frames; the observed *points* are fixed offsets in the body's frame: a ball is one point at its centre, a printed tag its four
 corners (the body also has a rotation, perturbed on the left like the
-poses), a banded cylinder its bands along its axis.  Robot frames are camera
-frames, so without a known body size nothing but the scale is free: scaling
-every marker and every translation by ``s`` leaves every pixel unchanged.
-The scale is held by equality constraints on distances between the centres
-of markers of one robot.
+poses), a banded cylinder its bands along its axis.  Where robot frames are
+camera frames, nothing but the scale is free without a known body size:
+scaling every marker and every translation by ``s`` leaves every pixel
+unchanged (cameras posed apart on one robot fix it only weakly).  The scale
+is held by equality constraints on distances between the centres of
+markers of one robot.
 
 Residuals are pixels through each observer's camera model (core.camera's
 projection and its Jacobian) with a Huber loss on each observation's
-residual length (stray detections).  The normal equations are sparse: one
+residual length (stray detections).  Robots with several cameras or any
+lens (:mod:`mutloc.core.rays`): robot frames are body frames, and each
+observation is a ray of its observer's robot frame (its camera's centre,
+its lens's unprojection, its tangent directions scaled by the lens's
+Jacobian); the residual is the gnomonic error around that ray, the pixel
+error in that camera to first order (as :data:`mutloc.core.refine.MODE_RAY`).  The normal equations are sparse: one
 dense block per group (six rows per slot) and one block for the markers.
 The groups are eliminated (Schur complement), the reduced marker system is
 solved together with the linearised constraints (KKT), and the groups are
@@ -42,7 +48,7 @@ from numba import njit
 
 from ..errors import InputError
 from .camera import project_jac_kernel, project_kernel
-from .refine import so3_exp_left
+from .refine import MODE_PIXEL, MODE_RAY, so3_exp_left
 
 __all__ = ["BundleProblem", "Adjustment", "adjust", "constraint_jacobian", "null_space", "start_depths", "HUBER_K"]
 
@@ -81,6 +87,12 @@ class BundleProblem:
     the prior to those combinations of the centres:
     ``prior_weight * |D (m - prior)|^2`` (the directions the observations
     determine only weakly, held near the given rig).
+
+    ``frames`` (n, 4, 3), when given, makes every row a ray
+    (:func:`mutloc.core.rays.ray_frames`: two lens-scaled tangent rows, the
+    ray's direction and its origin, in the observer's robot frame): the
+    residual is then the gnomonic error around it (pixels to first order)
+    and ``K``/``dist``/``camera``/``uv`` are not used.
     """
 
     group: np.ndarray
@@ -100,6 +112,17 @@ class BundleProblem:
     point_offset: np.ndarray | None = None
     body_rotates: np.ndarray | None = None
     prior_directions: np.ndarray | None = None
+    frames: np.ndarray | None = None
+
+    @property
+    def mode(self) -> int:
+        return MODE_PIXEL if self.frames is None else MODE_RAY
+
+    def ray_frames(self) -> np.ndarray:
+        """The rows' ray frames (an empty array in pixel mode: the kernel's argument)."""
+        if self.frames is None:
+            return np.zeros((0, 4, 3))
+        return np.ascontiguousarray(self.frames, dtype=float).reshape(-1, 4, 3)
 
     @property
     def n_bodies(self) -> int:
@@ -245,16 +268,18 @@ def constraint_jacobian(markers: np.ndarray, constraints: tuple[tuple[int, int, 
 
 
 @njit(cache=True)
-def _linearize(group, oslot, wslot, cam, marker, uv, K, dist, M, R, t, sigma, huber, want,
+def _linearize(group, oslot, wslot, cam, marker, uv, K, dist, mode, rays, M, R, t, sigma, huber, want,
                Hgg, Hgm, Hmm, gg, gm, res, wts):
     """Robust cost (pixels^2); with ``want`` also the weighted normal
     equations, accumulated into the (zeroed) ``H*``/``g*``.  ``res`` and
     ``wts`` receive each observation's residual and Huber weight.  inf when
-    a marker falls behind the camera that sees it."""
+    a marker falls behind the camera that sees it (in ``MODE_RAY``: at a
+    right angle or more off its observed ray ``rays[i]``)."""
     n = group.shape[0]
     P = np.empty(3)
     D = np.empty(3)
     X = np.empty(3)
+    Y = np.empty(3)
     pix = np.empty(2)
     Jp = np.empty((2, 3))
     B = np.empty((2, 3))
@@ -283,14 +308,29 @@ def _linearize(group, oslot, wslot, cam, marker, uv, K, dist, M, R, t, sigma, hu
             for a in range(3):
                 D[a] = P[a]
                 X[a] = P[a]
-        if want:
-            ok = project_jac_kernel(K[c], dist[c], X, pix, Jp)
+        if mode == MODE_RAY:
+            # the gnomonic error around the observed ray, from its own camera's centre
+            for a in range(3):
+                Y[a] = X[a] - rays[i, 3, a]
+            den = rays[i, 2, 0] * Y[0] + rays[i, 2, 1] * Y[1] + rays[i, 2, 2] * Y[2]
+            if not den > 1e-150:
+                return np.inf
+            for k in range(2):
+                num = rays[i, k, 0] * Y[0] + rays[i, k, 1] * Y[1] + rays[i, k, 2] * Y[2]
+                pix[k] = num / den
+                for a in range(3):
+                    Jp[k, a] = (rays[i, k, a] * den - num * rays[i, 2, a]) / (den * den)
+            r0 = pix[0]
+            r1 = pix[1]
         else:
-            ok = project_kernel(K[c], dist[c], X, pix)
-        if not ok:
-            return np.inf
-        r0 = pix[0] - uv[i, 0]
-        r1 = pix[1] - uv[i, 1]
+            if want:
+                ok = project_jac_kernel(K[c], dist[c], X, pix, Jp)
+            else:
+                ok = project_kernel(K[c], dist[c], X, pix)
+            if not ok:
+                return np.inf
+            r0 = pix[0] - uv[i, 0]
+            r1 = pix[1] - uv[i, 1]
         res[i, 0] = r0
         res[i, 1] = r1
         sq = r0 * r0 + r1 * r1
@@ -470,6 +510,7 @@ class _System:
         self.pad = np.zeros((G, 6 * S))
         self.pad[np.repeat(unused, 6, axis=1)] = 1.0
         self.W = problem.prior_matrix()
+        self.rays = problem.ray_frames()
 
     def linearize(self, p: BundleProblem, M, R, t, sigma: float, huber: float, Rb=None) -> float:
         """Cost and normal equations at body centres ``M`` (rotations ``Rb``)."""
@@ -482,7 +523,8 @@ class _System:
             gm = np.zeros(P3)
         for a in (self.Hgg, Hgm, Hmm, self.gg, gm):
             a.fill(0.0)
-        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, pts, R, t,
+        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, p.mode,
+                       self.rays, pts, R, t,
                        sigma, huber, True, self.Hgg, Hgm, Hmm, self.gg, gm, self.res, self.wts)
         A = self.bodies.jacobian(Rb)
         if A is not None:
@@ -499,7 +541,8 @@ class _System:
 
     def cost(self, p: BundleProblem, M, R, t, sigma: float, huber: float, res, wts, Rb=None) -> float:
         pts = self.bodies.points(M, Rb)
-        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, pts, R, t,
+        c = _linearize(p.group, p.observer_slot, p.owner_slot, p.camera, p.marker, p.uv, p.K, p.dist, p.mode,
+                       self.rays, pts, R, t,
                        sigma, huber, False, self.Hgg, self.Hgm, self.Hmm, self.gg, self.gm, res, wts)
         return c + _prior_cost(p, M, self.W)
 
@@ -528,7 +571,8 @@ class _System:
 def start_depths(problem: BundleProblem, markers: np.ndarray, R: np.ndarray, t: np.ndarray,
                  rotations: np.ndarray | None = None) -> np.ndarray:
     """Depth (n,) of every observation's point in its observer's camera at
-    the given parameters (a point at depth <= 0 cannot be projected)."""
+    the given parameters (a point at depth <= 0 cannot be projected); in
+    ray mode its distance along the observed ray from the camera's centre."""
     p = problem
     pts = _Bodies(p).points(np.asarray(markers, float), rotations)[p.marker]
     G, S = p.slot_used.shape
@@ -538,6 +582,10 @@ def start_depths(problem: BundleProblem, markers: np.ndarray, R: np.ndarray, t: 
     Ro, to = Rs[p.group, p.observer_slot + 1], ts[p.group, p.observer_slot + 1]
     P = np.einsum("nij,nj->ni", Rw, pts) + tw
     X = np.einsum("nji,nj->ni", Ro, P - to)
+    if p.frames is not None:
+        # along the observed ray, from its camera's centre
+        F = p.ray_frames()
+        return np.einsum("ni,ni->n", F[:, 2], X - F[:, 3])
     return X[:, 2]
 
 

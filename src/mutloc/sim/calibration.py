@@ -23,7 +23,8 @@ from ..core.pose import Pose
 from .synthetic import USUAL_MARKERS, facing_pose, looking_pose
 
 __all__ = ["ball_rig", "tag_rig", "point_rig", "perturb_rig", "true_rotations", "CalibrationSequence", "pair_sequence", "team_sequence", "true_positions",
-           "robots_of", "held_out_errors", "observe", "pair_frames", "ROBOT_NAMES"]
+           "robots_of", "held_out_errors", "observe", "pair_frames", "ROBOT_NAMES", "body_rig",
+           "body_sequence"]
 
 #: Robot names of the synthetic rigs, in order (SPEC's example: p, q).
 ROBOT_NAMES = ("p", "q", "r", "s", "u", "v")
@@ -249,3 +250,81 @@ def held_out_errors(rig: Any, sequence: CalibrationSequence, source: str, target
             out.append((np.nan, np.nan))
     return np.array(out, dtype=float).reshape(-1, 2)
 
+
+
+# ---------------------------------------------------------------------------
+# robots with several cameras
+# ---------------------------------------------------------------------------
+
+#: Markers of a simulated body robot (base_link: x forward, y left, z up): four balls around and above the
+#: body at different heights, seen from all round.
+BODY_MARKERS = ((0.12, 0.14, 0.50), (-0.14, -0.12, 0.46), (0.10, -0.16, 0.62), (-0.12, 0.12, 0.66))
+#: Height of a :func:`body_rig` robot's one pinhole camera above its base (metres).
+PINHOLE_HEIGHT = 0.4
+
+
+def body_rig(robots: tuple[str, ...] = ("p", "q"), *, pinhole: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A rig in rig-file form whose robots are bodies with two back-to-back fisheyes
+    (:func:`mutloc.sim.bodies.back_to_back_fisheye`) and four balls each (:data:`BODY_MARKERS`, named
+    M1.. robot by robot); the robots named in ``pinhole`` have one forward 90-degree pinhole camera
+    instead (a robot given with ``camera:``, its frame the camera's)."""
+    from ..core.rig import Rig
+    from .bodies import back_to_back_fisheye
+
+    out, k = {}, 1
+    for r in robots:
+        names = {f"M{k + i}": p for i, p in enumerate(BODY_MARKERS)}
+        k += len(names)
+        if r in pinhole:
+            # the body's layout in the camera's optical frame (z forward, x right, y down; the camera
+            # PINHOLE_HEIGHT above the body's origin, looking along its x axis)
+            cam = {"K": [[480.0, 0.0, 479.5], [0.0, 480.0, 269.5], [0.0, 0.0, 1.0]], "dist": [], "size": [960, 540]}
+            out[r] = {"camera": cam, "markers": {n: {"position": [-p[1], PINHOLE_HEIGHT - p[2], p[0]]}
+                                                 for n, p in names.items()}}
+        else:
+            out[r] = Rig({r: back_to_back_fisheye(r, names)}).to_dict()["robots"][r]
+    return {"robots": out}
+
+
+def body_sequence(rig: dict[str, Any], n_frames: int, rng: np.random.Generator, *, pixel_sigma: float = 0.5,
+                  distance: tuple[float, float] = (1.2, 3.0), tilt_deg: float = 12.0, fps: float = 10.0,
+                  min_per_pair: int = 4) -> CalibrationSequence:
+    """Robots of ``rig`` (rig-file form; bodies or robots with one camera) driving around each other: each at
+    a random heading, tilted (roll and pitch) by up to ``tilt_deg``, the others ``distance`` from the first;
+    every marker every camera images (:func:`mutloc.sim.bodies.body_observations`, keys ``ROBOT/CAMERA``)
+    plus Gaussian noise.  Only frames where every robot sees at least ``min_per_pair`` markers of another
+    are kept.  Poses are in the first robot's frame."""
+    from ..api import load_rig
+    from .bodies import OPTICAL_IN_BASE, body_observations
+
+    loaded = load_rig(rig)
+    names = list(loaded.robots)
+    tilt = np.radians(tilt_deg)
+    frames, truth = [], []
+    tries = 0
+    while len(frames) < n_frames:
+        tries += 1
+        if tries > MAX_TRIES * max(n_frames, 1):
+            raise RuntimeError("could not sample frames where the robots see each other")
+        world: dict[str, Pose] = {}
+        for i, n in enumerate(names):
+            d, a = (0.0, 0.0) if i == 0 else (rng.uniform(*distance), rng.uniform(0, 2 * np.pi))
+            R = so3_exp([0.0, 0.0, rng.uniform(0, 2 * np.pi)]) @ so3_exp([rng.uniform(-tilt, tilt),
+                                                                          rng.uniform(-tilt, tilt), 0.0])
+            world[n] = Pose(R, np.array([d * np.cos(a), d * np.sin(a), rng.uniform(-0.1, 0.1)]))
+            if not loaded.robots[n].is_body:  # its frame is its camera's optical frame
+                world[n] = world[n] @ Pose(OPTICAL_IN_BASE, np.array([0.0, 0.0, PINHOLE_HEIGHT]))
+        seen = body_observations(loaded, world, sigma=pixel_sigma, rng=rng)
+        count: dict[tuple[str, str], int] = {}
+        for key, ms in seen.items():
+            for m in ms:
+                pair = (loaded.observer(key)[0], loaded.owner(m))
+                count[pair] = count.get(pair, 0) + 1
+        if any(max(count.get((a, b), 0) + count.get((b, a), 0) for b in names if b != a) < min_per_pair
+               for a in names):
+            continue
+        obs = ObservationSet.from_dict(seen, time=len(frames) / fps)
+        ref = world[names[0]].inverse()
+        frames.append(obs)
+        truth.append({n: ref @ world[n] for n in names})
+    return CalibrationSequence(frames, truth)
