@@ -13,7 +13,6 @@ from mutloc.core.pose import Pose
 from mutloc.core.rig import Rig
 from mutloc.errors import ObservationError
 from mutloc.sim.bodies import back_to_back_fisheye, body_observations, pixel_information, random_pair
-from mutloc.team import localize_team_images
 
 
 def _scene(rng: np.random.Generator, dmin: float = 1.5, dmax: float = 5.0):
@@ -172,12 +171,6 @@ def test_observation_keys_name_the_camera():
     alone = {("p" if k.startswith("p/") else k): v for k, v in obs.items()}
     with pytest.raises(ObservationError, match="robot 'p' has cameras front, back: key its observations by camera"):
         mutloc.localize(rig, alone, "p", "q")
-
-
-def test_unported_paths_refuse_bodies_in_one_line():
-    rig = _pair_rig()
-    with pytest.raises(mutloc.errors.RigError, match="robot 'p' has cameras front, back: localize_team_images"):
-        localize_team_images(rig, {"q/front": np.zeros((800, 1280), np.uint8)})
 
 
 def test_a_false_detection_that_no_pose_explains_is_rejected():

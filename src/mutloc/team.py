@@ -435,21 +435,27 @@ def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
 
 def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | None = None,
                          **options: Any) -> Any:
-    """Detect, in one image per robot (arrays or file paths), every other
+    """Detect, in one image per camera (arrays or file paths), every other
     robot's markers and localize the team (``options`` as
     :func:`localize_team`); a ``FrameResult`` whose ``estimate`` is the
-    :class:`TeamEstimate`."""
+    :class:`TeamEstimate`.
+
+    ``images`` is keyed as observations are: ``ROBOT`` for a robot with one
+    camera, ``ROBOT/CAMERA`` for each camera of a robot with several (any
+    lens; not every camera needs an image).  Each image is searched through
+    its own lens (:func:`mutloc.track.frames.detect_markers`), and the team
+    solved on the rays of all of them; ``detections`` are keyed likewise."""
     from pathlib import Path
 
-    from .track.frames import FrameResult, detect_markers, expanded_rig, observations_of, read_image
+    from .detect.base import as_bgr
+    from .track.frames import (FrameResult, detect_markers, expanded_rig, image_keys, observations_of, read_image,
+                               same_images)
 
     rig = expanded_rig(load_rig(rig))
-    rig.require_central("localize_team_images")
-    detections = {}
-    for observer, img in images.items():
-        rig.robot(observer)
-        if isinstance(img, (str, Path)):
-            img = read_image(img)
-        detections[observer] = detect_markers(rig, observer, img)
+    image_keys(rig, images)  # every key a camera of the rig, each camera once (one-line errors)
+    loaded = {k: as_bgr(read_image(img) if isinstance(img, (str, Path)) else img,
+                        f"image of {'camera' if '/' in k else 'robot'} {k!r}") for k, img in images.items()}
+    same_images(rig, loaded)
+    detections = {k: detect_markers(rig, k, img) for k, img in loaded.items()}
     team = localize_team(rig, observations_of(detections), reference, **options)
     return FrameResult(team, detections)  # type: ignore[arg-type]

@@ -20,7 +20,7 @@ from .tag_look import first_solve, with_tags_looked_for
 from .sources import Frame
 
 __all__ = ["FrameResult", "read_image", "detect_markers", "expanded_rig", "image_keys", "localize_images",
-           "observations_of"]
+           "observations_of", "same_images"]
 
 
 @dataclass
@@ -212,7 +212,7 @@ def image_keys(rig: Rig, inputs: Mapping[str, Any], what: str = "image") -> dict
     return out
 
 
-def _same_images(rig: Rig, loaded: Mapping[str, np.ndarray]) -> None:
+def same_images(rig: Rig, loaded: Mapping[str, np.ndarray]) -> None:
     """InputError when two cameras are given the same image (one file given twice)."""
     keys = list(loaded)
     for i, a in enumerate(keys):
@@ -254,7 +254,7 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
         # Each camera's image through its own lens (detect_markers: rectified views for a wide-angle one),
         # looked at for the other robot's markers.  (No "swapped" test: a body's camera may well see the
         # robot's own markers, a mast in a fisheye's field, without the images being swapped.)
-        _same_images(rig, loaded)
+        same_images(rig, loaded)
         detections = {k: detect_markers(rig, k, loaded[k], targets=[target if robots[k] == source else source])
                       for k in keys}
     est, error = first_solve(rig, detections, source, target, pixel_sigma=pixel_sigma, **options)
