@@ -432,7 +432,7 @@ def test_experiment_writes_results_report_and_plots(tmp_path):
     from mutloc.experiments import run_calibration
 
     res = run_calibration(tmp_path, seed=1, progress=False, frames=(40,), sigmas=(0.5,), seeds=1, held_out=5,
-                          team_frames=40, rendered_frames=0)
+                          team_frames=40, rendered_frames=0, body_frames=30)
     out = tmp_path / "calibration"
     data = json.loads((out / "results.json").read_text())
     assert data["experiment"] == "calibration" and data["seed"] == 1
@@ -440,6 +440,10 @@ def test_experiment_writes_results_report_and_plots(tmp_path):
         assert data["methods"][rig]["median_translation_m"] >= 0
     assert data["by_frames"]["40"]["distance_rms_mm"] == pytest.approx(res["by_frames"]["40"]["distance_rms_mm"])
     assert set(data["team"]) == {"team", "roll45"}
+    # robots with several cameras: the markers far closer to the truth than the measured rig put them
+    assert set(data["bodies"]) == {"two", "three"}
+    for r in data["bodies"].values():
+        assert r["position_rms_mm"] < 0.5 * r["measured_position_rms_mm"]
     assert (out / "error_vs_frames.png").stat().st_size > 0 and (out / "error_vs_sigma.png").stat().st_size > 0
     assert "Marker self-calibration" in (out / "report.md").read_text()
 

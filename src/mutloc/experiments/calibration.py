@@ -14,7 +14,11 @@ robot and of the absolute positions, against the number of frames and the
 pixel noise; the predicted sigmas beside them (normalised squared errors);
 ``localize`` on held-out frames with the measured, the calibrated and the
 true rig (and calibrated with the measured rig as a 1 cm prior); and the
-team case (three robots, and two with roll +-45 deg).
+team case (three robots, and two with roll +-45 deg); and robots with
+several cameras (``bodies``: two and three robots with back-to-back
+fisheyes and four balls each, driving about each other at random headings,
+tilted up to 12 deg, :func:`mutloc.sim.calibration.body_sequence`; logs
+keyed ``ROBOT/CAMERA``, the scale held by the true |M1-M2|).
 
 Then, unless ``rendered_frames=0`` (``--quick``), the same end to end on
 rendered images (:mod:`.calibration_rendered`: ``simulate``, ``track
@@ -42,19 +46,28 @@ SCALE = ("M3", "M4", 0.30)
 # How well a tape measure gets the markers (1 sigma per axis) for the
 # calibration that uses the measured rig as a prior.
 PRIOR_SIGMA_M = 0.01
-QUICK = dict(frames=(10, 40), sigmas=(0.5, 2.0), seeds=2, held_out=10, team_frames=40, rendered_frames=0)
+QUICK = dict(frames=(10, 40), sigmas=(0.5, 2.0), seeds=2, held_out=10, team_frames=40, rendered_frames=0,
+             body_frames=40)
+#: The robots of the body cases (``bodies``: back-to-back fisheyes, :func:`mutloc.sim.calibration.body_rig`).
+BODY_CASES = {"two": ("p", "q"), "three": ("p", "q", "r")}
 
 
 def _one(truth: dict, n: int, sigma: float, seed: int, *, held_out: int = 0, kind: str = "pair") -> dict[str, Any]:
     """Calibrate one seeded sequence; errors against the truth."""
     from ..calibration import calibrate_markers
     from ..errors import UnobservableMarkersError
-    from ..sim.calibration import (held_out_errors, pair_sequence, perturb_rig, robots_of, team_sequence,
-                                   true_positions)
+    from ..sim.calibration import (body_sequence, held_out_errors, pair_sequence, perturb_rig, robots_of,
+                                   team_sequence, true_positions)
 
-    rng = np.random.default_rng([seed, n, int(sigma * 1000), {"pair": 0, "team": 1, "roll45": 2}[kind]])
+    rng = np.random.default_rng([seed, n, int(sigma * 1000),
+                                 {"pair": 0, "team": 1, "roll45": 2, "two": 3, "three": 4}[kind]])
     measured = perturb_rig(truth, rng)
-    if kind == "team":
+    scale = SCALE
+    if kind in BODY_CASES:
+        tp = true_positions(truth)
+        scale = ("M1", "M2", float(np.linalg.norm(tp["M1"] - tp["M2"])))
+        make = lambda k: body_sequence(truth, k, rng, pixel_sigma=sigma)  # noqa: E731
+    elif kind == "team":
         make = lambda k: team_sequence(truth, k, rng, pixel_sigma=sigma, radius=(0.8, 1.5))  # noqa: E731
     elif kind == "roll45":
         make = lambda k: pair_sequence(truth, k, rng, pixel_sigma=sigma, roll_deg=45.0)  # noqa: E731
@@ -63,11 +76,11 @@ def _one(truth: dict, n: int, sigma: float, seed: int, *, held_out: int = 0, kin
     seq = make(n)
     t0 = time.perf_counter()
     try:
-        res = calibrate_markers(measured, seq.frames, scale=SCALE, pixel_sigma=sigma)
+        res = calibrate_markers(measured, seq.frames, scale=scale, pixel_sigma=sigma)
     except UnobservableMarkersError as exc:
         return {"refused": str(exc)}
     elapsed = time.perf_counter() - t0
-    with_prior = calibrate_markers(measured, seq.frames, scale=SCALE, pixel_sigma=sigma, prior_sigma=PRIOR_SIGMA_M)
+    with_prior = calibrate_markers(measured, seq.frames, scale=scale, pixel_sigma=sigma, prior_sigma=PRIOR_SIGMA_M)
     tp, own = true_positions(truth), robots_of(truth)
     names = res.covariance_markers
     err = np.array([res.markers[k].new - tp[k] for k in names])
@@ -76,7 +89,7 @@ def _one(truth: dict, n: int, sigma: float, seed: int, *, held_out: int = 0, kin
     dist = []
     for i, a in enumerate(names):
         for b in names[i + 1:]:
-            if own[a] == own[b] and {a, b} != {SCALE[0], SCALE[1]}:
+            if own[a] == own[b] and {a, b} != {scale[0], scale[1]}:
                 dist.append(np.linalg.norm(res.markers[a].new - res.markers[b].new) - np.linalg.norm(tp[a] - tp[b]))
     err_prior = np.array([with_prior.markers[k].new - tp[k] for k in names])
     out = {"abs_sq": np.sum(err**2, axis=1).tolist(), "old_abs_sq": np.sum(old**2, axis=1).tolist(),
@@ -122,13 +135,14 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
 def run_calibration(out_dir: str | Path, *, seed: int = 0, progress: bool = True, command: str | None = None,
                     frames: Sequence[int] = (10, 20, 40, 80, 160), sigmas: Sequence[float] = (0.25, 0.5, 1.0, 2.0),
                     seeds: int = 10, held_out: int = 20, team_frames: int = 80,
-                    rendered_frames: int = 40) -> dict[str, Any]:
+                    rendered_frames: int = 40, body_frames: int = 80) -> dict[str, Any]:
     """Run the experiment; write ``out_dir/calibration/`` and return the results.
     ``rendered_frames`` > 0 also runs the cases end to end on rendered images
-    (:mod:`.calibration_rendered`; slow: a few minutes per case)."""
+    (:mod:`.calibration_rendered`; slow: a few minutes per case); ``body_frames``
+    > 0 the robots with several cameras (:data:`BODY_CASES`) on logs of that many frames."""
     from tqdm import tqdm
 
-    from ..sim.calibration import ball_rig
+    from ..sim.calibration import ball_rig, body_rig
 
     out = Path(out_dir) / NAME
     out.mkdir(parents=True, exist_ok=True)
@@ -137,7 +151,9 @@ def run_calibration(out_dir: str | Path, *, seed: int = 0, progress: bool = True
     team = ball_rig(3, f=800.0, size=(1920, 1080))
     jobs = [("frames", n, 0.5, "pair", pair) for n in frames] + [("sigma", 40, s, "pair", pair) for s in sigmas]
     jobs += [("team", team_frames, 0.5, "team", team), ("team", team_frames, 0.5, "roll45", pair)]
-    by: dict[str, dict[str, Any]] = {"frames": {}, "sigma": {}, "team": {}}
+    if body_frames > 0:
+        jobs += [("bodies", body_frames, 0.5, k, body_rig(robots)) for k, robots in BODY_CASES.items()]
+    by: dict[str, dict[str, Any]] = {"frames": {}, "sigma": {}, "team": {}, "bodies": {}}
     bar = tqdm(total=len(jobs) * seeds, desc="calibration", disable=not progress)
     for what, n, sigma, kind, truth in jobs:
         runs = []
@@ -145,7 +161,7 @@ def run_calibration(out_dir: str | Path, *, seed: int = 0, progress: bool = True
             runs.append(_one(truth, n, sigma, seed * 1000 + k, held_out=held_out if kind != "team" else 0,
                              kind=kind))
             bar.update()
-        key = {"frames": str(n), "sigma": f"{sigma:g}", "team": kind}[what]
+        key = {"frames": str(n), "sigma": f"{sigma:g}", "team": kind, "bodies": kind}[what]
         by[what][key] = _summary(runs)
     bar.close()
     rendered = {}
@@ -158,7 +174,8 @@ def run_calibration(out_dir: str | Path, *, seed: int = 0, progress: bool = True
                if "held_out" in base else {})
     results = {"experiment": NAME, "seed": seed, "methods": methods, "frames": list(frames),
                "sigma_px": list(sigmas), "seeds": seeds, "held_out_frames": held_out, "team_frames": team_frames,
-               "by_frames": by["frames"], "by_sigma": by["sigma"], "team": by["team"],
+               "by_frames": by["frames"], "by_sigma": by["sigma"], "team": by["team"], "bodies": by["bodies"],
+               "body_frames": body_frames,
                "rendered": rendered, "rendered_frames": rendered_frames,
                "command": command or f"mutloc experiment calibration --out {out_dir} --seed {seed}",
                "versions": versions(), "elapsed_s": time.perf_counter() - started}
@@ -223,6 +240,14 @@ def _report(res: dict[str, Any]) -> str:
     lines += ["", "## Teams", "", *head]
     lines += [row("three robots (1920x1080, f = 800 px), 0.8-1.5 m", res["team"]["team"]),
               row("two robots, roll +-45 deg", res["team"]["roll45"])]
+    if res.get("bodies"):
+        lines += ["", f"## Robots with several cameras ({res['body_frames']} frames, 0.5 px)", "",
+                  "Two back-to-back fisheyes (195 deg, 1280x800) and four balls per robot, driving about each other "
+                  "at random headings, tilted up to 12 deg; logs keyed ROBOT/CAMERA; the scale held by the true "
+                  "|M1-M2|. Held-out: p-q pair. Position RMS of the measured rig (input): "
+                  + ", ".join(f"{k} robots {fmt(r.get('measured_position_rms_mm'), 1, 1)} mm"
+                              for k, r in res["bodies"].items()) + ".", "", *head]
+        lines += [row(f"{k} robots", r) for k, r in res["bodies"].items()]
     m = res["methods"]
     fr0, fr1 = res["by_frames"][str(res["frames"][0])], res["by_frames"][str(res["frames"][-1])]
     if m:
