@@ -1,5 +1,7 @@
 """Marker self-calibration from a log of mutual observations (SPEC "Marker
-calibration"): :func:`calibrate_markers`.
+calibration"): :func:`calibrate_markers`.  Any rig: robots with one camera,
+or with several cameras of any lens (observations keyed ``ROBOT/CAMERA``,
+fitted as rays through each camera's mount and lens).
 
 Every frame is localized on its own with the given rig (``localize``, pair
 by pair, chained through the frame's robots), then one bundle adjustment
@@ -488,8 +490,14 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
 
     ``log_or_frames``: an observation log's path (JSON Lines, e.g. what
     ``track --observations-out`` writes) or a sequence of frames
-    (ObservationSets or the SPEC's observation dicts), any number of robots;
-    markers of unknown identity are not used.  Every marker kind: a tag
+    (ObservationSets or the SPEC's observation dicts), any number of robots,
+    observers keyed ``ROBOT`` or, for robots with several cameras (any lens),
+    ``ROBOT/CAMERA``: each observation is then a ray through its own
+    camera's lens and mount (:mod:`mutloc.core.rays`), its residual that
+    camera's pixels to first order, the markers placed in the robots' body
+    frames, and the rig's cameras kept as given; a pixel no ray leaves
+    (outside what its lens images) is set aside and listed in ``outliers``
+    (``"at": "lens"``).  Markers of unknown identity are not used.  Every marker kind: a tag
     whose rotation the rig gives is calibrated as a rigid body (centre and
     rotation) from its corners ``NAME#0..3``, a banded cylinder as its axis
     from its bands ``NAME#bK``, a ball as a point.  ``scale``: distances
