@@ -221,3 +221,20 @@ def test_tags_on_bodies_calibrate_as_rigid_bodies_exactly():
         assert rotation_error_deg(so3_exp(m.new_rotation), tr[n]) < 1e-5
         assert rotation_error_deg(so3_exp(m.old_rotation), tr[n]) > 1.9
     assert _cameras(res.rig) == _cameras(truth)
+
+
+def test_upright_bodies_weak_combination_is_said_in_the_bodys_axes():
+    """Two upright bodies that only yaw (no tilt), the log alone: raising one robot's markers while lowering the
+    other's changes almost no pixel; the refusal says so along the bodies' z (up), not a camera's y, and asks to
+    tilt a robot (a body has no one optical axis to roll about)."""
+    from mutloc.errors import UnobservableMarkersError
+
+    rng = np.random.default_rng(3)
+    truth = body_rig(("p", "q"))
+    seq = body_sequence(truth, 40, rng, pixel_sigma=0.3, tilt_deg=0.0)
+    with pytest.raises(UnobservableMarkersError) as exc:
+        calibrate_markers(perturb_rig(truth, rng), seq.frames, scale=_scale(truth), weak_sigma=None)
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert "p's markers (-z)" in msg and "q's markers (+z)" in msg and "about one axis, q's z" in msg, msg
+    assert "Tilt one robot (roll or pitch it)" in msg and "optical axis" not in msg, msg
