@@ -409,8 +409,8 @@ def _frame_groups(rig: Rig, obs: ObservationSet, frame: int, order: list[str], p
     solver's consistency search sets wrong detections aside), and the pairs
     are chained, those with the most observations first."""
     counts: dict[tuple[str, str], int] = {}
-    for key, m in zip(obs.observer, obs.marker):
-        o, w = rig.observer(key)[0], rig.owner(m)
+    for observer, m in zip(obs.observer, obs.marker):
+        o, w = rig.observer(observer)[0], rig.owner(m)
         key = (o, w) if order.index(o) < order.index(w) else (w, o)
         counts[key] = counts.get(key, 0) + 1
     from .api import localize
@@ -497,12 +497,12 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     camera's pixels to first order, the markers placed in the robots' body
     frames, and the rig's cameras kept as given; a pixel no ray leaves
     (outside what its lens images) is set aside and listed in ``outliers``
-    (``"at": "lens"``).  Markers of unknown identity are not used.  Every marker kind: a tag
-    whose rotation the rig gives is calibrated as a rigid body (centre and
-    rotation) from its corners ``NAME#0..3``, a banded cylinder as its axis
-    from its bands ``NAME#bK``, a ball as a point.  ``scale``: distances
-    held fixed (``"A:B=D"`` strings or ``(A, B, D)``; markers A and B of one
-    robot, centres); default the two markers of the rig's first robot
+    (``"at": "lens"``).  Markers of unknown identity are not used.  Every
+    marker kind: a tag whose rotation the rig gives is calibrated as a rigid
+    body (centre and rotation) from its corners ``NAME#0..3``, a banded
+    cylinder as its axis from its bands ``NAME#bK``, a ball as a point.
+    ``scale``: distances held fixed (``"A:B=D"`` strings or ``(A, B, D)``;
+    markers A and B of one robot, centres); default the two markers of the rig's first robot
     farthest apart, at their given distance.  ``pixel_sigma`` is the
     stated detection noise; observations whose residual
     fails the chi-square test (family-wise at ``confidence`` over the log)
@@ -757,11 +757,11 @@ def _collect(model: _Model, frames: list[ObservationSet], rays: list[np.ndarray]
     out = _Collected([], [], [], [], [])
     for k, obs in enumerate(frames):
         fg, why = _frame_groups(rig, obs, k, order, pixel_sigma)
+        robot = [rig.observer(key)[0] for key in obs.observer]
         placed = False
         for grp in fg:
             slot = {r: i for i, r in enumerate(grp.members)}
             slot[grp.anchor] = -1
-            robot = [rig.observer(key)[0] for key in obs.observer]
             idx = [i for i, m in enumerate(obs.marker) if robot[i] in slot and rig.owner(m) in slot]
             res = _start_residuals(rig, positions, grp, obs, idx)
             for i, e in zip(idx, res):
