@@ -16,7 +16,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="re-estimate the markers' positions from a log of mutual observations",
         description=(
             "Bundle adjustment over every frame's relative pose(s) and every marker of an observation log "
-            "(SPEC 'Observation logs'; any number of robots; what track --observations-out writes: a tag's "
+            "(SPEC 'Observation logs'; any number of robots, robots with several cameras of any lens keyed "
+            "ROBOT/CAMERA, each observation fitted through its camera's pose and lens, the cameras kept as given; "
+            "what track --observations-out writes: a tag's "
             "corners NAME#0..3 calibrate the tag as a rigid body, centre and rotation; a cylinder's bands NAME#bK "
             "its axis). Writes the rig with each marker's new position and position_sigma (1 sigma per axis, "
             "metres, scale held, for the detection noise --pixel-sigma; --measured-noise: for the noise the "
