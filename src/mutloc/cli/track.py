@@ -144,22 +144,40 @@ def _written_as_it_runs(work, out, args, rig) -> int:
     from ..track.outputs import TrackOutputs
 
     pair = rig.default_pair(args.source, args.target)
+    before = _side_files(args)
     with TrackOutputs(out, *pair, bag=args.bag, mcap=args.mcap,
                       base_frames=rig if args.frames == "base" else None) as outputs:
         try:
             traj = work(outputs.write)
         except KeyboardInterrupt:
             outputs.close()
-            wrote = [str(p) for p in outputs.paths] + _side_files(args)
-            print(f"interrupted: {outputs.rows} frames finished and written to {', '.join(wrote)}", file=sys.stderr)
+            print(f"interrupted: {outputs.rows} frames finished; {_wrote(outputs, args, before)}", file=sys.stderr)
             return 130
-    wrote = [str(p) for p in outputs.paths] + _side_files(args)
-    print(f"{traj.summary()}; wrote {', '.join(wrote)}")
+    print(f"{traj.summary()}; {_wrote(outputs, args, before)}")
     return 0
 
 
-def _side_files(args) -> list[str]:
-    return [str(p) for p in (args.rerun, args.annotate, args.observations_out) if p]
+def _side_files(args) -> dict[str, int | None]:
+    """Each of --rerun, --annotate, --observations-out given: its modification time (None: no such file)."""
+    import os
+
+    stamps: dict[str, int | None] = {}
+    for p in (args.rerun, args.annotate, args.observations_out):
+        if p:
+            try:
+                stamps[str(p)] = os.stat(p).st_mtime_ns
+            except OSError:
+                stamps[str(p)] = None
+    return stamps
+
+
+def _wrote(outputs, args, before: dict[str, int | None]) -> str:
+    """``wrote FILE, ...``: the files this run wrote (the side files new or
+    changed since ``before``), or ``no files written`` (stopped before the
+    first row)."""
+    after = _side_files(args)
+    files = [str(p) for p in outputs.written] + [p for p, t in after.items() if t is not None and t != before[p]]
+    return f"wrote {', '.join(files)}" if files else "no files written"
 
 
 def _run_team(args, rig, options, out) -> int:
@@ -185,6 +203,7 @@ def _run_team(args, rig, options, out) -> int:
         from ..io.rrd import RerunWriter
 
         viz = RerunWriter(args.rerun, None, reference)
+    before = _side_files(args)
     with TrackOutputs(out, robots, reference, bag=args.bag, mcap=args.mcap, base_frames=base) as outputs:
         to_base = outputs.to_base
 
@@ -215,13 +234,11 @@ def _run_team(args, rig, options, out) -> int:
             outputs.close()
             if viz is not None:
                 viz.close()
-            wrote = [str(p) for p in outputs.paths] + _side_files(args)
-            print(f"interrupted: {outputs.rows} robot rows finished and written to {', '.join(wrote)}",
+            print(f"interrupted: {outputs.rows} robot rows finished; {_wrote(outputs, args, before)}",
                   file=sys.stderr)
             return 130
         finally:
             if viz is not None:
                 viz.close()
-    wrote = [str(p) for p in outputs.paths] + _side_files(args)
-    print(f"reference {traj.reference}; {traj.summary()}; wrote {', '.join(wrote)}")
+    print(f"reference {traj.reference}; {traj.summary()}; {_wrote(outputs, args, before)}")
     return 0
