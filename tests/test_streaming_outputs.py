@@ -1,7 +1,8 @@
 """Streaming outputs survive a killed run: a child process writes rows to
 every writer of mutloc.io (CSV, TUM, observation log, rosbag2, MCAP, Rerun, MP4),
 reports each row on stdout once written, and is killed (SIGKILL) or
-interrupted (SIGINT) mid-run; every file must then parse and hold at least
+interrupted (SIGINT, or SIGTERM under mutloc.signals.sigterm_as_interrupt as
+the ``mutloc`` command runs, with SIGINT ignored as in a background job) mid-run; every file must then parse and hold at least
 the rows reported, each identical to what was written.  Plus the readers'
 handling of a file cut mid-line."""
 
@@ -62,8 +63,11 @@ from mutloc.io.logs import ObservationLogWriter
 from mutloc.io.ros import Ros2BagWriter, McapPoseWriter
 from mutloc.io.rrd import RerunWriter
 from mutloc.io.video import VideoWriter
+from mutloc.signals import sigterm_as_interrupt
 
 out = Path(sys.argv[1])
+stop_signals = sigterm_as_interrupt()
+stop_signals.__enter__()  # for the whole run, as the mutloc command does
 try:
     with TrajectoryCsvWriter(out / "trajectory.csv", EXTRA) as csv_w, TumWriter(out / "trajectory.tum", "p in q") as tum, \\
             ObservationLogWriter(out / "log.jsonl") as log, Ros2BagWriter(out / "bag", [("p", "q")]) as bag, \\
@@ -90,8 +94,10 @@ except KeyboardInterrupt:
 
 def _run_and_stop(out, sig, k):
     """Start the child, wait for ``k`` rows reported, send ``sig``; the rows reported."""
+    # SIGINT as in a terminal's foreground job (the default), or ignored as in a background job's for SIGTERM
+    sigint = signal.SIG_IGN if sig == signal.SIGTERM else signal.SIG_DFL
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
     reported = -1
     try:
         line = proc.stdout.readline()
@@ -100,8 +106,8 @@ def _run_and_stop(out, sig, k):
             line = proc.stdout.readline()
             assert line, f"child ended early: {proc.stderr.read()}"
             reported = int(line)
-        if sig == signal.SIGINT:
-            proc.send_signal(signal.SIGINT)  # Ctrl-C reaches the child only, as in a terminal's foreground job
+        if sig != signal.SIGKILL:
+            proc.send_signal(sig)  # Ctrl-C reaches the child only, as in a terminal's foreground job
             rest, err = proc.communicate(timeout=30)
             assert proc.returncode == 130 and rest.endswith("interrupted\n"), (proc.returncode, rest, err)
             assert "Traceback" not in err, err
@@ -235,15 +241,15 @@ def _check_files(out, k, clean):
     return counts
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT, signal.SIGTERM], ids=["SIGKILL", "SIGINT", "SIGTERM"])
 def test_stopped_run_leaves_every_file_readable(tmp_path, sig):
     k = 12
     reported = _run_and_stop(tmp_path, sig, k)
     assert reported >= k
-    counts = _check_files(tmp_path, reported, clean=sig == signal.SIGINT)
+    counts = _check_files(tmp_path, reported, clean=sig != signal.SIGKILL)
     # No more rows than the child started: at most the one in progress.
     assert counts["csv"] <= reported + 1 and counts["log"] <= reported + 1
-    if sig == signal.SIGINT:  # closed cleanly: every file holds the same rows
+    if sig != signal.SIGKILL:  # closed cleanly: every file holds the same rows
         n = counts["csv"]
         n_posed = sum(expected_row(i)["pose"] is not None for i in range(n))
         assert counts == {"csv": n, "tum": n_posed, "log": n, "bag": n_posed, "bag_mcap": n_posed, "mcap": n_posed,
