@@ -16,7 +16,7 @@ from .core.pose import Pose
 from .core.rig import Rig
 from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor,
                         other_poses, relative_jacobian, residual_norms, solve_team)
-from .errors import (DegenerateGeometryError, InconsistentObservationsError, ObservationError,
+from .errors import (DegenerateGeometryError, InconsistentObservationsError, MutlocError, ObservationError,
                      TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
 __all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
@@ -438,7 +438,8 @@ def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | N
     """Detect, in one image per robot (arrays or file paths), every other
     robot's markers and localize the team (``options`` as
     :func:`localize_team`); a ``FrameResult`` whose ``estimate`` is the
-    :class:`TeamEstimate`."""
+    :class:`TeamEstimate`.  When the team cannot be localized, the error
+    raised carries the detections as its ``detections``."""
     from pathlib import Path
 
     from .track.frames import FrameResult, detect_markers, expanded_rig, observations_of, read_image
@@ -451,5 +452,9 @@ def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | N
         if isinstance(img, (str, Path)):
             img = read_image(img)
         detections[observer] = detect_markers(rig, observer, img)
-    team = localize_team(rig, observations_of(detections), reference, **options)
+    try:
+        team = localize_team(rig, observations_of(detections), reference, **options)
+    except MutlocError as exc:
+        exc.detections = detections  # type: ignore[attr-defined]  # what was found, to write all the same
+        raise
     return FrameResult(team, detections)  # type: ignore[arg-type]
