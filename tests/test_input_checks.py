@@ -270,14 +270,15 @@ def test_a_pixel_just_outside_the_image_is_named_as_the_suspect(outside):
     import numpy as np
 
     from mutloc.errors import InconsistentObservationsError
-    from mutloc.sim.render import project_markers, two_robot_world
+    from mutloc.sim.render import project_markers, relative_pose, two_robot_world
     from mutloc.sim.synthetic import facing_pose
     from mutloc.sim.world import standard_rig
 
     rig = standard_rig()
     world = two_robot_world(rig, facing_pose(2.0, 0.05, -0.03, 0.1), seed=1)
     exact = {r: {m: list(uv) for m, uv in project_markers(world, r).items()} for r in ("p", "q")}
-    est = mutloc.localize(rig, exact)  # the true pixels give a pose
+    est = mutloc.localize(rig, exact)  # the true pixels give the true pose
+    assert np.linalg.norm(est.t - relative_pose(world, "p", "q").t) < 1e-3
     for robot in ("p", "q"):
         for marker in exact[robot]:
             obs = {r: dict(v) for r, v in exact.items()}
