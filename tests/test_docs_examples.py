@@ -10,8 +10,15 @@ format the reader no longer accepts, an output that no longer matches the
 command -- fails here.  docs/formats.md names the command that wrote each
 output file: run it again when a deliberate change moves the output.
 
-The code blocks of docs/guides/cameras.md run as written (its ``python``
-blocks in order, in one namespace) and print what the guide says they print.
+Every ``python`` block of README.md and of the manual's pages (getting
+started, the guides) runs as written: a page's blocks in order, in one
+namespace, as a reader would paste them, in a folder holding the files the
+page's text has the reader make before (the project's own examples, the
+simulator's rig and logs).  A block that is not meant to run says so just
+above its fence, ``<!-- docs-test: not run: REASON -->``, and every such
+block is listed in :data:`NOT_RUN` (so none is skipped in silence).
+docs/guides/cameras.md is run by its own test, which also checks what it
+prints.
 """
 
 from __future__ import annotations
@@ -224,10 +231,154 @@ def test_observation_examples_name_rig_markers(name):
 
 
 GUIDES = EXAMPLES.parent / "guides"
+ROOT = EXAMPLES.parents[1]
+#: The pages whose python blocks run (README.md, getting started, every guide).
+PAGES = ["README.md", "docs/getting-started.md", *sorted(f"docs/guides/{p.name}" for p in GUIDES.glob("*.md"))]
+NOT_RUN_MARK = re.compile(r"<!-- docs-test: not run: (.+?) -->\s*$")
+#: (page, index of the python block on it): why it is not run.  Exactly the blocks marked so.
+NOT_RUN = {
+    ("docs/getting-started.md", 0): "a script run on your own chessboard photos (python calibrate_camera.py OUT PHOTOS)",
+}
 
 
 def _blocks(text: str, lang: str) -> list[str]:
     return re.findall(rf"^```{lang}\n(.*?)^```", text, re.DOTALL | re.MULTILINE)
+
+
+def _python_blocks(page: str) -> list[tuple[str, str | None]]:
+    """``(code, reason)`` of each python block of ``page``, ``reason`` the
+    not-run mark just above its fence (None: the block runs)."""
+    lines = (ROOT / page).read_text(encoding="utf-8").splitlines(keepends=True)
+    out, i = [], 0
+    while i < len(lines):
+        if lines[i].rstrip() == "```python":
+            above = next((ln for ln in reversed(lines[:i]) if ln.strip()), "")
+            mark = NOT_RUN_MARK.search(above)
+            j = next(k for k in range(i + 1, len(lines)) if lines[k].startswith("```"))
+            out.append(("".join(lines[i + 1:j]), mark.group(1) if mark else None))
+            i = j
+        i += 1
+    return out
+
+
+def test_not_run_blocks_are_marked_and_counted():
+    """Every python block of the pages either runs (below) or is marked not
+    to, and the marked ones are exactly :data:`NOT_RUN`."""
+    marked = {(page, k): reason for page in PAGES for k, (_, reason) in enumerate(_python_blocks(page)) if reason}
+    assert marked == NOT_RUN
+    ran = sum(1 for page in PAGES for _, reason in _python_blocks(page) if reason is None)
+    assert ran >= 9 and len(NOT_RUN) == 1, (ran, len(NOT_RUN))
+
+
+def _copy(name: str, to: Path) -> None:
+    to.parent.mkdir(parents=True, exist_ok=True)
+    to.write_bytes(ex(name).read_bytes())
+
+
+def _setup_readme(d: Path) -> dict:
+    (d / "docs").symlink_to(ROOT / "docs")  # the README's paths are from the repository's root
+    return {}
+
+
+def _setup_getting_started(d: Path) -> dict:
+    _copy("rig.yaml", d / "sim" / "rig.yaml")  # what `mutloc simulate --out sim` wrote, earlier on the page
+    _copy("observations.json", d / "sim" / "observations.json")
+    return {}
+
+
+def _setup_calibration(d: Path) -> dict:
+    """A recording of the standard ball rig, and the rig measured 1-2 cm off (the page's `track --observations-out`)."""
+    from mutloc.io import save_rig
+    from mutloc.io.logs import write_observation_log
+    from mutloc.sim.calibration import ball_rig, pair_sequence, perturb_rig
+
+    rng = np.random.default_rng(9)
+    truth = ball_rig(2)
+    save_rig(mutloc.load_rig(perturb_rig(truth, rng)), d / "rig.yaml")
+    (d / "trk").mkdir()
+    write_observation_log(d / "trk" / "log.jsonl", pair_sequence(truth, 30, rng, pixel_sigma=0.5).frames)
+    return {}
+
+
+def _setup_live(d: Path) -> dict:
+    """The rig, and one message of p's node as the localizer receives it (the page's `message`, arriving `now`)."""
+    import time
+
+    from mutloc.live.messages import observations_message, rig_id
+
+    _copy("rig.yaml", d / "rig.yaml")
+    now = time.time()
+    obs = mutloc.load_observations(ex("observations.json"))
+    return {"message": observations_message("p", rig_id(d / "rig.yaml"), 1, now, obs), "now": now}
+
+
+def _setup_teams(d: Path) -> dict:
+    _copy("team_rig.yaml", d / "team" / "rig.yaml")  # what `mutloc simulate --robots 3` wrote, earlier on the page
+    _copy("team_observations.json", d / "team" / "observations.json")
+    return {}
+
+
+def _setup_tracking(d: Path) -> dict:
+    """The rig and a log (the examples'), and two short videos of the demo's scene as the cameras' recordings."""
+    import cv2
+
+    from mutloc.sim.render import moving_world, render
+    from mutloc.sim.world import standard_rig
+
+    _copy("rig.yaml", d / "rig.yaml")
+    _copy("log.jsonl", d / "traj" / "log.jsonl")
+    (d / "out").mkdir()
+    world = moving_world(standard_rig("balls"), seed=0)
+    for robot in ("p", "q"):
+        video = cv2.VideoWriter(str(d / f"{robot}.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (960, 540))
+        for i in range(3):
+            video.write(render(world, robot, i / 10.0, seed=i))
+        video.release()
+    return {}
+
+
+SETUPS = {"README.md": _setup_readme, "docs/getting-started.md": _setup_getting_started,
+          "docs/guides/calibration.md": _setup_calibration, "docs/guides/live.md": _setup_live,
+          "docs/guides/teams.md": _setup_teams, "docs/guides/tracking.md": _setup_tracking}
+
+
+def test_every_page_with_python_is_run():
+    with_code = {page for page in PAGES if _python_blocks(page)}
+    assert with_code == set(SETUPS) | {"docs/guides/cameras.md"}  # cameras.md: test_cameras_guide_code_runs
+
+
+def _run_page(page: str, d: Path, monkeypatch) -> dict:
+    """Run the page's blocks (but the marked ones) in ``d`` after its setup; the namespace."""
+    monkeypatch.chdir(d)
+    ns: dict = {"__name__": "__guide__", **SETUPS[page](d)}
+    for code, reason in _python_blocks(page):
+        if reason is None:
+            exec(compile(code, page, "exec"), ns)  # noqa: S102 -- the manual's own code
+    return ns
+
+
+@pytest.mark.parametrize("page", sorted(SETUPS))
+def test_page_code_runs(page, tmp_path, monkeypatch, capsys):
+    ns = _run_page(page, tmp_path, monkeypatch)
+    printed = capsys.readouterr().out
+    if page in ("README.md", "docs/getting-started.md"):
+        truth = json.loads(ex("truth.json").read_text())  # the pose the example's observations were made at
+        est = ns["est"]
+        assert est.status == "solved"
+        dt, dr = pose_errors(est.R, est.t, truth["R"], truth["t"])
+        assert dt < 1e-3 and dr < 0.05, (dt, dr)
+    elif page == "docs/guides/teams.md":
+        truth = json.loads(ex("team_truth.json").read_text())
+        for name, gt in truth["robots"].items():
+            dt, dr = pose_errors(ns["team"].poses[name].R, ns["team"].poses[name].t, gt["R"], gt["t"])
+            assert dt < 1e-3 and dr < 0.05, (name, dt, dr)
+    elif page == "docs/guides/tracking.md":
+        assert len(ns["traj"].rows) == 3 and "3 frames" in ns["traj"].summary()  # the videos' three frames
+        assert printed.startswith("10 frames") and (tmp_path / "out" / "trajectory.csv").exists()
+    elif page == "docs/guides/calibration.md":
+        assert (tmp_path / "calibrated.yaml").exists() and "M1" in printed
+    elif page == "docs/guides/live.md":
+        assert len(ns["loc"].diagnostics(ns["now"])) == 2
 
 
 def test_cameras_guide_code_runs(capsys):

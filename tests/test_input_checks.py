@@ -259,3 +259,33 @@ def test_localize_images_refuses_one_image_twice_swapped_images_and_lights(tmp_p
     blank = np.zeros((540, 960, 3), np.uint8)
     with pytest.raises(InputError, match="blinking lights.*sequence.*mutloc track"):
         mutloc.localize_images(lights, {"p": blank, "q": blank})
+
+
+@pytest.mark.parametrize("outside", [100.0, 239.0])
+def test_a_pixel_just_outside_the_image_is_named_as_the_suspect(outside):
+    """Each marker in turn moved ``outside`` px past the left border (within
+    the half-image margin the range check allows): the consistency error names
+    that marker and its pixel -- not whichever marker the fit spread the error
+    onto."""
+    import numpy as np
+
+    from mutloc.errors import InconsistentObservationsError
+    from mutloc.sim.render import project_markers, relative_pose, two_robot_world
+    from mutloc.sim.synthetic import facing_pose
+    from mutloc.sim.world import standard_rig
+
+    rig = standard_rig()
+    world = two_robot_world(rig, facing_pose(2.0, 0.05, -0.03, 0.1), seed=1)
+    exact = {r: {m: list(uv) for m, uv in project_markers(world, r).items()} for r in ("p", "q")}
+    est = mutloc.localize(rig, exact)  # the true pixels give the true pose
+    assert np.linalg.norm(est.t - relative_pose(world, "p", "q").t) < 1e-3
+    for robot in ("p", "q"):
+        for marker in exact[robot]:
+            obs = {r: dict(v) for r, v in exact.items()}
+            u = -0.5 - outside
+            obs[robot][marker] = [u, exact[robot][marker][1]]
+            with pytest.raises(InconsistentObservationsError) as info:
+                mutloc.localize(rig, obs)
+            msg = str(info.value)
+            assert msg.startswith(f"observations[{robot!r}][{marker!r}]: pixel ({u:.2f}, "), msg
+            assert f"{outside:.1f} px outside the 960x540 image" in msg, msg

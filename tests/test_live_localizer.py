@@ -11,6 +11,7 @@ process as both robots' nodes and as a subscriber with its own type
 definitions.
 """
 
+import json
 import math
 import os
 import signal
@@ -565,7 +566,9 @@ def test_over_dds(setup, tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
            "--loopback", "--out", str(out), "--duration", "60"]
-    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # Ctrl-C's SIGINT reaches the child also when this test runs as a background job (which ignores SIGINT)
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     got = _Received()
     try:
         line = child.stderr.readline()  # the localizer says it is up
@@ -661,7 +664,7 @@ def test_over_dds(setup, tmp_path):
     assert (out / "trajectory.csv").read_bytes() == (tmp_path / "replay" / "trajectory.csv").read_bytes()
 
 
-#: Two domains of this run for the tests below (1..100, beside the node tests' blocks).
+#: Three domains of this run for the tests below (1..100, beside the node tests' blocks).
 DOMAIN = 1 + (os.getpid() + 50) % 25 * 4
 
 
@@ -787,3 +790,72 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup):
     have = {round(M.stamp_of(s.header) - start, 4) for s in got}
     expected = [t for t in sent if t > 0.2]
     assert sum(1 for t in expected if round(t, 4) in have) >= 0.9 * len(expected), (len(have), len(expected))
+
+
+def test_sigterm_ends_the_localizer_as_ctrl_c_does(setup, tmp_path):
+    """SIGTERM (systemd, ``docker stop``) to ``mutloc localizer --out DIR``
+    started as a background job would be (SIGINT ignored): it finishes as on
+    Ctrl-C -- exit 130, the summary naming its files, every observation
+    received in DIR/log.jsonl and the trajectory of all of them written (the
+    track of that log gives the same file)."""
+    from mutloc.live.dds import Bus
+
+    domain = DOMAIN + 2
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
+           "--loopback", "--out", str(out), "--duration", "120"]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    bus = None
+    sent = 0
+    try:
+        line = child.stderr.readline()  # the localizer says it is up
+        assert line.startswith("localizer: rig_id"), line + child.stderr.read()
+        bus = Bus(domain, loopback=True)
+        T = M.ros_types()
+        writers = {r: bus.writer(M.observations_topic(r), T.Observations) for r in ("p", "q")}
+        deadline = time.monotonic() + 30
+        while not all(w.get_matched_subscriptions() for w in writers.values()):
+            assert time.monotonic() < deadline, "no discovery"
+            time.sleep(0.05)
+        start = time.time() + 0.2
+        frames = {"p": 0, "q": 0}
+        for t, obs, cams in zip(setup.recs.times, setup.recs.frames, setup.recs.cameras):
+            if t >= 1.5:
+                break
+            for c in cams:
+                frames[c] += 1
+                while time.time() < start + t:
+                    time.sleep(0.002)
+                writers[c].write(M.observations_message(c, setup.rid, frames[c], start + t, obs))
+                sent += 1
+                last_stamp = start + t
+        log = out / "log.jsonl"
+        deadline = time.monotonic() + 60  # the last message logged as received: then stopped
+
+        def logged_last():
+            lines = log.read_text().splitlines() if log.exists() else []
+            return bool(lines) and lines[-1].endswith("}") and json.loads(lines[-1])["time"] >= last_stamp - 0.01
+
+        while not logged_last():
+            assert child.poll() is None and time.monotonic() < deadline, child.stderr.read()
+            time.sleep(0.05)
+        os.killpg(child.pid, signal.SIGTERM)
+        _, stderr = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+        if bus is not None:
+            bus.close()
+    assert child.returncode == 130, stderr
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith("interrupted:") and "Traceback" not in stderr, stderr
+    assert str(out / "log.jsonl") in last and str(out / "trajectory.csv") in last, stderr
+    records = list(iter_observation_log(out / "log.jsonl"))
+    assert records[-1][0] == pytest.approx(last_stamp, abs=0.01) and len(records) > 20
+    rows = read_trajectory_csv(out / "trajectory.csv")
+    assert len(rows) == len(records) > 20  # the last records too: the smoother's window flushed at the end
+    assert main(["track", "--rig", str(setup.path), "--observations", str(out / "log.jsonl"), "--out",
+                 str(tmp_path / "replay"), "--no-progress"]) == 0
+    assert (out / "trajectory.csv").read_bytes() == (tmp_path / "replay" / "trajectory.csv").read_bytes()

@@ -74,7 +74,9 @@ def _seen(msg):
 
 def _child(args):
     cmd = [sys.executable, "-m", "mutloc", "node", *args]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # SIGINT (Ctrl-C) reaches the child also when this test runs as a background job (which ignores SIGINT)
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _kill(child):

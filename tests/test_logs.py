@@ -87,3 +87,40 @@ def test_track_writes_a_log_and_tracks_from_it(tmp_path, capsys):
     times, poses = read_tum(tmp_path / "b" / "trajectory.tum")
     np.testing.assert_allclose(times, np.arange(5) / fps, atol=1e-9)
     assert "5 frames: 5 solved" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("bad", ['{"time": oops}\n', '{"time": 0.0, "observations": {}}\n'],
+                         ids=["not JSON", "time goes back"])
+@pytest.mark.parametrize("team", [False, True], ids=["pair", "team"])
+def test_a_bad_line_ends_the_log_there_and_keeps_the_records_before_it(tmp_path, capsys, bad, team):
+    """A bad line in the middle of a log: the records before it are tracked
+    and written -- the same rows as a track of a log that ends there -- and
+    the error names the file and line (one line, exit 2)."""
+    from mutloc.sim.team import random_team, team_sequence
+    from mutloc.sim.tracking import camera_records
+
+    n = 20
+    if team:
+        scene = random_team(3, np.random.default_rng(4), one_way=0.0)
+        rig, records = scene.rig, [(t, obs) for t, _, obs in team_sequence(scene, 30, 20.0, sigma=1.0, seed=4)]
+        names = [f"trajectory_{r}.csv" for r in scene.names[1:]]
+    else:
+        rig = standard_rig()
+        recs = camera_records(rig, duration=1.0, offsets={"q": 1 / 60}, seed=3)
+        records = [(float(f.times[0]) + 1.0, f) for f in recs.frames]
+        names = ["trajectory.csv"]
+    save_rig(rig, tmp_path / "rig.yaml")
+    write_observation_log(tmp_path / "good.jsonl", [obs.with_time(t) for t, obs in records[:n]])
+    write_observation_log(tmp_path / "all.jsonl", [obs.with_time(t) for t, obs in records])
+    lines = (tmp_path / "all.jsonl").read_text().splitlines(keepends=True)
+    (tmp_path / "bad.jsonl").write_text("".join(lines[:n] + [bad] + lines[n:]))
+    args = ["track", "--rig", str(tmp_path / "rig.yaml"), "--no-progress"]
+    assert main(args + ["--observations", str(tmp_path / "good.jsonl"), "--out", str(tmp_path / "ref")]) == 0
+    capsys.readouterr()
+    assert main(args + ["--observations", str(tmp_path / "bad.jsonl"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"mutloc: error: {tmp_path / 'bad.jsonl'}:{n + 1}: "), err
+    assert f"the {n} records before it were tracked" in err and "trajectory" in err, err
+    for name in names:
+        assert (tmp_path / "out" / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
+        assert len(read_trajectory_csv(tmp_path / "out" / name)) == n

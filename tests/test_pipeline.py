@@ -55,6 +55,15 @@ def test_localize_images_cli_and_bad_inputs(tmp_path, capsys):
     t_true = np.array(frame["T_qp"]["t"])
     assert np.linalg.norm(np.array(out["t"]) - t_true) < 0.01
     assert set(json.loads(det_path.read_text())) == {"p", "q"}
+    # No pose from the same detections (a noise far below theirs: every pose fails the consistency test):
+    # --detections-out is written all the same, before the one-line error (exit 2).
+    failed_path = tmp_path / "det_failed.json"
+    assert main(["localize-images", "--rig", str(tmp_path / "rig.yaml"), "--image", f"p={tmp_path / 'p.png'}",
+                 "--image", f"q={tmp_path / 'q.png'}", "--pixel-sigma", "0.0001",
+                 "--detections-out", str(failed_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("mutloc: error:")
+    assert json.loads(failed_path.read_text()) == json.loads(det_path.read_text())
     # Unreadable image, wrong size, unknown robot: one line, exit 2.
     (tmp_path / "bad.png").write_bytes(b"nope")
     small = tmp_path / "small.png"

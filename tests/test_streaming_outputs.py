@@ -1,7 +1,8 @@
 """Streaming outputs survive a killed run: a child process writes rows to
 every writer of mutloc.io (CSV, TUM, observation log, rosbag2, MCAP, Rerun, MP4),
 reports each row on stdout once written, and is killed (SIGKILL) or
-interrupted (SIGINT) mid-run; every file must then parse and hold at least
+interrupted (SIGINT, or SIGTERM under mutloc.signals.sigterm_as_interrupt as
+the ``mutloc`` command runs, with SIGINT ignored as in a background job) mid-run; every file must then parse and hold at least
 the rows reported, each identical to what was written.  Plus the readers'
 handling of a file cut mid-line."""
 
@@ -62,8 +63,11 @@ from mutloc.io.logs import ObservationLogWriter
 from mutloc.io.ros import Ros2BagWriter, McapPoseWriter
 from mutloc.io.rrd import RerunWriter
 from mutloc.io.video import VideoWriter
+from mutloc.signals import sigterm_as_interrupt
 
 out = Path(sys.argv[1])
+stop_signals = sigterm_as_interrupt()
+stop_signals.__enter__()  # for the whole run, as the mutloc command does
 try:
     with TrajectoryCsvWriter(out / "trajectory.csv", EXTRA) as csv_w, TumWriter(out / "trajectory.tum", "p in q") as tum, \\
             ObservationLogWriter(out / "log.jsonl") as log, Ros2BagWriter(out / "bag", [("p", "q")]) as bag, \\
@@ -90,8 +94,10 @@ except KeyboardInterrupt:
 
 def _run_and_stop(out, sig, k):
     """Start the child, wait for ``k`` rows reported, send ``sig``; the rows reported."""
+    # SIGINT as in a terminal's foreground job (the default), or ignored as in a background job's for SIGTERM
+    sigint = signal.SIG_IGN if sig == signal.SIGTERM else signal.SIG_DFL
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
     reported = -1
     try:
         line = proc.stdout.readline()
@@ -100,8 +106,8 @@ def _run_and_stop(out, sig, k):
             line = proc.stdout.readline()
             assert line, f"child ended early: {proc.stderr.read()}"
             reported = int(line)
-        if sig == signal.SIGINT:
-            proc.send_signal(signal.SIGINT)  # Ctrl-C reaches the child only, as in a terminal's foreground job
+        if sig != signal.SIGKILL:
+            proc.send_signal(sig)  # Ctrl-C reaches the child only, as in a terminal's foreground job
             rest, err = proc.communicate(timeout=30)
             assert proc.returncode == 130 and rest.endswith("interrupted\n"), (proc.returncode, rest, err)
             assert "Traceback" not in err, err
@@ -235,15 +241,15 @@ def _check_files(out, k, clean):
     return counts
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT, signal.SIGTERM], ids=["SIGKILL", "SIGINT", "SIGTERM"])
 def test_stopped_run_leaves_every_file_readable(tmp_path, sig):
     k = 12
     reported = _run_and_stop(tmp_path, sig, k)
     assert reported >= k
-    counts = _check_files(tmp_path, reported, clean=sig == signal.SIGINT)
+    counts = _check_files(tmp_path, reported, clean=sig != signal.SIGKILL)
     # No more rows than the child started: at most the one in progress.
     assert counts["csv"] <= reported + 1 and counts["log"] <= reported + 1
-    if sig == signal.SIGINT:  # closed cleanly: every file holds the same rows
+    if sig != signal.SIGKILL:  # closed cleanly: every file holds the same rows
         n = counts["csv"]
         n_posed = sum(expected_row(i)["pose"] is not None for i in range(n))
         assert counts == {"csv": n, "tum": n_posed, "log": n, "bag": n_posed, "bag_mcap": n_posed, "mcap": n_posed,
@@ -263,14 +269,49 @@ def test_tum_cut_at_any_byte_reads_the_complete_lines(tmp_path):
     write_tum(p, np.arange(3) * 0.5, _poses(3), comment="c")
     data = p.read_bytes()
     ends = [i + 1 for i, b in enumerate(data) if b == ord("\n")]
-    whole = read_tum(p)[0]
+    whole, poses = read_tum(p)
     for cut in range(len(data) + 1):
         p.write_bytes(data[:cut])
-        times, _ = read_tum(p)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            times, got = read_tum(p)
         complete = sum(e <= cut for e in ends) - 1  # minus the comment line
-        # A cut last line is dropped unless it still reads as 8 numbers (cut inside its last one).
-        assert len(times) in (max(complete, 0), max(complete, 0) + 1)
+        # A cut last line is dropped, with a warning, unless all of it is there but its end of line --
+        # or, the first line (no line before to compare its decimals with), cut so little inside its
+        # last number that its quaternion is still a rotation within the tolerance.
+        whole_line = cut + 1 in ends[1:]
+        first = ends[0] < cut < ends[1] - 1
+        assert len(times) == max(complete, 0) + whole_line or first and len(times) == 1, cut
+        assert bool(caught) == (len(times) == max(complete, 0) and cut not in ends and cut > ends[0]), (cut, caught)
         np.testing.assert_array_equal(times, whole[:len(times)])
+        np.testing.assert_allclose(got.R, poses.R[:len(times)], atol=2e-3 if first else 1e-8)
+
+
+def test_tum_line_cut_inside_its_quaternion_is_refused(tmp_path):
+    """A complete line whose last number was cut (or a quaternion that is
+    not a rotation): one line naming the file and line; the same line last
+    and without end of line: dropped with a warning naming it, the lines
+    before read."""
+    p = tmp_path / "a.tum"
+    lines = ["0.0 1 2 3 0.100000000 -0.200000000 0.050000000 0.973396117\n",
+             "0.5 1 2 3 0.600000000 -0.300000000 0.200000000 0.714142843\n"]
+    for cut_qw in ("0", "0.", "0.7", "0.71", "0.714"):  # 157 deg off with "0" but 8 numbers all the same
+        bad = lines[1].rsplit(" ", 1)[0] + " " + cut_qw
+        if cut_qw != "0.714":  # a rotation within 1e-3 (as a file written with 3 decimals): read
+            p.write_text(lines[0] + bad + "\n" + lines[0].replace("0.0 ", "1.0 ", 1))
+            with pytest.raises(FileFormatError, match=r"a\.tum:2: quaternion .* of norm "):
+                read_tum(p)
+        p.write_text(lines[0] + bad)
+        with pytest.warns(UserWarning, match=r"a\.tum:2: .*dropped"):
+            times, _ = read_tum(p)
+        assert times.tolist() == [0.0]
+    p.write_text(lines[0] + lines[1].rstrip("\n"))  # a hand-written file without a last end of line: all read
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_tum(p)[0].tolist() == [0.0, 0.5]
+    p.write_text("0 1 2 3 0.5 0.5 0.5 0.5\n1 1 2 3 0.1 0.1 0.1 0.1\n")  # not normalized: refused, never scaled up
+    with pytest.raises(FileFormatError, match=r"a\.tum:2: "):
+        read_tum(p)
 
 
 def test_csv_cut_at_any_row_boundary_or_mid_row(tmp_path):

@@ -1,7 +1,8 @@
 """`track` written as it runs (issue: outputs appended as rows become
-final): stopped by SIGINT or SIGKILL mid-run, every file written parses and
-holds the frames finished so far, identical to what a complete run over the
-same records reports.
+final): stopped by SIGINT, SIGTERM or SIGKILL mid-run, every file written
+parses and holds the frames finished so far, identical to what a complete
+run over the same records reports; SIGTERM (systemd, ``docker stop``) ends
+it as Ctrl-C does, also when the child ignores SIGINT (a background job).
 
 The child reads its observation log from a named pipe, so the test decides
 how far it gets: it writes records, waits for the rows to be written, then
@@ -55,16 +56,24 @@ def _mcap_poses(path):
         return [m for _, ch, m in make_reader(f).iter_messages() if ch.topic.startswith("/mutloc/")]
 
 
-def _feed_then_stop(tmp_path, args, lines, written, sig):
+def _sigint(action):
+    """A ``preexec_fn`` giving the child SIGINT's ``action`` whatever the test
+    process has (a background job, and what it starts, ignores SIGINT)."""
+    return lambda: signal.signal(signal.SIGINT, action)
+
+
+def _feed_then_stop(tmp_path, args, lines, written, sig, sigint=signal.SIG_DFL):
     """Run ``mutloc track`` reading its log from a named pipe (``args``: the
-    options after it), feed it ``lines``, wait until ``written()`` says its
-    files hold what was fed, then stop it with ``sig``.  Returns (exit
-    status, stderr); the child's process group is always killed."""
+    options after it; SIGINT's action ``sigint`` in the child), feed it
+    ``lines``, wait until ``written()`` says its files hold what was fed,
+    then stop it with ``sig``.  Returns (exit status, stderr); the child's
+    process group is always killed."""
     fifo = tmp_path / "log.pipe"
     os.mkfifo(fifo)
     cmd = [sys.executable, "-m", "mutloc", "track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(fifo),
            *args, "--no-progress"]
-    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                             preexec_fn=_sigint(sigint))
     try:
         with open(fifo, "w") as pipe:  # blocks until the child opens it
             pipe.writelines(lines)
@@ -84,8 +93,9 @@ def _feed_then_stop(tmp_path, args, lines, written, sig):
     return child.returncode, child.stderr.read().decode()
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL], ids=["SIGINT", "SIGTERM", "SIGKILL"])
 def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
+    """SIGTERM is sent to a child that ignores SIGINT, as a background job's does."""
     rig = standard_rig()
     save_rig(rig, tmp_path / "rig.yaml")
     recs = camera_records(rig, duration=4.0, offsets={"q": 1 / 60}, seed=11)
@@ -94,12 +104,13 @@ def test_stopped_track_leaves_every_file_readable(tmp_path, sig):
     # Rows are final DEFAULT_SMOOTH_LAG + 1 records after they came.
     code, err = _feed_then_stop(
         tmp_path, ["--out", str(out), "--bag", str(tmp_path / "bag"), "--mcap", str(tmp_path / "poses.mcap")],
-        lines[:N_WRITTEN], lambda: len(_csv_rows(out / "trajectory.csv")) >= N_WRITTEN - DEFAULT_SMOOTH_LAG - 1, sig)
+        lines[:N_WRITTEN], lambda: len(_csv_rows(out / "trajectory.csv")) >= N_WRITTEN - DEFAULT_SMOOTH_LAG - 1, sig,
+        sigint=signal.SIG_IGN if sig == signal.SIGTERM else signal.SIG_DFL)
     # The reference: a complete run over the records the child had.
     ref = track_log(rig, [(float(f.times[0]), f) for f in recs.frames[:N_WRITTEN]], progress=False)
     rows = _csv_rows(out / "trajectory.csv")
-    if sig == signal.SIGINT:
-        assert code == 130
+    if sig != signal.SIGKILL:
+        assert code == 130, err
         assert "interrupted" in err and "frames finished" in err and "Traceback" not in err
         assert len(rows) == N_WRITTEN  # every record it had, reported as if the log ended there
     else:
@@ -154,3 +165,22 @@ def test_stopped_team_track_leaves_every_robot_s_files(tmp_path):
         times, _ = read_tum(out / f"trajectory_{r}.tum")
         assert len(times) == sum(row["pose"] is not None for row in rows)
     assert posed > 0 and len(_bag_poses(tmp_path / "bag")) == posed
+
+
+@pytest.mark.parametrize("team", [False, True], ids=["pair", "team"])
+def test_stopped_before_the_first_record_names_no_file(tmp_path, team):
+    """SIGTERM while the log has given nothing yet: exit 130 and the message
+    names no file, as none was written (it used to name every output)."""
+    from mutloc.sim.team import random_team
+
+    rig = random_team(3, np.random.default_rng(4), one_way=0.0).rig if team else standard_rig()
+    save_rig(rig, tmp_path / "rig.yaml")
+    out = tmp_path / "out"
+    code, err = _feed_then_stop(tmp_path, ["--out", str(out), "--bag", str(tmp_path / "bag"),
+                                           "--mcap", str(tmp_path / "poses.mcap")], [], lambda: True, signal.SIGTERM)
+    assert code == 130, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("interrupted:") and "no files written" in last, err
+    assert "trajectory" not in err and "poses.mcap" not in err and "bag" not in last, err
+    assert not out.exists() or not any(out.iterdir())
+    assert not (tmp_path / "bag").exists() and not (tmp_path / "poses.mcap").exists()

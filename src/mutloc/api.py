@@ -397,6 +397,16 @@ def _inconsistency_message(est: Estimate, pair: PairObservations, rows: np.ndarr
     c = est.consistency
     assert c is not None
     worst = ""
+    outside = pair.farthest_outside(margin=3.0 * sigma)
+    if outside is not None:
+        # A pixel outside its image: the suspect, whatever the fit spread its error over.
+        k, px, size = outside
+        r = int(pair.rows[k])
+        u, v = pair.parent.uv[r].tolist()
+        return (f"observations[{pair.parent.observer[r]!r}][{pair.parent.marker[r]!r}]: pixel ({u:.2f}, {v:.2f}) "
+                f"is {px:.1f} px outside the {size[0]}x{size[1]} image, and the observations do not fit one pose "
+                f"with {sigma:g} px noise (chi2 {c.chi2:.1f} over {c.dof} degrees of freedom, above "
+                f"{c.threshold:.1f} at {100 * c.confidence:g}%): a wrong detection or a wrong camera calibration")
     problem = _problem(pair, pair.side, pair.points_index, pair.rows)
     try:
         problem.ensure_bearings()

@@ -16,7 +16,7 @@ from .core.pose import Pose
 from .core.rig import Rig
 from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor,
                         other_poses, relative_jacobian, residual_norms, solve_team)
-from .errors import (DegenerateGeometryError, InconsistentObservationsError, ObservationError,
+from .errors import (DegenerateGeometryError, InconsistentObservationsError, MutlocError, ObservationError,
                      TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
 __all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
@@ -444,7 +444,9 @@ def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | N
     camera, ``ROBOT/CAMERA`` for each camera of a robot with several (any
     lens; not every camera needs an image).  Each image is searched through
     its own lens (:func:`mutloc.track.frames.detect_markers`), and the team
-    solved on the rays of all of them; ``detections`` are keyed likewise."""
+    solved on the rays of all of them; ``detections`` are keyed likewise.
+    When the team cannot be localized, the error raised carries the
+    detections as its ``detections``."""
     from pathlib import Path
 
     from .detect.base import as_bgr
@@ -457,5 +459,9 @@ def localize_team_images(rig: Any, images: Mapping[str, Any], reference: str | N
                         f"image of {'camera' if '/' in k else 'robot'} {k!r}") for k, img in images.items()}
     same_images(rig, loaded)
     detections = {k: detect_markers(rig, k, img) for k, img in loaded.items()}
-    team = localize_team(rig, observations_of(detections), reference, **options)
+    try:
+        team = localize_team(rig, observations_of(detections), reference, **options)
+    except MutlocError as exc:
+        exc.detections = detections  # type: ignore[attr-defined]  # what was found, to write all the same
+        raise
     return FrameResult(team, detections)  # type: ignore[arg-type]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import MutlocError
 from ._common import NOISE, OUTPUT, PAIR, RIG, TEAM, TRUST, output_path, robot_map, robot_value, team_mode
 
 ORDER = 20
@@ -27,26 +28,38 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    """Detect, localize, print."""
+    """Detect, localize, print.  ``--detections-out`` is written also when
+    no pose comes of the detections (then the error, exit 2)."""
     from ..io import load_rig, write_json
 
     rig = load_rig(args.rig)
-    if team_mode(rig, args):
-        from ..team import localize_team_images, require_verified
+    images = robot_map(args.image, "--image")
+    try:
+        if team_mode(rig, args):
+            from ..team import localize_team_images, require_verified
 
-        res = localize_team_images(rig, robot_map(args.image, "--image"), args.reference,
-                                   pixel_sigma=args.pixel_sigma, confidence=args.confidence)
-        require_verified(res.estimate, args.allow_unverified)
-        if args.detections_out:
-            write_json(res.detections_dict(), args.detections_out)
-        write_json(res.estimate.to_dict(), output_path(args.output))
-        return 0
-    from ..track import localize_images
+            res = localize_team_images(rig, images, args.reference, pixel_sigma=args.pixel_sigma,
+                                       confidence=args.confidence)
+            _write_detections(args, res.detections)
+            require_verified(res.estimate, args.allow_unverified)
+        else:
+            from ..track import localize_images
 
-    res = localize_images(rig, robot_map(args.image, "--image"), args.source, args.target,
-                          pixel_sigma=args.pixel_sigma, confidence=args.confidence,
-                          allow_unverified=args.allow_unverified)
-    if args.detections_out:
-        write_json(res.detections_dict(), args.detections_out)
+            res = localize_images(rig, images, args.source, args.target, pixel_sigma=args.pixel_sigma,
+                                  confidence=args.confidence, allow_unverified=args.allow_unverified)
+            _write_detections(args, res.detections)
+    except MutlocError as exc:
+        found = getattr(exc, "detections", None)
+        if found is not None:
+            _write_detections(args, found)
+        raise
     write_json(res.estimate.to_dict(), output_path(args.output))
     return 0
+
+
+def _write_detections(args: argparse.Namespace, detections: dict) -> None:
+    if args.detections_out:
+        from ..io import write_json
+        from ..track.frames import FrameResult
+
+        write_json(FrameResult(None, detections).detections_dict(), args.detections_out)  # type: ignore[arg-type]

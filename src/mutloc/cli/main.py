@@ -101,13 +101,18 @@ def main(argv: list[str] | None = None) -> int:
 
     A user's mistake (:class:`MutlocError`, or an OSError such as an unwritable
     output file) prints one line ``mutloc: error: <message>`` on stderr and
-    returns 2; argparse usage errors exit with status 2 as usual.
+    returns 2; argparse usage errors exit with status 2 as usual.  Ctrl-C
+    and SIGTERM stop every command the same way (see :mod:`mutloc.signals`):
+    what is finished is written, and the status is 130.
     """
+    from ..signals import sigterm_as_interrupt
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         check_extras(args)
-        status = args._run(args)
+        with sigterm_as_interrupt():
+            status = args._run(args)
     except MutlocError as exc:
         return _error(exc if str(exc) else type(exc).__name__)
     except OSError as exc:

@@ -66,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
     from ..io import load_rig
     from ..core.filter import MotionNoise
     from ..errors import InputError, RigError
-    from ..io.logs import iter_observation_log
     from ..track.filtering import FilterOptions
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.tracker import track, track_log
@@ -89,11 +88,13 @@ def run(args: argparse.Namespace) -> int:
         return _run_team(args, rig, options, out)
     if args.observations:
 
+        log = LogUpToBadLine(args.observations)
+
         def work(sink):
-            return track_log(rig, iter_observation_log(args.observations), args.source, args.target,
+            return track_log(rig, iter(log), args.source, args.target,
                              pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
                              filter=options, rerun=args.rerun, sink=sink)
-        return _written_as_it_runs(work, out, args, rig)
+        return _written_as_it_runs(work, out, args, rig, log)
     paths = robot_map(args.stream, "--stream")
     for robot in paths:
         rig.robot(robot)
@@ -135,31 +136,82 @@ def check_outputs(args: argparse.Namespace) -> Path:
     return out
 
 
-def _written_as_it_runs(work, out, args, rig) -> int:
+class LogUpToBadLine:
+    """The records of an observation log up to its first bad line (iterate
+    once).  A bad line ends the log there: the records before it are
+    tracked and written, then :meth:`raise_if_cut` raises its error (one
+    line naming the file and line, and what was written).  A log bad before
+    its first record raises at once."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.error: Exception | None = None
+        self.records = 0
+
+    def __iter__(self):
+        from ..errors import MutlocError
+        from ..io.logs import iter_observation_log
+
+        try:
+            for record in iter_observation_log(self.path):
+                self.records += 1
+                yield record
+        except MutlocError as exc:
+            if not self.records:
+                raise
+            self.error = exc
+
+    def raise_if_cut(self, wrote: str) -> None:
+        if self.error is not None:
+            raise type(self.error)(f"{self.error}; the {self.records} records before it were tracked ({wrote})")
+
+
+def _written_as_it_runs(work, out, args, rig, log: LogUpToBadLine | None = None) -> int:
     """Run ``work(sink)`` (a pair's track) with every output file appended
     row by row as the rows become final; Ctrl-C stops it with every frame
-    finished so far written, and says so (exit 130)."""
+    finished so far written, and says so (exit 130); a bad line of ``log``
+    ends it with the records before it written, then its error."""
     import sys
 
     from ..track.outputs import TrackOutputs
 
     pair = rig.default_pair(args.source, args.target)
+    before = _side_files(args)
     with TrackOutputs(out, *pair, bag=args.bag, mcap=args.mcap,
                       base_frames=rig if args.frames == "base" else None) as outputs:
         try:
             traj = work(outputs.write)
         except KeyboardInterrupt:
             outputs.close()
-            wrote = [str(p) for p in outputs.paths] + _side_files(args)
-            print(f"interrupted: {outputs.rows} frames finished and written to {', '.join(wrote)}", file=sys.stderr)
+            print(f"interrupted: {outputs.rows} frames finished; {_wrote(outputs, args, before)}", file=sys.stderr)
             return 130
-    wrote = [str(p) for p in outputs.paths] + _side_files(args)
-    print(f"{traj.summary()}; wrote {', '.join(wrote)}")
+    if log is not None:
+        log.raise_if_cut(_wrote(outputs, args, before))
+    print(f"{traj.summary()}; {_wrote(outputs, args, before)}")
     return 0
 
 
-def _side_files(args) -> list[str]:
-    return [str(p) for p in (args.rerun, args.annotate, args.observations_out) if p]
+def _side_files(args) -> dict[str, int | None]:
+    """Each of --rerun, --annotate, --observations-out given: its modification time (None: no such file)."""
+    import os
+
+    stamps: dict[str, int | None] = {}
+    for p in (args.rerun, args.annotate, args.observations_out):
+        if p:
+            try:
+                stamps[str(p)] = os.stat(p).st_mtime_ns
+            except OSError:
+                stamps[str(p)] = None
+    return stamps
+
+
+def _wrote(outputs, args, before: dict[str, int | None]) -> str:
+    """``wrote FILE, ...``: the files this run wrote (the side files new or
+    changed since ``before``), or ``no files written`` (stopped before the
+    first row)."""
+    after = _side_files(args)
+    files = [str(p) for p in outputs.written] + [p for p, t in after.items() if t is not None and t != before[p]]
+    return f"wrote {', '.join(files)}" if files else "no files written"
 
 
 def _run_team(args, rig, options, out) -> int:
@@ -168,7 +220,6 @@ def _run_team(args, rig, options, out) -> int:
     every row so far written, and said)."""
     import sys
 
-    from ..io.logs import iter_observation_log
     from ..track.outputs import TrackOutputs
     from ..track.sources import open_streams, rig_with_bag_cameras
     from ..track.team import require_streams, track_team, track_team_log
@@ -185,6 +236,8 @@ def _run_team(args, rig, options, out) -> int:
         from ..io.rrd import RerunWriter
 
         viz = RerunWriter(args.rerun, None, reference)
+    before = _side_files(args)
+    log = LogUpToBadLine(args.observations) if args.observations else None
     with TrackOutputs(out, robots, reference, bag=args.bag, mcap=args.mcap, base_frames=base) as outputs:
         to_base = outputs.to_base
 
@@ -198,7 +251,7 @@ def _run_team(args, rig, options, out) -> int:
 
         try:
             if args.observations:
-                traj = track_team_log(rig, iter_observation_log(args.observations), args.reference,
+                traj = track_team_log(rig, iter(log), args.reference,
                                       pixel_sigma=args.pixel_sigma, confidence=args.confidence,
                                       progress=args.progress, filter=options, sink=sink)
             else:
@@ -215,13 +268,13 @@ def _run_team(args, rig, options, out) -> int:
             outputs.close()
             if viz is not None:
                 viz.close()
-            wrote = [str(p) for p in outputs.paths] + _side_files(args)
-            print(f"interrupted: {outputs.rows} robot rows finished and written to {', '.join(wrote)}",
+            print(f"interrupted: {outputs.rows} robot rows finished; {_wrote(outputs, args, before)}",
                   file=sys.stderr)
             return 130
         finally:
             if viz is not None:
                 viz.close()
-    wrote = [str(p) for p in outputs.paths] + _side_files(args)
-    print(f"reference {traj.reference}; {traj.summary()}; wrote {', '.join(wrote)}")
+    if log is not None:
+        log.raise_if_cut(_wrote(outputs, args, before))
+    print(f"reference {traj.reference}; {traj.summary()}; {_wrote(outputs, args, before)}")
     return 0

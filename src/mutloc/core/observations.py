@@ -529,6 +529,15 @@ def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size:
                                "fractions given?); observations are raw pixels")
 
 
+def outside_by(u: float, v: float, size: tuple[int, int]) -> float:
+    """How far (px) the pixel ``(u, v)`` lies outside an image of ``size``
+    (width, height; pixel centres at integers, so the image spans -0.5 to
+    width - 0.5); 0 inside."""
+    du = max(-0.5 - u, u - (size[0] - 0.5), 0.0)
+    dv = max(-0.5 - v, v - (size[1] - 0.5), 0.0)
+    return math.hypot(du, dv)
+
+
 def _with_parent(pair: "PairObservations", parent: ObservationSet | None) -> "PairObservations":
     """A copy of ``pair`` (and what it has computed) whose parent is ``parent``
     (a parent-less copy keeps nothing of its set alive); a pair whose parent
@@ -582,6 +591,26 @@ class PairObservations:
     def count(self) -> int:
         """Observations between the pair, named and anonymous."""
         return len(self.rows) + sum(len(v) for v in self.anonymous.values())
+
+    def farthest_outside(self, margin: float = 0.0) -> tuple[int, float, tuple[int, int]] | None:
+        """``(k, px, size)``: the row whose pixel lies farthest outside its
+        camera's image (of ``size``), by ``px`` > ``margin``; None when every
+        pixel is within ``margin`` of its image (or no image size is known).
+        Such a pixel passes :meth:`ObservationSet.check` (a detection may
+        lie a little past the border) but is the first suspect when the
+        observations do not fit one pose."""
+        best = None
+        for k, (s, i) in enumerate(zip(self.side.tolist(), self.rows.tolist())):
+            if self.table.mounts is not None:
+                size = self.table.mounts[self.parent.observer[i]][1].camera.size
+            else:
+                size = self.table.sizes[s]
+            if size is None:
+                continue
+            px = outside_by(*self.parent.uv[i].tolist(), size)
+            if px > margin and (best is None or px > best[1]):
+                best = (k, px, tuple(size))
+        return best
 
     def require(self, needed: int = MIN_OBSERVATIONS) -> None:
         """TooFewObservationsError unless at least ``needed`` observations tie the pair."""

@@ -39,14 +39,12 @@ What "a row" is, and what a kill can leave, per format:
 from __future__ import annotations
 
 import os
-import signal
-import threading
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from .._extras import require
 from ..errors import FileFormatError
+from ..signals import deferred_interrupt
 from ._files import PathLike, output_folder
 
 __all__ = ["StreamWriter", "LineFile", "RollingFile", "deferred_interrupt"]
@@ -82,26 +80,6 @@ class StreamWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-@contextmanager
-def deferred_interrupt() -> Iterator[None]:
-    """Hold a Ctrl-C (SIGINT) back until the block ends, so a row written in
-    several steps is written whole; then raise the KeyboardInterrupt.  Only
-    in the main thread, and only while Python's own SIGINT handler is
-    installed (anything else is left alone)."""
-    if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
-        yield
-        return
-    got: list[int] = []
-    signal.signal(signal.SIGINT, lambda signum, frame: got.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        if got:
-            raise KeyboardInterrupt
 
 
 def _write_all(fd: int, data: bytes) -> None:

@@ -10,7 +10,9 @@ pose as JSON is :meth:`mutloc.Pose.to_dict` (written with
 Both are written as they go (:class:`TumWriter`, :class:`TrajectoryCsvWriter`,
 see :mod:`mutloc.io.streaming`): a file of a killed run ends after its last
 complete line.  The readers accept such a file; a last line without its end
-of line (a write cut by the kill) is dropped if it does not parse.
+of line (a write cut by the kill) is dropped if it does not parse (a TUM
+line: also if its quaternion is not of unit norm, or its last number is
+shorter than the line before's), with a warning naming it.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import warnings
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -89,6 +92,11 @@ def _cut(text: str) -> tuple[str, str]:
     return text[:i], text[i:]
 
 
+#: How far from 1 a TUM line's quaternion norm may be (a file written with 4 decimals is within 1e-4; a
+#: line cut inside its last number, qw, is off by more unless qw is tiny).
+TUM_QUATERNION_TOLERANCE = 1e-3
+
+
 def _tum_row(line: str, where: str) -> list[float] | None:
     line = line.strip()
     if not line or line.startswith("#"):
@@ -99,19 +107,39 @@ def _tum_row(line: str, where: str) -> list[float] | None:
         raise FileFormatError(f"{where}: not 8 numbers (t tx ty tz qx qy qz qw)") from None
     if len(vals) != 8 or not all(math.isfinite(v) for v in vals):
         raise FileFormatError(f"{where}: not 8 finite numbers (t tx ty tz qx qy qz qw)")
+    norm = math.sqrt(sum(v * v for v in vals[4:]))
+    if abs(norm - 1.0) > TUM_QUATERNION_TOLERANCE:
+        raise FileFormatError(f"{where}: quaternion (qx qy qz qw) of norm {norm:.6g}, not 1 within "
+                              f"{TUM_QUATERNION_TOLERANCE:g}: a cut or corrupt line")
     return vals
 
 
+def _decimals(line: str) -> int:
+    """Digits after the point of a line's last number."""
+    last = line.replace(",", " ").split()[-1].lower().split("e")[0]
+    return len(last.partition(".")[2])
+
+
 def read_tum(path: PathLike) -> tuple[np.ndarray, Pose]:
-    """``(times, poses)`` of a TUM file; FileFormatError naming the line if it is malformed."""
+    """``(times, poses)`` of a TUM file; FileFormatError naming the line if
+    it is malformed (not 8 finite numbers, or a quaternion whose norm is not
+    1 within :data:`TUM_QUATERNION_TOLERANCE`).  A last line without its end
+    of line (a write cut by a kill) that is malformed so, or whose last
+    number has fewer decimals than the line before's (cut inside it), is
+    dropped with a warning naming it."""
     p = Path(path).expanduser()
     body, tail = _cut(_read(p))
     lines = body.splitlines()
     rows = [r for k, line in enumerate(lines, 1) if (r := _tum_row(line, f"{p}:{k}")) is not None]
+    where = f"{p}:{len(lines) + 1}"
     try:
-        last = _tum_row(tail, f"{p}:{len(lines) + 1}")
-    except FileFormatError:
-        last = None  # a line cut by a kill
+        last = _tum_row(tail, where)
+        before = next((ln for ln in reversed(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+        if last is not None and before is not None and _decimals(tail) < _decimals(before):
+            raise FileFormatError(f"{where}: its last number has fewer decimals than the line before's: cut")
+    except FileFormatError as exc:
+        warnings.warn(f"{exc}; the last line has no end of line: dropped as a write cut by a kill", stacklevel=2)
+        last = None
     if last is not None:
         rows.append(last)
     a = np.array(rows, dtype=float).reshape(-1, 8)

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import InputError, positive_number
 from ..io import save_rig
+from ..signals import stop_process_group
 from .messages import observations_topic, pose_topic, ros_types, stamp_of
 
 __all__ = ["run_live_demo", "run_live_pair", "format_live_summary"]
@@ -67,28 +68,6 @@ def _render(folder: Path, seconds: float, fps: float, seed: int, progress: bool)
                       disable=not progress):
             pass
     return times
-
-
-def _signal(p: subprocess.Popen, sig: int) -> None:
-    """``sig`` to ``p``'s process group if it still runs."""
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, sig)
-        except ProcessLookupError:
-            pass
-
-
-def _stop(procs: list[subprocess.Popen]) -> None:
-    """SIGINT every process group, then SIGKILL what is left after 5 s."""
-    for p in procs:
-        _signal(p, signal.SIGINT)
-    deadline = time.monotonic() + 5.0
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            _signal(p, signal.SIGKILL)
-            p.wait()
 
 
 def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fps: float = 10.0, seed: int = 0,
@@ -192,11 +171,11 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
                     messages += 1
             time.sleep(0.002)
     finally:
-        _stop(procs)
+        stop_process_group(procs)
         for log in logs:
             log.close()
         bus.close()
-    failed = [(n, p.returncode) for n, p in zip(labels, procs) if p.returncode not in (0, 130, -signal.SIGINT)]
+    failed = [(n, p.returncode) for n, p in zip(labels, procs) if p.returncode not in (0, 130, -signal.SIGTERM)]
     if failed:
         name = failed[0][0]
         tail = (out / f"{name}.log").read_text(encoding="utf-8").strip().splitlines()[-1:] or ["(no output)"]

@@ -238,7 +238,10 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
     tag, in a window around its predicted corners at full resolution (:mod:`mutloc.track.tag_look`: steep
     and small tags the whole-image search loses), and partly hidden or missing balls, measured again at
     their predicted size (:mod:`mutloc.track.second_look`).  What was found so is named in
-    ``estimate.extra["second_look"]``."""
+    ``estimate.extra["second_look"]``.
+
+    When no pose comes of them, the error raised carries the detections as its ``detections``
+    (``mutloc localize-images --detections-out`` writes them before it fails)."""
     rig, source, target = prepare_pair(rig, images, source, target, "image", cameras=True)
     _refuse_lights(rig, source, target)
     robots = image_keys(rig, images)
@@ -267,6 +270,7 @@ def localize_images(rig: Any, images: Mapping[str, Any], source: str | None = No
     if better is not None:
         est, detections = better
     if est is None:
+        error.detections = detections  # type: ignore[union-attr]  # what was found, to write all the same
         raise error  # type: ignore[misc]
     return FrameResult(est, detections)
 

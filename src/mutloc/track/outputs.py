@@ -87,6 +87,11 @@ class TrackOutputs:
         files = [self.out / f"{self._stem(s)}{ext}" for s in self.sources for ext in (".csv", ".tum")]
         return files + [p for p in (self.bag, self.mcap) if p is not None]
 
+    @property
+    def written(self) -> list[Path]:
+        """The files of :attr:`paths` written so far: none before the first row."""
+        return self.paths if self._files else []
+
     def write(self, row: TrackRow, source: str | None = None) -> None:
         """One final row of the track of ``source`` (default: the pair's)
         into every file (a row without a pose only into the CSV)."""
