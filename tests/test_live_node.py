@@ -21,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -728,3 +729,96 @@ def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it(dds_dom
         assert "TP#0" not in _seen(msg)
     finally:
         bus.close()
+
+
+class _TfBus:
+    """A bus holding the two topics a node with tags to look for uses, without DDS: the observations it
+    writes are kept, ``/tf`` gives the messages a test queued (a localizer's, at the stamps it chose)."""
+
+    def __init__(self):
+        self.queued, self.written = [], []
+
+    def writer(self, topic, cls):
+        return SimpleNamespace(write=self.written.append)
+
+    def reader(self, topic, cls):
+        bus = self
+
+        class TfReader:
+            malformed = 0
+
+            def take(self):
+                out, bus.queued[:] = list(bus.queued), []
+                return out
+
+        return TfReader()
+
+    def publish(self, t, poses, reference):
+        """One ``/tf`` message stamped ``t``: ``{robot: T_reference_robot}``."""
+        from mutloc.live.messages import pose_messages
+
+        msgs = [pose_messages(t, T, None, robot, reference)[1] for robot, T in poses.items()]
+        self.queued.append(ros_types().TFMessage(transforms=[tr for m in msgs for tr in m.transforms]))
+
+
+def _decodable_misses(n):
+    """``n`` of tests/test_tag_look.py's steep scenes whose first look missed p's tag, where it can be
+    decoded at all (one of the eight cannot)."""
+    from mutloc.detect.tags import find_tag_near
+    from test_tag_look import first_look, steep_scenes
+
+    scenes = [(rig, T_qp, images, truth) for rig, T_qp, images, truth in steep_scenes()
+              if "TP#0" not in first_look(rig, images)[1]["q"].detections
+              and find_tag_near(images["q"], rig.robot("p").markers["TP"], truth) is not None][:n]
+    assert len(scenes) == n
+    return scenes
+
+
+def _tag_corners_error(msg, truth):
+    """The worst published corner of p's tag against the rendered truth (px); None if not all published."""
+    from mutloc.detect.tags import corner_marker_names
+
+    seen = _seen(msg)
+    if not all(c in seen for c in corner_marker_names("TP")):
+        return None
+    return max(np.hypot(*(np.array(seen[c]) - x)) for c, x in zip(corner_marker_names("TP"), truth))
+
+
+def test_a_node_that_is_not_the_reference_looks_where_the_localizers_poses_put_the_tag():
+    """A team of three whose localizer's reference is r: /tf holds T_rp and T_rq.  q's node (not the
+    reference) finds p's steep tag where T_rq^-1 T_rp puts it, at the rendered corners."""
+    from mutloc.core.pose import Pose
+    from test_tag_look import T_RQ, team_of_three
+
+    T_rq = Pose.from_rotvec(*T_RQ)
+    for rig, T_qp, images, truth in _decodable_misses(2):
+        bus = _TfBus()
+        node = Node(team_of_three(rig), "q", SimpleNamespace(fps=15.0, name="frames of a test"), bus,
+                    rig_id="tag-look-test")
+        bus.publish(50.0, {"p": T_rq @ T_qp, "q": T_rq}, "r")
+        msg = node.process(LiveFrame(0, 50.0, images["q"]), taken=50.0)
+        err = _tag_corners_error(msg, truth)
+        assert err is not None and err < 0.35
+        assert node.stats.looked_again == 1 and bus.written == [msg]
+
+
+def test_a_node_uses_a_pose_from_tf_only_within_its_age_limit():
+    """The localizer's pose of p (stamped t0) places p's steep tag in q's frames taken within
+    TF_MAX_AGE of t0, before or after; in frames further away it is not used (nothing is looked for).
+    The stamps are the test's: no clock involved."""
+    from mutloc.live.node import TF_MAX_AGE
+
+    (rig, T_qp, images, truth), = _decodable_misses(1)
+    bus = _TfBus()
+    node = Node(rig, "q", SimpleNamespace(fps=15.0, name="frames of a test"), bus, rig_id="tag-look-test")
+    t0 = 100.0
+    bus.publish(t0, {"p": T_qp}, "q")
+    found = {}
+    for k, dt in enumerate((-1.2, -0.8, 0.0, 0.8, 1.2)):
+        t = t0 + dt * TF_MAX_AGE
+        looked = node.stats.looked_again
+        err = _tag_corners_error(node.process(LiveFrame(k, t, images["q"]), taken=t), truth)
+        found[dt] = err is not None
+        assert node.stats.looked_again == looked + found[dt]
+        assert err is None or err < 0.35
+    assert found == {-1.2: False, -0.8: True, 0.0: True, 0.8: True, 1.2: False}
