@@ -91,7 +91,7 @@ def _listen(domain, stop, got):
         time.sleep(0.005)
 
 
-def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path):
+def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path, dds_domain):
     sim = tmp_path / "sim"
     write_simulation(sim, frames=FRAMES, fps=FPS, size=(480, 270), focal=400.0)
     times = [float(line.split(",")[1]) for line in (sim / "frames.csv").read_text().splitlines()[1:]]
@@ -105,7 +105,7 @@ def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path)
     off_err = [np.linalg.norm(r.estimate.t - truth[round(r.t * FPS)][1]) for r in offline.rows
                if r.estimate is not None]
 
-    domain = 101 + os.getpid() % 100
+    domain = dds_domain
     loopback = Domain(domain, LOOPBACK_CONFIG)  # noqa: F841 -- this process's domain: on the loopback interface
     stop, got = threading.Event(), []
     listener = threading.Thread(target=_listen, args=(domain, stop, got), daemon=True)
@@ -151,7 +151,7 @@ def _truth(path):
 pytestmark = pytest.mark.slow
 
 
-def test_demo_live_prints_what_a_subscriber_received(tmp_path, capsys):
+def test_demo_live_prints_what_a_subscriber_received(tmp_path, capsys, dds_domain):
     """``mutloc demo --live`` (the shortest run it takes): poses received,
     their error against the rendered truth and the latency, in its summary
     and live_summary.json."""
@@ -160,7 +160,7 @@ def test_demo_live_prints_what_a_subscriber_received(tmp_path, capsys):
     from mutloc.cli.main import main
 
     assert main(["demo", "--live", "--seconds", "1.5", "--fps", "10", "--out", str(tmp_path),
-                 "--domain", str(201 + os.getpid() % 32), "--no-progress"]) == 0
+                 "--domain", str(dds_domain), "--no-progress"]) == 0
     printed = capsys.readouterr().out
     summary = json.loads((tmp_path / "live" / "live_summary.json").read_text())
     assert summary["observation_messages"] >= 0.9 * 2 * 15

@@ -547,7 +547,7 @@ def _fuzzer(bus):
     return bus.writer(M.observations_topic("p"), T.Observations), Raw
 
 
-def test_over_dds(setup, tmp_path):
+def test_over_dds(setup, tmp_path, dds_domain):
     """``mutloc localizer`` over DDS (loopback, a domain of this run): this
     process publishes both robots' observations in real time, garbage and
     another rig's messages on p's topic, and reads the poses and
@@ -562,7 +562,7 @@ def test_over_dds(setup, tmp_path):
 
     from mutloc.live.dds import Bus
 
-    domain = 100 + os.getpid() % 100
+    domain = dds_domain
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
            "--loopback", "--out", str(out), "--duration", "60"]
@@ -664,17 +664,13 @@ def test_over_dds(setup, tmp_path):
     assert (out / "trajectory.csv").read_bytes() == (tmp_path / "replay" / "trajectory.csv").read_bytes()
 
 
-#: Three domains of this run for the tests below (1..100, beside the node tests' blocks).
-DOMAIN = 1 + (os.getpid() + 50) % 25 * 4
-
-
-def test_a_reader_takes_in_bulk_and_counts_each_undecodable_sample(setup):
+def test_a_reader_takes_in_bulk_and_counts_each_undecodable_sample(setup, dds_domain):
     """dds.Reader takes every waiting sample in one call: each undecodable
     one is counted once and skipped, every valid one is returned, in order."""
     from mutloc.live.dds import Bus
 
     T = M.ros_types()
-    bus = Bus(DOMAIN, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     try:
         reader = bus.reader(M.observations_topic("p"), T.Observations, depth=100)
         writer, Raw = _fuzzer(bus)
@@ -724,7 +720,7 @@ os.kill(os.getpid(), signal.SIGSTOP)
 """
 
 
-def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup):
+def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
     """With a subscriber process that matched the localizer's writers and
     then stopped, another subscriber still receives >= 90% of the poses (a
     reliable keep-last writer does not wait for its slowest reader)."""
@@ -734,7 +730,7 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup):
 
     from mutloc.live.dds import WRITE_MAX_BLOCKING, Bus
 
-    domain = DOMAIN + 1
+    domain = dds_domain
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
            "--loopback", "--duration", "60"]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -792,7 +788,7 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup):
     assert sum(1 for t in expected if round(t, 4) in have) >= 0.9 * len(expected), (len(have), len(expected))
 
 
-def test_sigterm_ends_the_localizer_as_ctrl_c_does(setup, tmp_path):
+def test_sigterm_ends_the_localizer_as_ctrl_c_does(setup, tmp_path, dds_domain):
     """SIGTERM (systemd, ``docker stop``) to ``mutloc localizer --out DIR``
     started as a background job would be (SIGINT ignored): it finishes as on
     Ctrl-C -- exit 130, the summary naming its files, every observation
@@ -800,7 +796,7 @@ def test_sigterm_ends_the_localizer_as_ctrl_c_does(setup, tmp_path):
     track of that log gives the same file)."""
     from mutloc.live.dds import Bus
 
-    domain = DOMAIN + 2
+    domain = dds_domain
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
            "--loopback", "--out", str(out), "--duration", "120"]

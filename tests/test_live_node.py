@@ -8,7 +8,8 @@ second time where the pose from both images puts it (its log holds that);
 a node has one image only and sends what its detector found.  A detector slower than the camera drops frames
 (counted), never queues them.  Bad cameras and robots: one line, non-zero.
 
-DDS stays on the loopback interface, in domains derived from the pid; every
+DDS stays on the loopback interface, in a domain id no other running process holds (the ``dds_domain``
+fixture, tests/dds_domains.py); every
 child runs in its own process group, killed in a ``finally``.
 """
 
@@ -20,6 +21,7 @@ import subprocess
 import sys
 import threading
 import time
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -40,8 +42,6 @@ from mutloc.track.sources import open_streams  # noqa: E402
 from mutloc.track.tracker import track  # noqa: E402
 
 N_FRAMES = 10
-#: Four domains of this run (1..100: clear of the ephemeral ports), one per test that joins DDS.
-BASE_DOMAIN = 1 + (os.getpid() % 25) * 4
 
 
 @pytest.fixture(scope="module")
@@ -94,9 +94,9 @@ def _summary_counts(text):
     return tuple(int(x) for x in m.groups())
 
 
-def test_replayed_folder_publishes_what_offline_detection_finds(sim):
+def test_replayed_folder_publishes_what_offline_detection_finds(sim, dds_domain):
     out, offline, times = sim
-    domain = BASE_DOMAIN
+    domain = dds_domain
     T = ros_types()
     bus = Bus(domain, loopback=True)
     reader = bus.reader(observations_topic("q"), T.Observations)
@@ -153,10 +153,10 @@ class _SlowDetector:
         return self.detector.detect(frame)
 
 
-def test_a_detector_slower_than_the_camera_drops_frames_and_takes_the_newest(sim):
+def test_a_detector_slower_than_the_camera_drops_frames_and_takes_the_newest(sim, dds_domain):
     out, offline, _ = sim
     T = ros_types()
-    bus = Bus(BASE_DOMAIN + 1, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     try:
         reader = bus.reader(observations_topic("q"), T.Observations)
         node = Node(out / "rig.yaml", "q", ReplaySource(out / "q", speed=1.0), bus)
@@ -240,11 +240,11 @@ def test_latest_frame_keeps_only_the_newest():
     ("FOLDER", "--realtime"),
     ("ros:/", "give the image topic"),
 ])
-def test_a_camera_that_cannot_be_opened_is_one_line_and_non_zero(sim, capsys, camera, says):
+def test_a_camera_that_cannot_be_opened_is_one_line_and_non_zero(sim, capsys, camera, says, dds_domain):
     out, _, _ = sim
     camera = str(out / "q") if camera == "FOLDER" else camera
     status = main(["node", "--rig", str(out / "rig.yaml"), "--robot", "q", "--camera", camera, "--loopback",
-                   "--domain", str(BASE_DOMAIN + 3)])
+                   "--domain", str(dds_domain)])
     err = capsys.readouterr().err.strip()
     assert status == 2
     assert len(err.splitlines()) == 1 and err.startswith("mutloc: error:") and says in err, err
@@ -275,10 +275,10 @@ def _wait_matched(writer, timeout=30.0):
         time.sleep(0.02)
 
 
-def test_a_ros_image_topic_is_a_camera_and_ctrl_c_ends_the_node_cleanly(sim):
+def test_a_ros_image_topic_is_a_camera_and_ctrl_c_ends_the_node_cleanly(sim, dds_domain):
     out, offline, _ = sim
     T = ros_types()
-    domain = BASE_DOMAIN + 2
+    domain = dds_domain
     bus = Bus(domain, loopback=True)
     reader = bus.reader(observations_topic("q"), T.Observations)
     images = bus.writer("/q/image_raw", T.Image)
@@ -322,13 +322,13 @@ def test_a_ros_image_topic_is_a_camera_and_ctrl_c_ends_the_node_cleanly(sim):
     assert any(re.search(r"node q: \d+ captured, \d+ processed", ln) for ln in lines), stderr  # the status line
 
 
-def test_compressed_images_on_a_ros_topic(sim):
+def test_compressed_images_on_a_ros_topic(sim, dds_domain):
     """CompressedImage (png: lossless, so the detections are offline's)
     through the library, in this process; an undecodable one is a corrupt
     frame, counted, not published, and the node goes on."""
     out, offline, _ = sim
     T = ros_types()
-    bus = Bus(BASE_DOMAIN + 3, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     stop = threading.Event()
     try:
         reader = bus.reader(observations_topic("q"), T.Observations)
@@ -393,14 +393,14 @@ def test_an_opencv_capture_is_read_in_the_background_keeping_the_newest_frame(si
     assert np.all(np.diff([f.t for f in taken]) > 0) and abs(taken[0].t - time.time()) < 60
 
 
-def test_a_node_for_blinking_lights_starts_and_publishes(tmp_path):
+def test_a_node_for_blinking_lights_starts_and_publishes(tmp_path, dds_domain):
     """A lights rig: the node's warm-up (its detectors on blank images) must
     not stall the blinking lights' tracker (a full-range noise image once
     gave it a blob on every pixel to track: the node never got to its first
     frame).  Replayed, every frame is captured and most are published."""
     write_simulation(tmp_path, markers="lights", frames=12, size=(480, 270), focal=400.0)
     child = _child(["--rig", str(tmp_path / "rig.yaml"), "--robot", "q", "--camera", str(tmp_path / "q"),
-                    "--realtime", "--domain", str(BASE_DOMAIN + 3), "--loopback", "--duration", "4", "--no-progress"])
+                    "--realtime", "--domain", str(dds_domain), "--loopback", "--duration", "4", "--no-progress"])
     try:
         out, err = child.communicate(timeout=90)
     finally:
@@ -485,7 +485,7 @@ def _pose_error(rig, sim_truth, k, q_pixels):
     return float(np.linalg.norm(est.pose.t - np.asarray(frame["T_qp"]["t"]))), float(angle)
 
 
-def test_camera_info_use_detects_in_the_announced_camera_and_publishes_rig_pixels(sim, other_camera):
+def test_camera_info_use_detects_in_the_announced_camera_and_publishes_rig_pixels(sim, other_camera, dds_domain):
     """q's images come from a camera whose camera_info differs from the rig's
     (focal, distortion, size).  With --camera-info use the node detects in
     that camera and publishes the pixels the rig's camera would have seen:
@@ -499,7 +499,7 @@ def test_camera_info_use_detects_in_the_announced_camera_and_publishes_rig_pixel
     other = load_rig(other_camera / "rig.yaml").robot("q").camera
     T = ros_types()
     images = [other_camera / "q" / f"{k:06d}.png" for k in range(3)]
-    node, sent, got, error = _run_ros_node(BASE_DOMAIN, out / "rig.yaml", images, _camera_info(T, other), True)
+    node, sent, got, error = _run_ros_node(dds_domain, out / "rig.yaml", images, _camera_info(T, other), True)
     assert error is None, error
     assert node.camera is not None and node.camera.size == (512, 288)
     assert len(got) >= 2
@@ -513,7 +513,7 @@ def test_camera_info_use_detects_in_the_announced_camera_and_publishes_rig_pixel
         assert dt < 0.02 and dr < 1.0, (dt, dr)
 
     # checked only: a warning names the differences, and images of another size than the rig's stop the node
-    node, sent, got, error = _run_ros_node(BASE_DOMAIN, out / "rig.yaml", images, _camera_info(T, other), False,
+    node, sent, got, error = _run_ros_node(dds_domain, out / "rig.yaml", images, _camera_info(T, other), False,
                                            frames=[0, 0])
     notes = node.source.notes
     assert isinstance(error, InputError) and "image is 512x288 but robot 'q''s calibration is 480x270" in str(error)
@@ -563,7 +563,7 @@ def test_a_bad_camera_info_is_one_line(sim, change, says):
     assert text.startswith("camera_info on /q/camera_info: ") and says in text and "\n" not in text, text
 
 
-def test_a_node_using_a_bad_camera_info_stops_with_one_line(sim, other_camera):
+def test_a_node_using_a_bad_camera_info_stops_with_one_line(sim, other_camera, dds_domain):
     """--camera-info use: a camera_info with no focal length, or images of
     another size than it says, stop the node with a one-line InputError;
     checked only, the bad camera_info is a warning and the rig's camera is used."""
@@ -572,26 +572,26 @@ def test_a_node_using_a_bad_camera_info_stops_with_one_line(sim, other_camera):
     images = [other_camera / "q" / "000000.png"]
     zero = _camera_info(T, load_rig(other_camera / "rig.yaml").robot("q").camera)
     zero.k = [0.0] * 9
-    _, _, got, error = _run_ros_node(BASE_DOMAIN + 1, out / "rig.yaml", images, zero, True, frames=[0, 0, 0])
+    _, _, got, error = _run_ros_node(dds_domain, out / "rig.yaml", images, zero, True, frames=[0, 0, 0])
     assert isinstance(error, InputError) and not got
     assert "camera_info on /q/camera_info: focal lengths must be positive" in str(error)
     assert "\n" not in str(error)
     # the rig's camera (480x270) announced, 512x288 images sent
     rig_info = _camera_info(T, load_rig(out / "rig.yaml").robot("q").camera)
-    _, _, got, error = _run_ros_node(BASE_DOMAIN + 1, out / "rig.yaml", images, rig_info, True, frames=[0, 0])
+    _, _, got, error = _run_ros_node(dds_domain, out / "rig.yaml", images, rig_info, True, frames=[0, 0])
     assert isinstance(error, InputError) and not got
     assert str(error) == "camera ros:/q/image_raw: image is 512x288 but its camera_info says 480x270"
-    node, _, _, error = _run_ros_node(BASE_DOMAIN + 1, out / "rig.yaml", [out / "q" / "000000.png"], zero, False,
+    node, _, _, error = _run_ros_node(dds_domain, out / "rig.yaml", [out / "q" / "000000.png"], zero, False,
                                       frames=[0, 0])
     assert error is None and node.camera is None
     assert node.source.notes == ["camera_info on /q/camera_info: focal lengths must be positive and finite, got fx=0 "
                                  "fy=0 (an uncalibrated camera?) (the rig's camera is used)"]
 
 
-def test_camera_info_use_needs_a_ros_topic(sim, capsys):
+def test_camera_info_use_needs_a_ros_topic(sim, capsys, dds_domain):
     out, _, _ = sim
     status = main(["node", "--rig", str(out / "rig.yaml"), "--robot", "q", "--camera", str(out / "q"), "--realtime",
-                   "--camera-info", "use", "--loopback", "--domain", str(BASE_DOMAIN + 3)])
+                   "--camera-info", "use", "--loopback", "--domain", str(dds_domain)])
     err = capsys.readouterr().err.strip()
     assert status == 2 and len(err.splitlines()) == 1 and "--camera-info use" in err and "ros:/" in err, err
 
@@ -669,7 +669,7 @@ def _renamed(rig, names):
                 for r, rob in rig.robots.items()})
 
 
-def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it():
+def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it(dds_domain):
     """q's node misses p's tag seen 52 degrees off its normal at 3 m; with the localizer's pose of p on /tf
     (stamped with the frame's time) it finds the tag there and publishes its corners -- against the
     rendered corners.  Transforms of other frames are ignored and counted; a pose a metre off finds nothing."""
@@ -688,7 +688,7 @@ def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it():
     assert len(scenes) == 3
     names = {"p": "tagp_live", "q": "tagq_live"}
     rig = _renamed(scenes[0][0], names)
-    bus = Bus(BASE_DOMAIN + 2, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     try:
         tf_writer = bus.writer(TF_TOPIC, T.TFMessage)
         node = Node(rig, names["q"], SimpleNamespace(fps=15.0, name="frames of a test"), bus, rig_id="tag-look-test")
@@ -731,3 +731,96 @@ def test_a_node_looks_for_a_missed_tag_where_the_localizers_pose_puts_it():
         assert "TP#0" not in _seen(msg)
     finally:
         bus.close()
+
+
+class _TfBus:
+    """A bus holding the two topics a node with tags to look for uses, without DDS: the observations it
+    writes are kept, ``/tf`` gives the messages a test queued (a localizer's, at the stamps it chose)."""
+
+    def __init__(self):
+        self.queued, self.written = [], []
+
+    def writer(self, topic, cls):
+        return SimpleNamespace(write=self.written.append)
+
+    def reader(self, topic, cls):
+        bus = self
+
+        class TfReader:
+            malformed = 0
+
+            def take(self):
+                out, bus.queued[:] = list(bus.queued), []
+                return out
+
+        return TfReader()
+
+    def publish(self, t, poses, reference):
+        """One ``/tf`` message stamped ``t``: ``{robot: T_reference_robot}``."""
+        from mutloc.live.messages import pose_messages
+
+        msgs = [pose_messages(t, T, None, robot, reference)[1] for robot, T in poses.items()]
+        self.queued.append(ros_types().TFMessage(transforms=[tr for m in msgs for tr in m.transforms]))
+
+
+def _decodable_misses(n):
+    """``n`` of tests/test_tag_look.py's steep scenes whose first look missed p's tag, where it can be
+    decoded at all (one of the eight cannot)."""
+    from mutloc.detect.tags import find_tag_near
+    from test_tag_look import first_look, steep_scenes
+
+    scenes = [(rig, T_qp, images, truth) for rig, T_qp, images, truth in steep_scenes()
+              if "TP#0" not in first_look(rig, images)[1]["q"].detections
+              and find_tag_near(images["q"], rig.robot("p").markers["TP"], truth) is not None][:n]
+    assert len(scenes) == n
+    return scenes
+
+
+def _tag_corners_error(msg, truth):
+    """The worst published corner of p's tag against the rendered truth (px); None if not all published."""
+    from mutloc.detect.tags import corner_marker_names
+
+    seen = _seen(msg)
+    if not all(c in seen for c in corner_marker_names("TP")):
+        return None
+    return max(np.hypot(*(np.array(seen[c]) - x)) for c, x in zip(corner_marker_names("TP"), truth))
+
+
+def test_a_node_that_is_not_the_reference_looks_where_the_localizers_poses_put_the_tag():
+    """A team of three whose localizer's reference is r: /tf holds T_rp and T_rq.  q's node (not the
+    reference) finds p's steep tag where T_rq^-1 T_rp puts it, at the rendered corners."""
+    from mutloc.core.pose import Pose
+    from test_tag_look import T_RQ, team_of_three
+
+    T_rq = Pose.from_rotvec(*T_RQ)
+    for rig, T_qp, images, truth in _decodable_misses(2):
+        bus = _TfBus()
+        node = Node(team_of_three(rig), "q", SimpleNamespace(fps=15.0, name="frames of a test"), bus,
+                    rig_id="tag-look-test")
+        bus.publish(50.0, {"p": T_rq @ T_qp, "q": T_rq}, "r")
+        msg = node.process(LiveFrame(0, 50.0, images["q"]), taken=50.0)
+        err = _tag_corners_error(msg, truth)
+        assert err is not None and err < 0.35
+        assert node.stats.looked_again == 1 and bus.written == [msg]
+
+
+def test_a_node_uses_a_pose_from_tf_only_within_its_age_limit():
+    """The localizer's pose of p (stamped t0) places p's steep tag in q's frames taken within
+    TF_MAX_AGE of t0, before or after; in frames further away it is not used (nothing is looked for).
+    The stamps are the test's: no clock involved."""
+    from mutloc.live.node import TF_MAX_AGE
+
+    (rig, T_qp, images, truth), = _decodable_misses(1)
+    bus = _TfBus()
+    node = Node(rig, "q", SimpleNamespace(fps=15.0, name="frames of a test"), bus, rig_id="tag-look-test")
+    t0 = 100.0
+    bus.publish(t0, {"p": T_qp}, "q")
+    found = {}
+    for k, dt in enumerate((-1.2, -0.8, 0.0, 0.8, 1.2)):
+        t = t0 + dt * TF_MAX_AGE
+        looked = node.stats.looked_again
+        err = _tag_corners_error(node.process(LiveFrame(k, t, images["q"]), taken=t), truth)
+        found[dt] = err is not None
+        assert node.stats.looked_again == looked + found[dt]
+        assert err is None or err < 0.35
+    assert found == {-1.2: False, -0.8: True, 0.0: True, 0.8: True, 1.2: False}

@@ -142,6 +142,45 @@ def test_look_where_tracked_finds_the_tag_where_a_prediction_puts_it_and_nothing
     assert checked >= 5
 
 
+def team_of_three(rig):
+    """``rig`` (p and q) with a third robot r, the reference, carrying a tag of its own."""
+    from mutloc.core.rig import Marker, Rig, Robot
+
+    tq = rig.robot("q").markers["TQ"]
+    tag = {**tq.tag, "id": 12}
+    return Rig({**rig.robots, "r": Robot("r", rig.robot("q").camera, {"TR": Marker("TR", "r", tq.position, tag=tag)})})
+
+
+#: Where q is in the reference r's frame (T_rq) in the team-of-three tests: beside r, turned 29 degrees.
+T_RQ = ((0.05, 0.5, -0.04), (-1.5, 0.1, 0.4))
+
+
+def test_look_where_tracked_from_a_robot_that_is_not_the_reference():
+    """A team of three whose track is in r's frame (r the reference): q, not the reference, looks for p's
+    tag where ``T_rq^-1 T_rp`` puts it, and finds it at the rendered corners.  r's own tag is predicted
+    too, and is not in the image: nothing is made up for it."""
+    from mutloc.core.pose import Pose
+    from mutloc.track.frames import expanded_rig
+    from mutloc.track.tag_look import look_where_tracked
+
+    T_rq = Pose.from_rotvec(*T_RQ)
+    checked = 0
+    for rig, T_qp, images, truth in steep_scenes():
+        ex, dets, _ = first_look(rig, images)
+        if "TP#0" in dets["q"].detections:
+            continue
+        team = expanded_rig(team_of_three(rig))
+        predicted = {"r": Pose.identity(), "q": T_rq, "p": T_rq @ T_qp}
+        found, notes = look_where_tracked(team, images, {"q": dets["q"]}, predicted)
+        got = [found["q"].detections.get(c) for c in corner_marker_names("TP")]
+        if all(d is not None for d in got):
+            checked += 1
+            assert max(np.hypot(*(d.uv - x)) for d, x in zip(got, truth)) < 0.35
+            assert notes == [("p", "q saw tag TP where the track put it (looked for again)")]
+            assert not any(c in found["q"].detections for c in corner_marker_names("TR"))
+    assert checked >= 5
+
+
 def test_team_tracker_predicts_confirmed_robots_only_and_never_backwards():
     from mutloc.core.pose import Pose
     from mutloc.sim.render import default_path
