@@ -71,6 +71,8 @@ _REACH = (35.0, 104.0, 150.0)
 _CACHE_SIZE = 8
 #: Raw pixels kept around the part of a view that shows the image (view pixels).
 _CROP_MARGIN = 2
+#: View pixels along the edge of what a view shows that are filled too (View.rectify).
+_FILL_EDGE = 2
 
 
 def _lut_tables() -> tuple[np.ndarray, np.ndarray]:
@@ -114,6 +116,10 @@ class View:
     maps: tuple[np.ndarray, np.ndarray] = field(repr=False)
     #: The lens, whose raw pixels the view is resampled from.
     lens: Any = field(repr=False)
+    #: Flat indices of the view pixels that show nothing of the raw image (beyond the lens's field or the
+    #: image's border), None if there are none; and a fixed sample of those that do.
+    blank: np.ndarray | None = field(default=None, repr=False)
+    shown: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def axis(self) -> np.ndarray:
@@ -125,10 +131,17 @@ class View:
         is linearized (16 bits), resampled, encoded again.  (Mixing sRGB levels moves every edge towards
         its bright side after the detectors linearize: a tag 0.2-0.3 px too large on each side.)"""
         if not srgb:
-            return cv2.remap(image, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        lin = _TO_LINEAR16[image]
-        out = cv2.remap(lin, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return _TO_SRGB8[out]
+            out = cv2.remap(image, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        else:
+            lin = _TO_LINEAR16[image]
+            out = _TO_SRGB8[cv2.remap(lin, self.maps[0], self.maps[1], cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_REPLICATE)]
+        if self.blank is not None and self.shown is not None:
+            # What the view shows beyond the image is the image's mean level, not black: a black surround
+            # is a huge dark shape with a ragged edge, which dark-band detectors (cylinders) chase at length.
+            flat = out.reshape(-1, out.shape[2]) if out.ndim == 3 else out.reshape(-1)
+            flat[self.blank] = flat[self.shown].mean(axis=0).round().astype(out.dtype)
+        return out
 
     def bearings(self, uv: Any) -> np.ndarray:
         """Unit bearings (n, 3) in the *camera* frame of view pixels ``uv`` (n, 2)."""
@@ -282,17 +295,45 @@ def _build_view(camera: Any, index: int, R: np.ndarray, field_deg: float, half_f
     my = np.where(bad, -1e4, raw[..., 1]).astype(np.float32)
     maps = cv2.convertMaps(mx, my, cv2.CV_16SC2)
     K = np.array([[f, 0.0, c - c0], [0.0, f, c - r0], [0.0, 0.0, 1.0]])
-    return View(index, R, Camera(K, size=(c1 - c0, r1 - r0)), maps, camera)
+    # Filled with the mean level (View.rectify): what shows nothing, and the edge pixels whose bilinear
+    # samples reach past the image's edge (a dotted dark line there looks like a column of bands).
+    edge = cv2.erode((~bad).astype(np.uint8), np.ones((2 * _FILL_EDGE + 1,) * 2, np.uint8),
+                     borderType=cv2.BORDER_REPLICATE) == 0
+    blank = np.flatnonzero(edge)
+    shown = np.flatnonzero(~edge)
+    shown = shown[np.linspace(0, len(shown) - 1, min(len(shown), 4096)).astype(np.int64)]
+    return View(index, R, Camera(K, size=(c1 - c0, r1 - r0)), maps, camera,
+                blank if len(blank) else None, shown)
+
+
+def _upright_axes(field_deg: float, half_fov_deg: float) -> list[np.ndarray]:
+    """Axes of upright views: all across the camera's y (its image's vertical), ``2 * half_fov_deg *
+    0.8`` apart in azimuth about y, as far as the field reaches."""
+    step = 1.6 * half_fov_deg
+    axes = [np.array([0.0, 0.0, 1.0])]
+    k = 1
+    while k * step - half_fov_deg < field_deg and k * step < 180.0:
+        for sgn in (1.0, -1.0):
+            a = math.radians(sgn * k * step)
+            axes.append(np.array([math.sin(a), 0.0, math.cos(a)]))
+        k += 1
+    return axes
 
 
 def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: float = HALF_FOV_DEG,
-              density: float = 1.0) -> ViewSet:
+              density: float = 1.0, upright: bool = False) -> ViewSet:
     """The rectified views of a wide-angle ``camera`` (cached per camera and arguments).
 
     ``field_deg``: the largest angle off the axis that matters (default: as far as the raw image reaches,
     capped by the lens's ``max_angle``; give a lens's own field, e.g. 95 for a 190-degree lens, to spare
     views of its black surround).  ``density`` scales the views' focal lengths (1: the raw image's pixel
     density along each view's axis).  The camera needs its ``size``.
+
+    ``upright``: views whose axes all lie across the camera's y (a ring about it, level with a level
+    camera), so that a thing parallel to the camera's y -- an upright cylinder seen by a camera mounted
+    level -- is parallel to every view's image plane and keeps its proportions along its length (in a view
+    tilted up or down its bands would shrink towards one end).  They cover the field sideways, and
+    ``half_fov_deg`` above and below the camera's horizon.
     """
     if not needs_views(camera):
         raise InputError("views are for wide-angle lenses (fisheye, omni); a pinhole camera is used as it is")
@@ -300,7 +341,7 @@ def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: floa
         raise InputError(f"a {camera.model} camera needs its image size to be seen through rectified views")
     if not (0.0 < half_fov_deg < 80.0) or not (density > 0.0):
         raise InputError("half_fov_deg must be in (0, 80) and density > 0")
-    key = (_camera_key(camera), field_deg, float(half_fov_deg), float(density))
+    key = (_camera_key(camera), field_deg, float(half_fov_deg), float(density), bool(upright))
     hit = _cache.get(key)
     if hit is not None:
         _cache.move_to_end(key)
@@ -308,7 +349,7 @@ def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: floa
     reach = _field_deg(camera, camera.size)
     fld = reach if field_deg is None else min(float(field_deg), reach)
     views = []
-    for axis in _axes(fld):
+    for axis in (_upright_axes(fld, half_fov_deg) if upright else _axes(fld)):
         v = _build_view(camera, len(views), _look(axis), fld, math.radians(half_fov_deg), density)
         if v is not None:
             views.append(v)
