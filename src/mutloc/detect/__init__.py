@@ -45,8 +45,7 @@ def detect_image(kind: MarkerKind, image: Any, markers: Any, camera: Any = None,
 
     ``camera``: the lens that took the image (:class:`~mutloc.core.camera.Camera`, ``FisheyeCamera``,
     ``OmniCamera``) or None.  A pinhole camera (or none) calls the kind's detector exactly as before; a
-    wide-angle lens runs it on the lens's rectified views (:func:`.views.detect_in_views`; cylinders on
-    upright ones, ``views_for(camera, upright=True)``).  ``options``
+    wide-angle lens runs it on the lens's rectified views (:func:`.views.detect_in_views`).  ``options``
     go to the detector.  ValueError for a kind that has no single-image detector (blinking lights)."""
     detector = image_detector(kind)
     if detector is None:
@@ -54,11 +53,7 @@ def detect_image(kind: MarkerKind, image: Any, markers: Any, camera: Any = None,
     from .views import detect_in_views, needs_views
 
     if needs_views(camera):
-        from .views import views_for
-
-        # Cylinders stand upright: seen in views across the camera's vertical their bands keep their pitch.
-        views = views_for(camera, upright=True) if kind == MarkerKind.CYLINDER else None
-        return detect_in_views(detector, image, markers, camera, views=views, **options)
+        return detect_in_views(detector, image, markers, camera, **options)
     return detector(image, markers, camera=camera, **options)
 
 

@@ -306,34 +306,14 @@ def _build_view(camera: Any, index: int, R: np.ndarray, field_deg: float, half_f
                 blank if len(blank) else None, shown)
 
 
-def _upright_axes(field_deg: float, half_fov_deg: float) -> list[np.ndarray]:
-    """Axes of upright views: all across the camera's y (its image's vertical), ``2 * half_fov_deg *
-    0.8`` apart in azimuth about y, as far as the field reaches."""
-    step = 1.6 * half_fov_deg
-    axes = [np.array([0.0, 0.0, 1.0])]
-    k = 1
-    while k * step - half_fov_deg < field_deg and k * step < 180.0:
-        for sgn in (1.0, -1.0):
-            a = math.radians(sgn * k * step)
-            axes.append(np.array([math.sin(a), 0.0, math.cos(a)]))
-        k += 1
-    return axes
-
-
 def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: float = HALF_FOV_DEG,
-              density: float = 1.0, upright: bool = False) -> ViewSet:
+              density: float = 1.0) -> ViewSet:
     """The rectified views of a wide-angle ``camera`` (cached per camera and arguments).
 
     ``field_deg``: the largest angle off the axis that matters (default: as far as the raw image reaches,
     capped by the lens's ``max_angle``; give a lens's own field, e.g. 95 for a 190-degree lens, to spare
     views of its black surround).  ``density`` scales the views' focal lengths (1: the raw image's pixel
     density along each view's axis).  The camera needs its ``size``.
-
-    ``upright``: views whose axes all lie across the camera's y (a ring about it, level with a level
-    camera), so that a thing parallel to the camera's y -- an upright cylinder seen by a camera mounted
-    level -- is parallel to every view's image plane and keeps its proportions along its length (in a view
-    tilted up or down its bands would shrink towards one end).  They cover the field sideways, and
-    ``half_fov_deg`` above and below the camera's horizon.
     """
     if not needs_views(camera):
         raise InputError("views are for wide-angle lenses (fisheye, omni); a pinhole camera is used as it is")
@@ -341,7 +321,7 @@ def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: floa
         raise InputError(f"a {camera.model} camera needs its image size to be seen through rectified views")
     if not (0.0 < half_fov_deg < 80.0) or not (density > 0.0):
         raise InputError("half_fov_deg must be in (0, 80) and density > 0")
-    key = (_camera_key(camera), field_deg, float(half_fov_deg), float(density), bool(upright))
+    key = (_camera_key(camera), field_deg, float(half_fov_deg), float(density))
     hit = _cache.get(key)
     if hit is not None:
         _cache.move_to_end(key)
@@ -349,7 +329,7 @@ def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: floa
     reach = _field_deg(camera, camera.size)
     fld = reach if field_deg is None else min(float(field_deg), reach)
     views = []
-    for axis in (_upright_axes(fld, half_fov_deg) if upright else _axes(fld)):
+    for axis in _axes(fld):
         v = _build_view(camera, len(views), _look(axis), fld, math.radians(half_fov_deg), density)
         if v is not None:
             views.append(v)
