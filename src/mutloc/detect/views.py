@@ -28,7 +28,10 @@ pixels per radian there, times ``density``), so nothing is lost near the centre
 of a view; away from it the view is finer still (pinhole stretch).
 
 The views and their remap tables are per camera, computed once and cached
-(:func:`views_for`): not per frame.
+(:func:`views_for`): not per frame.  What a view shows beyond the raw image
+(past the lens's field: a fisheye's black surround) is filled with the
+view's mean level, not left black: a large dark shape with a ragged edge
+is clutter to the detectors (cylinders chased it for seconds a frame).
 
 Noise: a view oversamples the raw image where it is finer, and a detection's
 error in raw pixels is then what the raw pixels allow, not smaller; where a
