@@ -4,7 +4,7 @@ image size, the pinhole path as the peer in the same run.
 
     python bench/bench_detect_lenses.py            # 5 runs of 6 frames per case, then lights and cylinders
     python bench/bench_detect_lenses.py --quick    # 3 runs of 3 frames
-    python bench/bench_detect_lenses.py --bodies-only   # lights and cylinders only
+    python bench/bench_detect_lenses.py --bodies-only   # lights and cylinders only (detect_lenses_bodies_results.json)
 
 Cases: a tag36h11 tag and a red ball (one detector call each per frame, both timed) in
 
@@ -212,6 +212,8 @@ def main() -> None:
     ap.add_argument("--bodies-only", action="store_true", help="lights and cylinders only")
     ap.add_argument("--out", default=result_file("detect_lenses_results.json"))
     args = ap.parse_args()
+    if args.bodies_only and args.out == result_file("detect_lenses_results.json"):
+        args.out = result_file("detect_lenses_bodies_results.json")
     cv2.setNumThreads(1)
     runs, per_run = (3, 3) if args.quick else (5, 6)
     result: dict = {"machine": machine(), "command": " ".join(["python"] + sys.argv), "one_core": True,
