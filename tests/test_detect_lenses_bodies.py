@@ -64,12 +64,12 @@ def _band_truth(world, rig, key, t):
 
 def test_cylinders_through_the_fisheye_out_to_the_rim():
     """Banded cylinders standing on the robots' bodies, found in the fisheye's rectified views and their
-    band centres reported in raw pixels, 73-89 degrees off the axis."""
+    band centres reported in raw pixels, 83-89 degrees off the axis, in either camera."""
     rig0 = fisheye_pair_rig("cylinders")
     rig = expanded_rig(rig0)
     world = passing_body_world(rig0, lateral=1.0, room=True, seed=0)
     seen = []
-    for key, t, name in (("q/front", 0.5, "M3"), ("q/front", 1.5, "M3"), ("q/back", 2.5, "M4")):
+    for key, t, name in (("q/front", 1.5, "M3"), ("q/back", 2.5, "M4")):
         cam = rig.mount(key).camera
         img = render(world, key, t, seed=1, noise_sigma=1.0)
         res = detect_image(MarkerKind.CYLINDER, img, rig0.robot("p").markers, cam)
