@@ -9,7 +9,11 @@ for a small sphere ``t`` off the optical axis.  A detector that measures the
 centre of a lit disc (a centroid, or the centre of its glow's contours, both
 centrally symmetric about the ellipse's centre) therefore reports a point
 that is not the projection the pose solver needs; :func:`sphere_centre_pixel`
-maps one to the other through the camera model (lens distortion included).
+maps one to the other through the camera model (lens distortion included;
+any lens: :class:`~mutloc.core.camera.Camera`, ``FisheyeCamera``,
+``OmniCamera``, out to their ``max_angle`` -- through a fisheye the image of
+a small sphere is nearly centred on its centre's projection even at the rim,
+since the lens maps angles, not tangents).
 """
 
 from __future__ import annotations
@@ -83,8 +87,8 @@ def sphere_centre_pixel(camera: Camera, centre: np.ndarray, area: float, iterati
             d = camera.pixels_to_bearings(p)
         except InputError:  # outside the lens model's domain: leave it uncorrected
             return m.copy()
-        if alpha >= 0.5 * math.pi - math.acos(min(1.0, d[2])):
-            return m.copy()  # the rim would reach behind the camera
+        if not np.all(np.isfinite(d)) or alpha >= camera.max_angle - math.acos(max(-1.0, min(1.0, d[2]))):
+            return m.copy()  # the rim would reach past what the lens images (pinhole: behind the camera)
         c, a = sphere_image(camera, d, alpha)
         if not (math.isfinite(a) and a > 0.0) or not np.all(np.isfinite(c)):
             return m.copy()

@@ -28,7 +28,10 @@ pixels per radian there, times ``density``), so nothing is lost near the centre
 of a view; away from it the view is finer still (pinhole stretch).
 
 The views and their remap tables are per camera, computed once and cached
-(:func:`views_for`): not per frame.
+(:func:`views_for`): not per frame.  What a view shows beyond the raw image
+(past the lens's field: a fisheye's black surround) is filled with the
+view's mean level, not left black: a large dark shape with a ragged edge
+is clutter to the detectors (cylinders chased it for seconds a frame).
 
 Noise: a view oversamples the raw image where it is finer, and a detection's
 error in raw pixels is then what the raw pixels allow, not smaller; where a
@@ -71,6 +74,8 @@ _REACH = (35.0, 104.0, 150.0)
 _CACHE_SIZE = 8
 #: Raw pixels kept around the part of a view that shows the image (view pixels).
 _CROP_MARGIN = 2
+#: View pixels along the edge of what a view shows that are filled too (View.rectify).
+_FILL_EDGE = 2
 
 
 def _lut_tables() -> tuple[np.ndarray, np.ndarray]:
@@ -114,6 +119,10 @@ class View:
     maps: tuple[np.ndarray, np.ndarray] = field(repr=False)
     #: The lens, whose raw pixels the view is resampled from.
     lens: Any = field(repr=False)
+    #: Flat indices of the view pixels that show nothing of the raw image (beyond the lens's field or the
+    #: image's border), None if there are none; and a fixed sample of those that do.
+    blank: np.ndarray | None = field(default=None, repr=False)
+    shown: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def axis(self) -> np.ndarray:
@@ -125,10 +134,17 @@ class View:
         is linearized (16 bits), resampled, encoded again.  (Mixing sRGB levels moves every edge towards
         its bright side after the detectors linearize: a tag 0.2-0.3 px too large on each side.)"""
         if not srgb:
-            return cv2.remap(image, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        lin = _TO_LINEAR16[image]
-        out = cv2.remap(lin, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return _TO_SRGB8[out]
+            out = cv2.remap(image, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        else:
+            lin = _TO_LINEAR16[image]
+            out = _TO_SRGB8[cv2.remap(lin, self.maps[0], self.maps[1], cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_REPLICATE)]
+        if self.blank is not None and self.shown is not None:
+            # What the view shows beyond the image is the image's mean level, not black: a black surround
+            # is a huge dark shape with a ragged edge, which dark-band detectors (cylinders) chase at length.
+            flat = out.reshape(-1, out.shape[2]) if out.ndim == 3 else out.reshape(-1)
+            flat[self.blank] = flat[self.shown].mean(axis=0).round().astype(out.dtype)
+        return out
 
     def bearings(self, uv: Any) -> np.ndarray:
         """Unit bearings (n, 3) in the *camera* frame of view pixels ``uv`` (n, 2)."""
@@ -282,7 +298,15 @@ def _build_view(camera: Any, index: int, R: np.ndarray, field_deg: float, half_f
     my = np.where(bad, -1e4, raw[..., 1]).astype(np.float32)
     maps = cv2.convertMaps(mx, my, cv2.CV_16SC2)
     K = np.array([[f, 0.0, c - c0], [0.0, f, c - r0], [0.0, 0.0, 1.0]])
-    return View(index, R, Camera(K, size=(c1 - c0, r1 - r0)), maps, camera)
+    # Filled with the mean level (View.rectify): what shows nothing, and the edge pixels whose bilinear
+    # samples reach past the image's edge (a dotted dark line there looks like a column of bands).
+    edge = cv2.erode((~bad).astype(np.uint8), np.ones((2 * _FILL_EDGE + 1,) * 2, np.uint8),
+                     borderType=cv2.BORDER_REPLICATE) == 0
+    blank = np.flatnonzero(edge)
+    shown = np.flatnonzero(~edge)
+    shown = shown[np.linspace(0, len(shown) - 1, min(len(shown), 4096)).astype(np.int64)]
+    return View(index, R, Camera(K, size=(c1 - c0, r1 - r0)), maps, camera,
+                blank if len(blank) else None, shown)
 
 
 def views_for(camera: Any, *, field_deg: float | None = None, half_fov_deg: float = HALF_FOV_DEG,

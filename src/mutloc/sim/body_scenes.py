@@ -13,7 +13,8 @@ cameras have poses in it, and poses are between robot frames.
   cameras see the other robot) and ``"away"`` (back to back: only the back
   cameras see the other robot).
 - :func:`body_pair_world` / :func:`moving_body_world` put such a rig in a
-  room; :func:`mutloc.sim.render.render` renders any camera of it
+  room; :func:`passing_body_world` drives p past q's side, across the rims
+  of q's fisheyes (80-95 degrees off their axes); :func:`mutloc.sim.render.render` renders any camera of it
   (``render(world, "p/back", t)``) and
   :func:`mutloc.sim.render.true_observations` gives the exact pixels.
 """
@@ -40,13 +41,13 @@ from .render import project_markers, relative_pose, render, room_around
 from .world import DEFAULT_BALL_RADIUS, DEFAULT_LIGHT_RADIUS, World, WorldRobot
 
 __all__ = ["CAMERA_SETS", "FACINGS", "BODY_MARKER_KINDS", "FISHEYE_DIST", "FISHEYE_SIZE", "FISHEYE_FOCAL",
-           "fisheye_pair_rig", "body_pair_pose", "body_pair_world", "moving_body_world", "write_cameras_simulation",
-           "image_name"]
+           "fisheye_pair_rig", "body_pair_pose", "body_pair_world", "moving_body_world", "passing_body_world",
+           "write_cameras_simulation", "image_name"]
 
 CAMERA_SETS = ("single", "back-to-back-fisheye")
 FACINGS = ("toward", "away")
-#: Marker kinds a simulated body carries (seen from all round: balls and lights).
-BODY_MARKER_KINDS = ("balls", "lights")
+#: Marker kinds a simulated body carries (seen from all round: balls, lights and upright banded cylinders).
+BODY_MARKER_KINDS = ("balls", "lights", "cylinders")
 
 #: Kannala-Brandt k1..k4 of the simulated fisheyes: the model images up to 99.7 degrees off the axis
 #: (a 199-degree image circle, black outside), compressing towards the rim as real fisheyes do.
@@ -66,6 +67,12 @@ _LAYOUT = {"q": {"M1": (-0.02, 0.13, 0.42), "M2": (-0.02, -0.13, 0.42)},
            "p": {"M3": (-0.02, 0.13, 0.42), "M4": (-0.02, -0.13, 0.42)}}
 _COLORS = {"M1": (0, 0, 255), "M2": (255, 255, 0), "M3": (255, 0, 0), "M4": (0, 255, 0)}
 _BLINK = {"M1": 2.0, "M2": 3.0, "M3": 5.0, "M4": 7.5}
+#: Banded cylinders standing on the body (axis along base_link z, :func:`mutloc.sim.world.cylinder_up`):
+#: 5 cm radius, 24 cm tall, six 4 cm bands (the standard rig's codes: dark bands at both ends), their
+#: centres 0.505 m above the floor (the body's top is at 0.36 m): 5 px bands at 2 m through the 1280x800
+#: fisheyes.
+CYLINDER_RADIUS, CYLINDER_HEIGHT, CYLINDER_Z = 0.05, 0.24, 0.505
+_CODES = {"M1": [1, 0, 1, 0, 0, 1], "M2": [1, 1, 0, 1, 0, 1], "M3": [1, 0, 0, 1, 1, 1], "M4": [1, 1, 1, 0, 0, 1]}
 
 
 def image_name(key: str) -> str:
@@ -77,11 +84,11 @@ def fisheye_pair_rig(markers: str = "balls", *, size: tuple[int, int] = FISHEYE_
     """Robots ``p`` (M3, M4) and ``q`` (M1, M2), each with fisheyes ``front`` and ``back`` back to back.
 
     Cameras: :class:`~mutloc.core.lenses.FisheyeCamera` with :data:`FISHEYE_DIST`, centred principal
-    point, focal :data:`FISHEYE_FOCAL` scaled with ``size`` (default 1280x800).  Markers: coloured balls
-    or blinking lights (``markers``, :data:`BODY_MARKER_KINDS`) above the body.
+    point, focal :data:`FISHEYE_FOCAL` scaled with ``size`` (default 1280x800).  Markers: coloured balls,
+    blinking lights or upright banded cylinders (``markers``, :data:`BODY_MARKER_KINDS`) above the body.
     """
     if markers not in BODY_MARKER_KINDS:
-        raise InputError(f"robots with several cameras carry {' or '.join(BODY_MARKER_KINDS)}, not {markers!r}")
+        raise InputError(f"robots with several cameras carry {', '.join(BODY_MARKER_KINDS)}, not {markers!r}")
     w, h = int(size[0]), int(size[1])
     f = FISHEYE_FOCAL * min(w / FISHEYE_SIZE[0], h / FISHEYE_SIZE[1])
     K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
@@ -93,9 +100,12 @@ def fisheye_pair_rig(markers: str = "balls", *, size: tuple[int, int] = FISHEYE_
             if markers == "balls":
                 ms[mname] = Marker(mname, rname, np.array(pos), color=_COLORS[mname],
                                    extra={"radius": DEFAULT_BALL_RADIUS})
-            else:
+            elif markers == "lights":
                 ms[mname] = Marker(mname, rname, np.array(pos), color=_COLORS[mname], blink_hz=_BLINK[mname],
                                    extra={"radius": DEFAULT_LIGHT_RADIUS})
+            else:
+                ms[mname] = Marker(mname, rname, np.array([pos[0], pos[1], CYLINDER_Z]), extra={"cylinder": {
+                    "radius": CYLINDER_RADIUS, "height": CYLINDER_HEIGHT, "code": list(_CODES[mname])}})
         robots[rname] = Robot(rname, None, ms, cameras=cams)
     return Rig(robots)
 
@@ -153,6 +163,25 @@ def moving_body_world(rig: Rig, *, distance: float = 2.0, facing: str = "toward"
     return World(robots=robots, room=rm)
 
 
+def passing_body_world(rig: Rig, *, lateral: float = 1.1, start: float = 0.55, speed: float = 0.3,
+                       turn: float = 0.1, room: bool = False, seed: int = 0) -> World:
+    """Robot p drives past q's left side, sideways to q (its markers one behind the other along q's x), so
+    they sweep across the rims of q's fisheyes: p's origin at ``(start - speed * t, lateral)`` in q's frame
+    (q at the origin heading +x), heading -90 degrees plus ``turn * t`` rad.  With the defaults the nearer
+    marker is 67 degrees off q's front camera's axis at t = 0 and 89 at 1.5 s, the farther 79 to past 93
+    (where q's own body hides it from that camera: its back camera sees it)."""
+    if not (math.isfinite(lateral) and lateral > 0.5):
+        raise InputError(f"lateral must be more than 0.5 m (the robots' bodies), got {lateral!r}")
+    T_wq = Pose(np.eye(3), np.zeros(3))
+
+    def T_wp(t: float) -> Pose:
+        return Pose(_yaw(-0.5 * math.pi + turn * t), np.array([start - speed * t, lateral, 0.0]))
+
+    robots = {"q": WorldRobot(rig.robot("q"), T_wq), "p": WorldRobot(rig.robot("p"), T_wp)}
+    rm = room_around([T_wq.t, T_wp(0.0).t, T_wp(3.0).t], seed) if room else None
+    return World(robots=robots, room=rm)
+
+
 def write_cameras_simulation(out: str | Path, *, cameras: str = "back-to-back-fisheye", facing: str = "toward",
                              markers: str = "balls", distance: float = 2.0, frames: int = 1, fps: float = 30.0,
                              seed: int = 0, noise: float = 1.0, jpeg: int | None = None, blur: float = 0.0,
@@ -178,7 +207,7 @@ def write_cameras_simulation(out: str | Path, *, cameras: str = "back-to-back-fi
         raise InputError(f"facing must be one of {', '.join(FACINGS)}, got {facing!r}")
     if markers not in BODY_MARKER_KINDS:
         raise InputError(f"--markers {markers}: robots with several cameras carry "
-                         f"{' or '.join(BODY_MARKER_KINDS)} (seen from all round)")
+                         f"{', '.join(BODY_MARKER_KINDS)} (seen from all round)")
     out_dir = Path(out).expanduser()
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"output folder {str(out)!r} exists and is not a folder")

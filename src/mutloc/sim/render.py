@@ -47,6 +47,7 @@ from .world import (
     ball_radius,
     camera_to_world_facing,
     cylinder_spec,
+    cylinder_up,
     light_is_on,
     room_textures,
     tag_image,
@@ -998,7 +999,7 @@ def _add_robot(scene: _Scene, world: World, wr: WorldRobot, T: Pose, atlas_ids: 
             scene.add(row, (_QUAD, atlas_ids[("tag", fam, tid)], 1), (name, m.name), c, half * math.sqrt(2.0))
         else:
             r, h, code = cylinder_spec(m)
-            axis = -R[:, 1]  # up = the robot's -y
+            axis = R @ cylinder_up(wr.robot.is_body)  # up: the robot's -y, or +z for a body
             off = len(scene.codes)
             scene.codes.extend(int(b) for b in code)
             row = np.concatenate([c, axis, [r, 0.5 * h], _lin_bgr((30, 30, 30)), _lin_bgr((225, 225, 225)),

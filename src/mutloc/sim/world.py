@@ -20,9 +20,10 @@ How each rig marker is drawn (first match wins):
   :data:`DEFAULT_TAG_ROTATION` (pi about y): the tag faces forward (robot +z),
   upright for an upright camera in front of the robot.
 - ``cylinder: {radius, height, code: [bits]}`` (in ``Marker.extra``): a
-  vertical cylinder (axis along the robot's y) centred on ``position``,
-  wrapped in ``len(code)`` equal rings; ``code[0]`` is the *top* ring
-  (robot -y side), bit 1 = dark, 0 = light.  Caps are mid grey.
+  vertical cylinder (axis along the robot's y; a robot with ``cameras``:
+  along its z, :func:`cylinder_up`) centred on ``position``, wrapped in
+  ``len(code)`` equal rings; ``code[0]`` is the *top* ring (robot -y side;
+  +z), bit 1 = dark, 0 = light.  Caps are mid grey.
 - ``blink_hz``: an emissive sphere (radius ``extra['radius']``, default
   :data:`DEFAULT_LIGHT_RADIUS`) of ``color`` (default white), on during the
   first half of each period: on iff ``frac(blink_hz * t + phase) < 0.5`` with
@@ -69,6 +70,7 @@ __all__ = [
     "ball_radius",
     "camera_to_world_facing",
     "cylinder_spec",
+    "cylinder_up",
     "light_is_on",
     "room_textures",
     "standard_rig",
@@ -184,6 +186,14 @@ def cylinder_spec(marker: Marker) -> tuple[float, float, np.ndarray]:
             not isinstance(b, bool) and b in (0, 1) for b in code) or len(code) > 64:
         raise RigError(f"{w}: code must be a list of 1 to 64 bits (0 or 1), got {code!r}")
     return radius, height, np.asarray(code, dtype=np.int64)
+
+
+def cylinder_up(body: bool) -> np.ndarray:
+    """The direction, in its robot's frame, of a banded cylinder's axis towards its top band (``code[0]``):
+    the robot's -y for a robot given with one ``camera`` (its frame is that camera's optical frame, y
+    down), +z for a robot with ``cameras`` (a body frame, z up: ``base_link``, REP 103).  Either way the
+    cylinder stands upright on a robot driving on a floor."""
+    return np.array([0.0, 0.0, 1.0]) if body else np.array([0.0, -1.0, 0.0])
 
 
 # ---------------------------------------------------------------------------

@@ -30,16 +30,15 @@ Only frames with a ball partly hidden (visible fraction below
 
 Observers are cameras (``ROBOT`` or ``ROBOT/CAMERA``, as observations are
 keyed): a ball's centre is predicted in the observing camera's frame through
-its mount (its pose on the robot), not at the robot's origin.  Only pinhole
-cameras are looked at again: the refit (rays cast from the predicted centre,
-the rim fitted as a cone of the predicted angle) runs on the image in the
-camera's own pixels, and the pixel figures it compares with the first look
-(``radius_px``, ``distance_m``) are, through a wide-angle lens, in the
-pixels of whichever rectified view the first look found the ball in.  Doing
-it right there means a refit in a rectified view around each prediction with
-the first look's figures taken to that view; until then a fisheye or omni
-camera's balls keep what the first look found (its detections are still
-solved with, and its missing balls stay missing).
+its mount (its pose on the robot), not at the robot's origin.  Any lens: the
+refit (rays cast from the predicted centre, the rim fitted as a cone of the
+predicted angle) runs in a pinhole camera's own pixels, and through a
+fisheye or omni lens in a rectified view centred on the predicted ball,
+the first look's size compared in the view it was found in
+(:mod:`.lens_refit`); balls are looked for again through the lens's views
+(:func:`mutloc.detect.detect_image`).  Only the search among the blobs near
+a robot's balls found (:func:`_near_mates`, pixel reaches in the image) is
+for pinhole cameras alone.
 """
 
 from __future__ import annotations
@@ -54,6 +53,7 @@ from ..core.pose import Pose
 from ..core.rig import MarkerKind, Rig
 from ..detect.base import DetectionResult, observations_of
 from ..errors import InconsistentObservationsError, MutlocError, UnverifiedError
+from .lens_refit import LensRefit, apparent_radius, context, refit
 from .tag_look import first_solve, missing_tags, with_tags_looked_for
 
 __all__ = ["MIN_REFIT_FRACTION", "PARTLY_HIDDEN", "ball_centres", "look_again", "needs_second_look", "second_look"]
@@ -90,12 +90,12 @@ def _balls(rig: Rig, robot: str) -> dict[str, Any]:
 
 
 def _observers(rig: Rig, keys: Iterable[str], source: str, target: str) -> dict[str, str]:
-    """``{key: the other robot of the pair}`` of the observer keys (cameras) of the pair's robots that are looked
-    at again: pinhole cameras only (see the module's docstring)."""
+    """``{key: the other robot of the pair}`` of the observer keys (cameras) of the pair's robots: those looked
+    at again (any lens, see the module's docstring)."""
     out = {}
     for key in keys:
         robot = rig.observer(key)[0]
-        if robot in (source, target) and getattr(rig.mount(key).camera, "model", "pinhole") == "pinhole":
+        if robot in (source, target):
             out[key] = target if robot == source else source
     return out
 
@@ -123,8 +123,7 @@ def _hidden(det: DetectionResult, name: str) -> bool:
 
 
 def needs_second_look(rig: Rig, detections: Mapping[str, DetectionResult], source: str, target: str) -> bool:
-    """True when a ball of the pair is missing or partly hidden in the other robot's image (the images of
-    pinhole cameras: the only ones looked at again)."""
+    """True when a ball of the pair is missing or partly hidden in the other robot's image (any camera of it)."""
     return any(_hidden(detections[obs], n) for obs, other in _observers(rig, detections, source, target).items()
                for n in _balls(rig, other))
 
@@ -133,8 +132,6 @@ def _size_errors(contexts: Mapping[str, Any], rig: Rig, detections: Mapping[str,
                  centres: Mapping[str, Mapping[str, np.ndarray]], others: Mapping[str, str]
                  ) -> dict[tuple[str, str], float]:
     """``{(observer, ball): first-look radius - predicted radius}`` (pixels) of every ball found."""
-    from ..detect.balls.refit import apparent_radius_px
-
     out = {}
     for obs, det in detections.items():
         if obs not in contexts:
@@ -143,7 +140,7 @@ def _size_errors(contexts: Mapping[str, Any], rig: Rig, detections: Mapping[str,
         for name, X in centres[obs].items():
             d = det.detections.get(name)
             if d is not None and "radius_px" in d.info:
-                r = apparent_radius_px(contexts[obs], name, balls[name], X)
+                r = apparent_radius(contexts[obs], name, balls[name], X, d)
                 if r is not None:
                     out[(obs, name)] = float(d.info["radius_px"]) - r
     return out
@@ -169,8 +166,6 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
     """The detections with every missing (or ``left_out``) ball measured again under ``pose``, and every
     partly hidden one whose first-look size is off the predicted one (its centre slid along its arc);
     and whether any ball was measured again or dropped."""
-    from ..detect.balls.refit import refit_ball
-
     others = _observers(rig, contexts, source, target)
     centres = ball_centres(rig, pose, source, target, others)
     errors = _size_errors(contexts, rig, detections, centres, others)
@@ -189,7 +184,7 @@ def _refit_all(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, D
                     _hidden(det, name) and (err is None or abs(err - off) > _SIZE_TOL
                                             or det.detections[name].info.get("guided"))):
                 continue
-            found = refit_ball(contexts[obs], name, balls[name], X, radius_offset_px=off)
+            found = refit(contexts[obs], name, balls[name], X, radius_offset_px=off)
             new.alternatives.pop(name, None)
             if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
                 new.detections[name] = found
@@ -210,8 +205,6 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
                 source: str, target: str) -> dict[str, DetectionResult]:
     """The detections with every partly hidden ball measured again with the size of its robot's whole balls
     in the same image (before any pose: balls of one robot are at about the same distance)."""
-    from ..detect.balls.refit import refit_ball
-
     out = {}
     others = _observers(rig, contexts, source, target)
     for obs, det in detections.items():
@@ -226,8 +219,10 @@ def _mate_sized(rig: Rig, contexts: Mapping[str, Any], detections: Mapping[str, 
             dist = float(np.median(whole))
             for name, d in det.detections.items():
                 if name in balls and _hidden(det, name):
-                    bearing = contexts[obs].cam.camera.pixels_to_bearings(d.uv)
-                    found = refit_ball(contexts[obs], name, balls[name], bearing * dist)
+                    bearing = rig.mount(obs).camera.pixels_to_bearings(d.uv)
+                    if not np.all(np.isfinite(bearing)):
+                        continue
+                    found = refit(contexts[obs], name, balls[name], bearing * dist)
                     if found is not None and found.visible_fraction >= MIN_REFIT_FRACTION:
                         new.detections[name] = found
                         new.alternatives.pop(name, None)
@@ -260,7 +255,8 @@ def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[st
     are looked for on their own; the pose's consistency test judges what
     this finds.
     """
-    from ..detect.balls import BallParams, detect_balls
+    from ..detect import detect_image
+    from ..detect.balls import BallParams
 
     params = BallParams(distance_range_m=(distance / _RANGE, distance * _RANGE))
     out = {}
@@ -271,9 +267,9 @@ def _redetect(rig: Rig, images: Mapping[str, np.ndarray], detections: Mapping[st
             continue
         balls = _balls(rig, others[obs])
         cam = rig.mount(obs).camera
-        new = detect_balls(images[obs], balls, camera=cam, params=params)
+        new = detect_image(MarkerKind.BALL, images[obs], balls, cam, params=params)
         for name in list(new.missing):
-            found = detect_balls(images[obs], {name: balls[name]}, camera=cam, params=params)
+            found = detect_image(MarkerKind.BALL, images[obs], {name: balls[name]}, cam, params=params)
             if name in found.detections:
                 new.detections[name] = found.detections[name]
                 new.missing.remove(name)
@@ -310,8 +306,8 @@ def _near_mates(rig: Rig, images: Mapping[str, np.ndarray], contexts: Mapping[st
     options: dict[str, list[tuple[str, Any]]] = {}
     others = _observers(rig, contexts, source, target)
     for obs, det in detections.items():
-        if obs not in others:
-            continue
+        if obs not in others or isinstance(contexts[obs], LensRefit):
+            continue  # pinhole cameras only: the reaches are pixels of the image
         balls = _balls(rig, others[obs])
         mates = {n: d for n, d in det.detections.items() if n in balls and "distance_m" in d.info}
         if not mates:
@@ -397,15 +393,12 @@ def second_look(rig: Rig, images: Mapping[str, np.ndarray], detections: dict[str
     """
     if not needs_second_look(rig, detections, source, target):
         return None
-    from ..detect.balls.refit import RefitContext
-
     opts = dict(options, allow_unverified=True)
 
     def solve(obs: Any) -> Estimate:
         return localize(rig, obs, source, target, pixel_sigma=pixel_sigma, **opts)
 
-    # Pinhole cameras' images only (see the module's docstring).
-    contexts = {obs: RefitContext.of(images[obs], rig.mount(obs).camera)
+    contexts = {obs: context(images[obs], rig.mount(obs).camera)
                 for obs in _observers(rig, detections, source, target)}
 
     def bases() -> Iterator[tuple[dict[str, DetectionResult], Estimate | None, Exception | None]]:

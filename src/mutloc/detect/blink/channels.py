@@ -77,7 +77,10 @@ class BlinkTracker:
         The tuning, :class:`~mutloc.detect.blink.params.BlinkParams` (each value
         documented there); default ``BlinkParams()``.
     camera:
-        The camera's model (:class:`~mutloc.core.camera.Camera`), optional.
+        The camera's model, optional: any lens (:class:`~mutloc.core.camera.Camera`,
+        :class:`~mutloc.core.lenses.FisheyeCamera`, :class:`~mutloc.core.lenses.OmniCamera`).
+        The tracker works on the raw image whatever the lens (one tracker per
+        camera; positions are the raw image's pixels).
         With it, a light whose marker has a ``radius`` (rig key, metres: a
         diffusing sphere) is reported at the projection of its centre, not at
         the centre of its image: a sphere images as an ellipse whose centre

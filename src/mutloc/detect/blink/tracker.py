@@ -74,7 +74,14 @@ confidence tracking".  :class:`LightTracker` does that and adds identity:
    fast light strays further from a prediction made across the off period).
 4. **Camera model.**  Given the camera, a light with a ``radius`` is
    reported at the projection of its sphere's centre rather than at the
-   centre of its (elliptical) image, see :mod:`mutloc.core.sphere`.
+   centre of its (elliptical) image, see :mod:`mutloc.core.sphere`.  Any
+   lens (pinhole, fisheye, omni): the tracker works on the raw image, so its
+   state (tracks, histories, the camera's motion) is one per camera and its
+   positions are raw pixels.  A light is a spot a few pixels across, over
+   which even a fisheye's rim is nearly affine, so the time differential, the
+   centroid and the halo fit need no rectification; only the sphere's
+   correction goes through the lens model (the spot's outline is the lens's
+   image of the sphere's rim cone).
 
 Positions follow the SPEC: ``(u, v)`` with ``(0, 0)`` the centre of the
 top-left pixel, raw (distorted) pixels.  A marker's reported position is the
@@ -94,6 +101,7 @@ import cv2
 import numpy as np
 
 from ...core.camera import Camera
+from ...core.lenses import Lens
 from ...core.rig import Marker
 from ...errors import InputError
 from ..base import DetectionResult
@@ -138,8 +146,9 @@ class LightTracker(FrameStage, MeasureStage, AssociationStage, IdentityStage, Bi
         camera: Camera | None = None,
     ) -> None:
         p = params if params is not None else BlinkParams()
-        if camera is not None and not isinstance(camera, Camera):
-            raise InputError(f"BlinkTracker: camera must be a Camera, got {type(camera).__name__}")
+        if camera is not None and not isinstance(camera, Lens):
+            raise InputError("BlinkTracker: camera must be a Camera, FisheyeCamera or OmniCamera, got "
+                             f"{type(camera).__name__}")
         self.camera = camera
         if not isinstance(p, BlinkParams):
             raise InputError(f"BlinkTracker: params must be BlinkParams, got {type(p).__name__}")

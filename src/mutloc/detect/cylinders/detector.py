@@ -81,7 +81,12 @@ from .edges import axis_u, refine
 from .geometry import band_marker_names, cylinder_spec
 from .runs import column_chains, dark_mask, dark_runs, match, stack_chains
 
-__all__ = ["detect_cylinders"]
+__all__ = ["detect_cylinders", "MAX_REFINES"]
+
+#: Chains matching a marker's code that are refined, best match first, before it is given up: a textured
+#: floor seen in a wide rectified view makes hundreds of chains, each refinement a few milliseconds (a
+#: cylinder found was the first or second chain refined in every image measured).
+MAX_REFINES = 32
 
 def detect_cylinders(image: Any, markers: Mapping[str, Marker] | Robot, *, camera: Camera | None = None
                      ) -> DetectionResult:
@@ -114,8 +119,9 @@ def detect_cylinders(image: Any, markers: Mapping[str, Marker] | Robot, *, camer
                 cands.append((cost, -(part[-1].bot - part[0].top), name, part))
     cands.sort(key=lambda c: (c[0], c[1]))
     used: list[tuple[int, int, float, float]] = []
+    tries: dict[str, int] = {}
     for cost, _, name, part in cands:
-        if name in result.detections:
+        if name in result.detections or tries.get(name, 0) >= MAX_REFINES:
             continue
         # One cylinder per image region: no overlap with one already found (better matches first).
         key = (part[0].top, part[-1].bot, float(np.median([r.xc for r in part])),
@@ -124,6 +130,7 @@ def detect_cylinders(image: Any, markers: Mapping[str, Marker] | Robot, *, camer
                for u in used):
             continue
         radius, height, code = specs[name]
+        tries[name] = tries.get(name, 0) + 1
         ref = refine(gray, part, code, 2 * radius / (height / len(code)))
         if ref is None:
             continue

@@ -11,7 +11,7 @@ import numpy as np
 
 from ...core.rig import Marker, Rig, Robot
 from ...errors import RigError
-from ...sim.world import cylinder_spec  # the one validation of the rig key
+from ...sim.world import cylinder_spec, cylinder_up  # the one validation of the rig key
 
 __all__ = ["BAND_SEPARATOR", "band_marker_names", "band_points", "cylinder_spec", "expand_cylinder_bands"]
 
@@ -23,19 +23,20 @@ def band_marker_names(name: str, n: int) -> list[str]:
     return [f"{name}{BAND_SEPARATOR}{k}" for k in range(n)]
 
 
-def band_points(marker: Marker) -> tuple[list[str], np.ndarray]:
+def band_points(marker: Marker, body: bool = False) -> tuple[list[str], np.ndarray]:
     """Names and 3-D positions (n, 3), robot frame, of the band centres on the axis.
 
     Same geometry as the renderer: band ``k`` of ``n`` spans the axis
-    coordinate (up = robot -y) ``s`` in ``[h - 2h(k+1)/n, h - 2hk/n]`` with
-    ``h`` half the height, so its centre is at robot ``y = position_y - h +
-    2h(k + 0.5)/n``.
+    coordinate ``s`` (along :func:`~mutloc.sim.world.cylinder_up`: the robot's
+    -y, or with ``body`` -- a robot with ``cameras`` -- its +z) in ``[h -
+    2h(k+1)/n, h - 2hk/n]`` with ``h`` half the height, so its centre is at
+    ``position + (h - 2h(k + 0.5)/n) * up`` (robot ``y = position_y - h +
+    2h(k + 0.5)/n`` for a one-camera robot).
     """
     _, height, code = cylinder_spec(marker)
     n = len(code)
-    ys = -0.5 * height + height * (np.arange(n) + 0.5) / n
-    pts = np.repeat(marker.position[None, :], n, axis=0)
-    pts[:, 1] += ys
+    s = 0.5 * height - height * (np.arange(n) + 0.5) / n
+    pts = marker.position[None, :] + s[:, None] * cylinder_up(body)[None, :]
     return band_marker_names(marker.name, n), pts
 
 
@@ -54,7 +55,7 @@ def expand_cylinder_bands(rig: Rig | Mapping[str, Any] | str) -> Rig:
         for name, marker in robot.markers.items():
             if marker.extra.get("cylinder_of") is not None or marker.extra.get("cylinder") is None:
                 continue
-            names, pts = band_points(marker)
+            names, pts = band_points(marker, robot.is_body)
             for k, (bname, X) in enumerate(zip(names, pts)):
                 if bname in new:
                     old = new[bname]
