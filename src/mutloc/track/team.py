@@ -81,7 +81,7 @@ from ..core.consistency import DEFAULT_CONFIDENCE, same_pose
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
-from ..core.team import MIN_TIES, TeamProblem, residual_norms, team_residuals
+from ..core.team import MIN_TIES, TeamProblem, residual_norms, team_residuals_any
 from ..core.filter import STATE_DIM, fit_moving_pose
 from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
@@ -346,7 +346,8 @@ class TeamTracker:
         obs = rec.obs
         if exclude is not None and obs is not None:
             obs = obs.take(np.array([i for i, (o, m) in enumerate(zip(obs.observer, obs.marker))
-                                     if o != exclude and (m is None or self._owner(m) != exclude)], dtype=np.int64))
+                                     if self._observer(o) != exclude and (m is None or self._owner(m) != exclude)],
+                                    dtype=np.int64))
         self._filtered(rec.t, obs, rec.rows)
         if obs is not None and len(obs):
             self._recent.append((rec.t, obs))
@@ -360,6 +361,13 @@ class TeamTracker:
     def _owner(self, marker: str) -> str | None:
         try:
             return self.rig.owner(marker)
+        except MutlocError:
+            return None
+
+    def _observer(self, key: str) -> str | None:
+        """The robot of an observation key (``ROBOT`` or ``ROBOT/CAMERA``), None for an unknown one."""
+        try:
+            return self.rig.observer(key)[0]
         except MutlocError:
             return None
 
@@ -642,9 +650,10 @@ class TeamTracker:
         """Status and reason of a robot without a joint pose this record."""
         n = 0
         if obs is not None:
-            owner = self.rig.owner
+            owner, observer = self.rig.owner, self.rig.observer
             try:
-                n = sum(1 for o, m in zip(obs.observer, obs.marker) if m is not None and (o == r or owner(m) == r))
+                n = sum(1 for o, m in zip(obs.observer, obs.marker)
+                        if m is not None and (observer(o)[0] == r or owner(m) == r))
             except MutlocError:
                 n = -1
         if n == 0:
@@ -894,7 +903,8 @@ class TeamTracker:
             key = (o, m if m is not None else f"#{i}")
             err = -float(obs.score[i])
             owner = self._owner(m) if m is not None else None
-            if owner is not None and o in known and owner in known and o != owner:
+            robot = self._observer(o)
+            if owner is not None and robot in known and owner in known and robot != owner:
                 try:
                     one, _, _ = team_problem(self.rig, obs.take(np.array([i])))
                     err = float(residual_norms(one, f.R, f.t)[0])
@@ -1057,7 +1067,7 @@ class TeamTracker:
         keys = [k for k in latest if k[1] is not None]
         ties = {r: 0 for r in self.rig.robots}
         for observer, m in keys:
-            ties[observer] += 1
+            ties[self.rig.observer(observer)[0]] += 1
             ties[self.rig.owner(m)] += 1
         want = [r for r in want if ties[r] > MIN_TIES]
         if not want or len(keys) <= MIN_TIES:
@@ -1079,6 +1089,8 @@ class TeamTracker:
         track.  Returns the row's note, "" (not started: not yet) or None
         (``r`` is seen with other robots too)."""
         ref = self.reference
+        if not self.rig.central_pinhole:
+            return None  # (the moving fit is in pixels of one pinhole camera per robot: the joint start)
         problems, times, latest = [], [], {}
         for tk, o in [*self._recent, (t, obs)]:
             mine = []
@@ -1160,8 +1172,8 @@ class TeamTracker:
         one = problem.take(np.array([j]))
         res = np.empty(2)
         Ja, Jb = np.empty((1, 2, 6)), np.empty((1, 2, 6))
-        if not team_residuals(one.cam, one.own, one.points, one.uv, one.wt, one.K, one.dist, f.R, f.t, res, Ja, Jb,
-                              True):
+        if not team_residuals_any(one.cam, one.own, one.points, one.uv, one.wt, one.K, one.dist, one.fr, f.R, f.t, res,
+                                  Ja, Jb, True):
             return math.inf
         terms = [(f.robots[int(one.cam[0])], Ja[0]), (f.robots[int(one.own[0])], Jb[0])]
         if any(name != self.reference and not f.is_tracked(name) for name, _ in terms):
@@ -1324,7 +1336,6 @@ def sync_streams(streams: Mapping[str, Iterable[Frame]], tolerance: float) -> It
 
 def _team_setup(rig: Any, reference: str | None, names: Iterable[str], what: str) -> tuple[Rig, str]:
     rig = expanded_rig(load_rig(rig))
-    rig.require_central("the tracker")
     for robot in names:
         rig.robot(robot)
     if reference is not None and (not isinstance(reference, str) or reference not in rig.robots):

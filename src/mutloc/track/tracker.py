@@ -72,8 +72,11 @@ class PairTrack:
         pair = (self.source, self.target)
         keep = []
         for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
-            if o not in pair:
-                continue
+            try:
+                if self.rig.observer(o)[0] not in pair:
+                    continue
+            except MutlocError:
+                continue  # not a camera of the pair (as ever: left out)
             if m is not None:
                 try:
                     if self.rig.owner(m) not in pair:
@@ -235,7 +238,6 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
     ObservationSets stamped with their time); ``filter``, ``rerun`` and
     ``sink`` (rows as they become final) as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
-    rig.require_central("the tracker")
     source, target = rig.default_pair(source, target)
     if rerun is not None:
         writable_path(rerun, "rerun")  # before the work, not after it
