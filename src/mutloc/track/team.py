@@ -90,7 +90,7 @@ from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
 from .filtering import MIN_START_DOF, FilterOptions, lost_reason, pair_problem
 from .solving import CONFIRM_SPREAD
-from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, observations_of
+from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, image_keys, observations_of
 from .sources import Frame
 from .status import FrameStatus
 from .tag_look import look_where_tracked
@@ -98,7 +98,7 @@ from .rows import TrackRow
 from .trajectory import Trajectory
 
 __all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names",
-           "require_streams", "RowEmitter"]
+           "require_streams", "unused_cameras", "RowEmitter"]
 
 
 def team_file_names(robot: str) -> tuple[str, str]:
@@ -1336,22 +1336,29 @@ def sync_streams(streams: Mapping[str, Iterable[Frame]], tolerance: float) -> It
 
 def _team_setup(rig: Any, reference: str | None, names: Iterable[str], what: str) -> tuple[Rig, str]:
     rig = expanded_rig(load_rig(rig))
-    for robot in names:
-        rig.robot(robot)
+    image_keys(rig, {n: None for n in names}, what)  # ROBOT or ROBOT/CAMERA, each a camera of the rig
     if reference is not None and (not isinstance(reference, str) or reference not in rig.robots):
         raise ObservationError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
     return rig, reference if reference is not None else next(iter(rig.robots))
 
 
-def require_streams(rig: Rig, names: Iterable[str]) -> None:
-    """ObservationError unless every name is a robot of the rig and every robot has a stream."""
-    names = list(names)
-    for robot in names:
-        rig.robot(robot)
-    missing = [r for r in rig.robots if r not in names]
+def require_streams(rig: Rig, names: Iterable[str]) -> list[str]:
+    """ObservationError unless every name is a camera of the rig (``ROBOT``, or ``ROBOT/CAMERA`` for a robot
+    with several cameras: :func:`~mutloc.track.frames.image_keys`) and every robot has a stream.  Returns the
+    cameras of robots with several that have none (unused: a robot needs one camera's stream at least)."""
+    keys = image_keys(rig, {n: None for n in names}, "stream")
+    missing = [r for r in rig.robots if r not in keys.values()]
     if missing:
         raise ObservationError(f"no stream for robot{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
                                "(a team track needs one stream per robot of the rig)")
+    return unused_cameras(rig, keys)
+
+
+def unused_cameras(rig: Rig, keys: Iterable[str]) -> list[str]:
+    """The cameras (``ROBOT/CAMERA``) of the robots of ``keys`` that no key names."""
+    given = {rig.observer(k) for k in keys}
+    robots = {r for r, _ in given}
+    return [k for k in rig.observer_keys() if rig.observer(k)[0] in robots and rig.observer(k) not in given]
 
 
 def track_team_log(rig: Any, frames: Iterable[tuple[float, ObservationSet]], reference: str | None = None, *,
@@ -1393,8 +1400,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                fps: float | None = None, observations_out: str | Path | None = None, progress: bool = True,
                total: int | None = None, filter: str | FilterOptions = "cv", annotate: str | Path | None = None,
                sink: Callable[[TrackRow, str], None] | None = None) -> TeamTrajectory:
-    """Track a team from one image stream per robot (``{robot: frames}``;
-    every robot of the rig needs one).  Frames are grouped by timestamp
+    """Track a team from one image stream per camera (``{key: frames}``, keyed as observations are: ``ROBOT``
+    for a robot with one camera, ``ROBOT/CAMERA`` for each camera of a robot with several; every robot of
+    the rig needs one stream at least, a camera without one is not used).  Frames are grouped by timestamp
     (:func:`sync_streams`); each robot's image is searched for every other
     robot's markers and the group localized jointly (see the module
     docstring).  ``sink`` and Ctrl-C as :func:`track_team_log`.
@@ -1405,7 +1413,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
     require_streams(rig, streams)
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
     rate = frame_rate(streams, fps)
-    dets = {r: ObserverDetector(rig, r, [o for o in rig.robots if o != r], rate or DEFAULT_FPS) for r in rig.robots}
+    robot_of = image_keys(rig, streams, "stream")  # each camera's robot
+    dets = {k: ObserverDetector(rig, k, [o for o in rig.robots if o != r], rate or DEFAULT_FPS)
+            for k, r in robot_of.items()}
     log = ObservationLogWriter(observations_out) if observations_out else None
     writer = None
     if annotate:
@@ -1417,7 +1427,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
 
     def final(record: dict[str, TrackRow], images: dict) -> None:
         if writer is not None:
-            writer.write_team(images, record, reference, _camera_sizes(rig, images, sizes))
+            writer.write_team(images, record, reference, _camera_sizes(rig, images, sizes, list(streams)))
         if sink is not None:
             for r, row in record.items():
                 sink(row, r)
@@ -1432,16 +1442,17 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             t = float(np.mean([f.t for f in group.values()]))
             problems: dict[str, tuple[FrameStatus, str]] = {}
             detections = {}
-            for r in rig.robots:
-                fr = group.get(r)
+            for k in streams:
+                fr = group.get(k)
                 if fr is None:
                     continue  # a record of the other cameras: fused at its own time
                 elif fr.image is None:
-                    problems[r] = (FrameStatus.CORRUPT, fr.status)
+                    problems[robot_of[k]] = (FrameStatus.CORRUPT, _join(problems.get(robot_of[k], (None, ""))[1],
+                                                                        fr.status))
                 else:
-                    detections[r] = dets[r].detect(fr)
+                    detections[k] = dets[k].detect(fr)
                     if writer is not None:
-                        last[r] = (fr.image, fr.t)
+                        last[k] = (fr.image, fr.t)
             # Tags missed looked for where the track expects them (see .tag_look).
             detections, looked = look_where_tracked(rig, {r: group[r].image for r in detections}, detections,
                                                     lambda: tracker.predicted(t))
@@ -1450,13 +1461,15 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             obs = observations_of(detections, t).with_sigma_scale(None) if detections else None
             if log is not None and obs is not None:
                 log.write(t, obs)
-            times = {r: f.t for r, f in group.items()}
+            times: dict[str, float] = {}  # each robot's frame time (the mean of its cameras' in the record)
+            for r in dict.fromkeys(robot_of[k] for k in group):
+                times[r] = float(np.mean([f.t for k, f in group.items() if robot_of[k] == r]))
             out = tracker.step(t, obs, times, {r: p for r, p in problems.items() if r != reference})
             if reference in problems:
                 for row in out.values():
                     row.reason = _join(row.reason, f"reference {problems[reference][1]}")
             for r, row in out.items():
-                if r not in group:
+                if r not in times:
                     row.reason = _join(row.reason, f"no {r} frame in this record")
                 for robot, text in looked:
                     if robot == r:
@@ -1478,16 +1491,18 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate)
 
 
-def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]]
-                  ) -> dict[str, tuple[int, int]]:
+def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]],
+                  cameras: list[str] | None = None) -> dict[str, tuple[int, int]]:
     """Each camera's tile ``(width, height)`` in the annotated video, fixed
     with its first frame: the rig's camera size, else its first image's,
-    else (no image yet) the largest known.  ``sizes`` is filled in place."""
-    if len(sizes) < len(rig.robots):
-        for r in rig.robots:
+    else (no image yet) the largest known.  ``sizes`` is filled in place.
+    ``cameras``: the streams' keys (default the robots, one camera each)."""
+    keys = cameras if cameras is not None else list(rig.robots)
+    if len(sizes) < len(keys):
+        for r in keys:
             if r in sizes:
                 continue
-            size = rig.robot(r).camera.size
+            size = rig.mount(r).camera.size
             img = images.get(r, (None, None))[0]
             if size is None and img is not None:
                 size = (int(img.shape[1]), int(img.shape[0]))
@@ -1495,9 +1510,9 @@ def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[s
                 sizes[r] = (int(size[0]), int(size[1]))
         known = list(sizes.values()) or [(640, 480)]
         fill = (max(s[0] for s in known), max(s[1] for s in known))
-        for r in rig.robots:
+        for r in keys:
             sizes.setdefault(r, fill)
-    return {r: sizes[r] for r in rig.robots}
+    return {r: sizes[r] for r in keys}
 
 
 def _options(filter: str | FilterOptions) -> FilterOptions:
