@@ -206,3 +206,38 @@ def rig_of(d):
     from mutloc import load_rig
 
     return load_rig(d / "rig.yaml")
+
+
+def test_tag_looked_for_where_the_track_puts_it_through_a_body_camera_s_mount():
+    """tests/test_tag_look.py's steep tags, q made a body whose one camera is mounted turned and shifted in its
+    frame (``q/cam``): the track's prediction (between robot frames) places p's tag in q's image through the
+    mount -- at the tag's true corners -- and a prediction a metre off finds nothing."""
+    from dataclasses import replace
+
+    from mutloc.core.rig import Mount, Robot
+    from mutloc.detect.tags import corner_marker_names
+    from mutloc.track.tag_look import look_where_tracked
+    from test_tag_look import first_look, steep_scenes
+
+    M = Pose(so3_exp([0.3, -0.5, 0.2]), np.array([0.1, -0.2, 0.3]))  # T_body_camera of q's camera
+    checked = 0
+    for rig, T, images, truth in steep_scenes()[:5]:
+        ex, dets, _ = first_look(rig, images)
+        if "TP#0" in dets["q"].detections:
+            continue
+        q = ex.robot("q")
+        body = Robot("q", None, {n: replace(m, position=M.apply(m.position)) for n, m in q.markers.items()},
+                     cameras={"cam": Mount("cam", q.camera, M)})
+        bodies = Rig({"p": ex.robot("p"), "q": body})
+        off = Pose.from_rotvec([0.0, np.radians(1.0), 0.0], [0.03, -0.02, 0.04])
+        pred = {"q": Pose.identity(), "p": M @ off @ T}  # T_qp between robot frames (p's is its camera's)
+        found, notes = look_where_tracked(bodies, {"q/cam": images["q"]}, {"q/cam": dets["q"]}, lambda: pred)
+        got = [found["q/cam"].detections.get(c) for c in corner_marker_names("TP")]
+        if all(d is not None for d in got):
+            checked += 1
+            assert max(np.hypot(*(d.uv - x)) for d, x in zip(got, truth)) < 0.35
+            assert notes == [("p", "q/cam saw tag TP where the track put it (looked for again)")]
+        far = {"q": Pose.identity(), "p": M @ Pose.from_rotvec([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]) @ T}
+        none, notes = look_where_tracked(bodies, {"q/cam": images["q"]}, {"q/cam": dets["q"]}, far)
+        assert "TP#0" not in none["q/cam"].detections and notes == []
+    assert checked >= 3
