@@ -162,7 +162,8 @@ def test_cli_log_keyed_by_camera_and_bad_keys(tmp_path, capsys):
         assert np.degrees(np.linalg.norm(so3_log(R @ T.R.T))) < 3.0 and np.linalg.norm(tt - T.t) < 0.2
     # a camera the robot does not have, a robot with several cameras named alone: one line, non-zero
     for bad, said in ((["--stream", "p/side=x", "--stream", "q/back=y"], "unknown camera 'side'"),
-                      (["--stream", "p=x", "--stream", "q/back=y"], "give one stream per camera")):
+                      (["--stream", "p=x", "--stream", "q/back=y"], "give one stream per camera"),
+                      (["--observations", str(tmp_path / "log.jsonl"), "--frames", "base"], "already are in its robot")):
         capsys.readouterr()
         assert main(["track", "--rig", str(tmp_path / "rig.yaml"), *bad, "--out", str(tmp_path / "o2")]) != 0
         err = capsys.readouterr().err.strip()
