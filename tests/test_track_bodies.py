@@ -189,6 +189,14 @@ def test_rendered_streams_per_camera_facing_away(tmp_path, capsys):
         sig = row["sigma"]
         e = np.r_[so3_log(Rt @ R.T), tt - t]
         assert np.all(np.abs(e) < 5 * sig + np.r_[[0.002] * 3, [0.005] * 3]), (e, sig)
+    # the team tracker over the same streams (--reference: a team of two): the same poses within their sigmas
+    assert main(["track", "--rig", str(d / "rig.yaml"), *streams, "--reference", "q", "--out", str(tmp_path / "team"),
+                 "--no-progress"]) == 0
+    team_rows = read_trajectory_csv(tmp_path / "team" / "trajectory_p.csv")
+    assert [r["status"] for r in team_rows] == ["solved"] * 5
+    for row, Rt, tt in zip(team_rows, truth.R, truth.t):
+        e = np.r_[so3_log(Rt @ row["pose"].R.T), tt - row["pose"].t]
+        assert np.all(np.abs(e) < 5 * row["sigma"] + np.r_[[0.002] * 3, [0.005] * 3]), (e, row["sigma"])
     # the detections are logged keyed by camera: the back cameras only
     keys = {k for line in (tmp_path / "log.jsonl").read_text().splitlines() for k in json.loads(line)["observations"]}
     assert keys == {"p/back", "q/back"}
