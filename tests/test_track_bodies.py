@@ -170,11 +170,18 @@ def test_cli_log_keyed_by_camera_and_bad_keys(tmp_path, capsys):
         assert said in err and len(err.splitlines()) == 1 and "Traceback" not in err
 
 
-def test_rendered_streams_per_camera_facing_away(tmp_path, capsys):
-    """One short rendered sequence (small images, no room): `mutloc track --stream ROBOT/CAMERA=DIR` per camera,
-    robots back to back (only the back cameras see each other), each row against truth.tum."""
-    d = tmp_path / "sim"
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """One short rendered sequence (small images, no room), robots back to back."""
+    d = tmp_path_factory.mktemp("sim")
     write_cameras_simulation(d, facing="away", frames=5, size=(480, 300), room=False, seed=2)
+    return d
+
+
+def test_rendered_streams_per_camera_facing_away(rendered, tmp_path, capsys):
+    """`mutloc track --stream ROBOT/CAMERA=DIR` per camera, robots back to back (only the back cameras see each
+    other), each row against truth.tum."""
+    d = rendered
     out = tmp_path / "out"
     streams = [a for k in ("p/front", "p/back", "q/front", "q/back")
                for a in ("--stream", f"{k}={d / k.replace('/', '_')}")]
@@ -250,3 +257,41 @@ def test_tag_looked_for_where_the_track_puts_it_through_a_body_camera_s_mount():
         none, notes = look_where_tracked(bodies, {"q/cam": images["q"]}, {"q/cam": dets["q"]}, far)
         assert "TP#0" not in none["q/cam"].detections and notes == []
     assert checked >= 3
+
+
+def test_bags_one_topic_per_camera(rendered, tmp_path):
+    """A bag's image topic named per camera (``--topic p/back=/p/back/image_raw``); a camera_info taken per
+    camera keeps the camera's pose on the robot."""
+    import cv2
+
+    from mutloc import load_rig
+    from mutloc.core.camera import Camera
+    from mutloc.track.sources import rig_with_bag_cameras
+    from test_sources import write_bag
+
+    d = rendered
+    t_true, truth = read_tum(d / "truth.tum")
+    args = []
+    for key in ("p/back", "q/back"):
+        folder = d / key.replace("/", "_")
+        images = [cv2.imread(str(f)) for f in sorted(folder.glob("*.png"))]
+        write_bag(tmp_path / key.replace("/", "_"), 2, f"/{key}/image_raw", images, list(100.0 + t_true))
+        args += ["--stream", f"{key}={tmp_path / key.replace('/', '_')}", "--topic", f"{key}=/{key}/image_raw"]
+    out = tmp_path / "out"
+    assert main(["track", "--rig", str(d / "rig.yaml"), *args, "--out", str(out), "--no-progress"]) == 0
+    rows = read_trajectory_csv(out / "trajectory.csv")
+    assert [r["status"] for r in rows] == ["solved"] * 5
+    np.testing.assert_allclose([r["t"] for r in rows], 100.0 + t_true, atol=1e-6)
+    for row, Rt, tt in zip(rows, truth.R, truth.t):
+        e = np.r_[so3_log(Rt @ row["pose"].R.T), tt - row["pose"].t]
+        assert np.all(np.abs(e) < 5 * row["sigma"] + np.r_[[0.002] * 3, [0.005] * 3]), (e, row["sigma"])
+    # --camera-info per camera: the lens from the bag, the pose from the rig
+    K = [[500.0, 0, 239.5], [0, 500.0, 149.5], [0, 0, 1]]
+    write_bag(tmp_path / "info", 2, "/p/back/image_raw", images[:1], [100.0], K=K)
+    rig = load_rig(d / "rig.yaml")
+    new = rig_with_bag_cameras(rig, {"p/back": tmp_path / "info"}, {"p/back": "/p/back/camera_info"})
+    mount = new.mount("p/back")
+    assert isinstance(mount.camera, Camera) and np.allclose(mount.camera.K, K)
+    assert np.allclose(mount.pose.R, rig.mount("p/back").pose.R) and np.allclose(mount.pose.t,
+                                                                                 rig.mount("p/back").pose.t)
+    assert new.mount("p/front").camera is rig.mount("p/front").camera
