@@ -289,7 +289,7 @@ class ObserverDetector:
             from ..detect.blink import BlinkTracker
 
             # The observer's camera: a light's sphere images off its centre's projection.
-            self.blink = BlinkTracker(lights, fps, camera=rig.robot(observer).camera)
+            self.blink = BlinkTracker(lights, fps, camera=rig.mount(observer).camera)
         self.last_blink: DetectionResult | None = None
 
     def feed(self, frame: Frame) -> None:
