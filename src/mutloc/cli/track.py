@@ -24,12 +24,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--stream", action="append", type=robot_value, metavar="ROBOT=PATH",
-                     help="a video file, a folder of images, or a ROS 1/2 bag (with --topic); one per robot")
+                     help="a video file, a folder of images, or a ROS 1/2 bag (with --topic); one per robot, or, "
+                          "for a robot with several cameras, one per camera (ROBOT/CAMERA=PATH; a camera without "
+                          "one is not used)")
     src.add_argument("--observations", metavar="LOG", help="an observation log (JSON Lines) instead of images")
     p.add_argument("--observations-out", metavar="LOG",
                    help="also write every frame's detections as an observation log (JSON Lines)")
     p.add_argument("--topic", action="append", type=robot_value, default=[], metavar="ROBOT=TOPIC",
-                   help="image topic of a robot's camera in a bag")
+                   help="image topic of a robot's camera in a bag (ROBOT/CAMERA=TOPIC for a robot with several)")
     p.add_argument("--camera-info", action="append", type=robot_value, default=[], metavar="ROBOT=TOPIC",
                    help="take this robot's calibration from a camera_info topic of the bag")
     p.add_argument("--fps", type=positive_float, help="frame rate when the stream has no timestamps")
@@ -94,11 +96,7 @@ def run(args: argparse.Namespace) -> int:
                              pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
                              filter=options, rerun=args.rerun, sink=sink)
         return _written_as_it_runs(work, out, args, rig)
-    paths = robot_map(args.stream, "--stream")
-    for robot in paths:
-        rig.robot(robot)
-    topics = robot_map(args.topic, "--topic")
-    infos = robot_map(args.camera_info, "--camera-info")
+    paths, topics, infos = _stream_options(args, rig)
     if infos:
         rig = rig_with_bag_cameras(rig, paths, infos)
 
@@ -108,6 +106,32 @@ def run(args: argparse.Namespace) -> int:
                      fps=args.fps, annotate=args.annotate, observations_out=args.observations_out,
                      progress=args.progress, filter=options, rerun=args.rerun, sink=sink)
     return _written_as_it_runs(work, out, args, rig)
+
+
+def _stream_options(args: argparse.Namespace, rig) -> tuple[dict, dict, dict]:
+    """``--stream``, ``--topic`` and ``--camera-info`` by camera key (``ROBOT``, or ``ROBOT/CAMERA`` for a robot
+    with several cameras), checked in one line each: an unknown robot or camera, a robot with several cameras
+    named alone, a topic or camera_info for a camera without a stream.  A camera of a robot with several
+    that has no stream is not used (said on stderr)."""
+    import sys
+
+    from ..errors import InputError
+    from ..track.frames import image_keys
+    from ..track.team import unused_cameras
+
+    paths = robot_map(args.stream, "--stream")
+    keys = image_keys(rig, paths, "stream")
+    topics = robot_map(args.topic, "--topic")
+    infos = robot_map(args.camera_info, "--camera-info")
+    for option, given in (("--topic", topics), ("--camera-info", infos)):
+        for k in given:
+            if k not in paths:
+                raise InputError(f"{option} {k}=...: no --stream {k}=... (a bag's topics are named per stream)")
+    unused = unused_cameras(rig, keys)
+    if unused:
+        print(f"note: no --stream for camera{'s' if len(unused) > 1 else ''} {', '.join(unused)}: not used",
+              file=sys.stderr)
+    return paths, topics, infos
 
 
 def check_outputs(args: argparse.Namespace) -> Path:
@@ -202,12 +226,11 @@ def _run_team(args, rig, options, out) -> int:
                                       pixel_sigma=args.pixel_sigma, confidence=args.confidence,
                                       progress=args.progress, filter=options, sink=sink)
             else:
-                paths = robot_map(args.stream, "--stream")
+                paths, topics, infos = _stream_options(args, rig)
                 require_streams(rig, paths)
-                infos = robot_map(args.camera_info, "--camera-info")
                 if infos:
                     rig = rig_with_bag_cameras(rig, paths, infos)
-                traj = track_team(rig, open_streams(paths, fps=args.fps, topics=robot_map(args.topic, "--topic")),
+                traj = track_team(rig, open_streams(paths, fps=args.fps, topics=topics),
                                   args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
                                   confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
                                   progress=args.progress, filter=options, annotate=args.annotate, sink=sink)

@@ -379,10 +379,11 @@ class TeamFilter:
         the detections by :attr:`gain_sigma`; the state's covariance and the
         gate are under ``pixel_sigma``."""
         if len(rows) == len(problem.cam):
-            cam, own, pts, meas, wt = problem.cam, problem.own, problem.points, problem.uv, problem.wt
+            cam, own, pts, meas, wt, fr = problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.fr
         else:
             cam, own, pts, meas, wt = (problem.cam[rows], problem.own[rows], problem.points[rows], problem.uv[rows],
                                        problem.wt[rows])
+            fr = problem.fr if problem.frames is None else np.ascontiguousarray(problem.frames[rows])
         m = len(rows)
         ref = self.index(self.reference)
         pos = self._positions()
@@ -394,7 +395,7 @@ class TeamFilter:
         res = np.empty(m)
         H, r, innov = np.empty((2 * m, len(cols))), np.empty(2 * m), np.empty(2 * m)
         sigma = self.gain_sigma
-        ok, chi2 = team_iekf(cam, own, pts, meas, wt, problem.K, problem.dist, pos, ref, self.R, self.t, self.vel,
+        ok, chi2 = team_iekf(cam, own, pts, meas, wt, problem.K, problem.dist, fr, pos, ref, self.R, self.t, self.vel,
                              self.own_covariance, sigma**2, self.max_iter, Rs, ts, vel, Pg, res, H, r, innov)
         if not ok:
             return None

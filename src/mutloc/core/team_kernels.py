@@ -7,7 +7,8 @@ prediction and its iterated update, written to touch only what they must.
   ``J_l dt`` in the rotation rows and ``dt I`` in the translation rows), in
   place, with no ``12k x 12k`` temporary.
 - :func:`team_iekf` is the iterated EKF update on the pixel residuals of
-  one set of observations: the Jacobian only over the six pose columns of
+  one set of observations (pixel mode, or ray mode with ``frames``: robots
+  with several cameras, any lens, see :func:`mutloc.core.team.team_residuals_any`): the Jacobian only over the six pose columns of
   each robot involved, the innovation covariance from their block of ``P``,
   the state step through those columns of ``P``, and the posterior
   ``P - K S K^T`` as one symmetric low-rank update of rank ``min(2m, 6q)``
@@ -27,7 +28,7 @@ from numba import njit
 
 from .filter import STATE_DIM, cv_transition
 from .refine import so3_exp_left
-from .team import team_residuals
+from .team import team_residuals_any
 
 __all__ = ["team_predict", "team_iekf", "team_ls_residual"]
 
@@ -159,7 +160,7 @@ def _retract(i, o, e, R0, t0, Rs, ts):
 
 
 @njit(cache=True)
-def team_iekf(cam, own, pts, meas, wt, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res,
+def team_iekf(cam, own, pts, meas, wt, Ks, ds, frames, pos, ref, R0, t0, vel0, P0, s2, max_iter, Rs, ts, vel, P, res,
               H_lin, r_lin, innov_lin):
     """The iterated update with the observations given (all of tracked
     robots or the reference ``ref``; ``pos[i]``: robot ``i``'s state block
@@ -222,7 +223,7 @@ def team_iekf(cam, own, pts, meas, wt, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, m
     chi2 = np.inf
     iters = max_iter if m >= 3 else 1
     for _ in range(iters):
-        if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, True):
+        if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True):
             return False, chi2
         _sparse_rows(cam, own, ref, slot, Ja, Jb, hv, hc)
         HP[:, :] = 0.0  # H Pcc
@@ -317,7 +318,7 @@ def team_iekf(cam, own, pts, meas, wt, Ks, ds, pos, ref, R0, t0, vel0, P0, s2, m
             v = 0.5 * (P0[a, b] + P0[b, a]) - WW[a, b]
             P[a, b] = v
             P[b, a] = v
-    if not team_residuals(cam, own, pts, meas, wt, Ks, ds, Rs, ts, r, Ja, Jb, False):
+    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, False):
         return False, chi2
     for j in range(m):
         res[j] = np.hypot(r[2 * j], r[2 * j + 1])

@@ -165,11 +165,8 @@ def prepare_pair(rig: Any, inputs: Mapping[str, Any], source: str | None, target
     input names a robot of the rig and both robots of the pair have one.
 
     With ``cameras`` the inputs are keyed by camera (``ROBOT`` or ``ROBOT/CAMERA``, :func:`image_keys`) and
-    robots with several cameras or any lens are welcome; else every robot must be one pinhole camera (the
-    paths not yet ported to bodies)."""
+    robots with several cameras or any lens are welcome; else keyed by robot, each robot's one camera."""
     rig = expanded_rig(load_rig(rig))
-    if not cameras:
-        rig.require_central("the tracker" if what == "stream" else f"detection in {what}s")
     source, target = rig.default_pair(source, target)
     given = set(image_keys(rig, inputs, what).values()) if cameras else set(inputs)
     for robot in inputs if not cameras else ():

@@ -297,13 +297,19 @@ def open_streams(paths: Mapping[str, str | Path], *, fps: float | None = None,
 
 
 def rig_with_bag_cameras(rig: Rig, bags: Mapping[str, str | Path], topics: Mapping[str, str]) -> Rig:
-    """``rig`` with each robot of ``topics`` calibrated from the first
-    camera_info message on its topic of its bag."""
+    """``rig`` with each camera of ``topics`` (``ROBOT``, or ``ROBOT/CAMERA`` for a robot with several)
+    calibrated from the first camera_info message on its topic of its bag (a body's camera keeps its pose)."""
     robots = dict(rig.robots)
-    for robot, topic in topics.items():
-        old = rig.robot(robot)
-        cam = bag_camera(bags[robot], topic) if robot in bags else None
+    for key, topic in topics.items():
+        robot, cname = rig.observer(key)
+        cam = bag_camera(bags[key], topic) if key in bags else None
         if cam is None:
-            raise InputError(f"no camera_info message for robot {robot!r} on {topic!r}")
-        robots[robot] = replace(old, camera=cam)
+            raise InputError(f"no camera_info message for {'camera' if cname else 'robot'} {key!r} on {topic!r}")
+        old = robots[robot]
+        if old.cameras is None:
+            robots[robot] = replace(old, camera=cam)
+        else:
+            cams = dict(old.cameras)
+            cams[cname] = replace(cams[cname], camera=cam)
+            robots[robot] = replace(old, cameras=cams)
     return Rig(robots)

@@ -244,18 +244,18 @@ def look_where_tracked(rig: Rig, images: Mapping[str, np.ndarray], detections: M
     callable giving it, called only when a tracked robot's tag is missing.  For records whose own pose is
     missing (a camera at its own time, a record a pose cannot be solved from alone): a tag is decoded from its
     own pixels, so a wrong prediction finds nothing rather than something wrong."""
-    robot_of = {obs: rig.observer(obs)[0] for obs in detections}  # (keys may name cameras: ROBOT/CAMERA)
+    robot_of = {obs: rig.observer(obs)[0] for obs in detections}  # camera keys (ROBOT or ROBOT/CAMERA)
     if not any(_missing(rig, det, [r for r in rig.robots if r != robot_of[obs]]) for obs, det in detections.items()):
         return dict(detections), []
     poses_ref = predicted() if callable(predicted) else predicted
     out = dict(detections)
     notes: list[tuple[str, str]] = []
     for obs, det in detections.items():
-        robot = robot_of[obs]
-        if robot not in poses_ref or obs not in images:
+        own = robot_of[obs]
+        if own not in poses_ref or obs not in images:
             continue
-        inv = poses_ref[robot].inverse()
-        poses = {o: [inv @ T] for o, T in poses_ref.items() if o != robot}
+        inv = poses_ref[own].inverse()  # between robot frames: find_missing_tags goes through the camera's mount
+        poses = {o: [inv @ T] for o, T in poses_ref.items() if o != own}
         more = find_missing_tags(rig, obs, images[obs], det, poses)
         if more is not None:
             notes += [(robot, f"{obs} saw tag {n} where the track put it (looked for again)")

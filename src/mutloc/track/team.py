@@ -81,7 +81,7 @@ from ..core.consistency import DEFAULT_CONFIDENCE, same_pose
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import Rig
-from ..core.team import MIN_TIES, TeamProblem, residual_norms, team_residuals
+from ..core.team import MIN_TIES, TeamProblem, residual_norms, team_residuals_any
 from ..core.filter import STATE_DIM, fit_moving_pose
 from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
@@ -90,7 +90,7 @@ from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
 from .filtering import MIN_START_DOF, FilterOptions, lost_reason, pair_problem
 from .solving import CONFIRM_SPREAD
-from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, observations_of
+from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, image_keys, observations_of
 from .sources import Frame
 from .status import FrameStatus
 from .tag_look import look_where_tracked
@@ -98,7 +98,7 @@ from .rows import TrackRow
 from .trajectory import Trajectory
 
 __all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names",
-           "require_streams", "RowEmitter"]
+           "require_streams", "unused_cameras", "RowEmitter"]
 
 
 def team_file_names(robot: str) -> tuple[str, str]:
@@ -346,7 +346,8 @@ class TeamTracker:
         obs = rec.obs
         if exclude is not None and obs is not None:
             obs = obs.take(np.array([i for i, (o, m) in enumerate(zip(obs.observer, obs.marker))
-                                     if o != exclude and (m is None or self._owner(m) != exclude)], dtype=np.int64))
+                                     if self._observer(o) != exclude and (m is None or self._owner(m) != exclude)],
+                                    dtype=np.int64))
         self._filtered(rec.t, obs, rec.rows)
         if obs is not None and len(obs):
             self._recent.append((rec.t, obs))
@@ -360,6 +361,13 @@ class TeamTracker:
     def _owner(self, marker: str) -> str | None:
         try:
             return self.rig.owner(marker)
+        except MutlocError:
+            return None
+
+    def _observer(self, key: str) -> str | None:
+        """The robot of an observation key (``ROBOT`` or ``ROBOT/CAMERA``), None for an unknown one."""
+        try:
+            return self.rig.observer(key)[0]
         except MutlocError:
             return None
 
@@ -642,9 +650,10 @@ class TeamTracker:
         """Status and reason of a robot without a joint pose this record."""
         n = 0
         if obs is not None:
-            owner = self.rig.owner
+            owner, observer = self.rig.owner, self.rig.observer
             try:
-                n = sum(1 for o, m in zip(obs.observer, obs.marker) if m is not None and (o == r or owner(m) == r))
+                n = sum(1 for o, m in zip(obs.observer, obs.marker)
+                        if m is not None and (observer(o)[0] == r or owner(m) == r))
             except MutlocError:
                 n = -1
         if n == 0:
@@ -894,7 +903,8 @@ class TeamTracker:
             key = (o, m if m is not None else f"#{i}")
             err = -float(obs.score[i])
             owner = self._owner(m) if m is not None else None
-            if owner is not None and o in known and owner in known and o != owner:
+            robot = self._observer(o)
+            if owner is not None and robot in known and owner in known and robot != owner:
                 try:
                     one, _, _ = team_problem(self.rig, obs.take(np.array([i])))
                     err = float(residual_norms(one, f.R, f.t)[0])
@@ -1057,7 +1067,7 @@ class TeamTracker:
         keys = [k for k in latest if k[1] is not None]
         ties = {r: 0 for r in self.rig.robots}
         for observer, m in keys:
-            ties[observer] += 1
+            ties[self.rig.observer(observer)[0]] += 1
             ties[self.rig.owner(m)] += 1
         want = [r for r in want if ties[r] > MIN_TIES]
         if not want or len(keys) <= MIN_TIES:
@@ -1079,6 +1089,8 @@ class TeamTracker:
         track.  Returns the row's note, "" (not started: not yet) or None
         (``r`` is seen with other robots too)."""
         ref = self.reference
+        if not self.rig.central_pinhole:
+            return None  # (the moving fit is in pixels of one pinhole camera per robot: the joint start)
         problems, times, latest = [], [], {}
         for tk, o in [*self._recent, (t, obs)]:
             mine = []
@@ -1160,8 +1172,8 @@ class TeamTracker:
         one = problem.take(np.array([j]))
         res = np.empty(2)
         Ja, Jb = np.empty((1, 2, 6)), np.empty((1, 2, 6))
-        if not team_residuals(one.cam, one.own, one.points, one.uv, one.wt, one.K, one.dist, f.R, f.t, res, Ja, Jb,
-                              True):
+        if not team_residuals_any(one.cam, one.own, one.points, one.uv, one.wt, one.K, one.dist, one.fr, f.R, f.t, res,
+                                  Ja, Jb, True):
             return math.inf
         terms = [(f.robots[int(one.cam[0])], Ja[0]), (f.robots[int(one.own[0])], Jb[0])]
         if any(name != self.reference and not f.is_tracked(name) for name, _ in terms):
@@ -1324,23 +1336,29 @@ def sync_streams(streams: Mapping[str, Iterable[Frame]], tolerance: float) -> It
 
 def _team_setup(rig: Any, reference: str | None, names: Iterable[str], what: str) -> tuple[Rig, str]:
     rig = expanded_rig(load_rig(rig))
-    rig.require_central("the tracker")
-    for robot in names:
-        rig.robot(robot)
+    image_keys(rig, {n: None for n in names}, what)  # ROBOT or ROBOT/CAMERA, each a camera of the rig
     if reference is not None and (not isinstance(reference, str) or reference not in rig.robots):
         raise ObservationError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
     return rig, reference if reference is not None else next(iter(rig.robots))
 
 
-def require_streams(rig: Rig, names: Iterable[str]) -> None:
-    """ObservationError unless every name is a robot of the rig and every robot has a stream."""
-    names = list(names)
-    for robot in names:
-        rig.robot(robot)
-    missing = [r for r in rig.robots if r not in names]
+def require_streams(rig: Rig, names: Iterable[str]) -> list[str]:
+    """ObservationError unless every name is a camera of the rig (``ROBOT``, or ``ROBOT/CAMERA`` for a robot
+    with several cameras: :func:`~mutloc.track.frames.image_keys`) and every robot has a stream.  Returns the
+    cameras of robots with several that have none (unused: a robot needs one camera's stream at least)."""
+    keys = image_keys(rig, {n: None for n in names}, "stream")
+    missing = [r for r in rig.robots if r not in keys.values()]
     if missing:
         raise ObservationError(f"no stream for robot{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
                                "(a team track needs one stream per robot of the rig)")
+    return unused_cameras(rig, keys)
+
+
+def unused_cameras(rig: Rig, keys: Iterable[str]) -> list[str]:
+    """The cameras (``ROBOT/CAMERA``) of the robots of ``keys`` that no key names."""
+    given = {rig.observer(k) for k in keys}
+    robots = {r for r, _ in given}
+    return [k for k in rig.observer_keys() if rig.observer(k)[0] in robots and rig.observer(k) not in given]
 
 
 def track_team_log(rig: Any, frames: Iterable[tuple[float, ObservationSet]], reference: str | None = None, *,
@@ -1382,8 +1400,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
                fps: float | None = None, observations_out: str | Path | None = None, progress: bool = True,
                total: int | None = None, filter: str | FilterOptions = "cv", annotate: str | Path | None = None,
                sink: Callable[[TrackRow, str], None] | None = None) -> TeamTrajectory:
-    """Track a team from one image stream per robot (``{robot: frames}``;
-    every robot of the rig needs one).  Frames are grouped by timestamp
+    """Track a team from one image stream per camera (``{key: frames}``, keyed as observations are: ``ROBOT``
+    for a robot with one camera, ``ROBOT/CAMERA`` for each camera of a robot with several; every robot of
+    the rig needs one stream at least, a camera without one is not used).  Frames are grouped by timestamp
     (:func:`sync_streams`); each robot's image is searched for every other
     robot's markers and the group localized jointly (see the module
     docstring).  ``sink`` and Ctrl-C as :func:`track_team_log`.
@@ -1394,7 +1413,9 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
     require_streams(rig, streams)
     tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=_options(filter))
     rate = frame_rate(streams, fps)
-    dets = {r: ObserverDetector(rig, r, [o for o in rig.robots if o != r], rate or DEFAULT_FPS) for r in rig.robots}
+    robot_of = image_keys(rig, streams, "stream")  # each camera's robot
+    dets = {k: ObserverDetector(rig, k, [o for o in rig.robots if o != r], rate or DEFAULT_FPS)
+            for k, r in robot_of.items()}
     log = ObservationLogWriter(observations_out) if observations_out else None
     writer = None
     if annotate:
@@ -1406,7 +1427,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
 
     def final(record: dict[str, TrackRow], images: dict) -> None:
         if writer is not None:
-            writer.write_team(images, record, reference, _camera_sizes(rig, images, sizes))
+            writer.write_team(images, record, reference, _camera_sizes(rig, images, sizes, list(streams)))
         if sink is not None:
             for r, row in record.items():
                 sink(row, r)
@@ -1421,16 +1442,17 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             t = float(np.mean([f.t for f in group.values()]))
             problems: dict[str, tuple[FrameStatus, str]] = {}
             detections = {}
-            for r in rig.robots:
-                fr = group.get(r)
+            for k in streams:
+                fr = group.get(k)
                 if fr is None:
                     continue  # a record of the other cameras: fused at its own time
                 elif fr.image is None:
-                    problems[r] = (FrameStatus.CORRUPT, fr.status)
+                    problems[robot_of[k]] = (FrameStatus.CORRUPT, _join(problems.get(robot_of[k], (None, ""))[1],
+                                                                        fr.status))
                 else:
-                    detections[r] = dets[r].detect(fr)
+                    detections[k] = dets[k].detect(fr)
                     if writer is not None:
-                        last[r] = (fr.image, fr.t)
+                        last[k] = (fr.image, fr.t)
             # Tags missed looked for where the track expects them (see .tag_look).
             detections, looked = look_where_tracked(rig, {r: group[r].image for r in detections}, detections,
                                                     lambda: tracker.predicted(t))
@@ -1439,13 +1461,15 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
             obs = observations_of(detections, t).with_sigma_scale(None) if detections else None
             if log is not None and obs is not None:
                 log.write(t, obs)
-            times = {r: f.t for r, f in group.items()}
+            times: dict[str, float] = {}  # each robot's frame time (the mean of its cameras' in the record)
+            for r in dict.fromkeys(robot_of[k] for k in group):
+                times[r] = float(np.mean([f.t for k, f in group.items() if robot_of[k] == r]))
             out = tracker.step(t, obs, times, {r: p for r, p in problems.items() if r != reference})
             if reference in problems:
                 for row in out.values():
                     row.reason = _join(row.reason, f"reference {problems[reference][1]}")
             for r, row in out.items():
-                if r not in group:
+                if r not in times:
                     row.reason = _join(row.reason, f"no {r} frame in this record")
                 for robot, text in looked:
                     if robot == r:
@@ -1467,16 +1491,18 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate)
 
 
-def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]]
-                  ) -> dict[str, tuple[int, int]]:
+def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]],
+                  cameras: list[str] | None = None) -> dict[str, tuple[int, int]]:
     """Each camera's tile ``(width, height)`` in the annotated video, fixed
     with its first frame: the rig's camera size, else its first image's,
-    else (no image yet) the largest known.  ``sizes`` is filled in place."""
-    if len(sizes) < len(rig.robots):
-        for r in rig.robots:
+    else (no image yet) the largest known.  ``sizes`` is filled in place.
+    ``cameras``: the streams' keys (default the robots, one camera each)."""
+    keys = cameras if cameras is not None else list(rig.robots)
+    if len(sizes) < len(keys):
+        for r in keys:
             if r in sizes:
                 continue
-            size = rig.robot(r).camera.size
+            size = rig.mount(r).camera.size
             img = images.get(r, (None, None))[0]
             if size is None and img is not None:
                 size = (int(img.shape[1]), int(img.shape[0]))
@@ -1484,9 +1510,9 @@ def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[s
                 sizes[r] = (int(size[0]), int(size[1]))
         known = list(sizes.values()) or [(640, 480)]
         fill = (max(s[0] for s in known), max(s[1] for s in known))
-        for r in rig.robots:
+        for r in keys:
             sizes.setdefault(r, fill)
-    return {r: sizes[r] for r in rig.robots}
+    return {r: sizes[r] for r in keys}
 
 
 def _options(filter: str | FilterOptions) -> FilterOptions:

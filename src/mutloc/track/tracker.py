@@ -28,8 +28,8 @@ from ..io import writable_path
 from ..io.logs import ObservationLogWriter
 from .annotate import Annotator
 from .filtering import FilterOptions
-from .frames import DEFAULT_FPS, ObserverDetector, check_streams, expanded_rig, frame_rate, observations_of, \
-    prepare_pair
+from .frames import DEFAULT_FPS, ObserverDetector, check_streams, expanded_rig, frame_rate, image_keys, \
+    observations_of, prepare_pair
 from .second_look import look_again
 from .tag_look import look_where_tracked
 from .sources import Frame
@@ -72,8 +72,11 @@ class PairTrack:
         pair = (self.source, self.target)
         keep = []
         for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
-            if o not in pair:
-                continue
+            try:
+                if self.rig.observer(o)[0] not in pair:
+                    continue
+            except MutlocError:
+                continue  # not a camera of the pair (as ever: left out)
             if m is not None:
                 try:
                     if self.rig.owner(m) not in pair:
@@ -119,7 +122,9 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
           observations_out: str | Path | None = None, progress: bool = True, total: int | None = None,
           filter: str | FilterOptions = "cv", rerun: str | Path | None = None,
           sink: Callable[[TrackRow], None] | None = None) -> Trajectory:
-    """Localize over two streams (``{robot: frames}``).
+    """Localize over two streams (``{robot: frames}``), or, for robots with several cameras, one stream per
+    camera (``{"p/front": frames, "p/back": ..., "q/front": ...}``, keyed as observations are: SPEC "Robots
+    with several cameras"; each camera's frames fused at their own time, see :func:`_track_cameras`).
 
     ``sink`` is called with every row, in input order, as soon as its report
     is final (after the smoother's lag; see
@@ -142,7 +147,11 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     ``observations_out`` writes every paired frame's detections as an
     observation log (JSON Lines, SPEC "Observation logs").
     """
-    rig, source, target = prepare_pair(rig, streams, source, target, "stream")
+    rig, source, target = prepare_pair(rig, streams, source, target, "stream", cameras=True)
+    if any(rig.robot(r).is_body for r in (source, target)):
+        return _track_cameras(rig, streams, source, target, tolerance=tolerance, pixel_sigma=pixel_sigma,
+                              confidence=confidence, fps=fps, annotate=annotate, observations_out=observations_out,
+                              progress=progress, total=total, filter=filter, rerun=rerun, sink=sink)
     tracker = PairTrack(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
                         options=_options(filter))
     rate = frame_rate(streams, fps)
@@ -226,6 +235,94 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     return Trajectory(source, target, rows, rate)
 
 
+def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str, target: str, *,
+                   tolerance: float, pixel_sigma: float, confidence: float, fps: float | None,
+                   annotate: str | Path | None, observations_out: str | Path | None, progress: bool,
+                   total: int | None, filter: str | FilterOptions, rerun: str | Path | None,
+                   sink: Callable[[TrackRow], None] | None) -> Trajectory:
+    """:func:`track` for robots with several cameras: one stream per camera (``ROBOT/CAMERA``; a robot with one
+    camera keyed ``ROBOT``), frames within ``tolerance`` of each other one record, any other frame a record of
+    its own camera, fused at its own time (:func:`~mutloc.track.team.sync_streams`).  Each camera's image is
+    searched for the other robot's markers through its own lens; rows as :func:`track`'s (``t_source`` /
+    ``t_target``: the mean time of that robot's frames in the record), ``detections`` keyed by camera.  A
+    camera without a stream is not used; a record with an unreadable frame is ``corrupt``."""
+    from .team import _camera_sizes, sync_streams
+
+    robot_of = {k: r for k, r in image_keys(rig, streams, "stream").items() if r in (source, target)}
+    tracker = PairTrack(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
+                        options=_options(filter))
+    rate = frame_rate(streams, fps)
+    dets = {k: ObserverDetector(rig, k, target if r == source else source, rate or DEFAULT_FPS)
+            for k, r in robot_of.items()}
+    writer = Annotator(annotate, fps=rate or DEFAULT_FPS) if annotate else None
+    log = ObservationLogWriter(observations_out) if observations_out else None
+    viz = _rerun_writer(rerun, source, target)
+    sizes: dict[str, tuple[int, int]] = {}
+    last: dict[str, tuple[np.ndarray | None, float | None]] = {}  # each camera's latest image and its time
+
+    def final(row: TrackRow, shown: dict) -> None:
+        if viz is not None:
+            _rerun_row(viz, row)
+        if writer is not None:
+            writer.write_team(shown, {source: row}, target, _camera_sizes(rig, shown, sizes, list(robot_of)))
+        if sink is not None:
+            sink(row)
+
+    emitter = RowEmitter(tracker.team, final)
+    rows: list[TrackRow] = []
+    groups = sync_streams({k: streams[k] for k in robot_of}, tolerance)
+    bar = tqdm(groups, total=total, unit="frame", disable=not progress, desc="track")
+    try:
+        for group in bar:
+            for k, fr in group.items():
+                dets[k].feed(fr)
+            t = float(np.mean([f.t for f in group.values()]))
+            times = {r: float(np.mean([f.t for k, f in group.items() if robot_of[k] == r]))
+                     for r in (source, target) if r in {robot_of[k] for k in group}}
+            row = TrackRow(t, times.get(source), times.get(target), FrameStatus.SOLVED)
+            images = {k: f.image for k, f in group.items() if f.image is not None}
+            filtered = False
+            if len(images) < len(group):
+                # an unreadable image is reported as such, never guessed around (nor the record's other frames)
+                row.status = FrameStatus.CORRUPT
+                row.reason = "; ".join(f"{k}: {f.status}" for k, f in group.items() if f.image is None)
+            else:
+                row.detections = {k: dets[k].detect(group[k]) for k in images}
+                # tags missed looked for where the track expects them, then, with both robots' frames, where
+                # the record's own pose puts them, and partly hidden balls measured again (see track())
+                row.detections, tracked = look_where_tracked(rig, images, row.detections,
+                                                             lambda: tracker.team.predicted(t))
+                notes = [text for _, text in tracked]
+                if len(times) == 2:
+                    row.detections, again = look_again(rig, images, row.detections, source, target,
+                                                       pixel_sigma=pixel_sigma, confidence=confidence)
+                    notes += again
+                row.observations = observations_of(row.detections, row.t).with_sigma_scale(None)
+                if log is not None:
+                    log.write(row.t, row.observations)
+                filtered = tracker.step(row)
+                if notes:
+                    row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
+            if writer is not None:
+                last.update({k: (img, group[k].t) for k, img in images.items()})
+            rows.append(row)
+            emitter.add(row, filtered, dict(last) if writer is not None else None)
+            emitter.emit()
+        emitter.emit(end=True)
+    except KeyboardInterrupt:
+        emitter.emit(end=True)  # every frame finished so far, reported as if the input ended here
+        raise
+    finally:
+        bar.close()
+        if writer is not None:
+            writer.close()
+        if log is not None:
+            log.close()
+        if viz is not None:
+            viz.close()
+    return Trajectory(source, target, rows, rate)
+
+
 def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, ObservationSet]], source: str | None = None,
               target: str | None = None, *, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
               progress: bool = True, total: int | None = None, filter: str | FilterOptions = "cv",
@@ -235,7 +332,6 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
     ObservationSets stamped with their time); ``filter``, ``rerun`` and
     ``sink`` (rows as they become final) as :func:`track`."""
     rig = expanded_rig(load_rig(rig))
-    rig.require_central("the tracker")
     source, target = rig.default_pair(source, target)
     if rerun is not None:
         writable_path(rerun, "rerun")  # before the work, not after it
