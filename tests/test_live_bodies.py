@@ -150,6 +150,90 @@ def test_a_camera_name_for_a_robot_with_one_camera_is_a_one_line_error(tmp_path,
     assert rc != 0 and len(err.splitlines()) == 1 and "robot 'p' has one camera" in err, err
 
 
+def _equidistant_info(T, camera, t):
+    w, h = camera.size
+    return T.CameraInfo(header=T.Header(stamp=M.stamp(t), frame_id="p/front"), width=w, height=h,
+                        distortion_model="equidistant", d=[float(x) for x in camera.dist],
+                        k=[float(x) for x in camera.K.ravel()])
+
+
+def test_a_fisheye_cameras_ros_topic_with_its_equidistant_camera_info(scene):
+    """p's front camera on a ROS image topic whose camera_info says ``equidistant`` (ROS's fisheye model)
+    with the rig's calibration: checked, it agrees (no note); used (``--camera-info use``), the node detects
+    through the announced fisheye and publishes what offline detection through the rig's finds, frame_id
+    p/front.  A pinhole camera_info for that camera is a note naming the lens models."""
+    import threading
+
+    from mutloc.live.cameras import RosImageSource, camera_from_camera_info, compare_cameras
+    from mutloc.live.node import Node
+    from mutloc.core.lenses import FisheyeCamera
+
+    out, truth = scene
+    rig = expanded_rig(load_rig(out / "rig.yaml"))
+    lens = rig.mount("p/front").camera
+    T = M.ros_types()
+    announced = camera_from_camera_info(_equidistant_info(T, lens, 0.0), "camera_info")
+    assert isinstance(announced, FisheyeCamera) and compare_cameras(announced, lens, "camera_info") is None
+    assert np.allclose(announced.K, lens.K) and np.allclose(announced.dist, lens.dist)
+    pinhole = camera_from_camera_info(T.CameraInfo(width=800, height=500, distortion_model="plumb_bob",
+                                                   d=[0.0] * 5, k=[float(x) for x in lens.K.ravel()]), "ci")
+    assert "lens model pinhole vs the rig's fisheye" in compare_cameras(pinhole, lens, "camera_info")
+
+    bus = Bus(DOMAIN, loopback=True)
+    stop, failed, got, sent = threading.Event(), [], [], {}
+    runner = None
+    try:
+        reader = bus.reader(M.observations_topic("p"), T.Observations)
+        raw = bus.writer("/p/front/image_raw", T.Image)
+        info = bus.writer("/p/front/camera_info", T.CameraInfo)
+        source = RosImageSource(bus, "/p/front/image_raw", rig_camera=lens, use_info=True)
+        node = Node(out / "rig.yaml", "p", source, bus, camera="front")
+
+        def run():
+            try:
+                node.run(stop=stop, status_every=None)
+            except Exception as exc:  # noqa: BLE001 -- reported by the test
+                failed.append(exc)
+
+        runner = threading.Thread(target=run)
+        runner.start()
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not (raw.get_publication_matched_status().current_count
+                                                   and info.get_publication_matched_status().current_count):
+            time.sleep(0.02)
+        for k in range(FRAMES):
+            image = cv2.imread(str(out / truth["frames"][k]["images"]["p/front"]))
+            t = time.time()
+            sent[round(t, 6)] = k
+            info.write(_equidistant_info(T, lens, t))
+            h, w = image.shape[:2]
+            raw.write(T.Image(header=T.Header(stamp=M.stamp(t), frame_id="p/front"), height=h, width=w,
+                              encoding="bgr8", step=3 * w, data=image.tobytes()))
+            end = time.monotonic() + 10
+            while time.monotonic() < end and not any(round(M.stamp_of(m.header), 6) == round(t, 6) for m in got):
+                got += reader.take()
+                time.sleep(0.02)
+    finally:
+        stop.set()
+        if runner is not None:
+            runner.join(timeout=10)
+        bus.close()
+    assert not failed, failed
+    got = [m for m in got if round(M.stamp_of(m.header), 6) in sent]
+    assert len(got) >= FRAMES - 1 and all(m.header.frame_id == "p/front" for m in got)
+    found = 0
+    for m in got:
+        k = sent[round(M.stamp_of(m.header), 6)]
+        image = cv2.imread(str(out / truth["frames"][k]["images"]["p/front"]))
+        offline = detect_markers(rig, "p/front", image, targets=["q"]).detections
+        ours = {o.marker: (o.u, o.v) for o in m.observations}
+        assert set(ours) == set(offline), k
+        for name, uv in ours.items():
+            assert np.allclose(uv, offline[name].uv, atol=1e-6)
+        found += len(ours)
+    assert found >= 1
+
+
 # -- the localizer ------------------------------------------------------------------------------------------
 
 
