@@ -17,7 +17,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         description="Run on each robot: takes the newest frame of the camera (frames the detector cannot keep up "
         "with are dropped and counted, never queued), finds the other robots' markers and publishes one "
         "mutloc_msgs/msg/Observations message per processed frame on /mutloc/NAME/observations, stamped with "
-        "the frame's capture time (SPEC \"Live operation\"). Needs the live extra (cyclonedds).",
+        "the frame's capture time (SPEC \"Live operation\"). A robot with several cameras: one --camera CAM=SOURCE "
+        "per camera (each detected through its own lens in its own thread, messages with frame_id NAME/CAM), or one "
+        "node per camera. Needs the live extra (cyclonedds).",
     )
     p.add_argument("--robot", required=True, metavar="NAME", help="the robot whose camera this is (a robot of the rig)")
     p.add_argument("--camera", required=True, action="append", metavar="[CAM=]SOURCE",

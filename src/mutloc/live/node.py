@@ -17,6 +17,13 @@ predicted tag (:func:`mutloc.track.tag_look.look_where_tracked`).  The tag
 is decoded from the frame's own pixels; transforms between frames that are
 not robots of the rig (other ROS nodes' trees) are ignored and counted.
 
+A robot with several cameras (rig ``cameras:``) runs one :class:`Node` per
+camera (``camera``: its name), each with its own source, detecting through
+its own lens and mount (:func:`mutloc.track.frames.detect_markers` with the
+camera's key) and publishing on the robot's topic with ``header.frame_id``
+``NAME/CAMERA``; :func:`run_nodes` runs them together, each in its own
+thread (``mutloc node --camera front=SRC --camera back=SRC``).
+
 >>> from mutloc.live.dds import Bus
 >>> from mutloc.live.cameras import open_camera
 >>> bus = Bus(7, loopback=True)                                     # doctest: +SKIP
@@ -316,7 +323,9 @@ class Node:
     SPEC's id of the rig file the localizer loads); ``fps``: the rate the
     blinking-light trackers assume (default the source's, else 30);
     ``diagnostics``: also publish the node's own ``/diagnostics`` status once
-    a second; ``report(line)``: where status lines and notes go.
+    a second; ``report(line)``: where status lines and notes go; ``camera``:
+    the camera of a robot with several cameras (its name in the rig; None
+    for a robot with one camera), see :func:`camera_key`.
 
     A source that announces its own camera model and asks for it to be used
     (a ROS topic with ``--camera-info use``: ``source.use_info``) has the
