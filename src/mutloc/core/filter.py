@@ -721,7 +721,8 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
                     velocity: np.ndarray | None = None, noise: MotionNoise | None = None) -> MovingFit | None:
     """The pose at ``time`` and its constant velocity (the filter's motion
     model: ``R(t_i) = exp(w (t_i - time)) R``, ``t(t_i) = t + v (t_i - time)``)
-    that best explain ``problems[i]``'s pixel observations taken at
+    that best explain ``problems[i]``'s pixel observations (or rays, for robots with several cameras:
+    ``PairProblem.frames``) taken at
     ``times[i]`` -- observations of several cameras, each at its own capture
     time, bridged by the motion.  Gauss-Newton from ``pose`` (and
     ``velocity``, default at rest) on the pixel residuals of every row at its
@@ -746,8 +747,12 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
     sigma = positive_number(sigma, "sigma")
     groups = []
     for prob, ti in zip(problems, times):
-        side, pts, meas, Kp, dp, Kq, dq, wt = ConstantVelocityFilter._arrays(prob)
-        groups.append((float(ti) - float(time), side, pts, meas, Kp, dp, Kq, dq, wt))
+        if prob.frames is not None:  # rays of robots with several cameras, any lens (pixels to first order)
+            side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt = prob.kernel_args()
+        else:
+            side, pts, meas, Kp, dp, Kq, dq, wt = ConstantVelocityFilter._arrays(prob)
+            basis, mode = np.zeros((len(side), 3, 3)), MODE_PIXEL
+        groups.append((float(ti) - float(time), side, pts, meas, basis, mode, Kp, dp, Kq, dq, wt))
     n = sum(len(g[1]) for g in groups)
     R = np.array(pose.R, dtype=float)
     t = np.array(pose.t, dtype=float)
@@ -762,20 +767,20 @@ def fit_moving_pose(problems: list[PairProblem], times: list[float], time: float
         cost = 0.0
         k = 0
         Ri, ti = np.empty((3, 3)), np.empty(3)
-        for dt, side, pts, meas, Kp, dp, Kq, dq, wt in groups:
+        for dt, side, pts, meas, basis, mode, Kp, dp, Kq, dq, wt in groups:
             m = len(side)
             so3_exp_left(vel[:3] * dt, R, Ri)
             ti[:] = t + vel[3:] * dt
             r = np.empty(2 * m)
             J = np.empty((2 * m, 6))
-            if not residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, wt, Ri, ti, r, J, want,
+            if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Ri, ti, r, J, want,
                              ws):
                 return None
             res[k:k + m] = np.hypot(r[0::2], r[1::2])
             k += m
             if noise is not None:
                 if not want:
-                    residuals(side, pts, meas, np.zeros((m, 3, 3)), Kp, dp, Kq, dq, MODE_PIXEL, wt, Ri, ti, r, J, True,
+                    residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Ri, ti, r, J, True,
                               ws)
                 d3 = abs(dt) ** 3 / 3.0
                 Q = np.diag([noise.angular**2 * d3] * 3 + [noise.linear**2 * d3] * 3)

@@ -17,6 +17,7 @@ import numpy as np
 from ..core.estimate import PairProblem
 from ..core.filter import MotionNoise
 from ..core.observations import PairObservations
+from ..core.rays import pair_rays
 from ..errors import InputError, positive_number
 from .solving import lost_reason
 
@@ -84,10 +85,16 @@ class FilterOptions:
 
 
 def pair_problem(pair: PairObservations) -> PairProblem:
-    """The named observations of a pair in the filter's form (labels "p saw M1")."""
+    """The named observations of a pair in the filter's form (labels "p saw M1"): pixels, or rays for robots
+    with several cameras or any lens (each row through its own camera: :func:`mutloc.core.rays.pair_rays`)."""
     table = pair.table
     obs = pair.parent
     rows = pair.rows
     labels = [f"{obs.observer[r]} saw {obs.marker[r]}" for r in rows.tolist()]
+    if table.mounts is not None:
+        bearings, frames = pair_rays(table.mounts, [obs.observer[r] for r in rows.tolist()], obs.uv[rows],
+                                     labels.__getitem__)
+        return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), bearings, None,
+                                   None, None, labels, pair.sigma_scale, frames)
     return PairProblem.trusted(pair.side, np.ascontiguousarray(table.points[pair.points_index]), None,
                                np.ascontiguousarray(obs.uv[rows]), table.K, table.dist, labels, pair.sigma_scale)

@@ -1089,12 +1089,11 @@ class TeamTracker:
         track.  Returns the row's note, "" (not started: not yet) or None
         (``r`` is seen with other robots too)."""
         ref = self.reference
-        if not self.rig.central_pinhole:
-            return None  # (the moving fit is in pixels of one pinhole camera per robot: the joint start)
         problems, times, latest = [], [], {}
         for tk, o in [*self._recent, (t, obs)]:
             mine = []
-            for k, (a, m) in enumerate(zip(o.observer, o.marker)):
+            for k, (key, m) in enumerate(zip(o.observer, o.marker)):
+                a = self._observer(key)  # the observing robot (a key may name one of its cameras)
                 owner = self._owner(m) if m is not None else None
                 if a != r and owner != r:
                     continue
