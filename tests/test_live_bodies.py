@@ -122,6 +122,10 @@ def test_node_with_two_cameras_publishes_each_cameras_detections(scene):
                 seen_front += len(ours)
             else:
                 assert not exact and not ours  # the back camera faces away from q
+    # the two recordings replayed in step, as the robot's cameras captured them: a frame's stamp is the same in both
+    stamps = {key: {m.frame: M.stamp_of(m.header) for m in msgs} for key, msgs in by_camera.items()}
+    both = set(stamps["p/front"]) & set(stamps["p/back"])
+    assert both and all(stamps["p/front"][k] == stamps["p/back"][k] for k in both), stamps
     # (the first frame, always processed, shows one of q's balls to the detector: deterministic)
     assert seen_front >= 1, (stdout, [(m.header.frame_id, m.frame, len(m.observations)) for m in got])
 
