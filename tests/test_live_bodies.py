@@ -357,3 +357,26 @@ def test_localizer_publishes_the_mounts_on_tf_static_and_poses_over_dds(pair):
         Tqp = truth[round(M.stamp_of(p.header) - start, 3)]
         x = p.pose.pose.position
         assert np.linalg.norm(np.array([x.x, x.y, x.z]) - Tqp.t) < 0.08
+
+
+def test_each_camera_is_a_stream_the_reorder_buffer_waits_for(pair):
+    """p's back camera runs a little behind its front one (another node process, another clock tick): its
+    message stamped 2 ms before the front's arrives after it.  The front's waits in the reorder buffer for
+    the back camera (a stream of its own, still sending), so both are fused, in one record, none late."""
+    path, rig, frames = pair
+    rid = M.rig_id(path)
+    loc = Localizer(path)
+    (t0, obs0, _), (t1, obs1, _) = frames[0], frames[1]
+    for key in rig.observer_keys():
+        assert loc.receive(_message(rid, key, 0, T0 + t0, obs0.get(key, {})), T0 + t0 + 0.01,
+                           key.split("/")[0]) == "held"
+    loc.poll(T0 + t0 + 0.05)
+    assert loc.records == 1
+    arrive = T0 + t1 + 0.005
+    for key in ("p/front", "q/front", "q/back"):
+        assert loc.receive(_message(rid, key, 1, T0 + t1, obs1.get(key, {})), arrive, key.split("/")[0]) == "held"
+    assert loc.poll(arrive) == [] and loc.records == 1  # p/back has not sent frame 1 yet: waited for
+    assert loc.receive(_message(rid, "p/back", 1, T0 + t1 - 0.002, {}), arrive + 0.002, "p") == "held"
+    out = loc.poll(arrive + 0.002)
+    assert loc.records == 2 and loc.counts["p"].dropped_late == 0
+    assert [p.robot for p in out] == ["p", "p"]  # p's pose at each message's stamp (two stamps, one record)
