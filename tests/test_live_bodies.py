@@ -380,3 +380,51 @@ def test_each_camera_is_a_stream_the_reorder_buffer_waits_for(pair):
     out = loc.poll(arrive + 0.002)
     assert loc.records == 2 and loc.counts["p"].dropped_late == 0
     assert [p.robot for p in out] == ["p", "p"]  # p's pose at each message's stamp (two stamps, one record)
+
+
+def test_a_cameras_node_looks_for_a_missed_tag_through_its_mount_where_tf_puts_it():
+    """p's back fisheye (robots back to back, the ray-traced tag scene of test_localize_images_bodies): its
+    first look is made to miss q's tags; with the localizer's pose of p in q's frame on /tf, the node finds
+    tag Q3 where that pose puts it through the camera's mount and lens and publishes its corners, within
+    0.35 px of the ray-traced ones, with frame_id .../back."""
+    from types import SimpleNamespace
+
+    from mutloc.core.rig import Marker, Rig, Robot
+    from mutloc.detect.base import DetectionResult
+    from mutloc.live.cameras import LiveFrame
+    from mutloc.live.node import Node
+    from test_localize_images_bodies import _corners_truth, facing_away, render
+
+    rig0, poses = facing_away()
+    img = render(rig0, poses, keys=["p/back"])["p/back"]
+    truth = _corners_truth(rig0, poses, "p/back", "Q3")
+    names = {"p": "bodyp_live", "q": "bodyq_live"}  # robot names no other test's /tf uses
+    rig = Rig({names[r]: Robot(names[r], None, {n: Marker(n, names[r], m.position, tag=m.tag)
+                                                for n, m in rob.markers.items()}, cameras=rob.cameras)
+               for r, rob in rig0.robots.items()})
+    T = M.ros_types()
+    bus = Bus(DOMAIN, loopback=True)
+    try:
+        tf_writer = bus.writer(M.TF_TOPIC, T.TFMessage)
+        node = Node(rig, names["p"], SimpleNamespace(fps=15.0, name="frames of a test"), bus,
+                    rig_id="body-tag-look-test", camera="back")
+        node.detector.detect = lambda frame: DetectionResult()  # the first look misses every tag
+        deadline = time.monotonic() + 20
+        while tf_writer.get_publication_matched_status().current_count == 0:
+            assert time.monotonic() < deadline, "the node never subscribed to /tf"
+            time.sleep(0.02)
+        T_qp = poses["q"].inverse() @ poses["p"]
+        msg = None
+        for k in range(40):  # until the transform has arrived (loopback: milliseconds)
+            t = time.time()
+            tf_writer.write(M.pose_messages(t, T_qp, None, names["p"], names["q"])[1])
+            time.sleep(0.01)
+            msg = node.process(LiveFrame(k, t + 0.001, img))
+            if any(o.marker == "Q3#0" for o in msg.observations):
+                break
+    finally:
+        bus.close()
+    assert msg.header.frame_id == "bodyp_live/back" and node.stats.looked_again >= 1
+    seen = {o.marker: (o.u, o.v) for o in msg.observations}
+    found = np.array([seen[f"Q3#{k}"] for k in range(4)])
+    assert np.linalg.norm(found - truth, axis=1).max() < 0.35
