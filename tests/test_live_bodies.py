@@ -9,6 +9,9 @@ lens"; issue 36 item 4).
   gives poses near the simulator's true poses; over DDS it publishes each camera's mount on ``/tf_static``
   (transient-local: a reader joining later gets it), equal to the rig's.
 - Bad ``--camera`` arguments: one line, non-zero.
+- A fisheye's ROS camera_info (``equidistant``) is that camera's calibration: checked, or used to detect in.
+- Each camera is a stream of its own in the localizer's reorder buffer.
+- A camera's node looks for a missed tag where ``/tf`` puts it, through that camera's mount and lens.
 
 DDS stays on the loopback interface, in domains derived from the pid (messages of another run are told
 apart by their rig_id); every child runs in its own process group, killed in a ``finally``.
