@@ -162,18 +162,26 @@ def test_cli_log_keyed_by_camera_and_bad_keys(tmp_path, capsys):
         assert np.degrees(np.linalg.norm(so3_log(R @ T.R.T))) < 3.0 and np.linalg.norm(tt - T.t) < 0.2
     # a camera the robot does not have, a robot with several cameras named alone: one line, non-zero
     for bad, said in ((["--stream", "p/side=x", "--stream", "q/back=y"], "unknown camera 'side'"),
-                      (["--stream", "p=x", "--stream", "q/back=y"], "give one stream per camera")):
+                      (["--stream", "p=x", "--stream", "q/back=y"], "give one stream per camera"),
+                      (["--observations", str(tmp_path / "log.jsonl"), "--frames", "base"], "already are in its robot")):
         capsys.readouterr()
         assert main(["track", "--rig", str(tmp_path / "rig.yaml"), *bad, "--out", str(tmp_path / "o2")]) != 0
         err = capsys.readouterr().err.strip()
         assert said in err and len(err.splitlines()) == 1 and "Traceback" not in err
 
 
-def test_rendered_streams_per_camera_facing_away(tmp_path, capsys):
-    """One short rendered sequence (small images, no room): `mutloc track --stream ROBOT/CAMERA=DIR` per camera,
-    robots back to back (only the back cameras see each other), each row against truth.tum."""
-    d = tmp_path / "sim"
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """One short rendered sequence (small images, no room), robots back to back."""
+    d = tmp_path_factory.mktemp("sim")
     write_cameras_simulation(d, facing="away", frames=5, size=(480, 300), room=False, seed=2)
+    return d
+
+
+def test_rendered_streams_per_camera_facing_away(rendered, tmp_path, capsys):
+    """`mutloc track --stream ROBOT/CAMERA=DIR` per camera, robots back to back (only the back cameras see each
+    other), each row against truth.tum."""
+    d = rendered
     out = tmp_path / "out"
     streams = [a for k in ("p/front", "p/back", "q/front", "q/back")
                for a in ("--stream", f"{k}={d / k.replace('/', '_')}")]
@@ -188,6 +196,14 @@ def test_rendered_streams_per_camera_facing_away(tmp_path, capsys):
         sig = row["sigma"]
         e = np.r_[so3_log(Rt @ R.T), tt - t]
         assert np.all(np.abs(e) < 5 * sig + np.r_[[0.002] * 3, [0.005] * 3]), (e, sig)
+    # the team tracker over the same streams (--reference: a team of two): the same poses within their sigmas
+    assert main(["track", "--rig", str(d / "rig.yaml"), *streams, "--reference", "q", "--out", str(tmp_path / "team"),
+                 "--no-progress"]) == 0
+    team_rows = read_trajectory_csv(tmp_path / "team" / "trajectory_p.csv")
+    assert [r["status"] for r in team_rows] == ["solved"] * 5
+    for row, Rt, tt in zip(team_rows, truth.R, truth.t):
+        e = np.r_[so3_log(Rt @ row["pose"].R.T), tt - row["pose"].t]
+        assert np.all(np.abs(e) < 5 * row["sigma"] + np.r_[[0.002] * 3, [0.005] * 3]), (e, row["sigma"])
     # the detections are logged keyed by camera: the back cameras only
     keys = {k for line in (tmp_path / "log.jsonl").read_text().splitlines() for k in json.loads(line)["observations"]}
     assert keys == {"p/back", "q/back"}
@@ -206,3 +222,76 @@ def rig_of(d):
     from mutloc import load_rig
 
     return load_rig(d / "rig.yaml")
+
+
+def test_tag_looked_for_where_the_track_puts_it_through_a_body_camera_s_mount():
+    """tests/test_tag_look.py's steep tags, q made a body whose one camera is mounted turned and shifted in its
+    frame (``q/cam``): the track's prediction (between robot frames) places p's tag in q's image through the
+    mount -- at the tag's true corners -- and a prediction a metre off finds nothing."""
+    from dataclasses import replace
+
+    from mutloc.core.rig import Mount, Robot
+    from mutloc.detect.tags import corner_marker_names
+    from mutloc.track.tag_look import look_where_tracked
+    from test_tag_look import first_look, steep_scenes
+
+    M = Pose(so3_exp([0.3, -0.5, 0.2]), np.array([0.1, -0.2, 0.3]))  # T_body_camera of q's camera
+    checked = 0
+    for rig, T, images, truth in steep_scenes()[:5]:
+        ex, dets, _ = first_look(rig, images)
+        if "TP#0" in dets["q"].detections:
+            continue
+        q = ex.robot("q")
+        body = Robot("q", None, {n: replace(m, position=M.apply(m.position)) for n, m in q.markers.items()},
+                     cameras={"cam": Mount("cam", q.camera, M)})
+        bodies = Rig({"p": ex.robot("p"), "q": body})
+        off = Pose.from_rotvec([0.0, np.radians(1.0), 0.0], [0.03, -0.02, 0.04])
+        pred = {"q": Pose.identity(), "p": M @ off @ T}  # T_qp between robot frames (p's is its camera's)
+        found, notes = look_where_tracked(bodies, {"q/cam": images["q"]}, {"q/cam": dets["q"]}, lambda: pred)
+        got = [found["q/cam"].detections.get(c) for c in corner_marker_names("TP")]
+        if all(d is not None for d in got):
+            checked += 1
+            assert max(np.hypot(*(d.uv - x)) for d, x in zip(got, truth)) < 0.35
+            assert notes == [("p", "q/cam saw tag TP where the track put it (looked for again)")]
+        far = {"q": Pose.identity(), "p": M @ Pose.from_rotvec([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]) @ T}
+        none, notes = look_where_tracked(bodies, {"q/cam": images["q"]}, {"q/cam": dets["q"]}, far)
+        assert "TP#0" not in none["q/cam"].detections and notes == []
+    assert checked >= 3
+
+
+def test_bags_one_topic_per_camera(rendered, tmp_path):
+    """A bag's image topic named per camera (``--topic p/back=/p/back/image_raw``); a camera_info taken per
+    camera keeps the camera's pose on the robot."""
+    import cv2
+
+    from mutloc import load_rig
+    from mutloc.core.camera import Camera
+    from mutloc.track.sources import rig_with_bag_cameras
+    from test_sources import write_bag
+
+    d = rendered
+    t_true, truth = read_tum(d / "truth.tum")
+    args = []
+    for key in ("p/back", "q/back"):
+        folder = d / key.replace("/", "_")
+        images = [cv2.imread(str(f)) for f in sorted(folder.glob("*.png"))]
+        write_bag(tmp_path / key.replace("/", "_"), 2, f"/{key}/image_raw", images, list(100.0 + t_true))
+        args += ["--stream", f"{key}={tmp_path / key.replace('/', '_')}", "--topic", f"{key}=/{key}/image_raw"]
+    out = tmp_path / "out"
+    assert main(["track", "--rig", str(d / "rig.yaml"), *args, "--out", str(out), "--no-progress"]) == 0
+    rows = read_trajectory_csv(out / "trajectory.csv")
+    assert [r["status"] for r in rows] == ["solved"] * 5
+    np.testing.assert_allclose([r["t"] for r in rows], 100.0 + t_true, atol=1e-6)
+    for row, Rt, tt in zip(rows, truth.R, truth.t):
+        e = np.r_[so3_log(Rt @ row["pose"].R.T), tt - row["pose"].t]
+        assert np.all(np.abs(e) < 5 * row["sigma"] + np.r_[[0.002] * 3, [0.005] * 3]), (e, row["sigma"])
+    # --camera-info per camera: the lens from the bag, the pose from the rig
+    K = [[500.0, 0, 239.5], [0, 500.0, 149.5], [0, 0, 1]]
+    write_bag(tmp_path / "info", 2, "/p/back/image_raw", images[:1], [100.0], K=K)
+    rig = load_rig(d / "rig.yaml")
+    new = rig_with_bag_cameras(rig, {"p/back": tmp_path / "info"}, {"p/back": "/p/back/camera_info"})
+    mount = new.mount("p/back")
+    assert isinstance(mount.camera, Camera) and np.allclose(mount.camera.K, K)
+    assert np.allclose(mount.pose.R, rig.mount("p/back").pose.R) and np.allclose(mount.pose.t,
+                                                                                 rig.mount("p/back").pose.t)
+    assert new.mount("p/front").camera is rig.mount("p/front").camera

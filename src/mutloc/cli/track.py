@@ -77,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
     rig = load_rig(args.rig)
     if args.frames == "base" and not team_mode(rig, args):
         for robot in rig.default_pair(args.source, args.target):
+            if rig.robot(robot).is_body:
+                raise RigError(f"{args.rig}: robot {robot!r} has cameras: its poses already are in its robot frame "
+                               "(leave out --frames base)")
             if rig.robot(robot).base_from_camera is None:
                 raise RigError(f"{args.rig}: --frames base needs base_from_camera for robot {robot!r}")
     if args.observations and args.observations_out:

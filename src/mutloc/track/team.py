@@ -98,7 +98,7 @@ from .rows import TrackRow
 from .trajectory import Trajectory
 
 __all__ = ["TeamTrajectory", "TeamTracker", "track_team", "track_team_log", "sync_streams", "team_file_names",
-           "require_streams", "unused_cameras", "RowEmitter"]
+           "require_streams", "unused_cameras", "camera_sizes", "RowEmitter"]
 
 
 def team_file_names(robot: str) -> tuple[str, str]:
@@ -1426,7 +1426,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
 
     def final(record: dict[str, TrackRow], images: dict) -> None:
         if writer is not None:
-            writer.write_team(images, record, reference, _camera_sizes(rig, images, sizes, list(streams)))
+            writer.write_team(images, record, reference, camera_sizes(rig, images, sizes, list(streams)))
         if sink is not None:
             for r, row in record.items():
                 sink(row, r)
@@ -1490,7 +1490,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate)
 
 
-def _camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]],
+def camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]],
                   cameras: list[str] | None = None) -> dict[str, tuple[int, int]]:
     """Each camera's tile ``(width, height)`` in the annotated video, fixed
     with its first frame: the rig's camera size, else its first image's,

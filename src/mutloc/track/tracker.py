@@ -35,7 +35,7 @@ from .tag_look import look_where_tracked
 from .sources import Frame
 from .rows import TrackRow
 from .status import FrameStatus
-from .team import RowEmitter, TeamTracker
+from .team import RowEmitter, TeamTracker, camera_sizes, sync_streams
 from .trajectory import CSV_EXTRA, BaseFrames, Trajectory, csv_row, tum_comment
 
 __all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "PairTrack", "check_streams",
@@ -246,8 +246,6 @@ def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str
     searched for the other robot's markers through its own lens; rows as :func:`track`'s (``t_source`` /
     ``t_target``: the mean time of that robot's frames in the record), ``detections`` keyed by camera.  A
     camera without a stream is not used; a record with an unreadable frame is ``corrupt``."""
-    from .team import _camera_sizes, sync_streams
-
     robot_of = {k: r for k, r in image_keys(rig, streams, "stream").items() if r in (source, target)}
     tracker = PairTrack(rig, source, target, pixel_sigma=pixel_sigma, confidence=confidence,
                         options=_options(filter))
@@ -264,7 +262,7 @@ def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str
         if viz is not None:
             _rerun_row(viz, row)
         if writer is not None:
-            writer.write_team(shown, {source: row}, target, _camera_sizes(rig, shown, sizes, list(robot_of)))
+            writer.write_team(shown, {source: row}, target, camera_sizes(rig, shown, sizes, list(robot_of)))
         if sink is not None:
             sink(row)
 
