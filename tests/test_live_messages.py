@@ -72,9 +72,15 @@ def _samples():
                        k=[800.0, 0, 479.5, 0, 800.0, 269.5, 0, 0, 1.0], r=[1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0],
                        p=[800.0, 0, 479.5, 0, 0, 800.0, 269.5, 0, 0, 0, 1.0, 0], binning_x=1, binning_y=2,
                        roi=T.RegionOfInterest(x_offset=1, y_offset=2, height=3, width=4, do_rectify=True))
+    # a robot with several cameras: a camera's observations (frame_id ROBOT/CAMERA), the mounts for /tf_static
+    body = ObservationSet.from_dict({"p/front": {"M1": [100.5, 20.25]}, "p/back": {"M2": [3.0, 4.0]}})
+    yield M.observations_message("p", "0123456789abcdef", 8, 12.5, body, source_time=0.5, frame_id="p/back")
+    from mutloc.sim.body_scenes import fisheye_pair_rig
+
+    yield M.static_transforms_message(fisheye_pair_rig("balls"), 5.125)
 
 
-@pytest.mark.parametrize("index", range(8))
+@pytest.mark.parametrize("index", range(10))
 def test_each_type_serialises_byte_identical_to_rosbags(store, index):
     msg = list(_samples())[index]
     T = M.ros_types()
@@ -210,3 +216,23 @@ def test_pose_cdr_from_a_shared_body_is_the_same_bytes():
     body = M.pose_cdr_body(pose, A @ A.T, "robot_one", "q")
     for ns in (0, 1, 1_800_000_000_123_456_789, 2**31 * 10**9 - 1):
         assert M.pose_cdr(ns, None, None, "robot_one", "q", body) == M.pose_cdr(ns, pose, A @ A.T, "robot_one", "q")
+
+
+def test_a_cameras_message_holds_that_cameras_observations_keyed_by_it():
+    """A robot with several cameras: the message of camera p/back holds p/back's observations only, with
+    frame_id p/back, and taken apart with the rig's frame_ids they are p/back's again; a frame_id naming no
+    camera of the robot is refused."""
+    from mutloc.sim.body_scenes import fisheye_pair_rig
+
+    rig = fisheye_pair_rig("balls")
+    obs = ObservationSet.from_dict({"p/front": {"M1": [100.5, 20.25]}, "p/back": {"M2": [3.0, 4.0]}})
+    msg = M.observations_message("p", "0123456789abcdef", 8, 12.5, obs, frame_id="p/back")
+    assert (msg.robot, msg.header.frame_id) == ("p", "p/back")
+    assert [(o.marker, o.u, o.v) for o in msg.observations] == [("M2", 3.0, 4.0)]
+    got = M.observations_from_message(type(msg).deserialize(msg.serialize()), list(rig.robots),
+                                      M.observer_frame_ids(rig))
+    assert got.key == "p/back" and got.observations.to_dict() == {"p/back": {"M2": (3.0, 4.0)}}
+    for frame_id in ("p", "", "p/side", "q/back"):
+        msg.header.frame_id = frame_id
+        with pytest.raises(M.MessageError, match="frame_id"):
+            M.observations_from_message(msg, list(rig.robots), M.observer_frame_ids(rig))

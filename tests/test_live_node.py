@@ -547,7 +547,8 @@ def test_camera_info_checked_gives_the_other_cameras_pixels_and_a_wrong_pose(sim
 @pytest.mark.parametrize("change, says", [
     (dict(k=[0.0] * 9), "focal lengths must be positive"),
     (dict(d=[-0.1, 0.0, 0.0]), "plumb_bob has 5 distortion coefficients, d has 3"),
-    (dict(distortion_model="equidistant", d=[0.0] * 4), "distortion model 'equidistant' is not supported"),
+    (dict(distortion_model="kannala_brandt", d=[0.0] * 4), "distortion model 'kannala_brandt' is not supported"),
+    (dict(distortion_model="equidistant", d=[0.0] * 5), "equidistant has 4 distortion coefficients, d has 5"),
     (dict(width=0, height=0), "image size 0x0"),
     (dict(binning_x=2, binning_y=2), "binning"),
 ])

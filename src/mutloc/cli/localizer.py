@@ -67,5 +67,6 @@ def _started(loc, domain: int) -> None:
     import sys
 
     topics = ", ".join(f"/mutloc/{r}_in_{loc.reference}" for r in loc.tracked)
-    print(f"localizer: rig_id {loc.rig_id}, domain {domain}; publishing {topics}, /tf, /diagnostics (Ctrl-C stops)",
-          file=sys.stderr, flush=True)
+    static = ", /tf_static" if any(r.is_body for r in loc.rig.robots.values()) else ""  # (the cameras' mounts)
+    print(f"localizer: rig_id {loc.rig_id}, domain {domain}; publishing {topics}, /tf{static}, /diagnostics "
+          "(Ctrl-C stops)", file=sys.stderr, flush=True)

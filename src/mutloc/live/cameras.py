@@ -45,8 +45,9 @@ __all__ = ["LiveFrame", "LatestFrame", "CameraSource", "CaptureSource", "ReplayS
 
 #: ``--camera-info``: ``check`` a ROS camera_info against the rig's camera (warn when they differ), or ``use`` it.
 CAMERA_INFO_MODES = ("check", "use")
-#: The camera_info distortion models mutloc's camera takes, with their number of coefficients.
-DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8}
+#: The camera_info distortion models mutloc's cameras take, with their number of coefficients (``equidistant``:
+#: the fisheye model, Kannala-Brandt k1..k4, as OpenCV's fisheye module and ROS's image_pipeline use it).
+DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
 
 RECORDING_NEEDS_REALTIME = "a recording is replayed as a camera only with --realtime (frames released at their " \
                            "own rate, stamped when released)"
@@ -388,13 +389,16 @@ def compare_cameras(announced: Camera, rig_camera: Camera, where: str) -> str | 
     1e-6 relative, the same size and distortion where both give them), else one
     line saying how they differ."""
     diffs = []
+    models = getattr(announced, "model", "pinhole"), getattr(rig_camera, "model", "pinhole")
+    if models[0] != models[1]:
+        diffs.append(f"lens model {models[0]} vs the rig's {models[1]}")
     if not np.allclose(announced.K, rig_camera.K, rtol=1e-6, atol=1e-9):
         fmt = lambda K: f"fx={K[0, 0]:g} fy={K[1, 1]:g} cx={K[0, 2]:g} cy={K[1, 2]:g}"  # noqa: E731
         diffs.append(f"K {fmt(announced.K)} vs the rig's {fmt(rig_camera.K)}")
     if announced.size is not None and rig_camera.size is not None and tuple(announced.size) != tuple(rig_camera.size):
         diffs.append(f"size {announced.size[0]}x{announced.size[1]} vs the rig's "
                      f"{rig_camera.size[0]}x{rig_camera.size[1]}")
-    if not np.allclose(announced.dist, rig_camera.dist, rtol=1e-6, atol=1e-9):
+    if models[0] == models[1] and not np.allclose(announced.dist, rig_camera.dist, rtol=1e-6, atol=1e-9):
         diffs.append("distortion differs")
     if not diffs:
         return None
@@ -406,7 +410,9 @@ def camera_from_camera_info(msg: Any, where: str) -> Camera:
     """The camera a ``sensor_msgs/msg/CameraInfo`` announces, checked as a
     calibration to work with: ``k`` a pinhole matrix with positive focal
     lengths, ``d`` as many coefficients as its ``distortion_model`` has
-    (``plumb_bob`` 5, ``rational_polynomial`` 8; none without a model),
+    (``plumb_bob`` 5, ``rational_polynomial`` 8: a pinhole
+    :class:`~mutloc.core.camera.Camera`; ``equidistant`` 4: a
+    :class:`~mutloc.core.lenses.FisheyeCamera`; none without a model),
     ``width`` and ``height`` given, no binning or region of interest.
     InputError (one line, naming ``where``) otherwise."""
     def bad(why: str) -> InputError:
@@ -438,6 +444,10 @@ def camera_from_camera_info(msg: Any, where: str) -> Camera:
             int(roi.width) and (int(roi.width), int(roi.height)) != (width, height)):
         raise bad("binning and regions of interest are not supported (publish the full-resolution camera_info)")
     try:
+        if model == "equidistant":
+            from ..core.lenses import FisheyeCamera
+
+            return FisheyeCamera(k.reshape(3, 3), d, (width, height))
         return Camera(k.reshape(3, 3), d if model else None, (width, height))
     except MutlocError as exc:
         raise bad(" ".join(str(exc).split())) from None

@@ -154,6 +154,18 @@ class Bus:
             self._topics[name] = Topic(self.participant, name, cls, qos=self.qos)
         return self._topics[name]
 
+    def static_writer(self, ros_topic: str, cls: type) -> Any:
+        """A DataWriter with the QoS of ROS 2's static broadcasters (tf2's
+        ``StaticBroadcasterQoS``: reliable, transient-local, keep-last 1):
+        a reader that joins later still gets the last message written (a
+        transient-local ROS 2 subscription, as tf2's static listener's)."""
+        from cyclonedds.core import Policy, Qos
+        from cyclonedds.pub import DataWriter
+
+        qos = Qos(Policy.Reliability.Reliable(max_blocking_time=WRITE_MAX_BLOCKING), Policy.Durability.TransientLocal,
+                  Policy.History.KeepLast(1))
+        return DataWriter(self.participant, self._topic(ros_topic, cls), qos=qos)
+
     def writer(self, ros_topic: str, cls: type) -> Any:
         """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``).
 
@@ -168,17 +180,22 @@ class Bus:
         return DataWriter(self.participant, self._topic(ros_topic, cls),
                           qos=_reliable(HISTORY_DEPTH, WRITE_MAX_BLOCKING))
 
-    def reader(self, ros_topic: str, cls: type, *, sensor: bool = False, depth: int = HISTORY_DEPTH) -> Reader:
+    def reader(self, ros_topic: str, cls: type, *, sensor: bool = False, depth: int = HISTORY_DEPTH,
+               static: bool = False) -> Reader:
         """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``.
         ``sensor``: ROS 2's sensor-data QoS (best effort, keep-last 5), which
         matches camera drivers' best-effort writers as well as reliable ones;
         ``depth``: the samples a reliable reader keeps until taken (its own
         history: a deeper one still matches ROS 2's writers, and rides out a
-        pause)."""
+        pause); ``static``: transient-local, keep-last 1 (as tf2's static
+        listener: gets what a :meth:`static_writer` wrote before it joined)."""
         from cyclonedds.core import Policy, Qos
         from cyclonedds.sub import DataReader
 
-        if sensor:
+        if static:
+            qos = Qos(Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.TransientLocal,
+                      Policy.History.KeepLast(1))
+        elif sensor:
             qos = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5))
         elif depth == HISTORY_DEPTH:
             qos = self.qos

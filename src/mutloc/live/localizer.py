@@ -19,15 +19,20 @@ lag).
 
 Messages are refused and counted, per robot, when they cannot be taken: not
 decodable or not what a node sends (``refused_malformed``: an unknown robot,
-a robot on another's topic, a non-finite pixel, a marker not in the rig, a
+a robot on another's topic, a ``header.frame_id`` that is neither the robot
+nor one of its cameras, a non-finite pixel, a marker not in the rig, a
 pixel far outside the image), of another rig (``refused_rig_id``), or
 stamped in the future by more than ``max_clock_skew`` (``refused_clock``).
-A message seen before (robot, frame and stamp) is a ``duplicate`` and
+A message seen before (camera, frame and stamp) is a ``duplicate`` and
 ignored.  Accepted messages wait in a short reorder buffer so that records
-are fused in time order: one leaves it once every other live robot has sent
+are fused in time order: one leaves it once every other live camera has sent
 a later stamp (none of theirs can come before it: DDS delivers each
 writer's messages in order) or ``reorder`` seconds after it arrived; a
-message stamped before the last record fused is ``dropped_late``.
+message stamped before the last record fused is ``dropped_late``.  A robot
+with several cameras sends each camera's messages with ``header.frame_id``
+``ROBOT/CAMERA`` (SPEC "Robots with several cameras, any lens"): each camera
+is a stream of its own, and messages of several cameras (of one robot or
+several) stamped within ``tolerance`` make one record.
 
 Each fused message gives a pose of every tracked robot it is about (a
 record of several messages one per message, stamped with each one's capture
@@ -67,7 +72,8 @@ from ..track.filtering import FilterOptions
 from ..track.frames import expanded_rig
 from ..track.rows import TrackRow
 from ..track.status import FrameStatus
-from .messages import OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, rig_id as rig_id_of
+from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
+                       rig_id as rig_id_of)
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
            "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD"]
@@ -176,6 +182,8 @@ class _Held:
     ns: int = field(compare=False)
     robot: str = field(compare=False)
     observations: ObservationSet = field(compare=False)
+    #: The observing camera's key (``ROBOT`` or ``ROBOT/CAMERA``): one stream of messages, delivered in order.
+    key: str = field(compare=False, default="")
 
 
 class _TeamEngine:
@@ -241,7 +249,10 @@ class Localizer:
             rig_id = rig_id_of(rig)
         self.rig_id = str(rig_id)
         self.rig = expanded_rig(load_rig(rig))
-        self.rig.require_central("the live localizer")
+        #: ``{robot: {frame_id: observation key}}``: the frame_ids each robot's nodes send (a camera's key).
+        self.frame_ids = observer_frame_ids(self.rig)
+        #: Every camera's observation key: each a stream of messages (one node's camera), in order.
+        self.keys = self.rig.observer_keys()
         names = list(self.rig.robots)
         if len(names) < 2:
             raise InputError(f"the localizer needs two robots or more; the rig has {len(names)}")
@@ -269,6 +280,7 @@ class Localizer:
         self.fused_until = -math.inf  #: capture time of the last record fused
         self.log = log
         self._held: list[_Held] = []
+        self._stream_stamp: dict[str, float] = {}  # newest capture time of each camera's messages
         self._seq = 0
         self._first: float | None = None  # arrival of the first message held
         self._closed = False
@@ -281,12 +293,23 @@ class Localizer:
         are loaded before the first message rather than while messages wait
         (about a second in a new process; the joint solve's alone 90 ms)."""
         a, b = self.names[0], self.names[1]
-        T = Pose.from_rotvec([0.0, math.pi, 0.0], [0.0, 0.0, 2.0])  # T_ba: a in front of b, facing it
+        if self.rig.robot(a).is_body or self.rig.robot(b).is_body:
+            T = Pose.from_rotvec([0.0, 0.0, math.pi], [2.0, 0.0, 0.0])  # bodies (z up): a ahead of b, facing it
+        else:
+            T = Pose.from_rotvec([0.0, math.pi, 0.0], [0.0, 0.0, 2.0])  # T_ba: a in front of b, facing it
         seen = {}
         for observer, other, to_obs in ((a, b, T.inverse()), (b, a, T)):
             robot, markers = self.rig.robot(other), list(self.rig.robot(other).markers)
-            uv = self.rig.robot(observer).camera.project(to_obs.apply(robot.marker_positions(markers)))
-            seen[observer] = ObservationSet([observer] * len(markers), markers, uv)
+            # the observer's camera that looks most towards the other robot
+            cam, mount = max(self.rig.robot(observer).mounts.items(),
+                             key=lambda cm: float(cm[1].pose.R[:, 2] @ to_obs.t))
+            X = mount.pose.inverse().apply(to_obs.apply(robot.marker_positions(markers)))
+            key = self.rig.robot(observer).observer_key(cam)
+            try:
+                uv = mount.camera.project(X)
+                seen[observer] = ObservationSet([key] * len(markers), markers, uv)
+            except (MutlocError, ValueError, FloatingPointError):
+                return  # a rig this pose does not suit: the first messages pay instead
         both = ObservationSet.concatenate([seen[a], seen[b]])
         for first in (False, True):
             engine = _TeamEngine(self.rig, self.engine.reference, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
@@ -310,7 +333,7 @@ class Localizer:
         ``refused: <why>``.  Never raises for the message's content."""
         who = topic if topic in self.counts else None
         try:
-            got = observations_from_message(msg, self.names)
+            got = observations_from_message(msg, self.names, self.frame_ids)
         except MessageError as exc:
             return self._refuse(who or _robot_of(msg, self.counts), "refused_malformed", str(exc))
         except Exception as exc:  # noqa: BLE001 -- anything on the topic is input: counted, never raised
@@ -333,7 +356,7 @@ class Localizer:
             c.refused_malformed += 1
             return "refused: " + " ".join(str(exc).split())
         ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-        key = (got.frame, ns)
+        key = (got.key, got.frame, ns)
         if key in c.seen:
             c.duplicates += 1
             return "duplicate"
@@ -342,13 +365,14 @@ class Localizer:
         if len(c.order) > _SEEN:
             c.seen.discard(c.order.popleft())
         c.last_stamp = got.time if c.last_stamp is None else max(c.last_stamp, got.time)
+        self._stream_stamp[got.key] = max(self._stream_stamp.get(got.key, -math.inf), got.time)
         if got.time < self.fused_until:
             c.dropped_late += 1
             return "late"
         self._seq += 1
         if self._first is None:
             self._first = now
-        heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs))
+        heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs, got.key))
         return "held"
 
     def malformed(self, robot: str, n: int = 1) -> None:
@@ -378,15 +402,16 @@ class Localizer:
     def _due(self, h: _Held, now: float) -> bool:
         if now >= h.arrival + self.reorder:  # (the same sum as next_due: no rounding between them)
             return True
-        for r, c in self.counts.items():
-            if r == h.robot:
-                continue  # its own messages come in order
-            if c.last_stamp is None:
+        for key in self.keys:  # each camera's messages (one node's) come in order
+            if key == h.key:
+                continue
+            last = self._stream_stamp.get(key)
+            if last is None:
                 if now - self._first > self.warn_after:
-                    continue  # a robot not heard since the start is not waited for
+                    continue  # a camera not heard since the start is not waited for
                 return False
-            if now - c.last_stamp <= self.warn_after and c.last_stamp < h.t:
-                return False  # (a robot gone quiet is not waited for)
+            if now - last <= self.warn_after and last < h.t:
+                return False  # (a camera gone quiet is not waited for)
         return True
 
     def next_due(self) -> float | None:
@@ -413,11 +438,11 @@ class Localizer:
         return out
 
     def _group(self) -> list[_Held]:
-        """The oldest held message and the held messages of other robots
+        """The oldest held message and the held messages of other cameras
         stamped within ``tolerance`` of it: one record."""
         group = [heapq.heappop(self._held)]
         while (self._held and self._held[0].t - group[0].t <= self.tolerance
-               and self._held[0].robot not in {h.robot for h in group}):
+               and self._held[0].key not in {h.key for h in group}):
             group.append(heapq.heappop(self._held))
         return group
 
@@ -583,7 +608,9 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     and is raised on after the files are complete: ``KeyboardInterrupt`` with
     the run as its argument).  Subscribes to ``/mutloc/NAME/observations`` of
     every robot of the rig; publishes ``/mutloc/NAME_in_REF``, ``/tf`` and
-    ``/diagnostics`` (every :data:`DIAGNOSTICS_PERIOD` s).  ``out``: a folder
+    ``/diagnostics`` (every :data:`DIAGNOSTICS_PERIOD` s), and, for robots with
+    several cameras, each camera's pose on its robot once on ``/tf_static``
+    (:func:`~mutloc.live.messages.static_transforms_message`, transient-local).  ``out``: a folder
     for the trajectory files and ``log.jsonl`` (see the module docstring)."""
     from .dds import Bus
     from .messages import DIAGNOSTICS_TOPIC, TF_TOPIC, diagnostics_message, observations_topic, pose_topic, ros_types
@@ -643,6 +670,14 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped) for r in loc.tracked}
     tf = bus.writer(tf_topic, T.TFMessage)
     diag = bus.writer(diag_topic, T.DiagnosticArray)
+    from .messages import TF_STATIC_TOPIC, static_transforms_message
+
+    mounts = static_transforms_message(loc.rig, clock())
+    static = None
+    if mounts.transforms:
+        # each camera's pose on its robot, once: transient-local (tf2's static QoS), so late joiners get it too
+        static = bus.static_writer(TF_STATIC_TOPIC, T.TFMessage)
+        static.write(mounts)
     from cyclonedds.core import DDSException
     waitset = WaitSet(bus.participant)
     mask = SampleState.Any | ViewState.Any | InstanceState.Any

@@ -37,13 +37,16 @@ from ..io.ros import TF_TOPIC, pose_topic, ros_covariance
 __all__ = ["ros_types", "MSG_PACKAGE", "rig_id", "observations_topic", "dds_topic", "OBSERVATIONS_TYPE",
            "observations_message", "observations_from_message", "observations_from_cdr", "pose_messages", "pose_cdr",
            "pose_cdr_body", "raw_sample", "diagnostics_message",
-           "stamp_of", "stamp", "MessageError", "RobotStatus", "DIAGNOSTICS_TOPIC", "TF_TOPIC", "pose_topic",
+           "stamp_of", "stamp", "MessageError", "RobotStatus", "DIAGNOSTICS_TOPIC", "TF_TOPIC", "TF_STATIC_TOPIC",
+           "pose_topic", "static_transforms_message", "observer_frame_ids",
            "OK", "WARN", "ERROR", "STALE"]
 
 #: The ROS 2 package of mutloc's message definitions (``package.xml``, ``msg/*.msg``).
 MSG_PACKAGE = Path(__file__).resolve().parent / "msg" / "mutloc_msgs"
 OBSERVATIONS_TYPE = "mutloc_msgs/msg/Observations"
 DIAGNOSTICS_TOPIC = "/diagnostics"
+#: Where tf2's static broadcasters publish (transient-local, keep-last 1: late joiners get the last message).
+TF_STATIC_TOPIC = "/tf_static"
 #: ``diagnostic_msgs/msg/DiagnosticStatus`` levels.
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
@@ -243,19 +246,22 @@ def stamp_of(header: Any) -> float:
 
 
 def observations_message(robot: str, rig: str, frame: int, time: float, observations: ObservationSet | None,
-                         source_time: float = 0.0) -> Any:
+                         source_time: float = 0.0, frame_id: str | None = None) -> Any:
     """The ``Observations`` message of one processed frame of ``robot``'s camera
-    (``observations``: what it saw, possibly nothing; only ``robot``'s own
-    observations are taken), stamped with the frame's capture ``time``;
-    ``rig``: the rig's :func:`rig_id`."""
+    (``observations``: what it saw, possibly nothing; only the observations of
+    ``frame_id`` -- default ``robot`` -- are taken), stamped with the frame's
+    capture ``time``; ``rig``: the rig's :func:`rig_id`; ``frame_id``: the
+    camera's observation key, ``ROBOT/CAMERA`` for a robot with several
+    cameras (SPEC "Robots with several cameras, any lens")."""
     T = ros_types()
+    key = robot if frame_id is None else frame_id
     entries = []
     if observations is not None:
         for o in observations:
-            if o.observer == robot:
+            if o.observer == key:
                 entries.append(T.Observation(marker=o.marker or "", u=float(o.uv[0]), v=float(o.uv[1]),
                                              score=float(o.score)))
-    return T.Observations(header=T.Header(stamp=stamp(time), frame_id=robot), robot=robot, rig_id=rig,
+    return T.Observations(header=T.Header(stamp=stamp(time), frame_id=key), robot=robot, rig_id=rig,
                           frame=int(frame) % 2**32, source_time=float(source_time), observations=entries)
 
 
@@ -333,21 +339,49 @@ class ReceivedObservations:
     time: float
     source_time: float
     observations: ObservationSet
+    #: The observing camera's key (``ROBOT``, or ``ROBOT/CAMERA``): the observer of :attr:`observations`.
+    key: str = ""
 
 
-def observations_from_message(msg: Any, robots: Sequence[str] | None = None) -> ReceivedObservations:
+def observer_frame_ids(rig: Any) -> dict[str, dict[str, str]]:
+    """``{robot: {frame_id: observation key}}``: the ``header.frame_id`` values
+    a node of each robot of ``rig`` sends and the camera each names -- ``ROBOT``
+    (or empty) for a robot given with one ``camera``, ``ROBOT/CAMERA`` for each
+    camera of a robot with ``cameras`` (also ``ROBOT`` and empty when it has
+    only one)."""
+    out: dict[str, dict[str, str]] = {}
+    for name, robot in rig.robots.items():
+        keys = {robot.observer_key(c): robot.observer_key(c) for c in robot.mounts}
+        if len(keys) == 1:
+            (key,) = keys.values()
+            keys.update({"": key, name: key})
+        out[name] = keys
+    return out
+
+
+def observations_from_message(msg: Any, robots: Sequence[str] | None = None,
+                              frame_ids: dict[str, dict[str, str]] | None = None) -> ReceivedObservations:
     """Check an ``Observations`` message and take it apart; :class:`MessageError`
     (one line) for anything a node of mutloc would not send: an unknown robot
-    (``robots``: the rig's), a header naming another robot, a non-finite or
-    negative stamp, a non-finite pixel or score."""
+    (``robots``: the rig's), a header naming another robot or camera, a
+    non-finite or negative stamp, a non-finite pixel or score.  ``frame_ids``
+    (:func:`observer_frame_ids` of the rig): the frame_ids each robot may send,
+    and the observation key each names (default: ``ROBOT`` or empty, the key
+    ``ROBOT``); the observations are the key's."""
     robot = getattr(msg, "robot", None)
     if not isinstance(robot, str) or not robot:
         raise MessageError("observations message without a robot name")
     if robots is not None and robot not in robots:
         raise MessageError(f"observations message from robot {robot!r}, not in the rig")
     header = msg.header
-    if header.frame_id not in ("", robot):
-        raise MessageError(f"observations message of robot {robot!r} with frame_id {header.frame_id!r}")
+    known = frame_ids.get(robot) if frame_ids is not None else None
+    if known is None:
+        known = {"": robot, robot: robot}
+    key = known.get(header.frame_id)
+    if key is None:
+        names = ", ".join(sorted(k for k in known if k))
+        raise MessageError(f"observations message of robot {robot!r} with frame_id {header.frame_id!r} "
+                           f"(its cameras: {names})")
     t = stamp_of(header)
     if not math.isfinite(t) or header.stamp.sec < 0 or header.stamp.nanosec >= 1_000_000_000:
         raise MessageError(f"observations message of robot {robot!r} with an invalid stamp")
@@ -358,11 +392,36 @@ def observations_from_message(msg: Any, robots: Sequence[str] | None = None) -> 
         markers.append(o.marker or None)
         uv.append((o.u, o.v))
         score.append(o.score)
-    obs = ObservationSet.trusted([robot] * len(markers), markers, np.asarray(uv, dtype=float).reshape(-1, 2),
+    obs = ObservationSet.trusted([key] * len(markers), markers, np.asarray(uv, dtype=float).reshape(-1, 2),
                                  time=t, score=np.asarray(score, dtype=float))
     source_time = float(msg.source_time)
     return ReceivedObservations(robot, str(msg.rig_id), int(msg.frame), t,
-                                source_time if math.isfinite(source_time) else 0.0, obs)
+                                source_time if math.isfinite(source_time) else 0.0, obs, key)
+
+
+def static_transforms_message(rig: Any, t: float) -> Any:
+    """The ``TFMessage`` of every camera's pose on its robot, for ``/tf_static``
+    (:data:`TF_STATIC_TOPIC`): one transform per camera of each robot given
+    with ``cameras``, ``header.frame_id`` the robot's frame (its name, as the
+    poses on ``/tf`` name it), ``child_frame_id`` the camera's observation key
+    ``ROBOT/CAMERA`` (its optical frame: the frame_id of that camera's
+    observations), the transform ``T_robot_camera`` (the rig's ``pose``),
+    stamped ``t``.  Robots given with one ``camera`` have none (their frame is
+    the camera's).  Empty when no robot has ``cameras``."""
+    T = ros_types()
+    st = stamp(t)
+    out = []
+    for name, robot in rig.robots.items():
+        if not robot.is_body:
+            continue
+        for cname, mount in robot.mounts.items():
+            q = [float(v) for v in mount.pose.quaternion_xyzw]
+            x, y, z = (float(v) for v in mount.pose.t)
+            out.append(T.TransformStamped(
+                header=T.Header(stamp=st, frame_id=name), child_frame_id=robot.observer_key(cname),
+                transform=T.Transform(translation=T.Vector3(x=x, y=y, z=z),
+                                      rotation=T.Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))))
+    return T.TFMessage(transforms=out)
 
 
 def pose_messages(t: float, pose: Pose, covariance: np.ndarray | None, source: str, target: str) -> tuple[Any, Any]:

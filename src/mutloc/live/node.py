@@ -17,6 +17,13 @@ predicted tag (:func:`mutloc.track.tag_look.look_where_tracked`).  The tag
 is decoded from the frame's own pixels; transforms between frames that are
 not robots of the rig (other ROS nodes' trees) are ignored and counted.
 
+A robot with several cameras (rig ``cameras:``) runs one :class:`Node` per
+camera (``camera``: its name), each with its own source, detecting through
+its own lens and mount (:func:`mutloc.track.frames.detect_markers` with the
+camera's key) and publishing on the robot's topic with ``header.frame_id``
+``NAME/CAMERA``; :func:`run_nodes` runs them together, each in its own
+thread (``mutloc node --camera front=SRC --camera back=SRC``).
+
 >>> from mutloc.live.dds import Bus
 >>> from mutloc.live.cameras import open_camera
 >>> bus = Bus(7, loopback=True)                                     # doctest: +SKIP
@@ -28,6 +35,7 @@ not robots of the rig (other ROS nodes' trees) are ignored and counted.
 from __future__ import annotations
 
 import math
+import re
 import threading
 import time
 from collections import deque
@@ -41,7 +49,7 @@ from ..api import load_rig
 from ..core.camera import Camera
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
-from ..core.rig import MarkerKind, Rig
+from ..core.rig import MarkerKind, Mount, Rig
 from ..errors import InputError, MutlocError
 from ..detect.tags import tag_corner_points
 from ..track.frames import expanded_rig
@@ -52,7 +60,8 @@ from .cameras import CameraSource, LiveFrame, ReplaySource
 from .messages import (DIAGNOSTICS_TOPIC, OK, TF_TOPIC, WARN, RobotStatus, diagnostics_message,
                        observations_message, observations_topic, rig_id as rig_file_id, ros_types, stamp_of)
 
-__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "LATENCY_WINDOW", "TF_MAX_AGE"]
+__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "camera_key", "camera_arguments", "with_camera",
+           "run_nodes", "LATENCY_WINDOW", "TF_MAX_AGE"]
 
 #: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
 LATENCY_WINDOW = 108_000
@@ -140,6 +149,122 @@ class NodeStats:
                 f"(published on {self.topic}), {self.dropped} dropped{extra}{lat}")
 
 
+def camera_key(rig: Rig, robot: str, camera: str | None) -> str:
+    """The observation key of ``robot``'s camera ``camera`` (SPEC "Robots with
+    several cameras, any lens"): ``ROBOT`` for a robot given with one
+    ``camera`` (``camera`` None), ``ROBOT/CAMERA`` for a camera of a robot with
+    ``cameras`` (``camera`` may be None when it has only one).  InputError
+    (one line, naming the robot's cameras) otherwise."""
+    r = rig.robot(robot)
+    if r.cameras is None:
+        if camera is not None:
+            raise InputError(f"robot {robot!r} has one camera (rig 'camera:'): give --camera SOURCE, without a "
+                             f"camera name (got {camera!r})")
+        return robot
+    names = ", ".join(r.cameras)
+    if camera is None:
+        if len(r.cameras) == 1:
+            return r.observer_key(next(iter(r.cameras)))
+        first = next(iter(r.cameras))
+        raise InputError(f"robot {robot!r} has cameras {names}: name the camera of each source "
+                         f"(--camera {first}=SOURCE, one --camera per camera this node runs)")
+    if camera not in r.cameras:
+        raise InputError(f"robot {robot!r} has no camera {camera!r} (its cameras: {names})")
+    return r.observer_key(camera)
+
+
+#: ``--camera CAM=SOURCE``: a camera name (no spaces, ``/``, ``:``, ``!`` or ``=``) before the first ``=``.
+_NAMED = re.compile(r"^([^\s/:!=]+)=(.+)$")
+
+
+def camera_arguments(rig: Rig, robot: str, specs: list[str]) -> list[tuple[str | None, str]]:
+    """``(camera, source)`` of each ``--camera`` argument of ``mutloc node``:
+    ``CAM=SOURCE`` names a camera of a robot with ``cameras``, a bare
+    ``SOURCE`` is the one camera of a robot (a GStreamer pipeline's or URL's
+    own ``=`` are not taken for a name: a name has no spaces, ``/``, ``:`` or
+    ``!``).  InputError (one line) for a camera the robot does not have, one
+    named twice, several sources for a robot with one camera, or a bare
+    source for a robot with several (see :func:`camera_key`)."""
+    r = rig.robot(robot)
+    out: list[tuple[str | None, str]] = []
+    for spec in specs:
+        m = _NAMED.match(spec)
+        if m is not None and not (r.cameras is None and Path(spec).exists()):
+            camera, source = m.group(1), m.group(2)
+        else:
+            camera, source = None, spec
+        camera_key(rig, robot, camera)  # (an unknown camera, or one missing: one line)
+        out.append((camera, source))
+    if r.cameras is None and len(out) > 1:
+        raise InputError(f"robot {robot!r} has one camera: give one --camera SOURCE, got {len(out)}")
+    keys = [camera_key(rig, robot, c) for c, _ in out]
+    twice = sorted({k for k in keys if keys.count(k) > 1})
+    if twice:
+        raise InputError(f"--camera: camera {twice[0]} given twice")
+    return out
+
+
+def with_camera(rig: Rig, key: str, camera: Any) -> Rig:
+    """``rig`` with the camera of observation key ``key`` replaced by ``camera`` (its mount's pose kept)."""
+    rname, cname = rig.observer(key)
+    r = rig.robots[rname]
+    if r.cameras is None:
+        new = replace(r, camera=camera)
+    else:
+        cams = dict(r.cameras)
+        cams[cname] = Mount(cname, camera, cams[cname].pose)
+        new = replace(r, cameras=cams)
+    return Rig({**rig.robots, rname: new})
+
+
+def run_nodes(nodes: list["Node"], **options: Any) -> list["NodeStats"]:
+    """Run the nodes of one robot's cameras (each :meth:`Node.run` with
+    ``options``), each camera's detection in its own thread, until every
+    source ends, ``duration`` passed, or Ctrl-C (``KeyboardInterrupt`` goes
+    on once every node stopped; their :attr:`Node.stats` hold what was done).
+    The first error of a node stops them all and is raised.  One node runs in
+    the calling thread."""
+    if len(nodes) == 1:
+        return [nodes[0].run(**options)]
+    stop = options.pop("stop", None) or threading.Event()
+    for node in nodes:
+        node.warm_up()
+    replays = [n.source for n in nodes if isinstance(n.source, ReplaySource)]
+    if len(replays) > 1 and all(r.start_at is None for r in replays):
+        # a robot's recordings replayed in step, as its cameras captured them: the first frames released together
+        for n in nodes:
+            if isinstance(n.source, ReplaySource):
+                n.wait_for_subscriber(options.get("subscriber_timeout", 3.0))
+        options["subscriber_timeout"] = 0.0  # (waited for above)
+        start = time.time() + 0.2
+        for r in replays:
+            r.start_at, r.patient = start, True
+    errors: list[BaseException] = []
+
+    def one(node: "Node") -> None:
+        try:
+            node.run(stop=stop, **options)
+        except BaseException as exc:  # noqa: BLE001 -- handed to the caller's thread
+            errors.append(exc)
+            stop.set()
+
+    threads = [threading.Thread(target=one, args=(n,), name=f"mutloc node {n.key}", daemon=True) for n in nodes]
+    for th in threads:
+        th.start()
+    try:
+        while any(th.is_alive() for th in threads):
+            for th in threads:
+                th.join(timeout=0.1)
+    except KeyboardInterrupt:
+        stop.set()
+        for th in threads:
+            th.join(timeout=5.0)
+        raise
+    if errors:
+        raise errors[0]
+    return [n.stats for n in nodes]
+
+
 def warm_up_images(rig: Rig, others: list[str], size: tuple[int, int], fps: float) -> list[np.ndarray]:
     """Images of ``size`` (width, height) showing the markers of ``others``
     as a camera might: coloured balls, tags (their printed pattern), blinking
@@ -198,7 +323,9 @@ class Node:
     SPEC's id of the rig file the localizer loads); ``fps``: the rate the
     blinking-light trackers assume (default the source's, else 30);
     ``diagnostics``: also publish the node's own ``/diagnostics`` status once
-    a second; ``report(line)``: where status lines and notes go.
+    a second; ``report(line)``: where status lines and notes go; ``camera``:
+    the camera of a robot with several cameras (its name in the rig; None
+    for a robot with one camera), see :func:`camera_key`.
 
     A source that announces its own camera model and asks for it to be used
     (a ROS topic with ``--camera-info use``: ``source.use_info``) has the
@@ -213,27 +340,28 @@ class Node:
 
     def __init__(self, rig: Any, robot: str, source: CameraSource, bus: Any, *, rig_id: str | None = None,
                  fps: float | None = None, diagnostics: bool = False,
-                 report: Callable[[str], None] | None = None) -> None:
+                 report: Callable[[str], None] | None = None, camera: str | None = None) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("a node given a loaded rig needs its rig_id (of the rig file the localizer reads)")
             rig_id = rig_file_id(rig)
         self.rig: Rig = expanded_rig(load_rig(rig))
-        self.rig.require_central("the live node")
-        self.rig.robot(robot)
+        #: The camera's observation key: ``ROBOT``, or ``ROBOT/CAMERA`` on a robot with several cameras.
+        self.key = camera_key(self.rig, robot, camera)
         self.others = [r for r in self.rig.robots if r != robot]
         if not self.others:
             raise InputError(f"robot {robot!r} is alone in the rig: no other robot's markers to look for")
         self.robot, self.rig_id, self.source, self.bus = robot, rig_id, source, bus
         self.detector_fps = float(fps or source.fps or DEFAULT_FPS)
-        self.detector = ObserverDetector(self.rig, robot, self.others, self.detector_fps)
+        self.detector = ObserverDetector(self.rig, self.key, self.others, self.detector_fps)
         self.topic = observations_topic(robot)
         T = ros_types()
         self.writer = bus.writer(self.topic, T.Observations)
         self.diagnostics = bus.writer(DIAGNOSTICS_TOPIC, T.DiagnosticArray) if diagnostics else None
         self.report = report or (lambda line: None)
-        self.stats = NodeStats(robot, source.name, self.topic)
+        self.stats = NodeStats(self.key, source.name, self.topic)
         self._last_t = -np.inf
+        self._warm = False
         self._said: set[str] = set()
         self.use_info = bool(getattr(source, "use_info", False))
         #: The camera the detectors work in when it is not the rig's (``use_info``: the camera_info's).
@@ -253,8 +381,9 @@ class Node:
         is first seen costs up to half a second (Numba loading it and its
         registries): the frame, and those behind it, would be that late, and
         a blinking light's tracker would miss frames."""
-        w, h = self.rig.robot(self.robot).camera.size or (640, 480)
-        spare = ObserverDetector(self.rig, self.robot, self.others, self.detector_fps)
+        self._warm = True
+        w, h = self.rig.mount(self.key).camera.size or (640, 480)
+        spare = ObserverDetector(self.rig, self.key, self.others, self.detector_fps)
         # faint noise: full-range noise is a blob on every pixel, and the blinking lights' tracker
         # would spend minutes giving each a track
         noise = np.random.default_rng(0).integers(0, 8, (h, w, 3), dtype=np.uint8)
@@ -302,10 +431,11 @@ class Node:
         if self.tf is not None:
             found = self._look_where_tracked(frame, found)
         t1, c1 = time.time(), time.thread_time()
-        obs = found.observations(self.robot, frame.t)
+        obs = found.observations(self.key, frame.t)
         if self.camera is not None:
             obs = self._in_rig_pixels(obs)
-        msg = observations_message(self.robot, self.rig_id, frame.index, frame.t, obs, frame.source_time)
+        msg = observations_message(self.robot, self.rig_id, frame.index, frame.t, obs, frame.source_time,
+                                   frame_id=self.key)
         self.writer.write(msg)
         done = time.time()
         s.latencies.append(done - frame.t)
@@ -348,10 +478,9 @@ class Node:
         predicted = {ref: Pose.identity(), **{c: T for c, (_, T) in recent.items()}}
         if self.robot not in predicted:
             return found
-        out, notes = look_where_tracked(self.detector.rig, {self.robot: frame.image}, {self.robot: found},
-                                        predicted)
+        out, notes = look_where_tracked(self.detector.rig, {self.key: frame.image}, {self.key: found}, predicted)
         self.stats.looked_again += len(notes)
-        return out[self.robot]
+        return out[self.key]
 
     def _check_camera(self, frame: LiveFrame) -> None:
         """Detect in the camera the source announced (the first frame: the
@@ -360,11 +489,10 @@ class Node:
         if camera is None:
             raise InputError(f"camera {self.source.name}: a frame came before its camera model")
         if self.camera is None:
-            rig_camera = self.rig.robot(self.robot).camera
+            rig_camera = self.rig.mount(self.key).camera
             self.camera = camera
-            robots = dict(self.rig.robots)
-            robots[self.robot] = replace(robots[self.robot], camera=camera)
-            self.detector = ObserverDetector(Rig(robots), self.robot, self.others, self.detector_fps)
+            self.detector = ObserverDetector(with_camera(self.rig, self.key, camera), self.key, self.others,
+                                             self.detector_fps)
             self.report(f"camera model from {getattr(self.source, 'info_topic', self.source.name)}: {camera!r}; "
                         f"pixels published in the rig's camera {rig_camera!r}")
         h, w = frame.image.shape[:2]
@@ -377,7 +505,7 @@ class Node:
         along the same rays; detections it cannot express are left out (counted)."""
         if not len(obs):
             return obs
-        rig_camera = self.rig.robot(self.robot).camera
+        rig_camera = self.rig.mount(self.key).camera
         keep, uv = [], []
         for i, pix in enumerate(obs.uv):
             try:
@@ -409,8 +537,11 @@ class Node:
             values.update(tags_found_again=s.looked_again, tf_ignored=s.tf_foreign, tf_malformed=s.tf_malformed)
         if s.latencies:
             values["latency_p50_ms"] = f"{percentile_ms(list(s.latencies)[-300:], 50):.1f}"
+        if self.key != self.robot:
+            values["camera"] = self.key
         self.diagnostics.write(diagnostics_message(time.time(), [RobotStatus(self.robot, level, message, values)],
-                                                   name="mutloc node"))
+                                                   name="mutloc node" if self.key == self.robot
+                                                   else f"mutloc node {self.key}"))
 
     def run(self, *, stop: threading.Event | None = None, duration: float | None = None,
             status_every: float | None = 5.0, first_frame_timeout: float = 5.0,
@@ -424,7 +555,8 @@ class Node:
         seconds (a ROS topic waits), fails, or gives images of another size
         than the rig's calibration."""
         s = self.stats
-        self.warm_up()
+        if not self._warm:
+            self.warm_up()
         if isinstance(self.source, ReplaySource):
             self.wait_for_subscriber(subscriber_timeout)
         self.source.start()
