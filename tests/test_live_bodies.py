@@ -44,7 +44,6 @@ from mutloc.track.frames import detect_markers, expanded_rig  # noqa: E402
 
 FRAMES, FPS = 3, 5.0
 #: Two domains of this run (loopback only).
-DOMAIN = 160 + os.getpid() % 35
 T0 = 1.75e9  # the robots' clock at the start of the API tests' records
 
 
@@ -71,15 +70,15 @@ def _angle_deg(Ra, Rb):
     return math.degrees(math.acos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1)))
 
 
-def test_node_with_two_cameras_publishes_each_cameras_detections(scene):
+def test_node_with_two_cameras_publishes_each_cameras_detections(scene, dds_domain):
     out, truth = scene
     rig = expanded_rig(load_rig(out / "rig.yaml"))
     T = M.ros_types()
-    bus = Bus(DOMAIN, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     reader = bus.reader(M.observations_topic("p"), T.Observations, depth=100)
     cmd = [sys.executable, "-m", "mutloc", "node", "--rig", str(out / "rig.yaml"), "--robot", "p",
            "--camera", f"front={out / 'p_front'}", "--camera", f"back={out / 'p_back'}", "--realtime",
-           "--loopback", "--domain", str(DOMAIN), "--no-progress"]
+           "--loopback", "--domain", str(dds_domain), "--no-progress"]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     got = []
     try:
@@ -138,21 +137,21 @@ def test_node_with_two_cameras_publishes_each_cameras_detections(scene):
     (["--camera", "side={p_front}"], "robot 'p' has no camera 'side' (its cameras: front, back)"),
     (["--camera", "front={p_front}", "--camera", "front={p_back}"], "camera p/front given twice"),
 ])
-def test_bad_camera_arguments_are_one_line_errors(scene, capsys, args, says):
+def test_bad_camera_arguments_are_one_line_errors(scene, capsys, args, says, dds_domain):
     out, _ = scene
     args = [a.format(p_front=out / "p_front", p_back=out / "p_back") for a in args]
     rc = main(["node", "--rig", str(out / "rig.yaml"), "--robot", "p", *args, "--realtime", "--loopback",
-               "--domain", str(DOMAIN), "--no-progress"])
+               "--domain", str(dds_domain), "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert rc != 0
     assert len(err.splitlines()) == 1 and says in err, err
 
 
-def test_a_camera_name_for_a_robot_with_one_camera_is_a_one_line_error(tmp_path, capsys):
+def test_a_camera_name_for_a_robot_with_one_camera_is_a_one_line_error(tmp_path, capsys, dds_domain):
     assert main(["simulate", "--out", str(tmp_path), "--size", "96x64", "--focal", "80", "--no-room",
                  "--no-progress"]) == 0
     rc = main(["node", "--rig", str(tmp_path / "rig.yaml"), "--robot", "p", "--camera",
-               f"front={tmp_path / 'p.png'}", "--realtime", "--loopback", "--domain", str(DOMAIN)])
+               f"front={tmp_path / 'p.png'}", "--realtime", "--loopback", "--domain", str(dds_domain)])
     err = capsys.readouterr().err.strip()
     assert rc != 0 and len(err.splitlines()) == 1 and "robot 'p' has one camera" in err, err
 
@@ -164,7 +163,7 @@ def _equidistant_info(T, camera, t):
                         k=[float(x) for x in camera.K.ravel()])
 
 
-def test_a_fisheye_cameras_ros_topic_with_its_equidistant_camera_info(scene):
+def test_a_fisheye_cameras_ros_topic_with_its_equidistant_camera_info(scene, dds_domain):
     """p's front camera on a ROS image topic whose camera_info says ``equidistant`` (ROS's fisheye model)
     with the rig's calibration: checked, it agrees (no note); used (``--camera-info use``), the node detects
     through the announced fisheye and publishes what offline detection through the rig's finds, frame_id
@@ -186,7 +185,7 @@ def test_a_fisheye_cameras_ros_topic_with_its_equidistant_camera_info(scene):
                                                    d=[0.0] * 5, k=[float(x) for x in lens.K.ravel()]), "ci")
     assert "lens model pinhole vs the rig's fisheye" in compare_cameras(pinhole, lens, "camera_info")
 
-    bus = Bus(DOMAIN, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     stop, failed, got, sent = threading.Event(), [], [], {}
     runner = None
     try:
@@ -305,12 +304,12 @@ def test_localizer_fuses_the_cameras_of_a_body_pair(pair):
         assert _angle_deg(p.estimate.pose.R, T.R) < 3.5, p
 
 
-def test_localizer_publishes_the_mounts_on_tf_static_and_poses_over_dds(pair):
+def test_localizer_publishes_the_mounts_on_tf_static_and_poses_over_dds(pair, dds_domain):
     """``mutloc localizer`` over DDS: a reader joining after it started gets ``/tf_static`` (each camera's
     pose on its robot, the rig's), and messages sent as the nodes send them give poses near the truth."""
     path, rig, frames = pair
     rid = M.rig_id(path)
-    domain = DOMAIN + 36
+    domain = dds_domain
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
            "--duration", "60"]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -385,7 +384,7 @@ def test_each_camera_is_a_stream_the_reorder_buffer_waits_for(pair):
     assert [p.robot for p in out] == ["p", "p"]  # p's pose at each message's stamp (two stamps, one record)
 
 
-def test_a_cameras_node_looks_for_a_missed_tag_through_its_mount_where_tf_puts_it():
+def test_a_cameras_node_looks_for_a_missed_tag_through_its_mount_where_tf_puts_it(dds_domain):
     """p's back fisheye (robots back to back, the ray-traced tag scene of test_localize_images_bodies): its
     first look is made to miss q's tags; with the localizer's pose of p in q's frame on /tf, the node finds
     tag Q3 where that pose puts it through the camera's mount and lens and publishes its corners, within
@@ -406,7 +405,7 @@ def test_a_cameras_node_looks_for_a_missed_tag_through_its_mount_where_tf_puts_i
                                                 for n, m in rob.markers.items()}, cameras=rob.cameras)
                for r, rob in rig0.robots.items()})
     T = M.ros_types()
-    bus = Bus(DOMAIN, loopback=True)
+    bus = Bus(dds_domain, loopback=True)
     try:
         tf_writer = bus.writer(M.TF_TOPIC, T.TFMessage)
         node = Node(rig, names["p"], SimpleNamespace(fps=15.0, name="frames of a test"), bus,
