@@ -170,7 +170,7 @@ def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: n
     labels = _Labels(pair, rows)
     if table.mounts is not None:  # robots with several cameras or wide-angle lenses: rays in robot frames
         parent = pair.parent
-        bearings, frames = pair_rays(table.mounts, [parent.observer[r] for r in rows.tolist()], parent.uv[rows],
+        bearings, frames = pair_rays(table.lenses, [parent.observer[r] for r in rows.tolist()], parent.uv[rows],
                                      labels.__getitem__)
         scale = pair.sigma_scale if rows is pair.rows else parent.scales_of(rows)
         return PairProblem.trusted(side, np.ascontiguousarray(table.points[prow]), bearings, None, None, None, labels,

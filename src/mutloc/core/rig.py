@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
+from functools import cached_property
 from enum import Enum
 from typing import Any, Mapping
 
@@ -206,6 +207,13 @@ class PairTable:
     def names(self, rows: np.ndarray) -> list[str]:
         """The markers at ``rows`` of :attr:`points`."""
         return [self.marker_names[i] for i in rows.tolist()]
+
+    @cached_property
+    def lenses(self) -> Any:
+        """:attr:`mounts` as the compiled ray builder reads them (:class:`mutloc.core.rays.LensTable`)."""
+        from .rays import lens_table
+
+        return None if self.mounts is None else lens_table(self.mounts)
 
 
 class Rig:
