@@ -285,7 +285,9 @@ def _refine_set(problem: PairProblem, keep: np.ndarray, sigma: float, confidence
     n = len(problem.side)
     for _ in range(n):
         try:
-            sol = estimate(_sub(problem, keep))
+            # a set that passes is solved from its first minimal subset when that subset's optimum is clear
+            sol = estimate(_sub(problem, keep), accept=chi2_quantile(confidence, 2 * len(keep) - 6) * sigma**2
+                           if confidence < 1.0 else None)
         except MutlocError:
             return None
         err = observation_errors(problem, sol.pose.R, sol.pose.t)[0]
