@@ -20,10 +20,10 @@ from ..errors import MutlocError
 from .consistency import Consistency, chi2_quantile, consistency
 from .estimate import PairProblem, Solution, estimate
 from .pose import Pose
-from .refine import MODE_PIXEL, WS_SIZE, lm_refine, residuals, tangent_bases
+from .refine import MODE_PIXEL, WS_SIZE, cost_into, lm_refine, residuals, tangent_bases
 
 __all__ = ["RobustResult", "observation_errors", "largest_consistent_set", "other_consistent_poses", "MIN_VERIFIABLE",
-           "other_poses_kernel", "pose_mahalanobis"]
+           "other_poses_kernel", "pose_mahalanobis", "covariance_nonlinearity", "NONLINEARITY_LIMIT"]
 
 #: Fewest observations whose fit can be tested (2n - 6 > 0).
 MIN_VERIFIABLE = 4
@@ -250,6 +250,76 @@ def other_poses_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc, tc,
             tout[nf] = t
             nf += 1
     return nf
+
+
+#: How far (as a fraction) the cost at the covariance's 3-sigma boundary, along its least-determined direction,
+#: may differ from the quadratic model's 9 sigma^2 before the covariance is said not to describe the pose's
+#: uncertainty (:func:`covariance_nonlinearity`).
+NONLINEARITY_LIMIT = 1.0
+
+
+def covariance_nonlinearity(problem: PairProblem, pose: Pose, covariance: np.ndarray, sigma: float,
+                            k: float = 3.0) -> float:
+    """How badly the linearized covariance describes the cost around ``pose``: along the
+    least-determined direction (the largest eigenvector of the correlation matrix, scaled back onto the
+    ``k``-sigma ellipsoid, so the answer does not depend on units), the rise of the cost both ways over the
+    quadratic model's ``k^2 sigma^2``, as ``max |rise / predicted - 1|``: 0 for a problem that is linear
+    there, inf when a marker would leave its camera's view.  A far robot seen through a few markers close
+    together in one lens has a cost that is far from quadratic within its own error ellipsoid; the
+    covariance then misstates the error (5 sigma and worse happen)."""
+    return float(nonlinearity_kernel(*problem.kernel_args(), np.ascontiguousarray(pose.R),
+                                     np.ascontiguousarray(pose.t), np.ascontiguousarray(covariance, dtype=float),
+                                     float(k), float(sigma)))
+
+
+@njit(cache=True)
+def _exp_times(w, sign, R, out):
+    """``out = exp(sign * w) @ R`` (Rodrigues)."""
+    x, y, z = sign * w[0], sign * w[1], sign * w[2]
+    th = np.sqrt(x * x + y * y + z * z)
+    if th < 1e-8:
+        a, b = 1.0, 0.5
+    else:
+        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / (th * th)
+    W = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    E = np.eye(3) + a * W + b * (W @ W)
+    out[:, :] = E @ R
+
+
+@njit(cache=True)
+def nonlinearity_kernel(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, C, k, sigma):
+    """:func:`covariance_nonlinearity` in one compiled call."""
+    d = np.empty(6)
+    for i in range(6):
+        if not C[i, i] > 0.0:
+            return np.inf
+        d[i] = np.sqrt(C[i, i])
+    Cn = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            Cn[i, j] = C[i, j] / (d[i] * d[j])
+    w, V = np.linalg.eigh(Cn)
+    s = k * np.sqrt(max(w[5], 0.0))
+    u = np.empty(6)
+    for i in range(6):
+        u[i] = s * d[i] * V[i, 5]
+    r = np.empty(2 * side.shape[0])
+    J = np.empty((1, 6))
+    ws = np.empty(WS_SIZE)
+    c0 = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, ws)
+    R2 = np.empty((3, 3))
+    t2 = np.empty(3)
+    worst = 0.0
+    for sign in (1.0, -1.0):
+        _exp_times(u[:3], sign, R, R2)
+        for a in range(3):
+            t2[a] = t[a] + sign * u[3 + a]
+        c = cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R2, t2, r, J, ws)
+        rise = (c - c0) / (k * k * sigma * sigma)
+        if not np.isfinite(rise):
+            return np.inf
+        worst = max(worst, abs(rise - 1.0))
+    return worst
 
 
 def _rotvecs(R: np.ndarray) -> np.ndarray:
