@@ -58,59 +58,60 @@ def err(est, T):
     return np.r_[so3_log(est.R @ T.R.T), est.t - T.t]
 
 
-def exactness(n: int, seed: int) -> dict:
+def scenes(n: int, seed: int, desc: str):
+    """``n`` random pairs with at least four observations: (rng, rig, world poses, T_qp, noise-free observations)."""
     rng = np.random.default_rng(seed)
+    made = 0
+    with tqdm(total=n, desc=desc, leave=False) as bar:
+        while made < n:
+            rig, poses, T = scene(rng)
+            truth = body_observations(rig, poses)
+            if sum(len(v) for v in truth.values()) < 4:
+                continue
+            made += 1
+            bar.update()
+            yield rng, rig, poses, T, truth
+
+
+def exactness(n: int, seed: int) -> dict:
     exact = tried = errors = 0
     worst = 0.0
-    with tqdm(total=n, desc="noise-free", leave=False) as bar:
-        while tried < n:
-            rig, poses, T = scene(rng)
-            obs = body_observations(rig, poses)
-            if sum(len(v) for v in obs.values()) < 4:
-                continue
-            tried += 1
-            bar.update()
-            try:
-                est = mutloc.localize(rig, obs, "p", "q", confidence=1.0)
-            except mutloc.errors.MutlocError:
-                errors += 1
-                continue
-            e = err(est, T)
-            worst = max(worst, float(np.linalg.norm(e[3:])))
-            exact += bool(np.linalg.norm(e[3:]) < 1e-7 and np.linalg.norm(e[:3]) < 1e-8)
+    for _, rig, _, T, obs in scenes(n, seed, "noise-free"):
+        tried += 1
+        try:
+            est = mutloc.localize(rig, obs, "p", "q", confidence=1.0)
+        except mutloc.errors.MutlocError:
+            errors += 1
+            continue
+        e = err(est, T)
+        worst = max(worst, float(np.linalg.norm(e[3:])))
+        exact += bool(np.linalg.norm(e[3:]) < 1e-7 and np.linalg.norm(e[:3]) < 1e-8)
     return {"scenes": tried, "exact": exact, "errors": errors, "exact_rate": exact / tried,
             "worst_translation_m": worst}
 
 
 def noisy(n: int, seed: int, sigma: float = 1.0) -> dict:
-    rng = np.random.default_rng(seed)
     status: dict[str, int] = {}
     rows = []
     tried = 0
-    with tqdm(total=n, desc="sigma 1 px", leave=False) as bar:
-        while tried < n:
-            rig, poses, T = scene(rng)
-            truth = body_observations(rig, poses)
-            if sum(len(v) for v in truth.values()) < 4:
-                continue
-            tried += 1
-            bar.update()
-            obs = body_observations(rig, poses, sigma=sigma, rng=rng)
-            try:
-                est = mutloc.localize(rig, obs, "p", "q", pixel_sigma=sigma)
-                s = est.status
-            except mutloc.errors.MutlocError as exc:
-                status[type(exc).__name__] = status.get(type(exc).__name__, 0) + 1
-                continue
-            status[s] = status.get(s, 0) + 1
-            if s != "solved":
-                continue
-            e = err(est, T)
-            mutual = any(k.startswith("p") for k in truth) and any(k.startswith("q") for k in truth)
-            crlb = np.linalg.inv(pixel_information(rig, truth, "p", "q", T)) * sigma**2
-            rows.append((float(e @ np.linalg.solve(est.covariance, e)), float(e[3:] @ e[3:]),
-                         float(np.trace(crlb[3:, 3:])), float(e[:3] @ e[:3]), float(np.trace(crlb[:3, :3])), mutual,
-                         sum(len(v) for v in obs.values())))
+    for rng, rig, poses, T, truth in scenes(n, seed, "sigma 1 px"):
+        tried += 1
+        obs = body_observations(rig, poses, sigma=sigma, rng=rng)
+        try:
+            est = mutloc.localize(rig, obs, "p", "q", pixel_sigma=sigma)
+            s = est.status
+        except mutloc.errors.MutlocError as exc:
+            status[type(exc).__name__] = status.get(type(exc).__name__, 0) + 1
+            continue
+        status[s] = status.get(s, 0) + 1
+        if s != "solved":
+            continue
+        e = err(est, T)
+        mutual = any(k.startswith("p") for k in truth) and any(k.startswith("q") for k in truth)
+        crlb = np.linalg.inv(pixel_information(rig, truth, "p", "q", T)) * sigma**2
+        rows.append((float(e @ np.linalg.solve(est.covariance, e)), float(e[3:] @ e[3:]),
+                     float(np.trace(crlb[3:, 3:])), float(e[:3] @ e[:3]), float(np.trace(crlb[:3, :3])), mutual,
+                     sum(len(v) for v in obs.values())))
 
     def summary(sel):
         a = np.array([r for r in rows if sel(r)])

@@ -18,7 +18,8 @@ from .core.pose import Pose
 from .core.refine import tangent_bases
 from .core.rays import pair_rays
 from .core.rig import Rig
-from .core.robust import MIN_VERIFIABLE, largest_consistent_set, observation_errors, other_consistent_poses
+from .core.robust import (MIN_VERIFIABLE, NONLINEARITY_LIMIT, covariance_nonlinearity, largest_consistent_set,
+                          observation_errors, other_consistent_poses)
 from .errors import (InconsistentObservationsError, InputError, MutlocError, NoSolutionError, ObservationError,
                      UnverifiedError, confidence_level, positive_number)
 
@@ -75,14 +76,20 @@ class Estimate:
     #: Other poses that fit the observations as well (each passes the test, and this pose's covariance rules it
     #: out): the observations do not decide between them; None when not searched.
     alternatives: Pose | None = None
+    #: Robots with several cameras or wide-angle lenses: how far the cost at this pose's 3-sigma boundary along
+    #: its weakest direction is from the covariance's quadratic model (:func:`~mutloc.core.robust.covariance_nonlinearity`),
+    #: set when beyond :data:`~mutloc.core.robust.NONLINEARITY_LIMIT`: the covariance does not hold, the
+    #: estimate is ``unverified``.  None otherwise.
+    nonlinearity: float | None = None
 
     @property
     def status(self) -> str:
         """``"solved"`` (passed its consistency test, and no other pose does), ``"unverified"``
-        (three observations: nothing to test; or another pose fits as well, see :attr:`alternatives`), or
+        (three observations: nothing to test; or another pose fits as well, see :attr:`alternatives`; or, robots
+        with several cameras or wide-angle lenses, the covariance does not hold, see :attr:`nonlinearity`), or
         ``"rejected"`` (failed it; only ever seen on the estimate an InconsistentObservationsError carries)."""
         passed = None if self.consistency is None else self.consistency.passed
-        if passed and self.alternatives is not None and len(self.alternatives):
+        if passed and ((self.alternatives is not None and len(self.alternatives)) or self.nonlinearity is not None):
             return "unverified"
         return "unverified" if passed is None else ("solved" if passed else "rejected")
 
@@ -115,6 +122,7 @@ class Estimate:
             assignment=self.assignment,
             extra=dict(self.extra),
             alternatives=None if self.alternatives is None else self.alternatives.inverse(),
+            nonlinearity=self.nonlinearity,
         )
 
     def __getstate__(self) -> dict[str, Any]:
@@ -144,6 +152,8 @@ class Estimate:
             d["assignment"] = self.assignment
         if self.alternatives is not None and len(self.alternatives):
             d["alternatives"] = [p.to_dict() for p in self.alternatives]
+        if self.nonlinearity is not None:
+            d["covariance_nonlinearity"] = float(self.nonlinearity) if math.isfinite(self.nonlinearity) else None
         return d
 
 
@@ -170,7 +180,7 @@ def _problem(pair: PairObservations, side: np.ndarray, prow: np.ndarray, rows: n
     labels = _Labels(pair, rows)
     if table.mounts is not None:  # robots with several cameras or wide-angle lenses: rays in robot frames
         parent = pair.parent
-        bearings, frames = pair_rays(table.mounts, [parent.observer[r] for r in rows.tolist()], parent.uv[rows],
+        bearings, frames = pair_rays(table.lenses, [parent.observer[r] for r in rows.tolist()], parent.uv[rows],
                                      labels.__getitem__)
         scale = pair.sigma_scale if rows is pair.rows else parent.scales_of(rows)
         return PairProblem.trusted(side, np.ascontiguousarray(table.points[prow]), bearings, None, None, None, labels,
@@ -364,7 +374,20 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
         est.alternatives = Pose.concatenate(other) if other else Pose(np.empty((0, 3, 3)),
                                                                                         np.empty((0, 3)))
         passed = None if other else passed
+        if passed:
+            # One pose, but is its covariance its uncertainty? Not where the cost is far from quadratic
+            # within its own 3-sigma ellipsoid (a far robot through a few markers close together in one lens).
+            bend = covariance_nonlinearity(problem, sol.pose, est.covariance, sigma_used)
+            if bend > NONLINEARITY_LIMIT:
+                est.nonlinearity = bend
+                passed = None
     if passed is None and not allow_unverified:
+        if est.nonlinearity is not None:
+            raise UnverifiedError(
+                f"{n} marker observations between {source!r} and {target!r} ({', '.join(names)}) fit one pose, but "
+                f"its covariance does not describe its error: 3 sigma along its weakest direction the cost is off "
+                f"the linear prediction by {_percent(est.nonlinearity)}; accept the risk with --allow-unverified "
+                "(allow_unverified=True) or observe more markers", est)
         if est.alternatives is not None and len(est.alternatives):
             raise UnverifiedError(
                 f"{n} marker observations between {source!r} and {target!r} ({', '.join(names)}) fit "
@@ -377,6 +400,10 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
             f"{fit} and nothing can verify {'it' if k == 1 else 'the one chosen'}; accept the risk "
             "with --allow-unverified (allow_unverified=True) or observe a fourth marker", est)
     return est
+
+
+def _percent(x: float) -> str:
+    return f"{100 * x:.0f} %" if math.isfinite(x) else "more than any bound (a marker leaves its camera's view)"
 
 
 def _candidates_only(problem: PairProblem) -> Any:

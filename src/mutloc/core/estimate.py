@@ -189,6 +189,11 @@ class Solution:
         return self._candidates
 
     @property
+    def candidates_known(self) -> bool:
+        """Whether :attr:`candidates` are solved already (reading them then costs nothing)."""
+        return not callable(self._candidates)
+
+    @property
     def candidates(self) -> Pose:
         """Every distinct candidate pose, best first (a stack)."""
         return self._ranking()[0]
@@ -487,7 +492,8 @@ def first_subset(side, bearings, sub):
 
 
 @njit(cache=True)
-def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, accept, max_iter, R, t, H, Hinv):
+def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, accept, max_iter, R, t, H, Hinv,
+                        Rc, tc, costs):
     """The estimate from one well-chosen minimal subset (pixel objective, at
     least four observations): its roots ranked on every observation, the
     best refined.  Accepted (status 0, the cost) only when the refined cost
@@ -495,7 +501,9 @@ def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, ac
     lie in another basin; anything else returns :data:`_FALL_BACK` and the
     caller solves every subset (:func:`solve_kernel`), which also reports
     the failures.  ``mode`` is :data:`MODE_PIXEL` or :data:`MODE_RAY` (rays
-    and their frames given in ``frames``)."""
+    and their frames given in ``frames``).  The subset's roots and their
+    costs on every observation are left in ``Rc``/``tc``/``costs``
+    (:data:`PER_SUBSET` slots; the third value returned is their count)."""
     n = side.shape[0]
     if mode == MODE_RAY:
         bearings = np.ascontiguousarray(frames[:, 2, :])
@@ -503,13 +511,11 @@ def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, ac
     else:
         bearings = np.empty((n, 3))
         if bearings_kernel(side, meas, Kp, dp, Kq, dq, bearings) >= 0:
-            return _FALL_BACK, np.inf
+            return _FALL_BACK, np.inf, 0
         origins = np.zeros((n, 3))
     sub = np.empty((1, 3), dtype=np.int64)
     if not first_subset(side, bearings, sub[0]):
-        return _FALL_BACK, np.inf
-    Rc = np.empty((PER_SUBSET, 3, 3))
-    tc = np.empty((PER_SUBSET, 3))
+        return _FALL_BACK, np.inf, 0
     nc = minimal_candidates_kernel(side, points, bearings, origins, sub, False, Rc, tc)
     if mode == MODE_RAY:
         basis = frames
@@ -519,31 +525,30 @@ def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, ac
     r = np.empty(2 * n)
     J = np.empty((1, 6))
     ws = np.empty(WS_SIZE)
-    costs = np.empty(max(nc, 1))
-    i0 = 0
-    if nc > 1:  # a lone root needs no ranking: the refinement evaluates it
-        i0 = -1
-        for i in range(nc):
-            costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc[i], tc[i], r, J, ws)
-            if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
-                i0 = i
+    i0 = -1
+    for i in range(nc):
+        costs[i] = cost_into(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, Rc[i], tc[i], r, J, ws)
+        if np.isfinite(costs[i]) and (i0 < 0 or costs[i] < costs[i0]):
+            i0 = i
+    if nc == 1 and i0 < 0:  # a lone root: the refinement judges it
+        i0 = 0
     if nc == 0 or i0 < 0:
-        return _FALL_BACK, np.inf
+        return _FALL_BACK, np.inf, 0
     R[:, :] = Rc[i0]
     t[:] = tc[i0]
     # H: J^T J at the refined pose, as information() would compute it.
     c, _ = lm_refine(side, points, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, max_iter, H)
     if not c <= accept:
-        return _FALL_BACK, c
+        return _FALL_BACK, c, nc
     # Another root that starts within the margin solve_kernel refines
     # runner-ups by, and not in the basin just found: the answer may be
     # ambiguous, and only the full search can say.
     for i in range(nc):
         if i != i0 and costs[i] <= 25.0 * c + 1e-12 and not _same_basin(Rc[i], tc[i], R, t):
-            return _FALL_BACK, c
+            return _FALL_BACK, c, nc
     if not _inverse_checked(H, _MAX_COND, Hinv):
-        return _FALL_BACK, c
-    return _OK, c
+        return _FALL_BACK, c, nc
+    return _OK, c, nc
 
 
 @njit(cache=True)
@@ -618,15 +623,20 @@ def estimate(obs: PairProblem, *, refine: bool = True, n_refine: int = 4, max_it
         t = np.empty(3)
         H = np.empty((6, 6))
         Hinv = np.empty((6, 6))
+        Rs = np.empty((PER_SUBSET, 3, 3))
+        ts = np.empty((PER_SUBSET, 3))
+        cs = np.empty(PER_SUBSET)
         if obs.frames is not None:
-            status, c = first_subset_kernel(obs.side, obs.points, np.zeros((n, 2)), obs.frames, _EYE, _NO_DIST, _EYE,
-                                            _NO_DIST, MODE_RAY, obs.wt, accept, max_iter, R, t, H, Hinv)
+            status, c, ns = first_subset_kernel(obs.side, obs.points, np.zeros((n, 2)), obs.frames, _EYE, _NO_DIST,
+                                                _EYE, _NO_DIST, MODE_RAY, obs.wt, accept, max_iter, R, t, H, Hinv,
+                                                Rs, ts, cs)
         else:
             (Kp, Kq), (dp, dq) = obs.K, obs.dist
-            status, c = first_subset_kernel(obs.side, obs.points, obs.pixels, NO_FRAMES, Kp, dp, Kq, dq, MODE_PIXEL,
-                                            obs.wt, accept, max_iter, R, t, H, Hinv)
+            status, c, ns = first_subset_kernel(obs.side, obs.points, obs.pixels, NO_FRAMES, Kp, dp, Kq, dq,
+                                                MODE_PIXEL, obs.wt, accept, max_iter, R, t, H, Hinv, Rs, ts, cs)
         if status == _OK:
-            return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True, {"first_subset": True},
+            return Solution(Pose.trusted(R, t), c, H, Hinv, None, None, n, True,
+                            {"first_subset": True, "subset_roots": (Rs[:ns], ts[:ns], cs[:ns])},
                             ranked=lambda: ranked_candidates(obs))
     subsets = minimal_subsets(obs.side) if use_minimal else _NO_SUBSETS
     n_extra = 0

@@ -394,64 +394,10 @@ class ObservationSet:
         return result
 
     def _pair(self, rig: Any, source: str, target: str) -> "PairObservations":
+        """:meth:`pair` without the memo: rows keyed by an observer of the pair (``ROBOT``, or ``ROBOT/CAMERA``
+        for a robot with several cameras), each camera's checked against its own image."""
         table = rig.pair_table(source, target)
-        if table.mounts is not None:
-            return self._pair_rays(rig, table)
-        index = table.index
-        robots = rig.robots
-        side: list[int] = []
-        prow: list[int] = []
-        rows: list[int] = []
-        anonymous: dict[int, list[int]] = {}
-        seen: set[tuple[str, str]] = set()
-        duplicates = False
-        mine: tuple[list[int], list[int]] = ([], [])
-        uv = self.uv.tolist()
-        for i, (o, m) in enumerate(zip(self.observer, self.marker)):
-            if o == source:
-                s = 0
-            elif o == target:
-                s = 1
-            else:
-                if o not in robots:
-                    raise ObservationError(f"observations: unknown robot {o!r} (rig has {sorted(robots)})")
-                if m is not None and rig.owner(m) == o:
-                    raise ObservationError(f"observations[{o!r}][{m!r}]: robot {o!r} cannot observe its own "
-                                           f"marker {m!r}")
-                continue
-            mine[s].append(i)
-            if m is None:
-                anonymous.setdefault(s, []).append(i)
-                continue
-            entry = index.get(m)
-            if entry is None:
-                rig.owner(m)  # unknown marker: raises; else a third robot's marker
-                continue
-            if entry[0] != s:
-                raise ObservationError(f"observations[{o!r}][{m!r}]: robot {o!r} cannot observe its own marker {m!r}")
-            if (o, m) in seen:
-                duplicates = True
-            seen.add((o, m))
-            side.append(s)
-            prow.append(entry[1])
-            rows.append(i)
-        for s in (0, 1):
-            _check_pixels(self, mine[s], table.K[s], table.sizes[s], [uv[i] for i in mine[s]])
-        if duplicates and not np.all(np.isnan(self.time)) and len(self.times) > 1:
-            raise ObservationError("observations of several times: localize one frame at a time (at_time)")
-        if duplicates:
-            return self.best().pair(rig, source, target)
-        scale = self.scales_of(rows)
-        if scale is not None:
-            scale = None if np.all(scale == 1.0) else np.ascontiguousarray(scale)
-        return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
-                                np.array(rows, dtype=np.int64), anonymous, table, scale)
-
-
-    def _pair_rays(self, rig: Any, table: Any) -> "PairObservations":
-        """:meth:`_pair` for robots that are not one pinhole camera: rows keyed ``ROBOT/CAMERA`` (or ``ROBOT``
-        for a robot with one camera), each checked against its own camera's image."""
-        index, mounts = table.index, table.mounts
+        index, observers = table.index, table.observers
         side: list[int] = []
         prow: list[int] = []
         rows: list[int] = []
@@ -460,7 +406,7 @@ class ObservationSet:
         duplicates = False
         per_camera: dict[str, list[int]] = {}
         for i, (o, m) in enumerate(zip(self.observer, self.marker)):
-            entry = mounts.get(o)
+            entry = observers.get(o)
             if entry is None:
                 robot, _ = rig.observer(o)  # unknown robot or camera: raises
                 if m is not None and rig.owner(m) == robot:
@@ -477,7 +423,7 @@ class ObservationSet:
                 rig.owner(m)  # unknown marker: raises; else a third robot's marker
                 continue
             if mark[0] != s:
-                raise ObservationError(f"observations[{o!r}][{m!r}]: robot {rig.observer(o)[0]!r} cannot observe "
+                raise ObservationError(f"observations[{o!r}][{m!r}]: robot {(source, target)[s]!r} cannot observe "
                                        f"its own marker {m!r}")
             if (o, m) in seen:
                 duplicates = True
@@ -486,18 +432,17 @@ class ObservationSet:
             prow.append(mark[1])
             rows.append(i)
         for o, idx in per_camera.items():
-            camera = mounts[o][1].camera
-            _check_pixels(self, idx, camera.K, camera.size)
+            _, K, size = observers[o]
+            _check_pixels(self, idx, K, size)
         if duplicates and not np.all(np.isnan(self.time)) and len(self.times) > 1:
             raise ObservationError("observations of several times: localize one frame at a time (at_time)")
         if duplicates:
-            return self.best().pair(rig, table.source, table.target)
+            return self.best().pair(rig, source, target)
         scale = self.scales_of(rows)
         if scale is not None:
             scale = None if np.all(scale == 1.0) else np.ascontiguousarray(scale)
-        return PairObservations(self, table.source, table.target, np.array(side, dtype=np.int64),
-                                np.array(prow, dtype=np.int64), np.array(rows, dtype=np.int64), anonymous, table,
-                                scale)
+        return PairObservations(self, source, target, np.array(side, dtype=np.int64), np.array(prow, dtype=np.int64),
+                                np.array(rows, dtype=np.int64), anonymous, table, scale)
 
 
 def _check_pixels(obs: ObservationSet, rows: Sequence[int], K: np.ndarray, size: tuple[int, int] | None,

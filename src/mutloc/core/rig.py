@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
+from functools import cached_property
 from enum import Enum
 from typing import Any, Mapping
 
@@ -206,6 +207,20 @@ class PairTable:
     def names(self, rows: np.ndarray) -> list[str]:
         """The markers at ``rows`` of :attr:`points`."""
         return [self.marker_names[i] for i in rows.tolist()]
+
+    @cached_property
+    def observers(self) -> dict[str, tuple[int, np.ndarray, tuple[int, int] | None]]:
+        """Each observation key of the pair -> (side, its camera's K, its image size)."""
+        if self.mounts is not None:
+            return {k: (s, m.camera.K, m.camera.size) for k, (s, m) in self.mounts.items()}
+        return {self.source: (0, self.K[0], self.sizes[0]), self.target: (1, self.K[1], self.sizes[1])}
+
+    @cached_property
+    def lenses(self) -> Any:
+        """:attr:`mounts` as the compiled ray builder reads them (:class:`mutloc.core.rays.LensTable`)."""
+        from .rays import lens_table
+
+        return None if self.mounts is None else lens_table(self.mounts)
 
 
 class Rig:
