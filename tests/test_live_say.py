@@ -182,6 +182,6 @@ def test_over_dds_a_second_localizer_is_detected_and_named(setup, dds_domain):
         assert len(said) == 1, err
         assert f"by mutloc localizer pid {other.pid} " in said[0] and f"pid {me.pid} " not in said[0], said
         warned = [s for d in got for s in d.status if s.hardware_id == "p" and s.level == M.WARN
-                  and f"another localizer publishes on this domain: /" in s.message
+                  and "another localizer publishes on this domain: /" in s.message
                   and f"mutloc localizer pid {other.pid} " in s.message]
         assert warned, [s.message for d in got for s in d.status]
