@@ -101,4 +101,26 @@ def test_a_capture_source_stamps_its_frames_with_the_driver_time(monkeypatch):
         src.close()
     stamp, offset = made[0].stamps[frame.index]
     assert frame.t == pytest.approx(stamp + offset, abs=1e-3)  # (the offset drifts by NTP's slew at most)
-    assert src.stamping == "driver (monotonic)"
+    assert src.stamping == "driver (monotonic)" and not src.notes
+
+
+def test_a_capture_without_stamps_says_its_frames_are_stamped_at_read(monkeypatch):
+    """A backend that reports no capture time (0, as OpenCV's FFmpeg backend for a live
+    stream gives no wall-clock stamp): frames at the read's return time, and a note for the node to print."""
+
+    class NoStamps(FakeDevice):
+        def get(self, prop):
+            return 0.0 if prop == cv2.CAP_PROP_POS_MSEC else 30.0
+
+    made = []
+    monkeypatch.setattr(cameras.cv2, "VideoCapture", lambda *a: made.append(NoStamps(*a)) or made[-1])
+    src = CaptureSource("rtsp://camera.invalid/stream", max_failures=1).start()
+    try:
+        frame = src.take(timeout=10)
+        src._thread.join(10)  # (the fake's five frames read)
+    finally:
+        src.close()
+    assert frame is not None, src.error
+    stamp, offset = made[0].stamps[frame.index]
+    assert frame.t >= stamp + FakeDevice.LAG + offset - 1e-3  # not before the read returned
+    assert src.stamping == "read" and len(src.notes) == 1 and "stamped when read() returned" in src.notes[0]

@@ -342,7 +342,12 @@ class CaptureSource(CameraSource):
                     time.sleep(0.01)
                     continue
                 failures = 0
-                self.slot.put(LiveFrame(index, self._clock.stamp(self._cap, wall, mono), image))
+                t = self._clock.stamp(self._cap, wall, mono)
+                if index == 1 and self._clock.source == "read":  # (the first frame has no stamp in OpenCV)
+                    self.notes.append(f"camera {self.name}: OpenCV gives no capture time for its frames; they are "
+                                      "stamped when read() returned (later than the capture by the driver's queue "
+                                      "and the transfer)")
+                self.slot.put(LiveFrame(index, t, image))
                 index += 1
         finally:
             self._cap.release()
