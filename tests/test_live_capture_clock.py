@@ -56,6 +56,11 @@ def test_no_usable_stamp_gives_the_time_read_returned(ms):
     assert clock.source == "read"
 
 
+def test_a_source_that_is_no_device_never_takes_its_stamps():
+    clock = DriverClock(driver=False)
+    assert clock.stamp(Reports((MONO - 0.02) * 1000), WALL, MONO) == WALL and clock.source == "read"
+
+
 class FakeDevice:
     """What cv2.VideoCapture gives for a V4L2 device: frames whose driver stamp is 30 ms before ``read`` returns."""
 
@@ -93,7 +98,7 @@ def test_a_capture_source_stamps_its_frames_with_the_driver_time(monkeypatch):
     driver's stamp on the wall clock, not the later time read() returned."""
     made = []
     monkeypatch.setattr(cameras.cv2, "VideoCapture", lambda *a: made.append(FakeDevice(*a)) or made[-1])
-    src = CaptureSource("rtsp://camera.invalid/stream", max_failures=1).start()
+    src = CaptureSource("0", max_failures=1).start()  # (a V4L2 device's number)
     try:
         frame = src.take(timeout=10)
         assert frame is not None, src.error
@@ -105,15 +110,12 @@ def test_a_capture_source_stamps_its_frames_with_the_driver_time(monkeypatch):
 
 
 def test_a_capture_without_stamps_says_its_frames_are_stamped_at_read(monkeypatch):
-    """A backend that reports no capture time (0, as OpenCV's FFmpeg backend for a live
-    stream gives no wall-clock stamp): frames at the read's return time, and a note for the node to print."""
-
-    class NoStamps(FakeDevice):
-        def get(self, prop):
-            return 0.0 if prop == cv2.CAP_PROP_POS_MSEC else 30.0
-
+    """A stream URL (OpenCV's FFmpeg backend: CAP_PROP_POS_MSEC is the
+    stream's position, no clock -- here one that happens to lie on the
+    monotonic clock, as the device's): frames at the read's return time, and
+    a note for the node to print."""
     made = []
-    monkeypatch.setattr(cameras.cv2, "VideoCapture", lambda *a: made.append(NoStamps(*a)) or made[-1])
+    monkeypatch.setattr(cameras.cv2, "VideoCapture", lambda *a: made.append(FakeDevice(*a)) or made[-1])
     src = CaptureSource("rtsp://camera.invalid/stream", max_failures=1).start()
     try:
         frame = src.take(timeout=10)

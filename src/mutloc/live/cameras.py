@@ -256,9 +256,13 @@ class DriverClock:
     time.monotonic()``, read back to back).  A stamp on neither clock (0 before
     the first frame, a stream's position in its file, a backend without
     stamps) gives the time the read returned, and :attr:`source` says so.
+    ``driver``: whether to look at the backend's stamps at all (a V4L2
+    device; a stream's position through FFmpeg is no clock, even if it
+    happened to lie near one).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, driver: bool = True) -> None:
+        self.driver = driver
         #: Where the stamps come from: ``"driver (monotonic)"``, ``"driver (realtime)"``, or ``"read"``
         #: (the time ``read()`` returned: later than the capture by the driver's queue and the transfer).
         self.source = "read"
@@ -267,7 +271,7 @@ class DriverClock:
         """The capture time (wall clock, s) of the frame ``cap.read()`` just
         returned, at ``wall`` (``time.time()``) and ``mono`` (``time.monotonic()``)."""
         try:
-            ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
+            ms = float(cap.get(cv2.CAP_PROP_POS_MSEC)) if self.driver else math.nan
         except Exception:  # noqa: BLE001 -- a backend without the property
             ms = math.nan
         t = ms / 1000.0
@@ -322,7 +326,7 @@ class CaptureSource(CameraSource):
         rate = cap.get(cv2.CAP_PROP_FPS)
         self.fps = float(rate) if rate and math.isfinite(rate) and 0 < rate < 1000 else None
         self._max_failures = max_failures
-        self._clock = DriverClock()
+        self._clock = DriverClock(driver=kind == "device")
 
     @property
     def stamping(self) -> str:
