@@ -93,6 +93,8 @@ TOLERANCE = 0.005
 DIAGNOSTICS_PERIOD = 0.5
 #: Seconds a robot stays WARN after its last refused message (or another localizer's pose of it).
 NOTICE_HOLD = 5.0
+#: Seconds between two looks for poses another localizer published on this one's topics.
+FOREIGN_PERIOD = 0.25
 #: Seconds between two printed lines of one cause (robot and kind of refusal): the first is printed at once.
 NOTICE_PERIOD = 10.0
 
@@ -770,7 +772,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     malformed = {r: 0 for r in readers}
     start = clock()
     end = math.inf if duration is None else start + duration
-    next_diag = start
+    next_diag = next_foreign = start
     if ready is not None:
         ready(loc)
 
@@ -803,7 +805,9 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
                 loc.receive(sample, clock(), r)  # (its own arrival: taking many may take a while)
             loc.malformed(r, rd.malformed - malformed[r], clock())
             malformed[r] = rd.malformed
-        _foreign(bus, loc, others, clock())
+        if now >= next_foreign:  # (four times a second: what others publish needs no hurry)
+            _foreign(bus, loc, others, now)
+            next_foreign = now + FOREIGN_PERIOD
         now = clock()
         publish(loc.poll(now))
         if now >= next_diag:
