@@ -23,6 +23,13 @@ a robot on another's topic, a ``header.frame_id`` that is neither the robot
 nor one of its cameras, a non-finite pixel, a marker not in the rig, a
 pixel far outside the image), of another rig (``refused_rig_id``), or
 stamped in the future by more than ``max_clock_skew`` (``refused_clock``).
+Each refusal is also said: the robot is WARN in the diagnostics for
+:data:`NOTICE_HOLD` s after its last refused message, with the count and
+why (``refused 100 observations: rig_id ... is not this rig's (...)``), and
+``notify`` gets a line the first time of each robot and kind, then at most
+one every :data:`NOTICE_PERIOD` s with the count since.  Another localizer
+publishing poses of this rig's robots on the domain (:func:`run_localizer`
+reads its own topics for poses it did not write) is WARN too, and said once.
 A message seen before (camera, frame and stamp) is a ``duplicate`` and
 ignored.  Accepted messages wait in a short reorder buffer so that records
 are fused in time order: one leaves it once every other live camera has sent
@@ -76,7 +83,7 @@ from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_
                        rig_id as rig_id_of)
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
-           "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD"]
+           "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
 
 #: Seconds a robot's track may coast on its motion model before its pose is no longer published (``--max-coast``).
 MAX_COAST = 1.0
