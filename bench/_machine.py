@@ -46,3 +46,18 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def result_file(name: str) -> str:
     """``bench/results/<name>``: the default ``--out`` of a benchmark."""
     return str(RESULTS / name)
+
+
+def dds_domain():
+    """A DDS domain id no other running process holds, held until the returned lease is released (a
+    ``with`` block): the tests' allocator (tests/dds_domains.py, the one place domain ids are handed out),
+    so a benchmark never meets a test run or another benchmark on a domain, nor a port of the ephemeral
+    range.  ``lease.domain`` is the id."""
+    import sys
+
+    tests = str(Path(__file__).resolve().parent.parent / "tests")
+    if tests not in sys.path:
+        sys.path.insert(0, tests)
+    from dds_domains import allocate
+
+    return allocate()

@@ -71,7 +71,7 @@ from mutloc.track.sources import folder_frames  # noqa: E402
 from mutloc.track.tracker import ObserverDetector  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine, result_file  # noqa: E402
+from _machine import dds_domain, machine, result_file  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -232,19 +232,20 @@ def main() -> None:
             print(f"\nnode capture -> publish, {CAMERA_FPS:g} fps replayed for {seconds:g} s (DDS loopback)")
             print(f"{'kind':<10} {'captured':>8} {'processed':>9} {'dropped':>7} {'publish p50/p99 ms':>19} "
                   f"{'received p50/p99 ms':>20}")
-            for k, (kind, folder) in enumerate(replays.items()):
-                r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, folder / OBSERVER,
-                                                 90 + (os.getpid() + k) % 10)
+            for kind, folder in replays.items():
+                with dds_domain() as lease:
+                    r = latency[kind] = node_latency(folder / "rig.yaml", OBSERVER, folder / OBSERVER, lease.domain)
                 print(f"{kind:<10} {r['captured']:>8} {r['processed']:>9} {r['dropped']:>7} "
                       f"{r['publish_p50_ms']:>9.1f}/{r['publish_p99_ms']:<9.1f} {r['receive_p50_ms']:>10.1f}/"
                       f"{r['receive_p99_ms']:<9.1f}")
         if "e2e" in args.parts:
             print(f"\nend to end: two nodes + localizer (processes, DDS loopback), {CAMERA_FPS:g} fps for {seconds:g} s")
             print(f"{'kind':<10} {'poses/s':>8} {'messages':>9} {'capture->pose p50/p99/max ms':>29}")
-            for k, (kind, folder) in enumerate(replays.items()):
+            for kind, folder in replays.items():
                 if kind == "cylinders":
                     continue  # slower than the camera on one core (see detection above)
-                r = e2e[kind] = end_to_end(folder, root, seconds, 150 + (os.getpid() + k) % 50)
+                with dds_domain() as lease:
+                    r = e2e[kind] = end_to_end(folder, root, seconds, lease.domain)
                 lat = "/".join("n/a" if r[k] is None else f"{r[k]:.1f}"
                                for k in ("latency_p50_ms", "latency_p99_ms", "latency_max_ms"))
                 print(f"{kind:<10} {r['poses_per_second']:>8.1f} {r['observation_messages']:>9} {lat:>29}")

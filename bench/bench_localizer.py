@@ -50,7 +50,7 @@ from mutloc.io import save_rig
 from mutloc.live import messages as M
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import machine, result_file  # noqa: E402
+from _machine import dds_domain, machine, result_file  # noqa: E402
 
 
 def streams(robots: int, seconds: float, rate: float, seed: int = 0):
@@ -101,7 +101,8 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     names = list(rig.robots)
     reference = names[1] if robots == 2 else names[0]
     tracked = [n for n in names if n != reference]
-    domain = 150 + os.getpid() % 50
+    lease = dds_domain()  # held until this run ends (its localizer and subscribers on it)
+    domain = lease.domain
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
            "--duration", str(seconds + 30)]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -177,6 +178,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             except subprocess.TimeoutExpired:
                 os.killpg(child.pid, 9)
                 child.wait()
+        lease.release()
     summary = (child.stderr.read() or "").strip().splitlines()[-1:]
     measured = [(a, p) for a, p in arrivals if p >= wall0 and np.isfinite(p)]
     lat = np.array([a - p for a, p in measured]) * 1000

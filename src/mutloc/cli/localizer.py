@@ -52,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
                                max_coast=args.max_coast, max_clock_skew=args.max_clock_skew, reorder=args.reorder,
                                tolerance=args.tolerance,
                                pixel_sigma=args.pixel_sigma, confidence=args.confidence, loopback=loopback_wanted(args),
-                               duration=args.duration, ready=lambda loc: _started(loc, domain))
+                               duration=args.duration, ready=lambda loc: _started(loc, domain),
+                               notify=lambda line: print(f"localizer: {line}", file=sys.stderr, flush=True))
     except KeyboardInterrupt as exc:
         done = exc.args[0] if exc.args else None
         if done is None:

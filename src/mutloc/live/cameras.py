@@ -14,7 +14,8 @@ Every source runs in a background thread and keeps only the newest frame
 (:class:`LatestFrame`): a frame the detector had no time for is replaced by
 the next one and counted as dropped, never queued, so the node's delay stays
 one frame whatever the detector's speed.  Frames are stamped with the
-wall-clock time at which they were captured (a ROS image: its header stamp);
+wall-clock time at which they were captured (a ROS image: its header stamp;
+a V4L2 device: the driver's buffer timestamp, :class:`DriverClock`);
 a replayed frame's own time in the recording travels as ``source_time``.
 """
 
@@ -41,7 +42,7 @@ from ..track.sources import Frame, image_from_message, open_source
 
 __all__ = ["LiveFrame", "LatestFrame", "CameraSource", "CaptureSource", "ReplaySource", "RosImageSource",
            "open_camera", "camera_kind", "camera_info_topic", "compare_cameras", "camera_from_camera_info",
-           "CAMERA_INFO_MODES", "DISTORTION_MODELS", "RECORDING_NEEDS_REALTIME"]
+           "CAMERA_INFO_MODES", "DISTORTION_MODELS", "RECORDING_NEEDS_REALTIME", "DriverClock"]
 
 #: ``--camera-info``: ``check`` a ROS camera_info against the rig's camera (warn when they differ), or ``use`` it.
 CAMERA_INFO_MODES = ("check", "use")
@@ -236,6 +237,53 @@ def _quiet_stderr() -> Iterator[None]:
         cvlog.setLogLevel(level)
 
 
+#: Seconds a driver's capture stamp may lie before its read returned (older: not a capture time of this frame).
+DRIVER_STAMP_MAX_AGE = 1.0
+#: Seconds a driver's capture stamp may lie after its read returned (the two clocks read a moment apart).
+DRIVER_STAMP_SLACK = 0.002
+
+
+class DriverClock:
+    """The wall-clock capture time of a frame from the time its driver
+    stamped it, when the backend gives one (OpenCV's V4L2 backend:
+    ``CAP_PROP_POS_MSEC`` after a ``read`` is the buffer's ``timestamp`` from
+    ``VIDIOC_DQBUF``, in ms: the time the driver took the frame -- for
+    uvcvideo and most drivers on ``CLOCK_MONOTONIC``, for a few on
+    ``CLOCK_REALTIME``).  Which clock is decided from the stamp itself (the
+    one it lies within :data:`DRIVER_STAMP_MAX_AGE` before the read's return
+    on); a monotonic stamp is moved to the wall clock by the offset between
+    the two clocks measured at each read (``time.time() -
+    time.monotonic()``, read back to back).  A stamp on neither clock (0 before
+    the first frame, a stream's position in its file, a backend without
+    stamps) gives the time the read returned, and :attr:`source` says so.
+    ``driver``: whether to look at the backend's stamps at all (a V4L2
+    device; a stream's position through FFmpeg is no clock, even if it
+    happened to lie near one).
+    """
+
+    def __init__(self, driver: bool = True) -> None:
+        self.driver = driver
+        #: Where the stamps come from: ``"driver (monotonic)"``, ``"driver (realtime)"``, or ``"read"``
+        #: (the time ``read()`` returned: later than the capture by the driver's queue and the transfer).
+        self.source = "read"
+
+    def stamp(self, cap: Any, wall: float, mono: float) -> float:
+        """The capture time (wall clock, s) of the frame ``cap.read()`` just
+        returned, at ``wall`` (``time.time()``) and ``mono`` (``time.monotonic()``)."""
+        try:
+            ms = float(cap.get(cv2.CAP_PROP_POS_MSEC)) if self.driver else math.nan
+        except Exception:  # noqa: BLE001 -- a backend without the property
+            ms = math.nan
+        t = ms / 1000.0
+        if math.isfinite(t) and t > 0:
+            for clock, now, to_wall in (("monotonic", mono, wall - mono), ("realtime", wall, 0.0)):
+                if -DRIVER_STAMP_SLACK <= now - t <= DRIVER_STAMP_MAX_AGE:
+                    self.source = f"driver ({clock})"
+                    return min(t, now) + to_wall
+        self.source = "read"
+        return wall
+
+
 def _has_gstreamer() -> bool:
     for line in cv2.getBuildInformation().splitlines():
         if line.strip().startswith("GStreamer:"):
@@ -246,8 +294,10 @@ def _has_gstreamer() -> bool:
 class CaptureSource(CameraSource):
     """A V4L2 device, a GStreamer pipeline or a stream URL, through OpenCV's
     VideoCapture, read continuously in the background (the driver's queue
-    never fills with old frames), each frame stamped with the wall-clock
-    time its read returned."""
+    never fills with old frames), each frame stamped with its capture time:
+    the driver's when the backend reports it (a V4L2 device: the buffer's
+    timestamp, see :class:`DriverClock`), else the wall-clock time its read
+    returned (:attr:`stamping` says which)."""
 
     def __init__(self, spec: str, *, max_failures: int = 5) -> None:
         super().__init__()
@@ -276,13 +326,19 @@ class CaptureSource(CameraSource):
         rate = cap.get(cv2.CAP_PROP_FPS)
         self.fps = float(rate) if rate and math.isfinite(rate) and 0 < rate < 1000 else None
         self._max_failures = max_failures
+        self._clock = DriverClock(driver=kind == "device")
+
+    @property
+    def stamping(self) -> str:
+        """Where the frames' stamps come from (:attr:`DriverClock.source`)."""
+        return self._clock.source
 
     def _run(self) -> None:
         failures, index = 0, 0
         try:
             while not self._stop.is_set():
                 ok, image = self._cap.read()
-                t = time.time()
+                wall, mono = time.time(), time.monotonic()
                 if not ok or image is None:
                     failures += 1
                     if failures >= self._max_failures:
@@ -290,6 +346,11 @@ class CaptureSource(CameraSource):
                     time.sleep(0.01)
                     continue
                 failures = 0
+                t = self._clock.stamp(self._cap, wall, mono)
+                if index == 1 and self._clock.source == "read":  # (the first frame has no stamp in OpenCV)
+                    self.notes.append(f"camera {self.name}: OpenCV gives no capture time for its frames; they are "
+                                      "stamped when read() returned (later than the capture by the driver's queue "
+                                      "and the transfer)")
                 self.slot.put(LiveFrame(index, t, image))
                 index += 1
         finally:

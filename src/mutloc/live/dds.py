@@ -166,7 +166,7 @@ class Bus:
                   Policy.History.KeepLast(1))
         return DataWriter(self.participant, self._topic(ros_topic, cls), qos=qos)
 
-    def writer(self, ros_topic: str, cls: type) -> Any:
+    def writer(self, ros_topic: str, cls: type, *, userdata: bytes | None = None) -> Any:
         """A DataWriter of ``cls`` messages on ROS 2 topic ``ros_topic`` (``.write(msg)``).
 
         Its QoS is ROS 2's default (reliable, volatile, keep-last 10: what a
@@ -174,21 +174,28 @@ class Bus:
         reader (Cyclone DDS keeps the last 10 samples for it to repair and
         drops older ones), and ``write`` blocks at most
         :data:`WRITE_MAX_BLOCKING` (guide "Running on your robots", QoS).
+        ``userdata``: the writer's USER_DATA (what readers see of it in
+        discovery: the localizer names itself there, see :func:`publisher_name`).
         """
+        from cyclonedds.core import Policy, Qos
         from cyclonedds.pub import DataWriter
 
-        return DataWriter(self.participant, self._topic(ros_topic, cls),
-                          qos=_reliable(HISTORY_DEPTH, WRITE_MAX_BLOCKING))
+        qos = _reliable(HISTORY_DEPTH, WRITE_MAX_BLOCKING)
+        if userdata is not None:
+            qos += Qos(Policy.Userdata(bytes(userdata)))
+        return DataWriter(self.participant, self._topic(ros_topic, cls), qos=qos)
 
     def reader(self, ros_topic: str, cls: type, *, sensor: bool = False, depth: int = HISTORY_DEPTH,
-               static: bool = False) -> Reader:
+               static: bool = False, others_only: bool = False) -> Reader:
         """A :class:`Reader` of ``cls`` messages on ROS 2 topic ``ros_topic``.
         ``sensor``: ROS 2's sensor-data QoS (best effort, keep-last 5), which
         matches camera drivers' best-effort writers as well as reliable ones;
         ``depth``: the samples a reliable reader keeps until taken (its own
         history: a deeper one still matches ROS 2's writers, and rides out a
         pause); ``static``: transient-local, keep-last 1 (as tf2's static
-        listener: gets what a :meth:`static_writer` wrote before it joined)."""
+        listener: gets what a :meth:`static_writer` wrote before it joined);
+        ``others_only``: never the samples of this participant's own writers
+        (DDS's IGNORE_LOCAL: what someone else publishes on the topic)."""
         from cyclonedds.core import Policy, Qos
         from cyclonedds.sub import DataReader
 
@@ -201,8 +208,25 @@ class Bus:
             qos = self.qos
         else:
             qos = _reliable(int(depth))
+        if others_only:
+            qos = qos + Qos(Policy.IgnoreLocal.Participant)
         decode = observations_from_cdr if cls is ros_types().Observations else None  # (the localizer's input)
         return Reader(DataReader(self.participant, self._topic(ros_topic, cls), qos=qos), decode)
+
+    def publisher_name(self, reader: Reader, sample: Any) -> str:
+        """Who wrote ``sample`` (taken from ``reader``): the USER_DATA its writer
+        gave itself (:meth:`writer`'s ``userdata``), else its participant's GUID."""
+        handle = getattr(getattr(sample, "sample_info", None), "publication_handle", None)
+        try:
+            data = reader.native.get_matched_publication_data(handle)
+        except Exception:  # noqa: BLE001 -- a writer already gone: unnamed
+            data = None
+        if data is None:
+            return "an unknown publisher"
+        for policy in data.qos or ():
+            if type(policy).__name__ == "Userdata" and getattr(policy, "data", b""):
+                return policy.data.decode("utf-8", "replace")
+        return f"DDS participant {data.participant_key}"
 
     def close(self) -> None:
         """Leave the domain (readers and writers go with the participant)."""

@@ -23,6 +23,13 @@ a robot on another's topic, a ``header.frame_id`` that is neither the robot
 nor one of its cameras, a non-finite pixel, a marker not in the rig, a
 pixel far outside the image), of another rig (``refused_rig_id``), or
 stamped in the future by more than ``max_clock_skew`` (``refused_clock``).
+Each refusal is also said: the robot is WARN in the diagnostics for
+:data:`NOTICE_HOLD` s after its last refused message, with the count and
+why (``refused 100 observations: rig_id ... is not this rig's (...)``), and
+``notify`` gets a line the first time of each robot and kind, then at most
+one every :data:`NOTICE_PERIOD` s with the count since.  Another localizer
+publishing poses of this rig's robots on the domain (:func:`run_localizer`
+reads its own topics for poses it did not write) is WARN too, and said once.
 A message seen before (camera, frame and stamp) is a ``duplicate`` and
 ignored.  Accepted messages wait in a short reorder buffer so that records
 are fused in time order: one leaves it once every other live camera has sent
@@ -76,7 +83,7 @@ from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_
                        rig_id as rig_id_of)
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
-           "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD"]
+           "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
 
 #: Seconds a robot's track may coast on its motion model before its pose is no longer published (``--max-coast``).
 MAX_COAST = 1.0
@@ -91,6 +98,12 @@ REORDER_WINDOW = 0.03
 TOLERANCE = 0.005
 #: Seconds between two ``/diagnostics`` messages (SPEC: at least once a second).
 DIAGNOSTICS_PERIOD = 0.5
+#: Seconds a robot stays WARN after its last refused message (or another localizer's pose of it).
+NOTICE_HOLD = 5.0
+#: Seconds between two looks for poses another localizer published on this one's topics.
+FOREIGN_PERIOD = 0.25
+#: Seconds between two printed lines of one cause (robot and kind of refusal): the first is printed at once.
+NOTICE_PERIOD = 10.0
 
 #: Observation messages a robot's reader keeps until taken (a second at 100 Hz).
 READER_DEPTH = 100
@@ -166,6 +179,12 @@ class RobotCounts:
     status: str = ""
     #: Time of its track's last measured row (solved, unverified or partial).
     last_measured: float | None = None
+    #: Arrival time of its last refused message, and why it was refused (None: none refused).
+    last_refused_at: float | None = None
+    last_refusal: str = ""
+    #: Arrival time of the last pose of it that another localizer published, and who that is.
+    foreign_at: float | None = None
+    foreign: str = ""
     seen: set = field(default_factory=set, repr=False)
     order: deque = field(default_factory=deque, repr=False)
 
@@ -242,7 +261,8 @@ class Localizer:
                  filter: FilterOptions | None = None, max_coast: float = MAX_COAST,
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
-                 log: Any = None, tolerance: float = TOLERANCE) -> None:
+                 log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None
+                 ) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
@@ -284,6 +304,9 @@ class Localizer:
         self._seq = 0
         self._first: float | None = None  # arrival of the first message held
         self._closed = False
+        #: Where a line saying what is wrong goes (the CLI: stderr); each cause once, then rate-limited.
+        self.notify = notify
+        self._notices: dict[tuple, list] = {}  # cause -> [time printed, refused since]
 
     def warm_up(self) -> None:
         """Run throwaway trackers on synthetic records (the first two robots
@@ -335,26 +358,25 @@ class Localizer:
         try:
             got = observations_from_message(msg, self.names, self.frame_ids)
         except MessageError as exc:
-            return self._refuse(who or _robot_of(msg, self.counts), "refused_malformed", str(exc))
+            return self._refuse(who or _robot_of(msg, self.counts), "refused_malformed", str(exc), now)
         except Exception as exc:  # noqa: BLE001 -- anything on the topic is input: counted, never raised
             return self._refuse(who or _robot_of(msg, self.counts), "refused_malformed",
-                                f"not an Observations message ({type(exc).__name__})")
+                                f"not an Observations message ({type(exc).__name__})", now)
         robot = got.robot
         if topic is not None and robot != topic:
-            return self._refuse(who, "refused_malformed", f"robot {robot!r} on the topic of {topic!r}")
+            return self._refuse(who, "refused_malformed", f"robot {robot!r} on the topic of {topic!r}", now)
         c = self.counts[robot]
-        c.received += 1
         if got.rig_id != self.rig_id:
-            c.refused_rig_id += 1
-            return f"refused: rig_id {got.rig_id!r}, expected {self.rig_id!r}"
+            return self._refuse(robot, "refused_rig_id", f"rig_id {_short(got.rig_id)} is not this rig's "
+                                f"({_short(self.rig_id)}): its node runs with another rig file", now)
         if got.time > now + self.max_clock_skew:
-            c.refused_clock += 1
-            return f"refused: stamped {got.time - now:.3f} s in the future"
+            return self._refuse(robot, "refused_clock", f"stamped {got.time - now:.3f} s in the future (beyond "
+                                f"--max-clock-skew {self.max_clock_skew:g} s): synchronize the clocks", now)
         try:
             obs = _as_logged(got.observations.check(self.rig), got.time)
         except MutlocError as exc:
-            c.refused_malformed += 1
-            return "refused: " + " ".join(str(exc).split())
+            return self._refuse(robot, "refused_malformed", str(exc), now)
+        c.received += 1
         ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
         key = (got.key, got.frame, ns)
         if key in c.seen:
@@ -375,27 +397,53 @@ class Localizer:
         heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs, got.key))
         return "held"
 
-    def malformed(self, robot: str, n: int = 1) -> None:
-        """Count ``n`` samples of ``robot``'s topic that could not even be decoded."""
-        if n > 0:
-            if robot in self.counts:
-                self.counts[robot].received += n
-                self.counts[robot].refused_malformed += n
-            else:
-                self.unattributed += n
+    def malformed(self, robot: str, n: int = 1, now: float | None = None) -> None:
+        """Count ``n`` samples of ``robot``'s topic that could not even be decoded (arrived at ``now``)."""
+        for _ in range(max(0, n)):
+            self._refuse(robot if robot in self.counts else None, "refused_malformed",
+                         "bytes that do not decode as an Observations message", now)
 
     def unsent(self, robot: str, n: int = 1) -> None:
         """Count ``n`` messages of ``robot``'s pose that could not be published."""
         self.counts[robot].unsent += n
 
-    def _refuse(self, robot: str | None, what: str, why: str) -> str:
+    def _refuse(self, robot: str | None, what: str, why: str, now: float | None = None) -> str:
+        why = " ".join(why.split())
         if robot is None:
             self.unattributed += 1
         else:
             c = self.counts[robot]
             c.received += 1
             setattr(c, what, getattr(c, what) + 1)
-        return "refused: " + " ".join(why.split())
+            if now is not None:
+                c.last_refused_at, c.last_refusal = now, why
+        if now is not None:
+            self._notice((robot, what), f"{'robot ' + robot if robot else 'a message naming no robot of the rig'}: "
+                         f"refused observations ({what[len('refused_'):]}): {why}", now)
+        return "refused: " + why
+
+    def _notice(self, cause: tuple, line: str, now: float, once: bool = False) -> None:
+        """Print ``line`` (to :attr:`notify`) the first time of ``cause``, then at most every
+        :data:`NOTICE_PERIOD` s with how many more there were (``once``: only the first time)."""
+        state = self._notices.get(cause)
+        if state is None:
+            self._notices[cause] = [now, 0]
+            if self.notify is not None:
+                self.notify(line)
+            return
+        state[1] += 1
+        if not once and now - state[0] >= NOTICE_PERIOD:
+            if self.notify is not None:
+                self.notify(f"{line} ({state[1]} more in the last {now - state[0]:.0f} s)")
+            state[:] = [now, 0]
+
+    def foreign(self, robot: str, topic: str, publisher: str, now: float) -> None:
+        """Another localizer (``publisher``: how it names itself) published a pose of ``robot`` on ``topic``
+        at ``now``: WARN in the diagnostics, a line to :attr:`notify` once per publisher."""
+        c = self.counts[robot]
+        c.foreign_at, c.foreign = now, f"{topic} by {publisher}"
+        self._notice(("foreign", publisher), f"another localizer publishes on this domain: {c.foreign} (two "
+                     "localizers double every pose: stop one, or give each its own --domain)", now, once=True)
 
     # -- records fused, poses out ------------------------------------------
 
@@ -531,6 +579,15 @@ class Localizer:
                 message = f"no observations for {age:.2f} s"
             else:
                 message = f"dropped: no observations for {age:.2f} s"
+            said = []
+            if c.last_refused_at is not None and now - c.last_refused_at <= NOTICE_HOLD:
+                said.append(f"refused {c.refused} observations: {c.last_refusal}")
+            if c.foreign_at is not None and now - c.foreign_at <= NOTICE_HOLD:
+                said.append(f"another localizer publishes on this domain: {c.foreign}")
+            if said:
+                # (none received: what was refused is the news; a robot not stale is WARN)
+                message = "; ".join(said if age is None else [message, *said])
+                level = WARN if age is None or level == OK else level
             values = {"status": track, "age_s": "none" if age is None else f"{age:.3f}", "received": c.received,
                       "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates,
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
@@ -550,6 +607,12 @@ class Localizer:
         return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
                 + (f" ({', '.join(kinds)})" if kinds else "")
                 + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}")
+
+
+def _short(rig_id: str) -> str:
+    """A rig_id as people compare them (at most its first 16 characters: all of a SPEC rig_id)."""
+    rig_id = str(rig_id)
+    return rig_id if len(rig_id) <= 20 else rig_id[:16] + "..."
 
 
 def _robot_of(msg: Any, counts: dict) -> str | None:
@@ -601,8 +664,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
                   max_coast: float = MAX_COAST, max_clock_skew: float = MAX_CLOCK_SKEW,
                   reorder: float = REORDER_WINDOW, tolerance: float = TOLERANCE, pixel_sigma: float = 1.0,
                   confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
-                  ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time
-                  ) -> LocalizerRun:
+                  ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time,
+                  notify: Callable[[str], None] | None = None) -> LocalizerRun:
     """Run the localizer on DDS domain ``domain`` until ``duration`` seconds
     passed (None: until Ctrl-C, which ends it like the end of ``duration``
     and is raised on after the files are complete: ``KeyboardInterrupt`` with
@@ -611,7 +674,10 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     ``/diagnostics`` (every :data:`DIAGNOSTICS_PERIOD` s), and, for robots with
     several cameras, each camera's pose on its robot once on ``/tf_static``
     (:func:`~mutloc.live.messages.static_transforms_message`, transient-local).  ``out``: a folder
-    for the trajectory files and ``log.jsonl`` (see the module docstring)."""
+    for the trajectory files and ``log.jsonl`` (see the module docstring).
+    ``notify``: takes a line saying what is wrong (messages refused, another
+    localizer on the domain), each cause once and then rate-limited (the CLI:
+    stderr); the same is WARN in ``/diagnostics``."""
     from .dds import Bus
     from .messages import DIAGNOSTICS_TOPIC, TF_TOPIC, diagnostics_message, observations_topic, pose_topic, ros_types
 
@@ -631,7 +697,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
             log = ObservationLogWriter(Path(out) / "log.jsonl")
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
                         max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
-                        sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log)
+                        sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log,
+                        notify=notify)
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
         run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path])
@@ -656,6 +723,21 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     return run
 
 
+def _foreign(bus: Any, loc: Localizer, others: dict, now: float) -> None:
+    """Tell ``loc`` of the poses someone else published on its topics (``others``: topic -> (robot, reader
+    of the others' samples)): on a pose topic any, on ``/tf`` a transform of a tracked robot in the
+    reference's frame (other nodes' transforms are /tf's everyday traffic)."""
+    for topic, (robot, rd) in others.items():
+        for sample in rd.take(64):  # (keep-last 10: what is left is older)
+            if robot is not None:
+                loc.foreign(robot, topic, bus.publisher_name(rd, sample), now)
+                continue
+            for tr in getattr(sample, "transforms", ()):
+                child, parent = tr.child_frame_id.strip("/"), tr.header.frame_id.strip("/")
+                if child in loc.tracked and parent == loc.reference:
+                    loc.foreign(child, f"{topic} ({child} in {parent})", bus.publisher_name(rd, sample), now)
+
+
 def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Localizer], None] | None,
            clock: Callable[[], float], names: Sequence[Any]) -> None:
     require("cyclonedds", "the localizer over DDS")
@@ -665,10 +747,20 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     from .messages import raw_sample
 
     T = ros_types()
+    import os
+    import socket
+
+    # who publishes the poses, as other localizers see it in discovery (each names itself; see _foreign)
+    me = f"mutloc localizer pid {os.getpid()} on {socket.gethostname()} (rig_id {loc.rig_id})".encode()
     # A second of messages kept per robot (ROS 2's default keeps 10) until the loop takes them.
     readers = {r: bus.reader(observations_topic(r), T.Observations, depth=READER_DEPTH) for r in loc.names}
-    poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped) for r in loc.tracked}
-    tf = bus.writer(tf_topic, T.TFMessage)
+    poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped, userdata=me)
+             for r in loc.tracked}
+    tf = bus.writer(tf_topic, T.TFMessage, userdata=me)
+    # what others publish where this one does: another localizer's poses
+    others = {pose_topic(r, loc.reference): (r, bus.reader(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped,
+                                                            others_only=True)) for r in loc.tracked}
+    others[tf_topic] = (None, bus.reader(tf_topic, T.TFMessage, others_only=True))
     diag = bus.writer(diag_topic, T.DiagnosticArray)
     from .messages import TF_STATIC_TOPIC, static_transforms_message
 
@@ -687,7 +779,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     malformed = {r: 0 for r in readers}
     start = clock()
     end = math.inf if duration is None else start + duration
-    next_diag = start
+    next_diag = next_foreign = start
     if ready is not None:
         ready(loc)
 
@@ -718,8 +810,11 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
         for r, rd in readers.items():
             for sample in rd.take():
                 loc.receive(sample, clock(), r)  # (its own arrival: taking many may take a while)
-            loc.malformed(r, rd.malformed - malformed[r])
+            loc.malformed(r, rd.malformed - malformed[r], clock())
             malformed[r] = rd.malformed
+        if now >= next_foreign:  # (four times a second: what others publish needs no hurry)
+            _foreign(bus, loc, others, now)
+            next_foreign = now + FOREIGN_PERIOD
         now = clock()
         publish(loc.poll(now))
         if now >= next_diag:
