@@ -452,11 +452,16 @@ def _run_ros_node(domain, rig, images, info, use_info, frames=None):
             sent[round(t, 6)] = k
             info_writer.write(info)
             raw.write(_image_message(T, cv2.imread(str(images[k])), t, "bgr8"))
-            time.sleep(0.25)
-            got += reader.take()
+            # the next frame only once this one's message is in (or the node stopped): a loaded
+            # machine slows the node down, it must not make it drop the frames this test counts
+            waiting = time.monotonic() + 60.0
+            while not failed and time.monotonic() < waiting:
+                got += reader.take()
+                if any(round(stamp_of(m.header), 6) == round(t, 6) for m in got):
+                    break
+                time.sleep(0.02)
             if failed:
                 break
-        time.sleep(0.2)
         got += reader.take()
     finally:
         stop.set()
