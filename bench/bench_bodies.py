@@ -1,8 +1,9 @@
 #!/usr/bin/env python
-"""Pairs of robots with several cameras, any lens: exactness, efficiency, honesty and cost of `localize`.
+"""Pairs and teams of robots with several cameras, any lens: exactness, efficiency, honesty and cost of
+`localize` and `localize_team`.
 
-    python bench/bench_bodies.py              # 2000 random pairs per study
-    python bench/bench_bodies.py --n 500      # quicker
+    python bench/bench_bodies.py --n 2000 --teams 400   # the figures in docs/benchmarks.md
+    python bench/bench_bodies.py --n 200                # a smoke run (teams: n / 4)
 
 Each robot is a body with 2-3 cameras looking out around it, each a fisheye (180-200 deg, Kannala-Brandt),
 an omnidirectional (Mei) or a pinhole lens (mutloc.sim.bodies.random_body); the robots stand 1.5-5 m apart
@@ -14,8 +15,12 @@ projections through each lens (plus sigma = 1 px noise where said).
   (the pixels' Fisher information by numerical differentiation of the lens projections, at the truth),
   over every `solved` pose, and over those where both robots see each other;
 - cost: `localize` per call on these scenes (a new ObservationSet every call) next to the one-pinhole-camera
-  pair of the same markers seen by one camera each (`mutloc.sim.synthetic`-like pairs), one core, median of
-  5 runs, the load named.
+  pair of the same markers seen by one camera each (`mutloc.sim.synthetic`-like pairs), and next to one-pinhole
+  pairs with as many observations as each body scene, one core, median of 5 runs, the load named;
+- teams of 3-5 such robots (mutloc.sim.bodies.random_team: on a circle, any headings) next to teams of
+  one-pinhole robots at the same positions facing the centre: noise-free exactness per robot pose; sigma = 1 px
+  statuses per robot, per-robot NEES, RMSE over the joint Cramér-Rao bound (team_pixel_information at the
+  truth), the poses beyond 5 sigma listed; cost per `localize_team` call.
 
 Writes bench/results/bodies_results.json.
 """
