@@ -253,3 +253,30 @@ def test_a_robot_held_only_by_two_markers_seen_from_two_robots():
             for n in team.robots:
                 assert np.linalg.norm(team.poses[n].t - _truth(poses, "r0", n).t) < 1e-7, n
             done += 1
+
+
+def test_the_joint_bound_is_the_pixels_information():
+    """``team_pixel_information`` (numerical derivatives of each lens, the benchmark's Cramér-Rao bound) at the
+    truth equals the information the team solver reports at its noise-free optimum (analytic, its own
+    weighting), for bodies and for one-pinhole robots; over one robot it is the pair's ``pixel_information``."""
+    from mutloc.sim.bodies import pixel_information, random_team, team_pixel_information
+
+    rng = np.random.default_rng(36)
+    pairs = 0
+    for pinhole in (False, True, False, True):
+        rig, poses = random_team(rng, 3, pinhole=pinhole)
+        truth = body_observations(rig, poses)
+        est = localize_team(rig, truth, "r0", confidence=1.0)
+        rel = {r: poses["r0"].inverse() @ poses[r] for r in poses}
+        info = team_pixel_information(rig, truth, "r0", rel, list(est.robots))
+        assert info.shape == est.information.shape == (6 * len(est.robots),) * 2
+        assert np.allclose(info, est.information, rtol=1e-5, atol=1e-6 * np.abs(info).max())
+        for r in est.robots:  # each robot with the reference alone, where they observe each other
+            alone = {k: {m: uv for m, uv in v.items() if {rig.observer(k)[0], rig.owner(m)} == {"r0", r}}
+                     for k, v in truth.items()}
+            alone = {k: v for k, v in alone.items() if v}
+            if sum(len(v) for v in alone.values()) >= 3:
+                pairs += 1
+                assert np.allclose(team_pixel_information(rig, alone, "r0", rel, [r]),
+                                   pixel_information(rig, alone, r, "r0", rel[r]), rtol=1e-6, atol=1e-9)
+    assert pairs >= 4

@@ -23,8 +23,8 @@ from ..core.lenses import FisheyeCamera, OmniCamera
 from ..core.pose import Pose
 from ..core.rig import Marker, Mount, Rig, Robot
 
-__all__ = ["OPTICAL_IN_BASE", "random_lens", "random_body", "random_pair", "back_to_back_fisheye",
-           "body_observations", "pixel_information"]
+__all__ = ["OPTICAL_IN_BASE", "random_lens", "random_body", "random_pair", "random_team", "back_to_back_fisheye",
+           "body_observations", "pixel_information", "team_pixel_information"]
 
 #: R_base_optical of a camera looking along the body's x axis (REP 103: optical z forward, x right, y down).
 OPTICAL_IN_BASE = np.column_stack([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
@@ -89,6 +89,40 @@ def random_pair(rng: np.random.Generator, dmin: float = 1.5, dmax: float = 5.0) 
              "p": Pose(so3_exp(np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.uniform(0, 2 * np.pi)])),
                        np.array([d * np.cos(a), d * np.sin(a), rng.normal(0, 0.05)]))}
     return rig, poses, poses["q"].inverse() @ poses["p"]
+
+
+def random_team(rng: np.random.Generator, n: int, *, pinhole: bool = False, rmin: float = 1.2,
+                rmax: float = 2.5, dmin: float = 1.5) -> tuple[Rig, dict[str, Pose]]:
+    """``n`` robots ``r0``... on a circle of radius ``rmin``-``rmax`` m around the team (at least ``dmin`` m
+    apart): ``(rig, world poses)``, each pose that of the robot's frame.
+
+    Bodies (:func:`random_body`) at any headings (so some pairs turned away from each other, seen by back
+    cameras only); with ``pinhole``, the peer: robots with one forward pinhole camera each (60-90 degrees,
+    their frame the camera's optical frame, the same 0.4 m box of four markers), facing the centre of the
+    circle within +-15 degrees."""
+    while True:
+        radius = rng.uniform(rmin, rmax)
+        angles = rng.uniform(0, 2 * np.pi, n)
+        xy = radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        if min(np.linalg.norm(xy[i] - xy[j]) for i in range(n) for j in range(i)) >= dmin:
+            break
+    robots, poses = {}, {}
+    for i in range(n):
+        name = f"r{i}"
+        yaw = angles[i] + np.pi + np.radians(rng.uniform(-15, 15)) if pinhole else rng.uniform(0, 2 * np.pi)
+        base = Pose(so3_exp(np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), yaw])),
+                    np.array([xy[i, 0], xy[i, 1], rng.normal(0, 0.05)]))
+        if not pinhole:
+            robots[name], poses[name] = random_body(rng, name), base
+            continue
+        mount = Pose(so3_exp(np.array([0.0, rng.uniform(-0.15, 0.15), 0.0])) @ OPTICAL_IN_BASE,
+                     np.array([0.2, 0.0, rng.uniform(0.25, 0.45)]))
+        to_cam = mount.inverse()
+        markers = {f"{name}{j}": Marker(f"{name}{j}", name, to_cam.apply(
+            np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.1, 0.6)]))) for j in range(4)}
+        robots[name] = Robot(name, random_lens(rng, "pinhole"), markers)
+        poses[name] = base @ mount
+    return Rig(robots), poses
 
 
 def back_to_back_fisheye(name: str, markers: Mapping[str, Any], *, fov_deg: float = 195.0) -> Robot:
@@ -165,4 +199,45 @@ def pixel_information(rig: Rig, observations: Mapping[str, Mapping[str, Any]], s
                 J[:, k] = (pix(d) - pix(-d)) / (2 * eps)
             rows.append(J)
     J = np.vstack(rows)
+    return J.T @ J
+
+
+def team_pixel_information(rig: Rig, observations: Mapping[str, Mapping[str, Any]], reference: str,
+                           poses: Mapping[str, Pose], robots: list[str], eps: float = 1e-6) -> np.ndarray:
+    """Joint Fisher information (6k x 6k over ``robots``, per unit pixel variance) of the poses
+    ``T_reference_robot`` from the pixels of ``observations`` among ``robots`` and the reference (the
+    others ignored); ``poses[name]`` is each robot's pose in ``reference``'s frame.  Central differences of
+    each lens's projection in the SPEC's perturbation (left rotation vector, translation), as
+    :func:`pixel_information`."""
+    index = {r: i for i, r in enumerate(robots)}
+    rows = []
+    for key, seen in observations.items():
+        rname, cname = rig.observer(key)
+        if rname != reference and rname not in index:
+            continue
+        mount = rig.robots[rname].mounts[cname]
+        for mname in seen:
+            owner = rig.owner(mname)
+            if owner != reference and owner not in index:
+                continue
+            P = rig.marker(mname).position
+
+            def pix(who: str, d: np.ndarray) -> np.ndarray:
+                Ts = {n: poses[n] for n in (rname, owner)}
+                if who != reference:
+                    T = poses[who]
+                    Ts[who] = Pose(so3_exp(d[:3]) @ T.R, T.t + d[3:])
+                X = Ts[rname].inverse().apply(Ts[owner].apply(P))
+                return np.asarray(mount.camera.project(mount.pose.inverse().apply(X)), float)
+
+            J = np.zeros((2, 6 * len(robots)))
+            for who in (rname, owner):
+                if who == reference:
+                    continue
+                for k in range(6):
+                    d = np.zeros(6)
+                    d[k] = eps
+                    J[:, 6 * index[who] + k] = (pix(who, d) - pix(who, -d)) / (2 * eps)
+            rows.append(J)
+    J = np.vstack(rows) if rows else np.zeros((0, 6 * len(robots)))
     return J.T @ J
