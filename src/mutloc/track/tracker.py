@@ -197,24 +197,8 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
                 if not checked and len(last) == 2:
                     check_streams(rig, source, target, last[source], last[target])
                     checked = True
-                row.detections = {r: dets[r].detect(present[r]) for r in images}
-                # Tags missed looked for where the track expects them (see .tag_look), then, with both
-                # cameras' frames, where the record's own pose puts them, and partly hidden balls
-                # measured again where a verified pose puts them (see .second_look).
-                row.detections, tracked = look_where_tracked(rig, images, row.detections,
-                                                             lambda: tracker.team.predicted(t))
-                notes = [text for _, text in tracked]
-                if len(images) == 2:
-                    row.detections, again = look_again(rig, images, row.detections, source, target,
-                                                       pixel_sigma=pixel_sigma, confidence=confidence)
-                    notes += again
-                # pixels only, as the log holds them (see track.team)
-                row.observations = observations_of(row.detections, row.t).with_sigma_scale(None)
-                if log is not None:
-                    log.write(row.t, row.observations)
-                filtered = tracker.step(row)
-                if notes:
-                    row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
+                filtered = _detect_and_fuse(rig, tracker, dets, present, images, row, source, target,
+                                            len(images) == 2, log, pixel_sigma, confidence)
             rows.append(row)
             shown = images if (viz is not None or writer is not None) else {}
             emitter.add(row, filtered if row.observations is not None else False,
@@ -234,6 +218,31 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
             viz.close()
     return Trajectory(source, target, rows, rate)
 
+
+
+def _detect_and_fuse(rig: Rig, tracker: PairTrack, dets: Mapping[str, ObserverDetector], frames: Mapping[str, Frame],
+                     images: Mapping[str, np.ndarray], row: TrackRow, source: str, target: str, both: bool,
+                     log: ObservationLogWriter | None, pixel_sigma: float, confidence: float) -> bool:
+    """One record of :func:`track`: each image searched by its camera's detector, tags missed looked for
+    where the track expects them (see .tag_look), then, with both robots' frames (``both``), where the
+    record's own pose puts them, and partly hidden balls measured again where a verified pose puts them (see
+    .second_look); the observations (pixels only, as the log holds them) logged and fused, the looks' notes
+    added to the row's reason.  Returns what the tracker's step returned (the row was filtered)."""
+    row.detections = {k: dets[k].detect(frames[k]) for k in images}
+    row.detections, tracked = look_where_tracked(rig, images, row.detections,
+                                                 lambda: tracker.team.predicted(row.t))
+    notes = [text for _, text in tracked]
+    if both:
+        row.detections, again = look_again(rig, images, row.detections, source, target,
+                                           pixel_sigma=pixel_sigma, confidence=confidence)
+        notes += again
+    row.observations = observations_of(row.detections, row.t).with_sigma_scale(None)
+    if log is not None:
+        log.write(row.t, row.observations)
+    filtered = tracker.step(row)
+    if notes:
+        row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
+    return filtered
 
 def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str, target: str, *,
                    tolerance: float, pixel_sigma: float, confidence: float, fps: float | None,
@@ -285,22 +294,8 @@ def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str
                 row.status = FrameStatus.CORRUPT
                 row.reason = "; ".join(f"{k}: {f.status}" for k, f in group.items() if f.image is None)
             else:
-                row.detections = {k: dets[k].detect(group[k]) for k in images}
-                # tags missed looked for where the track expects them, then, with both robots' frames, where
-                # the record's own pose puts them, and partly hidden balls measured again (see track())
-                row.detections, tracked = look_where_tracked(rig, images, row.detections,
-                                                             lambda: tracker.team.predicted(t))
-                notes = [text for _, text in tracked]
-                if len(times) == 2:
-                    row.detections, again = look_again(rig, images, row.detections, source, target,
-                                                       pixel_sigma=pixel_sigma, confidence=confidence)
-                    notes += again
-                row.observations = observations_of(row.detections, row.t).with_sigma_scale(None)
-                if log is not None:
-                    log.write(row.t, row.observations)
-                filtered = tracker.step(row)
-                if notes:
-                    row.reason = "; ".join([row.reason, *notes] if row.reason else notes)
+                filtered = _detect_and_fuse(rig, tracker, dets, group, images, row, source, target,
+                                            len(times) == 2, log, pixel_sigma, confidence)
             if writer is not None:
                 last.update({k: (img, group[k].t) for k, img in images.items()})
             rows.append(row)
