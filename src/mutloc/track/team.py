@@ -1290,6 +1290,13 @@ def _join(a: str, b: str) -> str:
     return f"{a}; {b}" if a and b else (a or b)
 
 
+def close_all(*outputs: Any) -> None:
+    """Close every output of a track that was asked for (None: it was not)."""
+    for out in outputs:
+        if out is not None:
+            out.close()
+
+
 class RowEmitter:
     """Hands each item (a record's rows, or a pair's row) to ``sink(item,
     payload)`` in input order once final (see :meth:`TeamTracker.finalize`):
@@ -1482,11 +1489,7 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
         emitter.emit(end=True)  # every record finished so far, reported as if the input ended here
         raise
     finally:
-        bar.close()
-        if writer is not None:
-            writer.close()
-        if log is not None:
-            log.close()
+        close_all(bar, writer, log)
     return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate)
 
 

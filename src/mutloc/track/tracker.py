@@ -35,7 +35,7 @@ from .tag_look import look_where_tracked
 from .sources import Frame
 from .rows import TrackRow
 from .status import FrameStatus
-from .team import RowEmitter, TeamTracker, camera_sizes, sync_streams
+from .team import RowEmitter, TeamTracker, camera_sizes, close_all, sync_streams
 from .trajectory import CSV_EXTRA, BaseFrames, Trajectory, csv_row, tum_comment
 
 __all__ = ["TrackRow", "Trajectory", "pair_streams", "track", "track_log", "PairTrack", "check_streams",
@@ -209,13 +209,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
         emitter.emit(end=True)  # every frame finished so far, reported as if the input ended here
         raise
     finally:
-        bar.close()
-        if writer is not None:
-            writer.close()
-        if log is not None:
-            log.close()
-        if viz is not None:
-            viz.close()
+        close_all(bar, writer, log, viz)
     return Trajectory(source, target, rows, rate)
 
 
@@ -306,13 +300,7 @@ def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str
         emitter.emit(end=True)  # every frame finished so far, reported as if the input ended here
         raise
     finally:
-        bar.close()
-        if writer is not None:
-            writer.close()
-        if log is not None:
-            log.close()
-        if viz is not None:
-            viz.close()
+        close_all(bar, writer, log, viz)
     return Trajectory(source, target, rows, rate)
 
 
