@@ -27,6 +27,11 @@ _SECTIONS = {  # SPEC "Section" -> the manual's page for it
     "Marker calibration": "guides/calibration/",
     "Observation logs": "formats/#observation-logs",
     "Filtered tracking": "guides/tracking/#the-filter",
+    "Robots with several cameras": "guides/cameras/",
+    "Robots with several cameras, any lens": "guides/cameras/",
+    "Live operation": "guides/live/",
+    "Teams": "guides/teams/",
+    "Experiment results": "formats/",
 }
 _FORMATS = "formats/"
 
@@ -34,7 +39,7 @@ _FORMATS = "formats/"
 def _spec_rules(link):
     def section(prefix):
         def sub(m: re.Match) -> str:
-            name = m.group(1)
+            name = " ".join(m.group(1).split())  # a docstring may break the name over lines
             if name not in _SECTIONS:
                 return m.group(0)  # left for the warning below
             return f'{prefix}<a href="{link(_SECTIONS[name])}">{name}</a>'
