@@ -117,3 +117,12 @@ def test_bad_drift_is_an_argument_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["simulate", "--out", str(tmp_path / "x"), "--frames", "3", "--odometry-drift", "1"])
     assert exc.value.code != 0 and "PCT,DEG_PER_M" in capsys.readouterr().err
+
+
+def test_a_robot_standing_still_gets_no_odometry_file(tmp_path):
+    from mutloc.sim.odometry import write_odometry
+
+    still = Pose.from_rotvec([0.1, 0.2, 0.3], [1.0, 2.0, 3.0])
+    written = write_odometry(tmp_path, {"a": lambda t: still, "b": lambda t: Pose.from_rotvec([0, t, 0], [t, 0, 0])},
+                             1.0, rate=50.0, drift=(1.0, 0.3), seed=0, clock_offset={})
+    assert written == ["odometry_b.tum"] and sorted(p.name for p in tmp_path.iterdir()) == written
