@@ -46,7 +46,6 @@ def test_each_robots_odometry_from_a_tum_file_and_its_bag(files):
 
 
 def test_live_takes_ros_topics_and_refuses_bags(files):
-    d, _, _ = files
     rig = standard_rig("balls")
     assert odometry_options(_args("--odometry", "p=ros:/p/odom"), rig, live=True) == {"p": "/p/odom"}
     with pytest.raises(OdometryError, match=r"^--odometry p=ros:/p/odom: a live topic \(ros:/TOPIC\) is for the "):
@@ -58,8 +57,8 @@ def test_live_takes_ros_topics_and_refuses_bags(files):
 @pytest.mark.parametrize("argv, message", [
     (["--odometry", "z=p.tum"], r"^--odometry z=p\.tum: no robot 'z' in the rig \(robots: p, q\)$"),
     (["--odometry", "p=missing.tum"], r"^--odometry p: \S*missing\.tum: cannot read"),
-    (["--odometry", "q=bag:/q/odom"], r"^--odometry q: odometry of 'q': 'bag:/q/odom' names a topic of the "
-                                      r"robot's bag, and 'q' has none"),
+    (["--odometry", "q=bag:/q/odom"], (r"^--odometry q: odometry of 'q': 'bag:/q/odom' names a topic of the "
+                                       r"robot's bag, and 'q' has none")),
     (["--odometry", "p=p.tum", "--odometry", "p=p.tum"], r"--odometry given twice for robot 'p'"),
     (["--odometry", "p=p.tum", "--odometry-noise", "speed=1"], r"^--odometry-noise 'speed=1': expected KEY=VALUE"),
     (["--odometry", "p=p.tum", "--odometry-noise", "turn=x"], r"^--odometry-noise turn=x: not a number$"),
