@@ -99,7 +99,9 @@ def write_odometry(out_dir: Path, poses: dict[str, Callable[[float], Pose]], end
         truth = [fn(float(t)) for t in times]
         if max(max(p.translation_error(truth[0]), np.abs(p.R - truth[0].R).max()) for p in truth) < 1e-9:
             continue  # standing still: no odometry to speak of
-        odo = drifting_odometry(fn, times, drift_pct=drift[0], deg_per_m=drift[1], seed=seed, stream=k)
+        known = dict(zip(times.tolist(), truth))
+        odo = drifting_odometry(lambda t: known[t], times, drift_pct=drift[0], deg_per_m=drift[1], seed=seed,
+                                stream=k)
         off = clock_offset.get(name, 0.0)
         fname = f"odometry_{name}.tum"
         write_tum(out_dir / fname, times - off, odo,
