@@ -78,9 +78,13 @@ def _samples():
     from mutloc.sim.body_scenes import fisheye_pair_rig
 
     yield M.static_transforms_message(fisheye_pair_rig("balls"), 5.125)
+    odo = M.odometry_message(7.5, pose, A @ A.T, "p", "p_odom")
+    odo.twist = T.TwistWithCovariance(twist=T.Twist(linear=T.Vector3(0.5, -0.25, 0.125), angular=T.Vector3(0, 0, 1.5)),
+                                      covariance=[float(i) / 7 for i in range(36)])
+    yield odo
 
 
-@pytest.mark.parametrize("index", range(10))
+@pytest.mark.parametrize("index", range(11))
 def test_each_type_serialises_byte_identical_to_rosbags(store, index):
     msg = list(_samples())[index]
     T = M.ros_types()
@@ -88,6 +92,20 @@ def test_each_type_serialises_byte_identical_to_rosbags(store, index):
     theirs = bytes(store.serialize_cdr(_to_rosbags(store, msg), T.ros_name[type(msg)]))
     assert ours == theirs
     assert type(msg).deserialize(ours) == msg
+
+
+def test_odometry_message_carries_the_pose_and_spec_covariance_back():
+    from mutloc.io.ros import odometry_sample
+
+    pose = Pose.from_rotvec([0.1, -0.2, 0.3], [1.0, 2.0, 3.0])
+    A = RNG.normal(size=(6, 6))
+    msg = M.ros_types().Odometry.deserialize(M.odometry_message(12.25, pose, A @ A.T, "p").serialize())
+    assert M.ros_types().Odometry.__idl_typename__ == "nav_msgs::msg::dds_::Odometry_"
+    t, back, cov, child = odometry_sample(msg)
+    assert t == 12.25 and child == "p" and msg.header.frame_id == "odom"
+    np.testing.assert_allclose(back.R, pose.R, atol=1e-12)
+    np.testing.assert_allclose(back.t, pose.t)
+    np.testing.assert_allclose(cov, A @ A.T)
 
 
 def test_dds_type_names_follow_ros2():

@@ -37,6 +37,12 @@ class TooFewObservationsError(ObservationError):
     """Fewer than three marker observations between the two robots."""
 
 
+class OdometryError(InputError):
+    """A robot's odometry cannot be used: too few usable samples, a robot
+    frame that is not the rig's, an increment it does not cover; the
+    message names the file or topic and the line or stamp."""
+
+
 class MissingExtraError(MutlocError, ImportError):
     """The call needs an optional package this install does not have; the
     message names it and the extra that installs it (``pip install
@@ -92,6 +98,7 @@ __all__ = [
     "ObservationError",
     "UnknownMarkerError",
     "TooFewObservationsError",
+    "OdometryError",
     "MissingExtraError",
     "GeometryError",
     "DegenerateGeometryError",

@@ -12,7 +12,7 @@ import math
 
 __all__ = ["positive_float", "nonnegative_float", "output_path", "robot_value", "int_in_range", "unit_interval",
            "RIG", "PAIR", "NOISE", "TRUST", "OUTPUT", "PROGRESS", "SEED", "TEAM", "LIVE", "robot_map", "team_mode",
-           "loopback_wanted", "live_domain"]
+           "loopback_wanted", "live_domain", "ODOMETRY", "odometry_options", "odometry_noise", "ROS_PREFIX"]
 
 
 def positive_float(text: str) -> float:
@@ -172,3 +172,95 @@ def live_domain(args: argparse.Namespace) -> int:
         return check_domain(env)
     except InputError:
         raise InputError(f"ROS_DOMAIN_ID must be an integer from 0 to 232, got {env!r}") from None
+
+
+ODOMETRY = _parent()
+ODOMETRY.add_argument("--odometry", action="append", type=robot_value, default=[], metavar="NAME=SOURCE",
+                      help="robot NAME's odometry, the pose of its robot frame in its own odometry frame on its own "
+                           "clock (repeatable): a TUM file (time tx ty tz qx qy qz qw), bag:/TOPIC (a "
+                           "nav_msgs/msg/Odometry topic of the robot's bag) or, live, ros:/TOPIC; only the motion "
+                           "between two of its poses is used")
+ODOMETRY.add_argument("--odometry-noise", metavar="KEY=V[,KEY=V...]", default=None,
+                      help="the odometry's noise where its messages give no covariance, a random walk per axis: "
+                           "distance (m after 1 m travelled, default 0.02), deg_per_m (degrees after 1 m, "
+                           "default 1), turn (rad after 1 rad turned, default 0.02), floor_m (m after 1 s, "
+                           "default 0.001), floor_deg (degrees after 1 s, default 0.05)")
+
+#: SOURCE prefix of a live odometry topic (received over DDS).
+ROS_PREFIX = "ros:"
+
+
+def odometry_noise(text: str | None):
+    """The :class:`~mutloc.core.odometry.OdometryNoise` of ``--odometry-noise``
+    (the defaults for the keys not given); OdometryError naming a bad key or value."""
+    import dataclasses
+
+    from ..core.odometry import OdometryNoise
+    from ..errors import OdometryError
+
+    if text is None:
+        return OdometryNoise()
+    keys = [f.name for f in dataclasses.fields(OdometryNoise)]
+    given: dict[str, float] = {}
+    for part in text.split(","):
+        key, sep, value = part.strip().partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or key not in keys:
+            raise OdometryError(f"--odometry-noise {part.strip()!r}: expected KEY=VALUE with KEY one of "
+                                f"{', '.join(keys)}")
+        if key in given:
+            raise OdometryError(f"--odometry-noise: {key} given twice")
+        try:
+            given[key] = float(value)
+        except ValueError:
+            raise OdometryError(f"--odometry-noise {key}={value.strip()}: not a number") from None
+    return OdometryNoise(**given)
+
+
+def _robot_bag(args: argparse.Namespace, robot: str) -> str | None:
+    """The bag of ``robot``'s stream (its cameras' streams given with a --topic), if any."""
+    from ..errors import OdometryError
+
+    streams = getattr(args, "stream", None) or []
+    topics = {k for k, _ in getattr(args, "topic", None) or []}
+    bags = sorted({path for key, path in streams if key.split("/", 1)[0] == robot and key in topics})
+    if len(bags) > 1:
+        raise OdometryError(f"--odometry {robot}=bag:...: robot {robot!r} has several bags ({', '.join(bags)}); "
+                            f"give its odometry as a TUM file")
+    return bags[0] if bags else None
+
+
+def odometry_options(args: argparse.Namespace, rig: object, live: bool = False) -> dict:
+    """``--odometry`` per robot: ``{robot: Odometry}`` of each TUM file or bag
+    topic (``bag:/TOPIC``: a topic of the robot's bag, its ``--stream`` with
+    ``--topic``), and, ``live``, ``{robot: TOPIC}`` for ``ros:/TOPIC`` (received
+    over DDS).  One-line InputError/OdometryError for a robot the rig does not
+    have, a robot given twice, a source of the wrong kind or one that cannot
+    be read."""
+    from ..errors import OdometryError
+    from ..track.odometry import BAG_PREFIX, load_odometry
+
+    noise = odometry_noise(getattr(args, "odometry_noise", None))
+    names = list(rig.robots)  # type: ignore[attr-defined]
+    out: dict = {}
+    for robot, source in robot_map(getattr(args, "odometry", None) or [], "--odometry").items():
+        if robot not in names:
+            raise OdometryError(f"--odometry {robot}={source}: no robot {robot!r} in the rig "
+                                f"(robots: {', '.join(names)})")
+        if source.startswith(ROS_PREFIX):
+            topic = source[len(ROS_PREFIX):]
+            if not live:
+                raise OdometryError(f"--odometry {robot}={source}: a live topic (ros:/TOPIC) is for the localizer; "
+                                    f"give a TUM file or bag:/TOPIC")
+            if not topic.startswith("/") or len(topic) < 2:
+                raise OdometryError(f"--odometry {robot}={source}: a live topic is ros:/TOPIC")
+            out[robot] = topic
+            continue
+        if live and source.startswith(BAG_PREFIX):
+            raise OdometryError(f"--odometry {robot}={source}: live, there is no bag; give ros:/TOPIC or a TUM file")
+        bag = _robot_bag(args, robot) if source.startswith(BAG_PREFIX) else None
+        try:
+            out[robot] = load_odometry(source, robot, bag=bag, noise=noise)
+        except OdometryError as exc:
+            raise OdometryError(f"--odometry {robot}: {exc}") from None
+    return out

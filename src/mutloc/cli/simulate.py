@@ -44,7 +44,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
             "Render two robots p and q facing each other in a textured room with the built-in "
             "ray caster. Writes rig.yaml, the images (p.png and q.png, or p/ and q/ folders for a "
             "sequence with frames.csv), truth.json (T_qp and exact marker pixels per frame) and, "
-            "for sequences, truth.tum (pose of p in q's frame, TUM format). --cameras back-to-back-fisheye: robots "
+            "for sequences, truth.tum (pose of p in q's frame, TUM format) and odometry_NAME.tum (each moving "
+            "robot's drifting odometry). --cameras back-to-back-fisheye: robots "
             "with two fisheye cameras each, one image per camera (p_front.png, p_back.png, ...), rig.yaml with "
             "cameras:, observations keyed p/front ...; --facing away puts them back to back."
         ),
@@ -97,7 +98,30 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="with --robots: fast robots, each driving a small circle at about this speed (0.8-1.2 times)")
     p.add_argument("--turn-rate", type=positive_float, metavar="DEG/S",
                    help="with --robots: each robot's heading swings at about this peak rate (0.93-1.07 times)")
+    o = p.add_argument_group("odometry and clocks (sequences of one-camera robots)",
+                             "a sequence also writes odometry_NAME.tum for each robot that moves: its pose in its own "
+                             "odometry frame, from the true motion with a seeded random-walk drift")
+    o.add_argument("--odometry-drift", type=_drift, default=None, metavar="PCT,DEG_PER_M",
+                   help="the odometry's drift after 1 m travelled: percent of the distance and degrees "
+                        "(default 1,0.3; growing with the square root of the distance)")
+    o.add_argument("--odometry-rate", type=positive_float, default=None, metavar="HZ",
+                   help="odometry samples per second (default 50)")
+    o.add_argument("--clock-offset", action="append", type=robot_value, default=[], metavar="ROBOT=S",
+                   help="this robot's clock runs S seconds behind the reference's (q; r0 for a team): its "
+                        "frames.csv (one per robot folder) and odometry are stamped on its clock; truth.json "
+                        "records clock_offsets (S: what puts its stamps on the reference's clock)")
     return p
+
+
+def _drift(text: str) -> tuple[float, float]:
+    parts = text.split(",")
+    try:
+        pct, deg = (float(x) for x in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected PCT,DEG_PER_M (two numbers), got {text!r}") from None
+    if not all(math.isfinite(x) and x >= 0 for x in (pct, deg)):
+        raise argparse.ArgumentTypeError(f"drift must be two finite numbers >= 0, got {text!r}")
+    return pct, deg
 
 
 def run(args: argparse.Namespace) -> int:
@@ -105,6 +129,12 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import InputError
     from ..sim.scenario import write_simulation, write_team_simulation
 
+    odometry = {k: v for k, v in (("odometry_rate", args.odometry_rate), ("odometry_drift", args.odometry_drift))
+                if v is not None}
+    odometry["clock_offset"] = _numbers(args.clock_offset, "--clock-offset")
+    if (len(odometry) > 1 or odometry["clock_offset"]) and (args.cameras != "single" or args.frames < 2):
+        raise InputError("--odometry-drift/--odometry-rate/--clock-offset are for sequences (--frames 2 or more) "
+                         "of one-camera robots (--cameras single)")
     if args.cameras != "single":
         if args.robots > 2:
             raise InputError(f"--cameras {args.cameras}: a pair only (not with --robots)")
@@ -138,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
                                     images=args.images, progress=args.progress,
                                     camera_fps=_numbers(args.camera_fps, "--camera-fps"),
                                     camera_offset=_numbers(args.camera_offset, "--camera-offset"),
-                                    speed=args.speed, turn_rate=args.turn_rate))
+                                    speed=args.speed, turn_rate=args.turn_rate, **odometry))
         return 0
     if args.speed is not None or args.turn_rate is not None:
         raise InputError("--speed/--turn-rate move a team: use them with --robots 3 or more")
@@ -148,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
         focal=args.focal, room=not args.no_room, progress=args.progress,
         camera_fps=_numbers(args.camera_fps, "--camera-fps"), camera_offset=_numbers(args.camera_offset,
                                                                                        "--camera-offset"),
+        **odometry,
     )
     print(summary)
     return 0

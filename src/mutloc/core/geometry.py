@@ -12,6 +12,9 @@ __all__ = [
     "skew",
     "so3_exp",
     "so3_log",
+    "so3_left_jacobian",
+    "se3_exp",
+    "se3_log",
     "rotation_error_deg",
     "translation_error",
     "quaternion_xyzw_from_matrix",
@@ -54,6 +57,41 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     if axis @ v < 0:
         axis = -axis
     return th * axis
+
+
+def so3_left_jacobian(w: np.ndarray, inverse: bool = False) -> np.ndarray:
+    """The left Jacobian ``J_l(w) = I + (1-cos th)/th^2 [w]x + (th-sin th)/th^3 [w]x^2``
+    of SO(3) (``so3_exp(w + dw) ~= so3_exp(J_l(w) @ dw) @ so3_exp(w)``), or its inverse."""
+    w = np.asarray(w, dtype=float)
+    th2 = float(w @ w)
+    th = np.sqrt(th2)
+    W = skew(w)
+    if inverse:
+        if th < 1e-6:
+            c = 1.0 / 12.0 + th2 / 720.0
+        else:
+            c = (1.0 - th * np.sin(th) / (2.0 * (1.0 - np.cos(th)))) / th2
+        return np.eye(3) - 0.5 * W + c * W @ W
+    if th < 1e-6:
+        a, b = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        a, b = (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
+    return np.eye(3) + a * W + b * W @ W
+
+
+def se3_exp(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, t)`` of the twist ``xi = (w, v)`` (rotation first, as the SPEC's
+    covariances): the pose reached moving with constant angular velocity
+    ``w`` and body-fixed linear velocity ``v`` for unit time (a screw motion);
+    ``R = so3_exp(w)``, ``t = J_l(w) @ v``."""
+    xi = np.asarray(xi, dtype=float).reshape(6)
+    return so3_exp(xi[:3]), so3_left_jacobian(xi[:3]) @ xi[3:]
+
+
+def se3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The twist ``(w, v)`` with ``se3_exp((w, v)) == (R, t)`` (the inverse of :func:`se3_exp`)."""
+    w = so3_log(R)
+    return np.concatenate([w, so3_left_jacobian(w, inverse=True) @ np.asarray(t, dtype=float)])
 
 
 def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> float:

@@ -28,17 +28,19 @@ from typing import Any, Sequence
 import numpy as np
 
 from .._extras import require
+from ..core.geometry import matrix_from_quaternion_xyzw
 from ..core.pose import Pose
 from ..errors import FileFormatError, InputError
 from ._files import PathLike
 from .streaming import RollingFile, StreamWriter, deferred_interrupt
 
 __all__ = ["ros_covariance", "spec_covariance", "pose_topic", "write_ros2_bag", "write_mcap", "POSE_TYPE", "TF_TYPE",
-           "TF_TOPIC", "Ros2BagWriter", "McapPoseWriter", "BAG_STORAGES"]
+           "TF_TOPIC", "Ros2BagWriter", "McapPoseWriter", "BAG_STORAGES", "ODOMETRY_TYPE", "odometry_sample"]
 
 POSE_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 TF_TOPIC = "/tf"
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 # SPEC (rx, ry, rz, tx, ty, tz) -> ROS (x, y, z, rx, ry, rz)
 _TO_ROS = np.array([3, 4, 5, 0, 1, 2])
 
@@ -54,6 +56,21 @@ def spec_covariance(ros: Any) -> np.ndarray:
     c = np.asarray(ros, dtype=float).reshape(6, 6)
     inv = np.argsort(_TO_ROS)
     return c[np.ix_(inv, inv)]
+
+
+def odometry_sample(msg: Any) -> tuple[float, Pose, np.ndarray, str]:
+    """``(stamp s, pose, covariance, child_frame_id)`` of a ``nav_msgs/msg/Odometry``
+    message (ROS 1 or ROS 2, from a bag or over DDS): the pose of the child
+    frame in ``header.frame_id``, its covariance in SPEC order (all zeros:
+    none given).  A quaternion of zero norm gives a non-finite pose (the
+    caller rejects it); nothing here raises for the values."""
+    h = msg.header.stamp
+    t = float(h.sec) + float(h.nanosec) * 1e-9
+    p, o = msg.pose.pose.position, msg.pose.pose.orientation
+    q = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    n = float(np.linalg.norm(q))
+    R = matrix_from_quaternion_xyzw(q) if n > 0 and math.isfinite(n) else np.full((3, 3), np.nan)
+    return t, Pose(R, [p.x, p.y, p.z]), spec_covariance(msg.pose.covariance), str(msg.child_frame_id)
 
 
 def pose_topic(source: str, target: str) -> str:

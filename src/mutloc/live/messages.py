@@ -36,7 +36,7 @@ from ..io.ros import TF_TOPIC, pose_topic, ros_covariance
 
 __all__ = ["ros_types", "MSG_PACKAGE", "rig_id", "observations_topic", "dds_topic", "OBSERVATIONS_TYPE",
            "observations_message", "observations_from_message", "observations_from_cdr", "pose_messages", "pose_cdr",
-           "pose_cdr_body", "raw_sample", "diagnostics_message",
+           "pose_cdr_body", "raw_sample", "diagnostics_message", "odometry_message",
            "stamp_of", "stamp", "MessageError", "RobotStatus", "DIAGNOSTICS_TOPIC", "TF_TOPIC", "TF_STATIC_TOPIC",
            "pose_topic", "static_transforms_message", "observer_frame_ids",
            "OK", "WARN", "ERROR", "STALE"]
@@ -78,7 +78,8 @@ def ros_types() -> SimpleNamespace:
     """The message types (cyclonedds ``IdlStruct`` dataclasses), by ROS name's
     last part: ``Time``, ``Header``, ``Observation``, ``Observations``, ``Point``,
     ``Quaternion``, ``Pose``, ``PoseWithCovariance``, ``PoseWithCovarianceStamped``,
-    ``Vector3``, ``Transform``, ``TransformStamped``, ``TFMessage``, ``KeyValue``,
+    ``Vector3``, ``Transform``, ``TransformStamped``, ``TFMessage``, ``Twist``,
+    ``TwistWithCovariance``, ``Odometry`` (``nav_msgs/msg/Odometry``), ``KeyValue``,
     ``DiagnosticStatus``, ``DiagnosticArray``, ``RegionOfInterest``, ``Image``,
     ``CompressedImage``, ``CameraInfo``; ``ros_name[cls]`` is each one's
     ``pkg/msg/Name``."""
@@ -168,6 +169,23 @@ def ros_types() -> SimpleNamespace:
         transforms: sequence[TransformStamped] = field(default_factory=list)
 
     @idl
+    class Twist(IdlStruct, typename=name("geometry_msgs/msg/Twist")):
+        linear: Vector3 = field(default_factory=Vector3)
+        angular: Vector3 = field(default_factory=Vector3)
+
+    @idl
+    class TwistWithCovariance(IdlStruct, typename=name("geometry_msgs/msg/TwistWithCovariance")):
+        twist: Twist = field(default_factory=Twist)
+        covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+    @idl
+    class Odometry(IdlStruct, typename=name("nav_msgs/msg/Odometry")):
+        header: Header = field(default_factory=Header)
+        child_frame_id: str = ""
+        pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+        twist: TwistWithCovariance = field(default_factory=TwistWithCovariance)
+
+    @idl
     class KeyValue(IdlStruct, typename=name("diagnostic_msgs/msg/KeyValue")):
         key: str = ""
         value: str = ""
@@ -226,7 +244,8 @@ def ros_types() -> SimpleNamespace:
     classes = dict(Time=Time, Header=Header, Observation=Observation, Observations=Observations, Point=Point,
                    Vector3=Vector3, Quaternion=Quaternion, Pose=PoseMsg, PoseWithCovariance=PoseWithCovariance,
                    PoseWithCovarianceStamped=PoseWithCovarianceStamped, Transform=Transform,
-                   TransformStamped=TransformStamped, TFMessage=TFMessage, KeyValue=KeyValue,
+                   TransformStamped=TransformStamped, TFMessage=TFMessage, Twist=Twist,
+                   TwistWithCovariance=TwistWithCovariance, Odometry=Odometry, KeyValue=KeyValue,
                    DiagnosticStatus=DiagnosticStatus, DiagnosticArray=DiagnosticArray,
                    RegionOfInterest=RegionOfInterest, Image=Image, CompressedImage=CompressedImage,
                    CameraInfo=CameraInfo)
@@ -422,6 +441,19 @@ def static_transforms_message(rig: Any, t: float) -> Any:
                 transform=T.Transform(translation=T.Vector3(x=x, y=y, z=z),
                                       rotation=T.Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))))
     return T.TFMessage(transforms=out)
+
+
+def odometry_message(t: float, pose: Pose, covariance: np.ndarray | None, robot: str, frame: str = "odom") -> Any:
+    """A ``nav_msgs/msg/Odometry`` of ``robot``'s frame (``child_frame_id``) in its
+    odometry frame ``frame`` at ``t``, ``covariance`` 6x6 in SPEC order (None:
+    all zeros, none given); the twist is left zero (mutloc uses the poses)."""
+    T = ros_types()
+    q = pose.quaternion_xyzw
+    cov = [0.0] * 36 if covariance is None else [float(x) for x in ros_covariance(covariance).reshape(-1)]
+    return T.Odometry(header=T.Header(stamp=stamp(t), frame_id=frame), child_frame_id=robot,
+                      pose=T.PoseWithCovariance(pose=T.Pose(position=T.Point(*map(float, pose.t)),
+                                                            orientation=T.Quaternion(*map(float, q))),
+                                                covariance=cov))
 
 
 def pose_messages(t: float, pose: Pose, covariance: np.ndarray | None, source: str, target: str) -> tuple[Any, Any]:

@@ -20,6 +20,7 @@ from ..errors import InputError
 from ..io import save_rig, write_json
 from ..io.trajectory import write_tum
 from .render import moving_world, pixel_bearings, project_markers, relative_pose, render, two_robot_world
+from .odometry import DEFAULT_DRIFT, DEFAULT_RATE, check_clock_offsets, write_odometry
 from .synthetic import facing_pose
 from .world import MARKER_KINDS, standard_rig
 
@@ -39,7 +40,9 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
                      fps: float = 30.0, seed: int = 0, noise: float = 1.0, jpeg: int | None = None,
                      blur: float = 0.0, k1: float = 0.0, size: tuple[int, int] = (960, 540),
                      focal: float = 800.0, room: bool = True, progress: bool = False,
-                     camera_fps: dict[str, float] | None = None, camera_offset: dict[str, float] | None = None) -> str:
+                     camera_fps: dict[str, float] | None = None, camera_offset: dict[str, float] | None = None,
+                     odometry_rate: float = DEFAULT_RATE, odometry_drift: tuple[float, float] = DEFAULT_DRIFT,
+                     clock_offset: dict[str, float] | None = None) -> str:
     """Render a scene (``frames == 1``) or a sequence into ``out``; returns a one-line summary.
 
     Cameras need not be synchronized: ``camera_fps`` and ``camera_offset``
@@ -54,8 +57,16 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
     ``truth.tum`` for a sequence; always ``truth.json`` with, per frame,
     ``T_qp`` ({R, t, quaternion_xyzw}), ``observations`` (exact pixels of every
     marker centre in view, SPEC observations form) and ``hidden`` (those of
-    them something else hides).  Raises InputError for bad parameters and
-    OSError when a file cannot be written.
+    them something else hides).  A sequence also has ``odometry_NAME.tum``
+    for each robot that moves (:func:`mutloc.sim.odometry.write_odometry`:
+    ``odometry_rate`` Hz, ``odometry_drift`` = (percent of the distance,
+    degrees per metre)).  ``clock_offset`` (per robot but q, seconds) puts
+    that robot's stamps on its own clock, ``offset`` behind the true time
+    (the reference's, q's): its ``frames.csv`` (then one per robot folder)
+    and its odometry; ``truth.json`` records them as ``clock_offsets`` (the
+    offset added to the robot's stamps to put them on the reference's
+    clock) and keeps the true times.  Raises InputError for bad parameters
+    and OSError when a file cannot be written.
     """
     out_dir = Path(out).expanduser()
     if out_dir.exists() and not out_dir.is_dir():
@@ -73,6 +84,9 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
                          f"{size[0]}x{size[1]} image; use a smaller |k1|")
     sequence = frames > 1
     stamps = _camera_times(frames, fps, camera_fps, camera_offset, sequence)
+    clocks = check_clock_offsets(clock_offset, ("p", "q"), "q")
+    if clocks and not sequence:
+        raise InputError("clock offsets need a sequence (--frames 2 or more)")
     if sequence:
         world = moving_world(rig, distance=distance, room=room, seed=seed, source="p", target="q")
     else:
@@ -121,26 +135,37 @@ def write_simulation(out: str | Path, *, markers: str = "balls", distance: float
     }
     if stamps.unsynchronized:
         truth["cameras"] = {r: {"fps": stamps.fps[r], "offset": stamps.offset[r]} for r in ("p", "q")}
+    if clocks:
+        truth["clock_offsets"] = clocks
     write_json(truth, out_dir / "truth.json")
     files = ["rig.yaml", "truth.json"]
     if sequence:
-        for where, rows in ([(out_dir / r / "frames.csv", own[r]) for r in ("p", "q")] if stamps.unsynchronized
-                            else [(out_dir / "frames.csv", [(fr["frame"], fr["timestamp"]) for fr in truth_frames])]):
-            with open(where, "w", newline="", encoding="utf-8") as fh:
-                w = csv.writer(fh)
-                w.writerow(["frame", "timestamp"])
-                for k, t in rows:
-                    w.writerow([k, f"{t:.9f}"])
+        per_robot = stamps.unsynchronized or bool(clocks)
+        _write_frames_csv([(out_dir / r / "frames.csv", own[r], clocks.get(r, 0.0)) for r in ("p", "q")] if per_robot
+                          else [(out_dir / "frames.csv", [(fr["frame"], fr["timestamp"]) for fr in truth_frames], 0.0)])
         write_tum(out_dir / "truth.tum", [fr["timestamp"] for fr in truth_frames],
                   Pose.concatenate([relative_pose(world, "p", "q", fr["timestamp"]) for fr in truth_frames]),
                   comment="timestamp tx ty tz qx qy qz qw  (pose of p in q's camera frame, T_qp)")
-        files += (["p/ (frames.csv)", "q/ (frames.csv)"] if stamps.unsynchronized else ["p/", "q/", "frames.csv"]) \
+        files += (["p/ (frames.csv)", "q/ (frames.csv)"] if per_robot else ["p/", "q/", "frames.csv"]) \
             + ["truth.tum"]
+        files += write_odometry(out_dir, {r: (lambda t, r=r: world.pose(r, t)) for r in ("p", "q")},
+                                truth_frames[-1]["timestamp"], rate=odometry_rate, drift=odometry_drift, seed=seed,
+                                clock_offset=clocks)
     else:
         write_json(truth_frames[0]["observations"], out_dir / "observations.json")
         files += ["p.png", "q.png", "observations.json"]
     n = "1 frame" if frames == 1 else f"{frames} frames"
     return f"wrote {n} ({markers}, {size[0]}x{size[1]}) to {out_dir}: {', '.join(files)}"
+
+
+def _write_frames_csv(files: list[tuple[Path, list[tuple[int, float]], float]]) -> None:
+    """Each ``frames.csv`` of ``(path, [(frame, true time)], clock offset)``: the stamps on that clock."""
+    for where, rows, offset in files:
+        with open(where, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(["frame", "timestamp"])
+            for k, t in rows:
+                w.writerow([k, f"{t - offset:.9f}"])
 
 
 @dataclass
@@ -206,7 +231,9 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
                           room: bool = True, images: bool = True, progress: bool = False,
                           camera_fps: dict[str, float] | None = None,
                           camera_offset: dict[str, float] | None = None, speed: float | None = None,
-                          turn_rate: float | None = None) -> str:
+                          turn_rate: float | None = None, odometry_rate: float = DEFAULT_RATE,
+                          odometry_drift: tuple[float, float] = DEFAULT_DRIFT,
+                          clock_offset: dict[str, float] | None = None) -> str:
     """A team of ``robots`` robots in a room (:func:`mutloc.sim.team.random_team`)
     carrying ``markers``: "balls" (four coloured balls each, every ball its
     own colour) or "tags" (two printed AprilTags each, distinct ids; the
@@ -229,7 +256,10 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     ``cameras`` capturing then).  ``speed`` (m/s) and ``turn_rate`` (deg/s):
     fast robots, each driving a circle of 0.3 m radius about its place and
     swinging its heading by 15 degrees either way
-    (:func:`mutloc.sim.team.team_motion`).
+    (:func:`mutloc.sim.team.team_motion`).  ``odometry_*`` and
+    ``clock_offset`` (per robot but r0) as :func:`write_simulation`: a
+    sequence's ``odometry_NAME.tum`` per moving robot, and robots on their
+    own clocks (each folder its own ``frames.csv``).
     """
     from .render import project_markers, render, room_around
     from .team import TEAM_KINDS, random_team, team_motion
@@ -253,6 +283,9 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     names = scene.names
     sequence = frames > 1
     capture = _camera_times(frames, fps, camera_fps, camera_offset, sequence, tuple(names))
+    clocks = check_clock_offsets(clock_offset, tuple(names), names[0])
+    if clocks and not sequence:
+        raise InputError("clock offsets need a sequence (--frames 2 or more)")
     fast = FAST_TEAM if speed is not None or turn_rate is not None else {}
     motion = (team_motion(scene, seed=seed, speed=speed, turn_rate=turn_rate, **fast) if sequence
               else (lambda t: scene.world))
@@ -301,23 +334,25 @@ def write_team_simulation(out: str | Path, *, robots: int, markers: str = "balls
     if sequence:
         if capture.unsynchronized:
             common["cameras"] = {n: {"fps": capture.fps[n], "offset": capture.offset[n]} for n in names}
+        if clocks:
+            common["clock_offsets"] = clocks
         write_json({**common, "frames_count": frames, "fps": fps, "frames": truth_frames}, out_dir / "truth.json")
-        csvs = ([(out_dir / n / "frames.csv", own[n]) for n in names if images] if capture.unsynchronized else
-                [(out_dir / "frames.csv", [(fr["frame"], fr["timestamp"]) for fr in truth_frames])])
-        for where, rows in csvs:
-            with open(where, "w", newline="", encoding="utf-8") as fh:
-                w = csv.writer(fh)
-                w.writerow(["frame", "timestamp"])
-                for k, t in rows:
-                    w.writerow([k, f"{t:.9f}"])
+        per_robot = capture.unsynchronized or bool(clocks)
+        _write_frames_csv([(out_dir / n / "frames.csv", own[n], clocks.get(n, 0.0)) for n in names if images]
+                          if per_robot else
+                          [(out_dir / "frames.csv", [(fr["frame"], fr["timestamp"]) for fr in truth_frames], 0.0)])
         stamps = [fr["timestamp"] for fr in truth_frames]
         for n in names[1:]:
             write_tum(out_dir / f"truth_{n}.tum", stamps,
                       Pose.concatenate([p[n] for p in poses]),
                       comment=f"timestamp tx ty tz qx qy qz qw  (pose of {n} in {names[0]}'s camera frame)")
-        files += (["frames.csv in each robot's folder" if images else "(no images)"] if capture.unsynchronized
+        files += (["frames.csv in each robot's folder" if images else "(no images)"] if per_robot
                   else ["frames.csv"]) + \
             [f"truth_{names[1]}.tum ..."] + ([f"{names[0]}/ ... {names[-1]}/"] if images else [])
+        odo = write_odometry(out_dir, {n: (lambda t, n=n: world.pose(n, t)) for n in names}, stamps[-1],
+                             rate=odometry_rate, drift=odometry_drift, seed=seed, clock_offset=clocks)
+        if odo:
+            files.append(f"{odo[0]} ... ({len(odo)} robots)" if len(odo) > 2 else ", ".join(odo))
         n_obs = sum(len(v) for fr in truth_frames for v in fr["observations"].values())
         return (f"wrote {frames} frames of a team of {robots} robots ({markers}, {n_obs} marker observations) "
                 f"to {out_dir}: {', '.join(files)}")

@@ -19,7 +19,7 @@ from ..core.camera import Camera
 from ..core.rig import Rig
 from ..errors import FileFormatError, InputError
 
-__all__ = ["Frame", "Stream", "folder_frames", "video_frames", "bag_frames", "bag_camera", "open_source",
+__all__ = ["Frame", "Stream", "open_bag", "folder_frames", "video_frames", "bag_frames", "bag_camera", "open_source",
            "open_streams", "rig_with_bag_cameras", "IMAGE_SUFFIXES", "image_from_message", "camera_from_info"]
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"}
@@ -179,7 +179,10 @@ def image_from_message(msg) -> np.ndarray:
     raise ValueError(f"unsupported image encoding {msg.encoding!r}")
 
 
-def _reader(path: Path):
+def open_bag(path: str | Path):
+    """An opened rosbags ``AnyReader`` of a ROS 1 or ROS 2 bag (close it when done); FileFormatError for a
+    missing or unreadable bag."""
+    path = Path(path)
     from .._extras import require
 
     require("rosbags", "reading a ROS bag")
@@ -200,7 +203,7 @@ def bag_frames(path: str | Path, topic: str) -> Iterator[Frame]:
     """Images of one topic of a ROS 1 or ROS 2 bag, stamped by their header
     (or the record time when the header stamp is zero)."""
     p = Path(path)
-    reader = _reader(p)
+    reader = open_bag(p)
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:
@@ -224,7 +227,7 @@ def bag_frames(path: str | Path, topic: str) -> Iterator[Frame]:
 def bag_camera(path: str | Path, topic: str) -> Camera | None:
     """The camera of the first ``sensor_msgs/CameraInfo`` message on ``topic``."""
     p = Path(path)
-    reader = _reader(p)
+    reader = open_bag(p)
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:
@@ -255,7 +258,7 @@ def _video_rate(p: Path) -> float | None:
 
 
 def _bag_rate(p: Path, topic: str) -> float | None:
-    reader = _reader(p)
+    reader = open_bag(p)
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         n = sum(int(getattr(c, "msgcount", 0) or 0) for c in conns)
