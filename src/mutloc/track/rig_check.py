@@ -136,10 +136,11 @@ class RigCheck:
         return RIG_HINT if self.flagged else None
 
     def summary(self) -> str | None:
-        """``observations keep disagreeing ... (41 of 100 records)``, or None."""
+        """``observations keep disagreeing ... (the window disagreed at 158 of 187 records that test it)``,
+        or None (records that test it: those with degrees of freedom)."""
         if not self.flagged:
             return None
-        return f"{RIG_HINT} ({self.flagged} of {self.records} records in a window that disagreed)"
+        return f"{RIG_HINT} (the window disagreed at {self.flagged} of {self.records} records that test it)"
 
 
 def record_chi2(rig: Any, observations: Any, source: str, target: str, pixel_sigma: float) -> tuple[float, int]:
