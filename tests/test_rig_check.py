@@ -80,7 +80,7 @@ def test_excess_is_flagged_within_a_window():
 
 def test_one_stray_detection_is_not_the_rig():
     """One record a thousand sigmas off among honest ones counts as one bad
-    record (capped at its own 0.999 quantile), not as the rig."""
+    record (capped at its own 0.99 quantile), not as the rig."""
     rng = np.random.default_rng(2)
     values = rng.chisquare(2, size=90)
     values[40] = 1e6
