@@ -220,6 +220,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
     return _noted(Trajectory(source, target, rows, rate), tracker)
 
 
+
 def _detect_and_fuse(rig: Rig, tracker: PairTrack, dets: Mapping[str, ObserverDetector], frames: Mapping[str, Frame],
                      images: Mapping[str, np.ndarray], row: TrackRow, source: str, target: str, both: bool,
                      log: ObservationLogWriter | None, pixel_sigma: float, confidence: float) -> bool:
@@ -309,6 +310,7 @@ def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str
         close_all(bar, writer, log, viz)
     return _noted(Trajectory(source, target, rows, rate), tracker)
 
+
 def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, ObservationSet]], source: str | None = None,
               target: str | None = None, *, pixel_sigma: float = 1.0, confidence: float = DEFAULT_CONFIDENCE,
               progress: bool = True, total: int | None = None, filter: str | FilterOptions = "cv",
@@ -352,6 +354,7 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
         if viz is not None:
             viz.close()
     return _noted(Trajectory(source, target, rows, None), tracker)
+
 
 def _rerun_writer(path: str | Path | None, source: str, target: str) -> Any:
     if path is None:
