@@ -582,19 +582,25 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
             fit = _fit(data, prior, fit.adjustment.markers, fit.adjustment.rotations, *args)
     marker_robot = [model.robot[b] for b in body]
     n_par = len(fit.adjustment.information)
-    # The noise behind the sigmas (and the priors' weights against the
-    # pixels): measured from the residuals; the fit again while it moves.
-    noise, measured = pixel_sigma, None
+    # The noise behind the sigmas (``noise``: the stated one, or with
+    # measure_noise the residuals') and the noise the held combinations are
+    # judged at (``judge``: always the residuals', :func:`_hold_noise`),
+    # measured from the residuals; the fit again while what drives it moves.
+    noise, judge, measured = pixel_sigma, pixel_sigma, None
     held: tuple | None = None
+    drives = None
     motion = _motion_summary(fit.groups, fit.adjustment, order, rig)
     for round_ in range(_NOISE_ROUNDS):
         # the held combinations are not estimated: no degrees of freedom spent on them
         dof = fit.dof + (0 if held is None else len(held[0]))
         measured = _measured_noise(fit.adjustment, dof)
-        target = _sigma_noise(measured, dof, pixel_sigma) if measure_noise else pixel_sigma
-        if round_ > 0 and abs(math.log(target / noise)) < math.log(_NOISE_SETTLED):
+        judged = _hold_noise(measured, dof, pixel_sigma)
+        target = judged if measure_noise else pixel_sigma
+        # the prior's weight follows the reported noise; the held combinations the judged one
+        now = target if prior_sigma is not None else judged
+        if round_ > 0 and abs(math.log(now / drives)) < math.log(_NOISE_SETTLED):
             break
-        noise = target
+        noise, judge, drives = target, judged, now
         adj = fit.adjustment
         _, C = constraint_jacobian(adj.markers, constraints, n_par)
         if prior_sigma is not None:
@@ -610,13 +616,19 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
                     _refuse_undetermined(adj, C, names, marker_robot, motion, pixel_sigma, fit.frames_used)
             if weak_sigma is None:
                 break  # the log alone: no weight depends on the noise
-            V, sig_v = _undetermined(adj, C, noise, len(names), weak_sigma)
+            # Which combinations the log determines worse than the given rig
+            # is judged at the noise the residuals show, not the stated one:
+            # a stated noise above the detections' (the default 1 px against
+            # rendered or sub-pixel detections) would hold combinations the
+            # log determines well at the given rig's error, and leave the
+            # poses' rotations off by it.
+            V, sig_v = _undetermined(adj, C, judge, len(names), weak_sigma)
             held = (V, sig_v) if len(V) else None
             # held: taken from the given rig (stiffly), not fused with the
             # log's weak say along them (systematic detection errors, a
             # fraction of a pixel, decide what the log says there); the
             # covariance adds the given rig's own error back
-            prior = (old, HOLD_STIFFNESS * (noise / weak_sigma) ** 2, _orthonormal(V)) if len(V) \
+            prior = (old, HOLD_STIFFNESS * (judge / weak_sigma) ** 2, _orthonormal(V)) if len(V) \
                 else (None, 0.0, None)
         outliers, dropped = fit.outliers, fit.dropped
         fit = _fit(fit.data, prior, adj.markers, adj.rotations, *args)
@@ -624,6 +636,9 @@ def calibrate_markers(rig: Any, log_or_frames: Any, scale: Any = None, pixel_sig
     adj = fit.adjustment
     _, C = constraint_jacobian(adj.markers, constraints, n_par)
     cov_post, _ = adj.marker_covariance(C, noise, prior_sigma=weak_sigma if held is not None else None)
+    if held is not None:
+        # the log's own sigma along the held combinations, for the reported noise
+        held = (held[0], held[1] * (noise / judge))
     weak = _weak_directions(adj, C, names, marker_robot, motion, noise, fit.frames_used, held, weak_sigma)
     nb = 3 * len(names)
     sigma = np.sqrt(np.clip(np.diag(cov_post)[:nb], 0.0, None)).reshape(-1, 3)
@@ -881,6 +896,14 @@ def _sigma_noise(measured: float | None, dof: int, stated: float) -> float:
         return measured
     upper = measured * math.sqrt(1.0 + 2.0 * math.sqrt(2.0 / dof))
     return max(min(upper, stated), NOISE_FLOOR * stated)
+
+
+def _hold_noise(measured: float | None, dof: int, stated: float) -> float:
+    """The noise (px) at which the combinations the log determines worse than
+    the given rig are judged (and the held ones weighed against the pixels):
+    the residuals' measured noise, as :func:`_sigma_noise` bounds it, whether
+    or not the reported sigmas are for it."""
+    return _sigma_noise(measured, dof, stated)
 
 
 def _undetermined(adj: Any, C: np.ndarray, pixel_sigma: float, n_bodies: int,

@@ -215,6 +215,8 @@ def _written_as_it_runs(work, out, args, rig, log: LogUpToBadLine | None = None)
     if log is not None:
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"{traj.summary()}; {_wrote(outputs, args, before)}")
+    for note in traj.notes:
+        print(note)
     return 0
 
 

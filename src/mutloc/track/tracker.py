@@ -33,6 +33,7 @@ from .frames import DEFAULT_FPS, ObserverDetector, check_streams, expanded_rig, 
 from .second_look import look_again
 from .tag_look import look_where_tracked
 from .sources import Frame
+from .rig_check import RigCheck, record_chi2
 from .rows import TrackRow
 from .status import FrameStatus
 from .team import RowEmitter, TeamTracker, camera_sizes, close_all, sync_streams
@@ -57,6 +58,9 @@ class PairTrack:
             Rig({target: rig.robot(target), source: rig.robot(source)})
         self.team = TeamTracker(pair, target, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
         self._others = len(rig.robots) > 2
+        self.pixel_sigma = pixel_sigma
+        #: Do the records keep disagreeing with the rig? (a window test, see .rig_check)
+        self.rig_check = RigCheck()
 
     def step(self, row: TrackRow) -> bool:
         """Fill ``row``; rows without observations (unpaired, corrupt) are
@@ -65,6 +69,9 @@ class PairTrack:
             return False
         obs = self._pair_only(row.observations) if self._others else row.observations
         self.team.step(row.t, obs, {self.source: row.t_source, self.target: row.t_target}, rows={self.source: row})
+        test = self.rig_check.add(*record_chi2(self.rig, obs, self.source, self.target, self.pixel_sigma))
+        if test is not None and test.disagrees:
+            row.reason = f"{row.reason}; {test.words()}" if row.reason else test.words()
         return True
 
     def _pair_only(self, obs: ObservationSet) -> ObservationSet:
@@ -210,7 +217,7 @@ def track(rig: Any, streams: Mapping[str, Iterable[Frame]], source: str | None =
         raise
     finally:
         close_all(bar, writer, log, viz)
-    return Trajectory(source, target, rows, rate)
+    return _noted(Trajectory(source, target, rows, rate), tracker)
 
 
 
@@ -301,7 +308,7 @@ def _track_cameras(rig: Rig, streams: Mapping[str, Iterable[Frame]], source: str
         raise
     finally:
         close_all(bar, writer, log, viz)
-    return Trajectory(source, target, rows, rate)
+    return _noted(Trajectory(source, target, rows, rate), tracker)
 
 
 def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, ObservationSet]], source: str | None = None,
@@ -346,7 +353,7 @@ def track_log(rig: Any, frames: Iterable[ObservationSet | tuple[float, Observati
     finally:
         if viz is not None:
             viz.close()
-    return Trajectory(source, target, rows, None)
+    return _noted(Trajectory(source, target, rows, None), tracker)
 
 
 def _rerun_writer(path: str | Path | None, source: str, target: str) -> Any:
@@ -365,3 +372,11 @@ def _rerun_row(viz: Any, row: TrackRow, images: Mapping[str, Any] | None = None)
 
 def _options(filter: str | FilterOptions) -> FilterOptions:
     return filter if isinstance(filter, FilterOptions) else FilterOptions(kind=filter)
+
+
+def _noted(traj: Trajectory, tracker: PairTrack) -> Trajectory:
+    """The trajectory with the track's notes (the rig check's hint, when its window disagreed)."""
+    note = tracker.rig_check.summary()
+    if note:
+        traj.notes.append(note)
+    return traj

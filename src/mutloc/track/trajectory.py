@@ -3,7 +3,7 @@ written: ``trajectory.csv`` rows, the TUM comment, base frames."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,8 @@ class Trajectory:
     rows: list[TrackRow]
     fps: float | None = None
     frames: str = "camera"  # "camera": optical frames (SPEC); "base": the robots' base frames
+    #: One line each, for people: what the track found wrong beyond its rows (the rig check's hint).
+    notes: list[str] = field(default_factory=list)
 
     @property
     def solved(self) -> list[TrackRow]:
@@ -63,7 +65,8 @@ class Trajectory:
         in the rig): ``T = B_q @ T_qp @ inv(B_p)`` with its covariance; the
         robots are then named ``NAME_base``."""
         to_base = BaseFrames(rig, self.source, self.target)
-        return Trajectory(to_base.source, to_base.target, [to_base(r) for r in self.rows], self.fps, frames="base")
+        return Trajectory(to_base.source, to_base.target, [to_base(r) for r in self.rows], self.fps, frames="base",
+                          notes=list(self.notes))
 
     @property
     def covariances(self) -> np.ndarray:

@@ -1,0 +1,140 @@
+"""The window test of rig disagreement (issue 38, mutloc.track.rig_check):
+on synthetic chi-square streams against the chi-square distribution, and
+through the pair tracker on simulated logs whose rig is right or has every
+marker 1-2 cm off (the simulator's truth says which)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2 as chi2_dist
+
+from mutloc.api import load_rig
+from mutloc.cli.main import main
+from mutloc.io.logs import write_observation_log
+from mutloc.sim.calibration import perturb_rig
+from mutloc.sim.render import default_path
+from mutloc.sim.tracking import observation_sequence
+from mutloc.sim.world import standard_rig
+from mutloc.track.frames import expanded_rig
+from mutloc.track.rig_check import FALSE_ALARM, RIG_HINT, WINDOW, RigCheck, record_chi2
+from mutloc.track.tracker import track_log
+
+
+def _feed(check, values, dof):
+    return [check.add(c, dof) for c in values]
+
+
+def test_window_sum_and_threshold_are_the_chi_square_quantile():
+    """Thirty records of chi2 1.5 over 2 dof: the window sums 45 over 60 dof,
+    judged against chi-square(60)'s 1 - 1e-6 quantile; not before it is full."""
+    check = RigCheck()
+    tests = _feed(check, [1.5] * WINDOW, 2)
+    assert all(not t.full and not t.disagrees for t in tests[:-1])
+    last = tests[-1]
+    assert last.full and last.records == WINDOW and last.dof == 2 * WINDOW
+    assert last.chi2 == pytest.approx(1.5 * WINDOW)
+    assert last.threshold == pytest.approx(chi2_dist.ppf(1 - FALSE_ALARM, 2 * WINDOW), rel=1e-9)
+    assert not check.disagrees and check.hint() is None
+    # a sliding window: the 31st record replaces the first
+    t = check.add(9.0, 2)
+    assert t.records == WINDOW and t.chi2 == pytest.approx(1.5 * (WINDOW - 1) + 9.0)
+
+
+def test_records_without_degrees_of_freedom_are_not_counted():
+    check = RigCheck()
+    assert check.add(5.0, 0) is None and check.add(math.nan, 4) is None
+    t = check.add(2.0, 4)
+    assert t.records == 1 and t.dof == 4
+    assert check.add(math.nan, 0) is t
+
+
+def test_level_on_honest_chi_square_streams():
+    """Records drawn from chi-square (2 to 6 dof, as pairs of 4-6 observations
+    give): at a 1 % level the share of windows that disagree is the level
+    (the cap only lowers it), and at the default level none of 20,000 does."""
+    rng = np.random.default_rng(0)
+    dof = rng.integers(1, 4, size=20000) * 2
+    values = rng.chisquare(dof)
+    loose = RigCheck(false_alarm=0.01)
+    default = RigCheck()
+    for c, d in zip(values, dof):
+        loose.add(c, d)
+        default.add(c, d)
+    share = loose.flagged / (loose.records - WINDOW + 1)
+    assert 0.004 < share < 0.014, share
+    assert default.flagged == 0
+
+
+def test_excess_is_flagged_within_a_window():
+    """Noise 1.7x the stated (every chi-square three times its share) or a
+    rig that bends every record: flagged as soon as the window is full."""
+    rng = np.random.default_rng(1)
+    check = RigCheck()
+    tests = _feed(check, 3.0 * rng.chisquare(2, size=60), 2)
+    first = next(k for k, t in enumerate(tests) if t.disagrees)
+    assert first == WINDOW - 1
+    assert check.hint() == RIG_HINT and RIG_HINT in check.summary()
+    assert "calibrate-markers" in tests[-1].words()
+
+
+def test_one_stray_detection_is_not_the_rig():
+    """One record a thousand sigmas off among honest ones counts as one bad
+    record (capped at its own 0.99 quantile), not as the rig."""
+    rng = np.random.default_rng(2)
+    values = rng.chisquare(2, size=90)
+    values[40] = 1e6
+    check = RigCheck()
+    assert not any(t.disagrees for t in _feed(check, values, 2))
+
+
+def _sequence(seed, seconds=5.0):
+    rig = standard_rig("balls")
+    seq = observation_sequence(rig, default_path(2.0, 12.0, 0.3), duration=seconds, fps=30.0, pixel_sigma=1.0,
+                               seed=seed)
+    return rig, seq
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pair_tracker_flags_a_rig_with_markers_off_and_not_the_right_one(seed):
+    """Honest 1 px noise, 2 % stray detections, markers dropped and cameras
+    blind at times: with the true rig no row is flagged and no hint; with every
+    marker 1-2 cm off the track says so (rows and the hint) within two windows."""
+    rig, seq = _sequence(seed)
+    records = list(zip(seq.times, seq.frames))
+    good = track_log(rig, records, progress=False)
+    assert good.notes == []
+    assert not any(RIG_HINT in r.reason for r in good.rows)
+    wrong = expanded_rig(load_rig(perturb_rig(rig.to_dict(), np.random.default_rng([seed, 38]))))
+    bad = track_log(wrong, records, progress=False)
+    flagged = [k for k, r in enumerate(bad.rows) if RIG_HINT in r.reason]
+    assert flagged and flagged[0] < 3 * WINDOW, flagged[:3]
+    assert len(flagged) > 0.5 * len(bad.rows)
+    assert len(bad.notes) == 1 and bad.notes[0].startswith(RIG_HINT)
+
+
+def test_record_chi2_is_the_records_own_fit():
+    """Noise-free observations with the true rig fit exactly (chi2 ~ 0, dof
+    2n - 6); with the markers moved they do not; three observations say nothing."""
+    rig = standard_rig("balls")
+    src, tgt = rig.default_pair(None, None)
+    exact = observation_sequence(rig, default_path(2.0, 12.0, 0.3), duration=0.2, fps=30.0, pixel_sigma=0.0,
+                                 drop=0.0, blind=(), outliers=0.0).frames[0]
+    c, d = record_chi2(rig, exact, src, tgt, 1.0)
+    assert d == 2 * len(exact) - 6 and c < 1e-8
+    wrong = expanded_rig(load_rig(perturb_rig(rig.to_dict(), np.random.default_rng(5))))
+    c_wrong, _ = record_chi2(wrong, exact, src, tgt, 1.0)
+    assert c_wrong > 1.0
+    assert record_chi2(rig, exact.take(np.arange(3)), src, tgt, 1.0)[1] == 0
+
+
+def test_cli_track_prints_the_hint(tmp_path, capsys):
+    rig, seq = _sequence(0, seconds=3.0)
+    from mutloc.io import save_rig
+
+    save_rig(perturb_rig(rig.to_dict(), np.random.default_rng([0, 38])), tmp_path / "rig.yaml")
+    write_observation_log(tmp_path / "log.jsonl", seq.frames)
+    assert main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+                 "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert any(line.startswith(RIG_HINT) for line in out), out
