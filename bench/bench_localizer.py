@@ -247,8 +247,10 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             "localizer_said": summary[0] if summary else ""}
 
 
-def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed: int = 0) -> dict:
-    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, the poses' CDR)."""
+def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed: int = 0,
+               smoother: bool = False) -> dict:
+    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, the poses' CDR).
+    ``smoother``: with a sink for the rows (as ``--out`` gives it), so the smoother runs too."""
     from mutloc.live.localizer import Localizer
 
     rig, frames = streams(robots, seconds, rate, seed)
@@ -256,7 +258,7 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     path = tmp / "rig.yaml"
     save_rig(rig, path)
     rid = M.rig_id(path)
-    loc = Localizer(path)
+    loc = Localizer(path, sink=(lambda row, robot: None) if smoother else None)
     loc.warm_up()
     step = loc.engine.step
     spent = [0.0]
@@ -282,7 +284,7 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     return {"robots": robots, "messages": n, "poses": poses, "cpu_ms_per_message": round(1000 * total / n, 3),
             "tracker_ms_per_message": round(1000 * spent[0] / n, 3),
             "rest_ms_per_message": round(1000 * (total - spent[0]) / n, 3),
-            "cpu_share_at_rate": round(total / n * robots * rate, 3)}
+            "cpu_share_at_rate": round(total / n * robots * rate, 3), "smoother": smoother}
 
 
 def main() -> int:
@@ -297,9 +299,27 @@ def main() -> int:
                     help="only the run over DDS, under each load (idle; hog: another process keeping one core busy), "
                          "--runs times each, medians reported")
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--smoother", action="store_true",
+                    help="only the in-process cost per message without and with the smoother (what --out adds), "
+                         "alternating, --runs times each: how much of a record's cost the smoother is")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
     args = ap.parse_args()
     results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
+    if args.smoother:
+        for n in args.robots:
+            got: dict = {False: [], True: []}
+            for k in range(args.runs):
+                for sm in (False, True):
+                    r = in_process(n, args.rate, min(args.seconds, 5.0), seed=k, smoother=sm)
+                    got[sm].append(r)
+                    print(json.dumps(r), flush=True)
+            med = {("with" if sm else "without") + "_smoother_" + key: float(np.median([r[key] for r in got[sm]]))
+                   for sm in (False, True) for key in ("cpu_ms_per_message", "tracker_ms_per_message")}
+            results["runs"].append({"robots": n, "smoother": med, "load_average_after": load_now()})
+            print(f"{n} robots, median of {args.runs}: {med}", flush=True)
+        Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
+        print(f"wrote {args.out}")
+        return 0
     if args.load:
         keys = ("latency_ms_p50", "latency_ms_p99", "latency_ms_p50_second_half", "latency_ms_p99_second_half",
                 "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core")

@@ -586,6 +586,8 @@ class Node:
         next_status = begin + status_every if status_every else float("inf")
         next_diag = begin
         next_behind = begin  # (a falling-behind line at most every BEHIND_WINDOW s)
+        s.window.clear()
+        s.note_counts(begin)
         try:
             while not (stop is not None and stop.is_set()):
                 now = time.monotonic()
