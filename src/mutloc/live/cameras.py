@@ -382,7 +382,8 @@ class ReplaySource(CameraSource):
     only after the next one was due (the machine too busy for the replay's
     readout) is dropped (counted, :meth:`LatestFrame.skip`), never released
     late with a stale stamp -- at most :data:`MAX_DROPPED_RUN` s of frames in
-    a row, then one is released however late.  With the slot (a frame not
+    a row (of the recording's schedule and of the wall clock: a dropped frame
+    is decoded all the same), then one is released however late.  With the slot (a frame not
     taken before the next one is released is replaced), a node slower than
     the frame rate drops frames and is never handed a backlog."""
 
@@ -411,6 +412,7 @@ class ReplaySource(CameraSource):
         period = 1.0 / ((self.fps or 30.0) * self.speed)
         decoding: deque[float] = deque(maxlen=16)  # the recent decoding times, s
         released: LiveFrame | None = None
+        put_at = -math.inf  # (time.monotonic() of the last frame released)
         while True:
             first = last = None
             frames = iter(stream)
@@ -434,7 +436,7 @@ class ReplaySource(CameraSource):
                         start, wall = start + self.start_at - wall, self.start_at
                 due = (t - t0) / self.speed
                 delay = start + due - time.monotonic()
-                if (-delay > period and released is not None
+                if (-delay > period and released is not None and time.monotonic() - put_at < MAX_DROPPED_RUN
                         and due - (released.source_time - t0) / self.speed < MAX_DROPPED_RUN):
                     # ready after the next frame was due: dropped, as a starved camera driver drops it
                     self.slot.skip()
@@ -446,6 +448,7 @@ class ReplaySource(CameraSource):
                 # scheduling delay is the transfer's, not the capture's)
                 released = LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t)
                 self.slot.put(released)
+                put_at = time.monotonic()
                 first, last = first or f, f
             if not self.loop or last is None:
                 return
