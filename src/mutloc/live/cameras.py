@@ -380,8 +380,10 @@ class ReplaySource(CameraSource):
 
     A replay is a camera, also when it is starved: a frame that is ready
     only after the next one was due (the machine too busy for the replay's
-    readout) is dropped (counted, :meth:`LatestFrame.skip`), never released
-    late with a stale stamp -- at most :data:`MAX_DROPPED_RUN` s of frames in
+    readout) while the node is not done with the last frame released
+    (:meth:`~CameraSource.handled`) is dropped (counted,
+    :meth:`LatestFrame.skip`), never handed to a busy node late with a stale
+    stamp -- at most :data:`MAX_DROPPED_RUN` s of frames in
     a row (of the recording's schedule and of the wall clock: a dropped frame
     is decoded all the same), then one is released however late.  With the slot (a frame not
     taken before the next one is released is replaced), a node slower than
@@ -436,9 +438,11 @@ class ReplaySource(CameraSource):
                         start, wall = start + self.start_at - wall, self.start_at
                 due = (t - t0) / self.speed
                 delay = start + due - time.monotonic()
-                if (-delay > period and released is not None and time.monotonic() - put_at < MAX_DROPPED_RUN
+                if (-delay > period and released is not None and self._handled_index < released.index
+                        and time.monotonic() - put_at < MAX_DROPPED_RUN
                         and due - (released.source_time - t0) / self.speed < MAX_DROPPED_RUN):
-                    # ready after the next frame was due: dropped, as a starved camera driver drops it
+                    # ready after the next frame was due, the node still busy with the last one: dropped, as a
+                    # starved camera driver drops it (a node waiting for frames gets it, however late)
                     self.slot.skip()
                     first, last = first or f, f
                     continue
