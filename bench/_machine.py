@@ -61,3 +61,34 @@ def dds_domain():
     from dds_domains import allocate
 
     return allocate()
+
+
+class cpu_hog:
+    """``with cpu_hog(on):`` another process keeping one core busy for the block (``on`` False: nothing),
+    started in its own process group and killed by it in a ``finally`` (the issue's "beside a CPU hog")."""
+
+    def __init__(self, on: bool = True) -> None:
+        self.on, self.proc = on, None
+
+    def __enter__(self) -> "cpu_hog":
+        import subprocess
+        import sys
+
+        if self.on:
+            self.proc = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import signal
+
+        if self.proc is not None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.proc.wait()
+
+
+def load_now() -> list:
+    """The 1-, 5- and 15-minute load averages (``uptime``'s), rounded."""
+    return [round(x, 2) for x in os.getloadavg()]

@@ -36,6 +36,15 @@ node's; ``png`` replays the rendered PNGs).
   from its start would make the robots jump back: the track restarts, and
   the blinking lights' identities with it, every pass).
 
+* **under load** (``--load idle hog``, ``--runs 3``): the end-to-end run
+  again, idle and beside a CPU hog (another process keeping one core busy
+  for the whole run, :class:`_machine.cpu_hog`), each ``--runs`` times:
+  capture -> pose p50/p99 over the whole run and over its second half (a
+  growing backlog shows there), poses received per frame captured (both
+  cameras), error against the rendered truth (median, p90), frames the
+  nodes dropped and records the localizer shed; medians over the runs, the
+  load average (``uptime``) before and after each.
+
 The machine and its load average are recorded beside the figures (the
 machine is shared: other work running changes them).  The functions
 (:func:`render_sequences`, :func:`detection_rate`, :func:`node_latency`)
@@ -71,7 +80,7 @@ from mutloc.track.sources import folder_frames  # noqa: E402
 from mutloc.track.tracker import ObserverDetector  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import dds_domain, machine, result_file  # noqa: E402
+from _machine import cpu_hog, dds_domain, load_now, machine, result_file  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -138,7 +147,7 @@ def replay_folders(folder: Path, fmt: str) -> Path:
     out = folder.parent / f"{folder.name}_{fmt}"
     for r in ("p", "q"):
         raw_copy(folder / r, out / r)
-    for name in ("rig.yaml", "frames.csv"):
+    for name in ("rig.yaml", "frames.csv", "truth.tum"):
         if (folder / name).exists():
             (out / name).write_bytes((folder / name).read_bytes())
     return out
@@ -200,6 +209,56 @@ def end_to_end(folder: Path, root: Path, seconds: float, domain: int) -> dict:
             "localizer_log": logs["localizer"].strip().splitlines()[-1:]}
 
 
+def _truth(folder: Path):
+    """Time in the recording -> the true T_qp (the sequence's truth.tum, nearest instant)."""
+    from mutloc.core.pose import Pose
+
+    rows = np.array([[float(x) for x in ln.split()] for ln in (folder / "truth.tum").read_text().splitlines()
+                     if ln.strip() and not ln.startswith("#")])
+
+    def at(t: float):
+        r = rows[int(np.argmin(np.abs(rows[:, 0] - t)))]
+        return Pose.from_quaternion_xyzw(r[4:8], r[1:4])
+    return at
+
+
+def _count(pattern: str, lines: list[str]) -> int:
+    import re
+
+    return sum(int(m.group(1)) for ln in lines for m in [re.search(pattern, ln)] if m)
+
+
+def under_load(folder: Path, root: Path, seconds: float, load: str, run: int) -> dict:
+    """One end-to-end run (two node processes, a localizer) idle or beside a CPU hog (see the module docstring)."""
+    from mutloc.live.demo import run_live_pair
+
+    before = load_now()
+    with cpu_hog(load == "hog"), dds_domain() as lease:
+        out = root / f"{folder.name}_{load}_{run}"
+        s = run_live_pair(folder / "rig.yaml", {r: folder / r for r in ("p", "q")}, out, seconds=seconds,
+                          domain=lease.domain, lead_in=12.0, truth=_truth(folder))
+    after = load_now()
+    logs = {r: (out / f"{r}.log").read_text(encoding="utf-8").splitlines() for r in ("p", "q", "localizer")}
+    nodes = [ln for r in ("p", "q") for ln in logs[r] if ln.startswith("node ") and "frames captured" in ln]
+    captured = _count(r"(\d+) frames captured", nodes)
+    return {"load": load, "load_average_before": before, "load_average_after": after,
+            "latency_p50_ms": s["latency_ms"]["p50"], "latency_p99_ms": s["latency_ms"]["p99"],
+            "latency_second_half_p50_ms": s["latency_ms_second_half"]["p50"],
+            "latency_second_half_p99_ms": s["latency_ms_second_half"]["p99"],
+            "frames_captured": captured, "poses_received": s["poses_received"],
+            "poses_per_captured_frame": s["poses_received"] / captured if captured else None,
+            "error_cm_median": s["translation_error_cm"]["median"], "error_cm_p90": s["translation_error_cm"]["p90"],
+            "frames_dropped_by_nodes": _count(r"(\d+) dropped", nodes),
+            "shed_by_localizer": _count(r"shed (\d+)", logs["localizer"][-1:]),
+            "node_warnings": [ln for r in ("p", "q") for ln in logs[r] if "falling behind" in ln][:4],
+            "localizer_said": logs["localizer"][-1:]}
+
+
+def _median(runs: list[dict], key: str):
+    v = [r[key] for r in runs if r[key] is not None]
+    return float(np.median(v)) if v else None
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="2 s replays (60 frames per kind) instead of 4 s")
@@ -209,6 +268,10 @@ def main() -> None:
     ap.add_argument("--replay-format", choices=("bmp", "png"), default="bmp",
                     help="the images the nodes replay: bmp (default: a frame costs a copy, as a camera's) or the "
                          "rendered png (a 960x540 PNG costs 9-12 ms to decode, counted as the node's)")
+    ap.add_argument("--load", nargs="+", choices=("idle", "hog"), default=[],
+                    help="measure end to end under each load (idle; hog: another process keeping one core busy), "
+                         "--runs times each, instead of the other parts")
+    ap.add_argument("--runs", type=int, default=3, help="runs per load (--load), medians reported")
     ap.add_argument("--work", help="keep the rendered sequences here (reused when present)")
     ap.add_argument("--out", default=result_file("live_results.json"))
     args = ap.parse_args()
@@ -222,6 +285,28 @@ def main() -> None:
         replays = {kind: replay_folders(folder, args.replay_format) for kind, folder in seqs.items()} \
             if {"node", "e2e"} & set(args.parts) else {}
         detection, latency, e2e = {}, {}, {}
+        if args.load:
+            loaded: dict = {}
+            keys = ("latency_p50_ms", "latency_p99_ms", "latency_second_half_p50_ms", "latency_second_half_p99_ms",
+                    "poses_per_captured_frame", "error_cm_median", "error_cm_p90", "frames_dropped_by_nodes",
+                    "shed_by_localizer")
+            for kind, folder in replays.items():
+                for load in args.load:
+                    runs = []
+                    for k in range(args.runs):
+                        runs.append(under_load(folder, root, seconds, load, k))
+                        print(json.dumps({"kind": kind, **runs[-1]}), flush=True)
+                    med = {key: _median(runs, key) for key in keys}
+                    loaded.setdefault(kind, {})[load] = {"runs": runs, "median": med}
+                    print(f"{kind:<6} {load:<4} median of {args.runs}: " + ", ".join(
+                        f"{key} {'n/a' if v is None else round(v, 2)}" for key, v in med.items()), flush=True)
+            info["load_average_at_end"] = list(os.getloadavg())
+            Path(args.out).write_text(json.dumps({"machine": info, "command": " ".join(["python", *sys.argv]),
+                                                  "camera_fps": CAMERA_FPS, "replay_seconds": seconds,
+                                                  "replay_format": args.replay_format, "under_load": loaded},
+                                                 indent=1) + "\n")
+            print(f"\nload average at end {info['load_average_at_end']}; wrote {args.out}")
+            return
         if "detection" in args.parts:
             print(f"\ndetection alone, one core, {SIZE[0]}x{SIZE[1]} (camera: {CAMERA_FPS:g} frames/s)")
             print(f"{'kind':<10} {'frames/s wall':>14} {'frames/s cpu':>13} {'markers/frame':>14}")

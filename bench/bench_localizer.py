@@ -29,6 +29,13 @@ every pose topic.  Measured:
   (``idle``: its DDS threads still receive and acknowledge), and that
   process's own CPU.
 
+With ``--load idle hog`` (``--runs 3``): the run over DDS idle and beside
+a CPU hog (another process keeping one core busy for the whole run), each
+``--runs`` times, reporting also p99 over the whole run and its second
+half, poses received per message sent, error against the simulator's
+truth (median, p90) and the messages the localizer shed; medians over the
+runs and the load average before and after each.
+
 Writes bench/results/localizer_results.json (with the machine and its load).
 Functions :func:`over_dds` and :func:`in_process` are what bench_live.py may call.
 """
@@ -50,11 +57,14 @@ from mutloc.io import save_rig
 from mutloc.live import messages as M
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _machine import dds_domain, machine, result_file  # noqa: E402
+from _machine import cpu_hog, dds_domain, load_now, machine, result_file  # noqa: E402
 
 
-def streams(robots: int, seconds: float, rate: float, seed: int = 0):
-    """``(rig, [(time, robot, ObservationSet)])``: every camera at ``rate`` at its own phase."""
+def streams(robots: int, seconds: float, rate: float, seed: int = 0, truth: bool = False):
+    """``(rig, [(time, robot, ObservationSet)])``: every camera at ``rate`` at its own phase (``truth``: also
+    ``{robot: f(time) -> its true pose in the reference's frame}``)."""
+    if truth:
+        return _streams_with_truth(robots, seconds, rate, seed)
     if robots == 2:
         from mutloc.sim.tracking import camera_records
         from mutloc.sim.world import standard_rig
@@ -68,6 +78,33 @@ def streams(robots: int, seconds: float, rate: float, seed: int = 0):
     scene = random_team(robots, np.random.default_rng(seed), one_way=0.0)
     recs = team_camera_records(scene, seconds, fps=rate, sigma=1.0, seed=seed)
     return scene.rig, [(float(t), a, obs) for t, a, _, obs in recs]
+
+
+def _streams_with_truth(robots: int, seconds: float, rate: float, seed: int):
+    if robots == 2:
+        from mutloc.sim.tracking import camera_records
+        from mutloc.sim.world import standard_rig
+
+        rig = standard_rig()
+        recs = camera_records(rig, duration=seconds, rates={"p": rate, "q": rate}, offsets={"q": 0.5 / rate},
+                              pixel_sigma=1.0, seed=seed)
+        times = np.asarray(recs.times)
+
+        def p_in_q(t):
+            return recs.truth[int(np.argmin(np.abs(times - t)))]
+        return rig, [(float(t), c[0], obs) for t, obs, c in zip(recs.times, recs.frames, recs.cameras)], {"p": p_in_q}
+    from mutloc.sim.team import random_team, team_camera_records
+
+    scene = random_team(robots, np.random.default_rng(seed), one_way=0.0)
+    recs = team_camera_records(scene, seconds, fps=rate, sigma=1.0, seed=seed)
+    names = list(scene.rig.robots)
+    times = np.array([float(t) for t, _, _, _ in recs])
+
+    def in_ref(r, t):
+        world = recs[int(np.argmin(np.abs(times - t)))][2]
+        return world[names[0]].inverse() @ world[r]
+    truth = {r: (lambda t, r=r: in_ref(r, t)) for r in names[1:]}
+    return scene.rig, [(float(t), a, obs) for t, a, _, obs in recs], truth
 
 
 def _grouped(published: dict, key: int, tolerance_us: int = 5000) -> float:
@@ -93,7 +130,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
 
     from mutloc.live.dds import Bus
 
-    rig, frames = streams(robots, seconds + 1.0, rate, seed)
+    rig, frames, truth = streams(robots, seconds + 1.0, rate, seed, truth=True)
     tmp = Path(tempfile.mkdtemp(prefix="bench_localizer_"))
     path = tmp / "rig.yaml"
     save_rig(rig, path)
@@ -133,15 +170,19 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
         time.sleep(0.5)
         published: dict[tuple[str, int], float] = {}
         arrivals: list[tuple[float, float]] = []  # (pose arrival, its message's publication)
+        errors: list[float] = []  # translation error (m) of each pose against the truth at its stamp
 
         def take() -> None:
             now = time.time()
-            for rd in readers.values():
+            for r, rd in readers.items():
                 for s in rd.take(N=1000):
                     if hasattr(s, "header"):
                         key = round(M.stamp_of(s.header) * 1e6)
                         arrivals.append((now, published.get(key, np.nan) if key in published else
                                          _grouped(published, key)))
+                        x = s.pose.pose.position
+                        true = truth[r](M.stamp_of(s.header) - start)
+                        errors.append(float(np.linalg.norm(np.array([x.x, x.y, x.z]) - true.t)))
 
         start = time.time() + 0.3
         warm = 1.0  # the first second: the tracks start; not measured
@@ -183,19 +224,33 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     measured = [(a, p) for a, p in arrivals if p >= wall0 and np.isfinite(p)]
     lat = np.array([a - p for a, p in measured]) * 1000
     last = np.array([a - p for a, p in measured if p > wall1 - 1.0]) * 1000
+    half = np.array([a - p for a, p in measured if p > (wall0 + wall1) / 2]) * 1000
+    said = summary[0] if summary else ""
+    import re
+
+    shed = re.search(r"shed (\d+)", said)
+    err = np.array(errors[len(errors) // 10:]) * 100  # (the tracks' start left out)
     return {"robots": robots, "rate_hz": rate, "seconds": round(wall1 - wall0, 2), "messages": sent,
             "cpu_share_of_one_core": round((cpu1 - cpu0) / (wall1 - wall0), 3),
             "latency_ms_p50": round(float(np.percentile(lat, 50)), 1) if len(lat) else None,
             "latency_ms_p99": round(float(np.percentile(lat, 99)), 1) if len(lat) else None,
             "latency_ms_p50_last_second": round(float(np.percentile(last, 50)), 1) if len(last) else None,
+            "latency_ms_p99_second_half": round(float(np.percentile(half, 99)), 1) if len(half) else None,
+            "latency_ms_p50_second_half": round(float(np.percentile(half, 50)), 1) if len(half) else None,
+            "poses_per_expected": round(len(measured) / expected, 3) if expected else None,
+            "error_cm_median": round(float(np.median(err)), 2) if len(err) else None,
+            "error_cm_p90": round(float(np.percentile(err, 90)), 2) if len(err) else None,
+            "shed": int(shed.group(1)) if shed else None,
             "poses_received": len(measured), "poses_expected": expected,
             **({"stalled_subscriber": stalled, "its_cpu_share_of_one_core": round(slow_cpu / (wall1 - wall0), 3)}
                if stalled else {}),
             "localizer_said": summary[0] if summary else ""}
 
 
-def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed: int = 0) -> dict:
-    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, the poses' CDR)."""
+def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed: int = 0,
+               smoother: bool = False) -> dict:
+    """CPU per message without DDS: the tracker's and the rest of the localizer's (decode, checks, the poses' CDR).
+    ``smoother``: with a sink for the rows (as ``--out`` gives it), so the smoother runs too."""
     from mutloc.live.localizer import Localizer
 
     rig, frames = streams(robots, seconds, rate, seed)
@@ -203,7 +258,7 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     path = tmp / "rig.yaml"
     save_rig(rig, path)
     rid = M.rig_id(path)
-    loc = Localizer(path)
+    loc = Localizer(path, sink=(lambda row, robot: None) if smoother else None)
     loc.warm_up()
     step = loc.engine.step
     spent = [0.0]
@@ -229,7 +284,7 @@ def in_process(robots: int = 10, rate: float = 30.0, seconds: float = 5.0, seed:
     return {"robots": robots, "messages": n, "poses": poses, "cpu_ms_per_message": round(1000 * total / n, 3),
             "tracker_ms_per_message": round(1000 * spent[0] / n, 3),
             "rest_ms_per_message": round(1000 * (total - spent[0]) / n, 3),
-            "cpu_share_at_rate": round(total / n * robots * rate, 3)}
+            "cpu_share_at_rate": round(total / n * robots * rate, 3), "smoother": smoother}
 
 
 def main() -> int:
@@ -240,9 +295,53 @@ def main() -> int:
     ap.add_argument("--stalled", choices=["stop", "idle"], nargs="*", default=[],
                     help="also run with a stalled subscriber to every pose topic and /tf (ROS 2's default QoS): "
                          "a process stopped (SIGSTOP) once matched, or one that never takes a sample")
+    ap.add_argument("--load", nargs="+", choices=("idle", "hog"), default=[],
+                    help="only the run over DDS, under each load (idle; hog: another process keeping one core busy), "
+                         "--runs times each, medians reported")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--smoother", action="store_true",
+                    help="only the in-process cost per message without and with the smoother (what --out adds), "
+                         "alternating, --runs times each: how much of a record's cost the smoother is")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
     args = ap.parse_args()
     results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
+    if args.smoother:
+        for n in args.robots:
+            got: dict = {False: [], True: []}
+            for k in range(args.runs):
+                for sm in (False, True):
+                    r = in_process(n, args.rate, min(args.seconds, 5.0), seed=k, smoother=sm)
+                    got[sm].append(r)
+                    print(json.dumps(r), flush=True)
+            med = {("with" if sm else "without") + "_smoother_" + key: float(np.median([r[key] for r in got[sm]]))
+                   for sm in (False, True) for key in ("cpu_ms_per_message", "tracker_ms_per_message")}
+            results["runs"].append({"robots": n, "smoother": med, "load_average_after": load_now()})
+            print(f"{n} robots, median of {args.runs}: {med}", flush=True)
+        Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
+        print(f"wrote {args.out}")
+        return 0
+    if args.load:
+        keys = ("latency_ms_p50", "latency_ms_p99", "latency_ms_p50_second_half", "latency_ms_p99_second_half",
+                "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core")
+        for n in args.robots:
+            for load in args.load:
+                runs = []
+                for k in range(args.runs):
+                    before = load_now()
+                    with cpu_hog(load == "hog"):
+                        r = over_dds(n, args.rate, args.seconds, seed=k)
+                    r.update(load=load, load_average_before=before, load_average_after=load_now())
+                    print(json.dumps(r), flush=True)
+                    runs.append(r)
+                med = {key: (float(np.median([r[key] for r in runs if r[key] is not None]))
+                             if any(r[key] is not None for r in runs) else None) for key in keys}
+                results["runs"].append({"robots": n, "load": load, "runs": runs, "median": med})
+                print(f"{n} robots, {load}, median of {args.runs}: "
+                      + ", ".join(f"{key} {v if v is None else round(v, 3)}" for key, v in med.items()), flush=True)
+        results["machine"]["load_average_at_end"] = load_now()
+        Path(args.out).write_text(json.dumps(results, indent=1) + "\n")
+        print(f"wrote {args.out}")
+        return 0
     for n in args.robots:
         run = {"in_process": in_process(n, args.rate, min(args.seconds, 5.0)),
                "over_dds": over_dds(n, args.rate, args.seconds)}

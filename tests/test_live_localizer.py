@@ -365,6 +365,95 @@ def test_duplicates_are_counted_and_ignored(setup):
     assert [(x.t, x.estimate.t.tolist()) for _, x in poses] == [(x.t, x.estimate.t.tolist()) for _, x in clean]
 
 
+def backlog(setup, since, until):
+    """The messages captured in [since, until), all received (a backlog the localizer has not polled)."""
+    msgs = messages(setup, since=since, until=until)
+    return sorted(msgs, key=lambda m: m[0])
+
+
+def test_a_backlog_is_shed_to_each_cameras_newest_message(setup):
+    """The localizer fell behind: a second of both cameras' messages waits
+    when it polls 0.5 s after the last capture.  Each camera's older messages
+    are shed (counted per robot, never fused, not in the log), its newest is
+    fused -- the pose published is the newest capture's, close to the truth
+    there -- and p's newest is not coalesced into q's newer one."""
+    loc = Localizer(setup.path)
+    drive(loc, messages(setup, until=2.0), finish=False)  # tracking, keeping up: nothing shed
+    loc.poll(T0 + 2.0 + 0.05)  # (what is held fused, in time)
+    assert loc.counts["p"].shed == loc.counts["q"].shed == 0
+    late = backlog(setup, 2.0, 3.0)
+    for now, msg, topic in late:
+        assert loc.receive(msg, now, topic) == "held"
+    newest = {c: max(M.stamp_of(m.header) for _, m, t in late if t == c) for c in ("p", "q")}
+    n = {c: sum(t == c for _, _, t in late) for c in ("p", "q")}
+    fused_before = {c: loc.counts[c].fused for c in ("p", "q")}
+    now = max(newest.values()) + 0.5
+    poses = loc.poll(now)
+    for c in ("p", "q"):
+        assert loc.counts[c].shed == n[c] - 1
+        assert loc.counts[c].fused - fused_before[c] == 1
+    assert sorted(p.t for p in poses) == sorted(newest.values())  # one pose each: p's newest, q's newest
+    # what was fused is what offline track gives on the records kept: the first 2 s and the two newest
+    kept = messages(setup, until=2.0) + [m for m in late if M.stamp_of(m[1].header) in newest.values()]
+    ref = offline(setup, kept).rows[-2:]
+    assert [r.t for r in ref] == [p.t - T0 for p in sorted(poses, key=lambda p: p.t)] or \
+        [r.t for r in ref] == [p.t for p in sorted(poses, key=lambda p: p.t)]
+    for r, p in zip(ref, sorted(poses, key=lambda p: p.t)):
+        assert np.allclose(r.estimate.t, p.estimate.t, atol=1e-9)
+    assert loc.counts["p"].dropped_late == loc.counts["q"].dropped_late == 0
+    assert "shed %d" % (n["p"] + n["q"] - 2) in loc.summary()
+
+
+def test_shedding_waits_for_max_lag_and_reads_the_clock_per_record(setup):
+    """Within ``max_lag`` of its capture a backlog is fused whole; the
+    clock is read again before each record, so a message whose camera has a
+    newer one waiting is shed once the fusing has taken it past ``max_lag``."""
+    msgs = backlog(setup, 2.0, 2.2)
+    loc = Localizer(setup.path)
+    drive(loc, messages(setup, until=2.0), finish=False)
+    loc.poll(T0 + 2.0 + 0.05)  # (what is held fused, in time)
+    for now, msg, topic in msgs[:4]:  # p, q, p, q: a frame each, half a frame apart
+        loc.receive(msg, now, topic)
+    first = M.stamp_of(msgs[0][1].header)
+    assert [t for _, _, t in msgs[:4]] == ["p", "q", "p", "q"]
+    reads = iter([first + 0.05] + [first + 0.5] * 10)  # the first record fused in time, then the clock jumps
+    loc.poll(first + 0.05, lambda: next(reads))
+    assert (loc.counts["p"].shed, loc.counts["q"].shed) == (0, 1)  # q's first shed; p's first was in time
+    loc2 = Localizer(setup.path)
+    drive(loc2, messages(setup, until=2.0), finish=False)
+    loc2.poll(T0 + 2.0 + 0.05)
+    for now, msg, topic in msgs:
+        loc2.receive(msg, now, topic)
+    loc2.poll(M.stamp_of(msgs[0][1].header) + 0.09)  # max_lag not reached by the oldest: all fused
+    assert loc2.counts["p"].shed == loc2.counts["q"].shed == 0
+    assert not loc2._held or all(h.arrival + loc2.reorder > first + 0.09 for h in loc2._held)
+
+
+def test_shedding_is_warn_in_the_diagnostics_for_five_seconds(setup):
+    """A robot that had messages shed is WARN, "falling behind: shed N of M",
+    with ``shed`` among its key-values, for 5 s after the last shed; a robot
+    nothing was shed of says nothing of it."""
+    loc = Localizer(setup.path)
+    drive(loc, messages(setup, until=2.0), finish=False)
+    loc.poll(T0 + 2.0 + 0.05)  # (what is held fused, in time)
+    for now, msg, topic in backlog(setup, 2.0, 2.5):
+        if topic == "p":
+            loc.receive(msg, now, topic)
+    now = T0 + 2.5 + 0.2
+    loc.poll(now)
+    diag = {s.robot: s for s in loc.diagnostics(now + 0.1)}
+    p, q = loc.counts["p"], loc.counts["q"]
+    assert p.shed > 0 and q.shed == 0
+    assert diag["p"].level == M.WARN
+    assert f"falling behind: shed {p.shed} of {p.received}" in diag["p"].message
+    assert diag["p"].values["shed"] == p.shed and diag["q"].values["shed"] == 0
+    assert "falling behind" not in diag["q"].message
+    assert loc.level("p", now + 0.1) == M.OK  # (its last observation 0.3 s old: only the shedding makes p WARN)
+    # said for 5 s after the last shed (the recording ends at 6 s: p is stale by then, for its age)
+    assert "falling behind" in {s.robot: s for s in loc.diagnostics(now + 4.9)}["p"].message
+    assert "falling behind" not in {s.robot: s for s in loc.diagnostics(now + 5.1)}["p"].message
+
+
 def test_reordered_messages_are_fused_in_time_order_and_late_ones_dropped(setup):
     """p's messages take 25 ms, q's 2 ms: q's frame half a frame after p's
     arrives first; the reorder buffer fuses both in time order, the poses

@@ -177,6 +177,67 @@ def test_a_detector_slower_than_the_camera_drops_frames_and_takes_the_newest(sim
         assert _seen(m) == offline["q"][m.frame]
 
 
+def test_a_node_falling_behind_says_so_in_a_line_and_its_diagnostics(sim, dds_domain):
+    """A detector slower than the camera: the node says "falling behind:
+    dropped N of the last M frames" (a warning line, counting the frames it
+    dropped) and its diagnostics are WARN with the same words."""
+    out, _, _ = sim
+    bus = Bus(dds_domain, loopback=True)
+    lines, sent = [], []
+    try:
+        node = Node(out / "rig.yaml", "q", ReplaySource(out / "q", speed=1.0), bus, diagnostics=True,
+                    report=lines.append)
+        node.diagnostics = SimpleNamespace(write=sent.append)  # (its messages, as DDS would take them)
+        node.detector = _SlowDetector(node.detector, 0.1)  # three camera periods per frame
+        stats = node.run(status_every=None, subscriber_timeout=0.5)
+        node._publish_diagnostics()
+    finally:
+        bus.close()
+    assert stats.dropped > 0
+    said = [re.search(r"falling behind: dropped (\d+) of the last (\d+) frames", ln) for ln in lines]
+    said = [m for m in said if m]
+    assert said, lines
+    n, m = (int(x) for x in said[0].groups())
+    assert 0 < n <= stats.dropped and n < m <= stats.captured
+    status = sent[-1].status[0]
+    assert status.level == 1 and f"falling behind: dropped {stats.dropped} of the last {stats.captured} frames" \
+        in status.message, status  # (WARN; the whole run is within the 5 s window)
+
+
+def test_a_starved_replay_drops_frames_instead_of_releasing_them_late(sim, monkeypatch):
+    """A replay whose readout is slower than its frame rate (every image
+    ready 2.5 periods after the last: the machine too busy) is a starved
+    camera: a frame ready after the next one was due is dropped and counted,
+    never handed on late with a stale stamp -- but never more than
+    ``MAX_DROPPED_RUN`` s of frames in a row (here 0.25 s)."""
+    import mutloc.live.cameras as cameras
+
+    out, _, times = sim
+    period = times[1] - times[0]
+    monkeypatch.setattr(cameras, "MAX_DROPPED_RUN", 0.25)
+    source = ReplaySource(out / "q", speed=1.0)
+
+    def slow(frames):
+        for f in frames:
+            time.sleep(2.5 * period)
+            yield f
+
+    source.stream = slow(list(source.stream))
+    source.start()
+    taken = []
+    try:
+        while not source.finished:
+            frame = source.take(3.0)
+            if frame is not None:
+                taken.append(frame.index)
+    finally:
+        source.close()
+    assert taken[0] == 0 and len(taken) >= 2, taken  # released again once 0.25 s of frames were dropped
+    run = int(np.ceil(0.25 / period))
+    assert all(1 < b - a <= run + 1 for a, b in zip(taken, taken[1:])), taken  # dropped, at most 0.25 s in a row
+    assert source.captured == N_FRAMES and source.dropped == N_FRAMES - len(taken)
+
+
 def test_a_looped_replay_goes_on_in_frame_numbers_and_time(sim):
     out, _, times = sim
     source = ReplaySource(out / "q", speed=10.0, loop=True).start()

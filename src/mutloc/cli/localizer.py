@@ -36,6 +36,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--tolerance", type=nonnegative_float, default=0.005, metavar="S",
                    help="messages of different robots stamped within S seconds make one record at their mean time, "
                         "as track pairs two cameras' frames (default 0.005; 0: every message its own record)")
+    p.add_argument("--max-lag", type=nonnegative_float, default=0.1, metavar="S",
+                   help="falling behind: a message more than S seconds behind its capture is shed (not fused, "
+                        "counted) when a newer one of the same camera is waiting; each camera's newest is always "
+                        "fused (default 0.1)")
     p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
     return p
 
@@ -50,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = run_localizer(args.rig, reference=args.reference, domain=domain, out=args.out,
                                max_coast=args.max_coast, max_clock_skew=args.max_clock_skew, reorder=args.reorder,
-                               tolerance=args.tolerance,
+                               tolerance=args.tolerance, max_lag=args.max_lag,
                                pixel_sigma=args.pixel_sigma, confidence=args.confidence, loopback=loopback_wanted(args),
                                duration=args.duration, ready=lambda loc: _started(loc, domain),
                                notify=lambda line: print(f"localizer: {line}", file=sys.stderr, flush=True))

@@ -50,6 +50,9 @@ CAMERA_INFO_MODES = ("check", "use")
 #: the fisheye model, Kannala-Brandt k1..k4, as OpenCV's fisheye module and ROS's image_pipeline use it).
 DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
 
+#: Seconds of frames in a row a starved replay drops at most (then one is released, however late).
+MAX_DROPPED_RUN = 1.0
+
 RECORDING_NEEDS_REALTIME = "a recording is replayed as a camera only with --realtime (frames released at their " \
                            "own rate, stamped when released)"
 
@@ -373,7 +376,18 @@ class ReplaySource(CameraSource):
     numbers and ``source_time`` going on from one pass to the next).
     ``start_at``: the wall-clock time (UNIX seconds) at which the first
     frame is released, so that several replays (one per robot) run in step;
-    default: as soon as the source starts."""
+    default: as soon as the source starts.
+
+    A replay is a camera, also when it is starved: a frame that is ready
+    only after the next one was due (the machine too busy for the replay's
+    readout) while the node is not done with the last frame released
+    (:meth:`~CameraSource.handled`) is dropped (counted,
+    :meth:`LatestFrame.skip`), never handed to a busy node late with a stale
+    stamp -- at most :data:`MAX_DROPPED_RUN` s of frames in
+    a row (of the recording's schedule and of the wall clock: a dropped frame
+    is decoded all the same), then one is released however late.  With the slot (a frame not
+    taken before the next one is released is replaced), a node slower than
+    the frame rate drops frames and is never handed a backlog."""
 
     def __init__(self, spec: str | Path, *, speed: float = 1.0, topic: str | None = None,
                  fps: float | None = None, loop: bool = False, start_at: float | None = None) -> None:
@@ -400,6 +414,7 @@ class ReplaySource(CameraSource):
         period = 1.0 / ((self.fps or 30.0) * self.speed)
         decoding: deque[float] = deque(maxlen=16)  # the recent decoding times, s
         released: LiveFrame | None = None
+        put_at = -math.inf  # (time.monotonic() of the last frame released)
         while True:
             first = last = None
             frames = iter(stream)
@@ -423,12 +438,21 @@ class ReplaySource(CameraSource):
                         start, wall = start + self.start_at - wall, self.start_at
                 due = (t - t0) / self.speed
                 delay = start + due - time.monotonic()
+                if (-delay > period and released is not None and self._handled_index < released.index
+                        and time.monotonic() - put_at < MAX_DROPPED_RUN
+                        and due - (released.source_time - t0) / self.speed < MAX_DROPPED_RUN):
+                    # ready after the next frame was due, the node still busy with the last one: dropped, as a
+                    # starved camera driver drops it (a node waiting for frames gets it, however late)
+                    self.slot.skip()
+                    first, last = first or f, f
+                    continue
                 if delay > 0 and self._stop.wait(delay):
                     return
                 # stamped with the instant it is due, as a camera stamps its exposure (the thread's
                 # scheduling delay is the transfer's, not the capture's)
                 released = LiveFrame(index + f.index, wall + due, f.image, f.status, source_time=t)
                 self.slot.put(released)
+                put_at = time.monotonic()
                 first, last = first or f, f
             if not self.loop or last is None:
                 return

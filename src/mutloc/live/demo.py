@@ -191,6 +191,10 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
                                                 else len(received) / (start_at + seconds - first))
     # a record of one robot's message fused before the other's came gives a pose each: stamps counted once
     summary["pose_stamps"] = len({_ns(stamp) for _, stamp, _ in received})
+    # capture -> pose received over the second half of the run only (a backlog growing shows there)
+    half = [arrival - stamp for arrival, stamp, _ in received if stamp >= start_at + seconds / 2]
+    summary["latency_ms_second_half"] = {q: float(np.percentile(half, int(q[1:])) * 1e3) if half else None
+                                         for q in ("p50", "p99")}
     return summary
 
 

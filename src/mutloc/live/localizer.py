@@ -41,6 +41,15 @@ with several cameras sends each camera's messages with ``header.frame_id``
 is a stream of its own, and messages of several cameras (of one robot or
 several) stamped within ``tolerance`` make one record.
 
+Under load the localizer sheds work instead of building a backlog: when a
+record is about to be fused more than ``max_lag`` (0.1 s) after its capture
+(the clock read again before each record), a message of it is dropped if a
+newer message of the same camera is waiting (that camera's newest is always
+fused; messages of different cameras are never coalesced), counted as
+``shed`` per robot; the robot is WARN in the diagnostics ("falling behind:
+shed N of M", M the messages received) for :data:`NOTICE_HOLD` s after its
+last shed message.
+
 Each fused message gives a pose of every tracked robot it is about (a
 record of several messages one per message, stamped with each one's capture
 time; messages of one stamp, one pose): with
@@ -83,7 +92,7 @@ from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_
                        rig_id as rig_id_of)
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
-           "WARN_AFTER", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
+           "WARN_AFTER", "MAX_LAG", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
 
 #: Seconds a robot's track may coast on its motion model before its pose is no longer published (``--max-coast``).
 MAX_COAST = 1.0
@@ -91,6 +100,8 @@ MAX_COAST = 1.0
 MAX_CLOCK_SKEW = 0.05
 #: A robot whose last observation is older than this (s) is WARN.
 WARN_AFTER = 0.5
+#: Seconds behind its capture beyond which a message is shed when a newer one of its camera waits (``--max-lag``).
+MAX_LAG = 0.1
 #: Seconds a message may wait for earlier ones from the other robots (``--reorder``).
 REORDER_WINDOW = 0.03
 #: Messages of different robots stamped within this many seconds make one
@@ -164,6 +175,8 @@ class RobotCounts:
     received: int = 0
     fused: int = 0
     dropped_late: int = 0
+    #: Messages not fused because a newer one of the same camera waited while the localizer was behind.
+    shed: int = 0
     duplicates: int = 0
     refused_rig_id: int = 0
     refused_malformed: int = 0
@@ -182,6 +195,8 @@ class RobotCounts:
     #: Arrival time of its last refused message, and why it was refused (None: none refused).
     last_refused_at: float | None = None
     last_refusal: str = ""
+    #: Clock time at which a message of it was last shed (None: none shed).
+    last_shed_at: float | None = None
     #: Arrival time of the last pose of it that another localizer published, and who that is.
     foreign_at: float | None = None
     foreign: str = ""
@@ -261,8 +276,8 @@ class Localizer:
                  filter: FilterOptions | None = None, max_coast: float = MAX_COAST,
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
-                 log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None
-                 ) -> None:
+                 log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None,
+                 max_lag: float = MAX_LAG) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
@@ -283,6 +298,7 @@ class Localizer:
         self.warn_after = positive_number(warn_after, "warn_after")
         self.reorder = _nonnegative(reorder, "reorder")
         self.tolerance = _nonnegative(tolerance, "tolerance")
+        self.max_lag = _nonnegative(max_lag, "max_lag")
         self.names = names
         if reference is None:
             # two robots: the pose of the first in the second's frame, as ``track``; more: the first's frame
@@ -300,6 +316,7 @@ class Localizer:
         self.fused_until = -math.inf  #: capture time of the last record fused
         self.log = log
         self._held: list[_Held] = []
+        self._waiting: dict[str, int] = {}  # camera key -> its messages held
         self._stream_stamp: dict[str, float] = {}  # newest capture time of each camera's messages
         self._seq = 0
         self._first: float | None = None  # arrival of the first message held
@@ -395,6 +412,7 @@ class Localizer:
         if self._first is None:
             self._first = now
         heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs, got.key))
+        self._waiting[got.key] = self._waiting.get(got.key, 0) + 1
         return "held"
 
     def malformed(self, robot: str, n: int = 1, now: float | None = None) -> None:
@@ -466,12 +484,34 @@ class Localizer:
         """The arrival-clock time at which the oldest held message leaves the buffer at the latest."""
         return self._held[0].arrival + self.reorder if self._held else None
 
-    def poll(self, now: float) -> list[LivePose]:
-        """Fuse the held messages that are due, oldest first; the poses to publish."""
+    def poll(self, now: float, clock: Callable[[], float] | None = None) -> list[LivePose]:
+        """Fuse the held messages that are due, oldest first; the poses to
+        publish.  ``clock``: read again before each record (fusing a backlog
+        takes time), else every record is taken at ``now``.  A message of a
+        record more than ``max_lag`` behind the clock is shed when a newer
+        message of its camera waits (see the module docstring)."""
         out: list[LivePose] = []
-        while self._held and self._due(self._held[0], now):
-            out += self._fuse(self._group())
+        while self._held:
+            if clock is not None:
+                now = clock()
+            if not self._due(self._held[0], now):
+                break
+            out += self._fuse(self._shed(self._group(), now))
         return out
+
+    def _shed(self, group: list[_Held], now: float) -> list[_Held]:
+        """``group`` without the messages shed at ``now``: those more than
+        ``max_lag`` behind with a newer message of their camera waiting (every
+        message held is as new as the group's: a held one of the same camera is newer)."""
+        keep = []
+        for h in group:
+            if now - h.t > self.max_lag and self._waiting.get(h.key, 0) > 0:
+                c = self.counts[h.robot]
+                c.shed += 1
+                c.last_shed_at = now
+            else:
+                keep.append(h)
+        return keep
 
     def feed(self, msg: Any, now: float, topic: str | None = None) -> list[LivePose]:
         """:meth:`receive` then :meth:`poll`."""
@@ -492,6 +532,8 @@ class Localizer:
         while (self._held and self._held[0].t - group[0].t <= self.tolerance
                and self._held[0].key not in {h.key for h in group}):
             group.append(heapq.heappop(self._held))
+        for h in group:
+            self._waiting[h.key] -= 1
         return group
 
     def _fuse(self, group: list[_Held]) -> list[LivePose]:
@@ -582,6 +624,8 @@ class Localizer:
             said = []
             if c.last_refused_at is not None and now - c.last_refused_at <= NOTICE_HOLD:
                 said.append(f"refused {c.refused} observations: {c.last_refusal}")
+            if c.last_shed_at is not None and now - c.last_shed_at <= NOTICE_HOLD:
+                said.append(f"falling behind: shed {c.shed} of {c.received}")
             if c.foreign_at is not None and now - c.foreign_at <= NOTICE_HOLD:
                 said.append(f"another localizer publishes on this domain: {c.foreign}")
             if said:
@@ -589,7 +633,7 @@ class Localizer:
                 message = "; ".join(said if age is None else [message, *said])
                 level = WARN if age is None or level == OK else level
             values = {"status": track, "age_s": "none" if age is None else f"{age:.3f}", "received": c.received,
-                      "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates,
+                      "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates, "shed": c.shed,
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
                       "poses_published": c.poses, "poses_unsent": c.unsent}
@@ -597,7 +641,7 @@ class Localizer:
         return out
 
     def summary(self) -> str:
-        """``612 records fused; 598 poses published; refused 3, late 0, duplicates 1``."""
+        """``612 records fused; 598 poses published; refused 3, late 0, duplicates 1, shed 0``."""
         cs = self.counts.values()
         refused = sum(c.refused for c in cs) + self.unattributed
         kinds = [f"{what} {n}" for what, n in (
@@ -606,7 +650,8 @@ class Localizer:
             ("clock", sum(c.refused_clock for c in cs))) if n]
         return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
                 + (f" ({', '.join(kinds)})" if kinds else "")
-                + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}")
+                + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}"
+                + f", shed {sum(c.shed for c in cs)}")
 
 
 def _short(rig_id: str) -> str:
@@ -662,7 +707,8 @@ class LocalizerRun:
 
 def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int = 0, out: str | Path | None = None,
                   max_coast: float = MAX_COAST, max_clock_skew: float = MAX_CLOCK_SKEW,
-                  reorder: float = REORDER_WINDOW, tolerance: float = TOLERANCE, pixel_sigma: float = 1.0,
+                  reorder: float = REORDER_WINDOW, tolerance: float = TOLERANCE, max_lag: float = MAX_LAG,
+                  pixel_sigma: float = 1.0,
                   confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
                   ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time,
                   notify: Callable[[str], None] | None = None) -> LocalizerRun:
@@ -697,7 +743,7 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
             log = ObservationLogWriter(Path(out) / "log.jsonl")
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
                         max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
-                        sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log,
+                        max_lag=max_lag, sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log,
                         notify=notify)
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
@@ -816,7 +862,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
             _foreign(bus, loc, others, now)
             next_foreign = now + FOREIGN_PERIOD
         now = clock()
-        publish(loc.poll(now))
+        publish(loc.poll(now, clock))
         if now >= next_diag:
             say(now)
             next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)

@@ -7,7 +7,9 @@ rig, blinking-light trackers keeping their state from frame to frame) and
 publishes one ``mutloc_msgs/msg/Observations`` message per processed frame
 on ``/mutloc/NAME/observations`` -- also when nothing was seen -- stamped
 with the frame's capture time.  Frames it has no time for are dropped at the
-camera (never queued) and counted.
+camera (never queued) and counted; a node that dropped frames in the last
+:data:`BEHIND_WINDOW` s says "falling behind: dropped N of the last M frames"
+(a warning line, and WARN in its diagnostics).
 
 A tag of another robot the detector missed (small, seen far off its normal)
 is looked for again where the localizer's latest poses put it: the node
@@ -61,10 +63,12 @@ from .messages import (DIAGNOSTICS_TOPIC, OK, TF_TOPIC, WARN, RobotStatus, diagn
                        observations_message, observations_topic, rig_id as rig_file_id, ros_types, stamp_of)
 
 __all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "camera_key", "camera_arguments", "with_camera",
-           "run_nodes", "LATENCY_WINDOW", "TF_MAX_AGE"]
+           "run_nodes", "LATENCY_WINDOW", "TF_MAX_AGE", "BEHIND_WINDOW"]
 
 #: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
 LATENCY_WINDOW = 108_000
+#: Seconds over which a node counts the frames it dropped ("falling behind: dropped N of the last M frames").
+BEHIND_WINDOW = 5.0
 #: A robot's pose from ``/tf`` predicts where its tags are in frames at most this far (s) from its stamp.
 TF_MAX_AGE = 0.25
 
@@ -98,6 +102,8 @@ class NodeStats:
     tf_foreign: int = 0
     tf_malformed: int = 0
     markers_seen: int = 0  # in the last processed frame
+    #: ``(time.monotonic(), captured, dropped)`` about once a second over the last :data:`BEHIND_WINDOW` s.
+    window: deque = field(default_factory=lambda: deque(maxlen=int(BEHIND_WINDOW) + 1))
     latencies: deque = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     #: Per published message, seconds: ``(capture -> taken by the node, detection (wall), detection (this
     #: thread's CPU), detected -> written)`` (the last :data:`LATENCY_WINDOW`).
@@ -118,6 +124,19 @@ class NodeStats:
             return ""
         recent = list(self.latencies)[-300:]
         return f", capture->publish p50 {percentile_ms(recent, 50):.1f} ms p99 {percentile_ms(recent, 99):.1f} ms"
+
+    def note_counts(self, now: float) -> None:
+        """Remember the counts at ``now`` (monotonic) for :meth:`behind` (once a second is enough)."""
+        if not self.window or now - self.window[-1][0] >= 1.0:
+            self.window.append((now, self.captured, self.dropped))
+
+    def behind(self) -> str:
+        """``falling behind: dropped N of the last M frames`` when frames were dropped over the window, else ""."""
+        if not self.window:
+            return ""
+        _, c0, d0 = self.window[0]
+        n, m = self.dropped - d0, self.captured - c0
+        return f"falling behind: dropped {n} of the last {m} frames" if n > 0 else ""
 
     def status_line(self) -> str:
         """One line for the periodic status."""
@@ -529,8 +548,10 @@ class Node:
     def _publish_diagnostics(self) -> None:
         s = self.stats
         notes = list(self.source.notes)
-        level = WARN if notes or (s.captured > 10 and s.dropped > s.captured / 2) else OK
-        message = notes[0] if notes else ("running" if s.processed else "waiting for frames")
+        behind = s.behind()
+        level = WARN if notes or behind or (s.captured > 10 and s.dropped > s.captured / 2) else OK
+        message = "; ".join([*([behind] if behind else []), *notes]) or ("running" if s.processed else
+                                                                         "waiting for frames")
         values = {"captured": s.captured, "processed": s.processed, "dropped": s.dropped, "corrupt": s.corrupt,
                   "fps": f"{s.fps:.2f}", "source": s.source, "topic": s.topic}
         if self.tf is not None:
@@ -564,6 +585,9 @@ class Node:
         s.cpu_started = time.process_time()
         next_status = begin + status_every if status_every else float("inf")
         next_diag = begin
+        next_behind = begin  # (a falling-behind line at most every BEHIND_WINDOW s)
+        s.window.clear()
+        s.note_counts(begin)
         try:
             while not (stop is not None and stop.is_set()):
                 now = time.monotonic()
@@ -585,6 +609,11 @@ class Node:
                         self._said.add(note)
                         self.report(f"warning: {note}")
                 now = time.monotonic()
+                s.note_counts(now)
+                behind = s.behind()
+                if behind and now >= next_behind:
+                    self.report(f"warning: node {self.key}: {behind}")
+                    next_behind = now + BEHIND_WINDOW
                 if self.diagnostics is not None and now >= next_diag:
                     self._publish_diagnostics()
                     next_diag = now + 1.0
