@@ -69,7 +69,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
@@ -88,6 +88,8 @@ from ..core.team_smoother import TeamSmoother
 from ..errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
 from ..io.logs import ObservationLogWriter
 from ..team import TeamEstimate, localize_team, team_problem
+from . import lifecycle
+from .lifecycle import Track, TrackState, UndoRequest
 from .filtering import MIN_START_DOF, FilterOptions, lost_reason, pair_problem
 from .solving import CONFIRM_SPREAD
 from .frames import DEFAULT_FPS, ObserverDetector, expanded_rig, frame_rate, image_keys, observations_of
@@ -185,54 +187,6 @@ START_SIGMA_R, START_SIGMA_T = 0.3, 0.5
 
 
 @dataclass
-class _Track:
-    """A robot's track in the joint filter: tentative until a later record
-    confirms it (``start``: the observations that started it; ``three``: it
-    started from exactly three), and its rejections per camera."""
-
-    start: frozenset
-    three: bool = False
-    confirmed: bool = False
-    bridged: bool = False
-    #: per camera: its records of the robot rejected in a row, and whether
-    #: since the first of them another camera's record solved the robot
-    #: (placed it on its own, consistent with the track).
-    contradicted: dict = field(default_factory=dict)
-    held_by_others: dict = field(default_factory=dict)
-    #: While tentative: its records as a confirmed track would report them (see ``_Tentative``).
-    frames: list = field(default_factory=list)
-    #: Whether the robot's last update tied it to one robot by four or more
-    #: (or started it): a track that can verify a record of three.
-    supported: bool = True
-    #: Records of three the confirmed track took without being able to verify them (see ``_Undo``).
-    undo: "_Undo | None" = None
-
-    def copy(self) -> "_Track":
-        return replace(self, contradicted=dict(self.contradicted), held_by_others=dict(self.held_by_others),
-                       frames=list(self.frames),
-                       undo=None if self.undo is None else replace(self.undo, records=set(self.undo.records)))
-
-
-@dataclass
-class _Undo:
-    """Records of exactly three observations tying a robot to one other that
-    its confirmed track took while the record before did not support it:
-    the first one's number and all of them (see ``TeamTracker._roll_back``)."""
-
-    first: int
-    records: set = field(default_factory=set)
-
-
-class _Unconfirmed(Exception):
-    """Internal: a record solved on its own contradicts records of three that
-    robot ``robot``'s track took unverified."""
-
-    def __init__(self, robot: str, t: float) -> None:
-        super().__init__(robot)
-        self.robot, self.t = robot, t
-
-
-@dataclass
 class _Tentative:
     """A record of a tentative track as a confirmed track would report it:
     its number and row, status, estimate and reason, and the robot's pose
@@ -289,7 +243,7 @@ class TeamTracker:
         self._confirmations: list[tuple[float, list[_Tentative], _Tentative | None, int, str]] = []
         self._k = 0  #: the number of the record being filtered
         self._replaying = False
-        self.tracks: dict[str, _Track] = {}
+        self.tracks: dict[str, Track] = {}
         #: The records of the last ``start_window`` seconds (a start may bridge them).
         self._recent: deque[tuple[float, ObservationSet]] = deque()
         self.last_time: float | None = None
@@ -325,16 +279,18 @@ class TeamTracker:
             self._per_record(observations, rows)
             self._input_problems(rec)
             return rows
-        try:
-            self._filter_record(rec)
-        except _Unconfirmed as u:
-            self._roll_back(u)
-            self._filter_record(rec)  # the undone records no longer hold the track: this cannot undo any
+        undo = self._filter_record(rec)
+        if undo is not None:
+            self._roll_back(undo)
+            again = self._filter_record(rec)  # the undone records no longer hold the track: this cannot undo any
+            assert again is None
         return rows
 
-    def _filter_record(self, rec: _Record, exclude: str | None = None) -> None:
+    def _filter_record(self, rec: _Record, exclude: str | None = None) -> UndoRequest | None:
         """Filter one record and keep it (with smoothing) until final
-        (``exclude``: a robot whose observations in it are left out)."""
+        (``exclude``: a robot whose observations in it are left out); or,
+        when it contradicts records a track took unverified, the request to
+        undo them (the record then is neither kept nor final)."""
         sm = self.smoother
         # an undo can only go back to a record a track took unsupported: save the state before such records
         rec.saved = self._save() if sm is not None and not self._replaying and any(
@@ -348,7 +304,9 @@ class TeamTracker:
             obs = obs.take(np.array([i for i, (o, m) in enumerate(zip(obs.observer, obs.marker))
                                      if self._observer(o) != exclude and (m is None or self._owner(m) != exclude)],
                                     dtype=np.int64))
-        self._filtered(rec.t, obs, rec.rows)
+        undo = self._filtered(rec.t, obs, rec.rows)
+        if undo is not None:
+            return undo
         if obs is not None and len(obs):
             self._recent.append((rec.t, obs))
         while self._recent and rec.t - self._recent[0][0] > self.options.start_window:
@@ -357,6 +315,7 @@ class TeamTracker:
             sm.add(prior, self.filter.snapshot())
             self._unfinal.append(rec)
         self._input_problems(rec)
+        return None
 
     def _owner(self, marker: str) -> str | None:
         try:
@@ -389,13 +348,13 @@ class TeamTracker:
         return (self.filter.copy(), {r: tr.copy() for r, tr in self.tracks.items()}, tuple(self._recent),
                 self.last_time)
 
-    def _undoable(self, undo: _Undo) -> bool:
+    def _undoable(self, undo: lifecycle.Undo) -> bool:
         """Whether the state before the undo's first record is still kept."""
         sm = self.smoother
         k = undo.first - (sm.first if sm is not None else 0)
         return sm is not None and 0 <= k < len(self._unfinal) and self._unfinal[k].saved is not None
 
-    def _roll_back(self, u: _Unconfirmed) -> None:
+    def _roll_back(self, u: UndoRequest) -> None:
         """Undo robot ``u.robot``'s track since its first unverified record of
         three (a record solved on its own contradicts it): those records
         report it ``rejected`` (with the track's prediction without them),
@@ -426,23 +385,6 @@ class TeamTracker:
                     self._filter_record(rec)
         finally:
             self._replaying = False
-
-    def _judge_support(self, tr: _Track, n: int) -> None:
-        """After an accepted update of a confirmed track: four or more
-        observations tying it to one robot support it (and clear the records
-        it took unverified); exactly three while the record before did not
-        support it are taken but remembered, so that a record solved on its
-        own within the smoother's lag that contradicts the track can undo
-        them (:meth:`_roll_back`).  Without smoothing nothing is undone.
-        ``n``: the record's used observations tying it to one robot, at most."""
-        if n > MIN_TIES:
-            tr.undo, tr.supported = None, True
-            return
-        if n == MIN_TIES and not tr.supported and self.smoother is not None and not self._replaying:
-            if tr.undo is None:
-                tr.undo = _Undo(self._k)
-            tr.undo.records.add(self._k)
-        tr.supported = False
 
     # -- a tentative track's records, reported again once it is confirmed ------
 
@@ -667,13 +609,13 @@ class TeamTracker:
 
     # -- the joint filter -------------------------------------------------------
 
-    def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> None:
+    def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> UndoRequest | None:
         f = self.filter
         if obs is None or len(obs) == 0:
             self._coast(rows, set())
             for r, row in rows.items():
                 self._unobserved(r, row, "no frame" if obs is None else "no markers seen")
-            return
+            return None
         for tr in self.tracks.values():
             if tr.undo is not None and self._k - tr.undo.first > self.options.smooth_lag:
                 tr.undo = None  # beyond the lag its reports are out: taken as they stand
@@ -689,16 +631,16 @@ class TeamTracker:
                     self._unobserved(r, row, why)
                 else:
                     row.status, row.reason = FrameStatus.FAILED, why
-            return
+            return None
         index = {n: i for i, n in enumerate(names)}
         touch = {r: (problem.cam == index[r]) | (problem.own == index[r]) for r in self.robots}
         used = np.zeros(len(problem.cam), dtype=bool)
         notes: dict[str, list[str]] = {r: [] for r in self.robots}
         # Where a tentative track predicts each of its observations (before the update): a record confirms
         # a track started on three only through observations it predicted sharply (see _confirms).
-        spread = {j: self._spread_px(problem, j) for r, tr in self.tracks.items() if tr.three and not tr.confirmed
+        spread = {j: self._spread_px(problem, j) for r, tr in self.tracks.items() if tr.strict
                   for j in np.flatnonzero(touch[r]).tolist()}
-        prior = {r: (f.pose(r), f.covariance(r)) for r, tr in self.tracks.items() if tr.three and not tr.confirmed}
+        prior = {r: (f.pose(r), f.covariance(r)) for r, tr in self.tracks.items() if tr.strict}
         # 1. the tracked robots: one update with every observation among them and the reference
         rejected, test, why_rejected, dropped = self._update_tracked(problem, touch, used)
         for r in self.robots:
@@ -714,25 +656,16 @@ class TeamTracker:
                 # a record that holds on its own contradicts a track made by records of three nothing confirmed
                 team, _, _ = self._solve(obs, self.reference)
                 if team is not None and team.status == "solved" and r in team.poses and r not in team.unverified:
-                    raise _Unconfirmed(r, t)
-            cams = {names[c] for c in problem.cam[touch[r]].tolist()}
-            for c in cams:
-                tr.contradicted[c] = tr.contradicted.get(c, 0) + 1
-                if tr.contradicted[c] == 1:
-                    tr.held_by_others[c] = False
-            cam, streak = _worst(tr)
-            if not tr.confirmed:
-                restart[r] = "a record contradicted the tentative track"
-            elif streak >= self.options.reinit_after:
-                restart[r] = f"{cam}'s last {streak} records inconsistent with the track"
-            elif tr.contradicted and max(tr.contradicted.values()) >= self.options.reinit_after:
-                c = max(tr.contradicted, key=tr.contradicted.get)
-                notes[r].append(f"{c}'s last {tr.contradicted[c]} records of it inconsistent with the track that "
-                                "the other cameras' records hold")
+                    return UndoRequest(r, t)
+            lifecycle.count_rejection(tr, {names[c] for c in problem.cam[touch[r]].tolist()})
+            why, note = lifecycle.restart_reason(tr, self.options.reinit_after)
+            if why is not None:
+                restart[r] = why
+            elif note is not None:
+                notes[r].append(note)
         for r in self.tracks:
             if r not in rejected and used[touch[r]].any():
-                for c in {names[c] for c in problem.cam[touch[r] & used].tolist()}:
-                    self.tracks[r].contradicted[c] = 0
+                lifecycle.count_accepted(self.tracks[r], {names[c] for c in problem.cam[touch[r] & used].tolist()})
         # tentative tracks this record confirms; one started on three that a record of four or more
         # observations does not confirm restarts from it (or goes, if the record does not place it)
         confirmed: dict[str, str] = {}
@@ -744,8 +677,8 @@ class TeamTracker:
                                       spread, bool(touch[r][dropped].any()) if len(dropped) else False)
             if ok:
                 confirmed[r] = note
-            elif tr.three and _ties_to_one(problem, self.filter.index(r)) > MIN_TIES:
-                restart[r] = "a record of four or more observations does not confirm the tentative track"
+            elif (why := lifecycle.restart_on_four(tr, _ties_to_one(problem, self.filter.index(r)))) is not None:
+                restart[r] = why
                 used[touch[r]] = False
         C = np.zeros((problem.n_robots, problem.n_robots), dtype=np.int64)  # used observations, camera -> robot
         np.add.at(C, (problem.cam[used], problem.own[used]), 1)
@@ -756,9 +689,10 @@ class TeamTracker:
             if r in confirmed:
                 tr.supported = int(C[index[r]].max()) > MIN_TIES
             elif tr.confirmed:
-                self._judge_support(tr, int(C[index[r]].max()))
+                lifecycle.judge_support(tr, int(C[index[r]].max()), self._k,
+                                        self.smoother is not None and not self._replaying)
         for r in confirmed:
-            self.tracks[r].confirmed = True
+            self.tracks[r].state = TrackState.CONFIRMED
         # 2. robots not tracked (or to restart) that the record places on its own
         candidates = [r for r in self.robots if (r not in self.tracks or r in restart)
                       and int(touch[r].sum()) >= MIN_TIES]
@@ -787,8 +721,7 @@ class TeamTracker:
             if r in started:
                 continue
             tr = self.tracks[r]
-            cam, streak = _worst(tr)
-            if not tr.confirmed or streak >= 2 * self.options.reinit_after:
+            if lifecycle.drop_after_restart(tr, self.options.reinit_after):
                 self._drop(r)
                 notes[r].append(f"track dropped: {why}" if tr.confirmed else
                                 "tentative track dropped: a record contradicted it")
@@ -803,20 +736,18 @@ class TeamTracker:
         cams = {names[c] for c in problem.cam[used].tolist()}
         for r in held & set(self.tracks):
             tr = self.tracks[r]
-            for c in tr.held_by_others:
-                if c not in cams:
-                    tr.held_by_others[c] = True
+            lifecycle.held_by_others(tr, cams)
         for r, row in rows.items():
             if notes[r]:
                 row.reason = _join(row.reason, "; ".join(notes[r]))
             mine = touch[r]
             if r in started:
                 tr = self.tracks[r]
-                row.status = (FrameStatus.SOLVED if not tr.three else
+                row.status = (FrameStatus.SOLVED if not tr.strict else
                               FrameStatus.UNVERIFIED if int((used & mine).sum()) >= MIN_TIES else FrameStatus.PARTIAL)
                 row.reason = _join(row.reason, started[r])
                 row.estimate = self._estimate(r, problem, markers, used, mine, test, res)
-                if tr.three and self.smoother is not None:
+                if tr.strict and self.smoother is not None:
                     n = int((used & mine).sum())
                     on = ", ".join(sorted({markers[j] for j in np.flatnonzero(used & mine).tolist()}))
                     tr.frames.append(_Tentative(self._k, row, FrameStatus.SOLVED if n >= MIN_TIES else
@@ -837,7 +768,7 @@ class TeamTracker:
                 else:
                     status, why = FrameStatus.PARTIAL, f"{n} observation(s) tie it to the team: updated through the filter"
                 row.estimate = self._estimate(r, problem, markers, used, mine, test, res)
-                if tr.three and not tr.confirmed:
+                if tr.strict:
                     # a tentative track reports nothing of its own yet (see _tentative)
                     self._tentative(r, tr, row, status, _join(row.reason, why), prior.get(r), n)
                 else:
@@ -856,8 +787,9 @@ class TeamTracker:
                 row.reason = _join(row.reason, "no markers seen" if n == 0 else
                                    f"{n} observation{'s' if n != 1 else ''} involve it: too few to start its track "
                                    "(three are needed)")
+        return None
 
-    def _tentative(self, r: str, tr: _Track, row: TrackRow, status: FrameStatus, reason: str,
+    def _tentative(self, r: str, tr: Track, row: TrackRow, status: FrameStatus, reason: str,
                    prior: tuple | None, n: int) -> None:
         """A record of a tentative track (not yet confirmed) reports what the
         record shows on its own: ``unverified`` with three or more
@@ -870,17 +802,17 @@ class TeamTracker:
         if self.smoother is not None:
             tr.frames.append(_Tentative(self._k, row, status, row.estimate, reason,
                                         prior if prior is not None else (f.pose(r), f.covariance(r))))
-        note = "tentative track not yet confirmed " + ("(started from records solved together)" if tr.bridged
+        note = "tentative track not yet confirmed " + ("(started from records solved together)" if tr.state == TrackState.BRIDGED
                                                         else "(started on three observations)")
         if n >= MIN_TIES:
             row.status = FrameStatus.UNVERIFIED
-        elif tr.bridged:
+        elif tr.state == TrackState.BRIDGED:
             row.status = status
         else:
             row.status, row.estimate = FrameStatus.TOO_FEW, None
         row.reason = _join(row.reason if n else _join(row.reason, reason), note)
 
-    def _confirmed(self, t: float, r: str, tr: _Track) -> None:
+    def _confirmed(self, t: float, r: str, tr: Track) -> None:
         """Robot ``r``'s tentative track is confirmed now: its records within
         the lag may be reported again once the lag records after this one came."""
         if self.smoother is None:
@@ -1030,8 +962,7 @@ class TeamTracker:
                 mine = touch[r][rows[upd.used]]
                 keys = frozenset((names[problem.cam[j]], markers[j]) for j in rows[upd.used][mine].tolist())
                 # a start on three, or bridged over records (no test of its own), is confirmed the strict way
-                self.tracks[r] = _Track(keys, three=three or bridged is not None or len(keys) <= MIN_TIES,
-                                        bridged=bridged is not None)
+                self.tracks[r] = Track(keys, lifecycle.start_state(three, bridged is not None, len(keys)))
                 what = "restarted" if r in before else "started"
                 note = f"track {what} from the record's joint solve ({len(keys)} observations)" if bridged is None \
                     else f"tentative track started from the last {len(self._recent) + 1} records solved together"
@@ -1131,32 +1062,22 @@ class TeamTracker:
         st = fit.state
         self._drop(r)
         self.filter.add(r, st.pose, st.pose_covariance, velocity=st.velocity, state_covariance=st.covariance)
-        self.tracks[r] = _Track(frozenset(latest), confirmed=True)
+        self.tracks[r] = Track(frozenset(latest), TrackState.CONFIRMED)
         span = 1000.0 * (times[-1] - times[0])
         return (f"track started from {len(times)} records over {span:.0f} ms ({n} observations of {len(latest)} "
                 "markers; pose and velocity fitted at each record's time)")
 
-    def _confirms(self, tr: _Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray,
+    def _confirms(self, tr: Track, problem: TeamProblem, names: list[str], markers: list[str], rows: np.ndarray,
                   spread: Mapping[int, float], dropped: bool) -> tuple[bool, str]:
-        """Whether a later record's accepted observations of a tentative track
-        confirm it, and the row's note.  Three or more; after a start on
-        exactly three (which fit any one bad detection exactly, so its pose
-        may be wrong) only where every observation of the robot in the record
-        agrees (none dropped by the gate) and the observations not among
-        those that started it -- at least one -- were predicted sharply
-        (``CONFIRM_SPREAD`` x sigma): where the track's prediction could have
-        missed them, a wrong start is exposed."""
+        """Whether a later record's accepted observations (``rows``) of a
+        tentative track confirm it (:func:`~mutloc.track.lifecycle.confirms`), and the row's note."""
         n = int(rows.sum())
-        if not tr.three:
-            return n >= MIN_TIES, f"track confirmed by {n} observations"
-        if n < MIN_TIES or dropped:
-            return False, ""
         idx = np.flatnonzero(rows).tolist()
-        new = [j for j in idx if (names[problem.cam[j]], markers[j]) not in tr.start]
-        if not new:
-            return False, ""
-        worst = max(spread.get(j, math.inf) for j in new)
-        if worst > CONFIRM_SPREAD * self.pixel_sigma:
+        new = [j for j in idx if (names[problem.cam[j]], markers[j]) not in tr.start] if tr.strict else []
+        ok, worst = lifecycle.confirms(tr, n, new, spread, dropped, self.pixel_sigma)
+        if not tr.strict:
+            return ok, f"track confirmed by {n} observations"
+        if not ok:
             return False, ""
         seen = ", ".join(sorted({markers[j] for j in idx}))
         start = ", ".join(sorted({m for _, m in tr.start}))
@@ -1222,7 +1143,7 @@ class TeamTracker:
             return
         tr.supported = False
         row.estimate = self._estimate(r, None, [], None, None, None)
-        if tr.three and not tr.confirmed:
+        if tr.strict:
             self._tentative(r, tr, row, FrameStatus.PREDICTED, why, None, 0)
             return
         row.status = FrameStatus.PREDICTED
@@ -1244,18 +1165,6 @@ class TeamTracker:
                         pixel_sigma=self.pixel_sigma, reprojection_rms_px=rms, markers_used=names,
                         candidates=Pose.concatenate([pose]), consistency=test,
                         extra={"velocity": vel.tolist(), "filter": "cv"})
-
-
-def _worst(tr: _Track) -> tuple[str, int]:
-    """The camera whose records of the robot the track keeps rejecting
-    while no other camera's record solved the robot since (those can
-    expose a wrong track: then the camera is the one at odds), and its
-    streak; ("", 0) if none."""
-    open_ = {c: n for c, n in tr.contradicted.items() if n and not tr.held_by_others.get(c, False)}
-    if not open_:
-        return "", 0
-    c = max(open_, key=open_.get)
-    return c, open_[c]
 
 
 def _ties_to_one(problem: TeamProblem, i: int) -> int:
