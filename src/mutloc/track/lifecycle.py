@@ -28,7 +28,9 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Mapping
 
-from ..core.team import MIN_TIES
+import numpy as np
+
+from ..core.team import MIN_TIES, TeamProblem
 from .solving import CONFIRM_SPREAD
 
 
@@ -220,3 +222,22 @@ def judge_support(tr: Track, n: int, k: int, remember: bool) -> None:
         tr.undo.records.add(k)
     tr.supported = False
 
+
+
+# -- what the rules read ------------------------------------------------------
+
+
+def ties_to_one(problem: TeamProblem, i: int) -> int:
+    """The most observations between robot ``i`` and any one other robot
+    (either way): four or more place it on their own, as a pair's frame does."""
+    C = problem.counts()
+    ties = C[i] + C[:, i]
+    ties[i] = 0
+    return int(ties.max()) if len(ties) else 0
+
+
+@dataclass
+class PoseCov:
+    """What :func:`~mutloc.track.solving.lost_reason` reads of a state."""
+
+    pose_covariance: np.ndarray
