@@ -13,6 +13,7 @@ from .api import Estimate, load_rig
 from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
+from .core.rays import set_aside_past_rim
 from .core.rig import Rig
 from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor,
                         misfit_robots, other_poses, relative_jacobian, residual_norms, solve_team)
@@ -280,7 +281,16 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         reference = names[0]
     if not isinstance(reference, str) or reference not in rig.robots:
         raise ObservationError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
-    problem, names, markers = team_problem(rig, ObservationSet.from_dict(observations))
+    observations = ObservationSet.from_dict(observations)
+    try:
+        problem, names, markers = team_problem(rig, observations)
+        aside: list[dict[str, Any]] = []
+    except ObservationError:
+        # a pixel noise pushed a little past a lens's rim: set aside and named in ``rejected``, not a refusal
+        observations, aside = set_aside_past_rim(rig, observations, pixel_sigma)
+        if not aside:
+            raise
+        problem, names, markers = team_problem(rig, observations)
     ref = names.index(reference)
     start = None
     if initial is not None:
@@ -294,7 +304,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
             Rs[i], ts[i], loc[i] = T.R, T.t, True
         start = (Rs, ts, loc)
     keep = np.arange(len(problem.cam))
-    rejected: list[dict[str, Any]] = []
+    rejected: list[dict[str, Any]] = list(aside)
     while True:
         sub = problem.take(keep)
         sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma, confidence=confidence)
@@ -312,7 +322,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
             except DegenerateGeometryError:
                 pass
             test = _test(sol, pixel_sigma, confidence)
-        if test.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
+        if test.passed is not False or not reject_outliers or len(rejected) - len(aside) >= len(problem.cam) // 5:
             break
         # drop the worst-fitting observation and solve again from scratch
         # (a wrong detection may have misled the start as well)
@@ -345,7 +355,8 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         raise InconsistentObservationsError(
             f"the team's observations do not fit one set of poses with {pixel_sigma:g} px noise (chi2 {test.chi2:.1f} "
             f"over {test.dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%"
-            + (f", even without the {len(rejected)} worst observations" if rejected else "")
+            + (f", even without the {len(rejected) - len(aside)} worst observations" if len(rejected) > len(aside)
+               else "")
             + "): a wrong detection, a wrong rig or more noise than --pixel-sigma says", est)
     return est
 
