@@ -194,6 +194,8 @@ def pair_rays(mounts: Mapping[str, Any] | LensTable, keys: Sequence[str], uv: np
 #: refused: detection noise puts a marker seen at the very rim of a fisheye there (:func:`set_aside_past_rim`).
 RIM_TOLERANCE_PX = 4.0
 RIM_TOLERANCE_SIGMAS = 4.0
+#: False: nothing is set aside (every such pixel refused, as before; bench/bench_bodies.py --refusals compares).
+SET_ASIDE_PAST_RIM = True
 
 
 def past_rim_px(camera: Any, uv: Any) -> float:
@@ -224,7 +226,7 @@ def set_aside_past_rim(rig: Any, obs: Any, pixel_sigma: float) -> tuple[Any, lis
     ``{"observer", "marker", "residual_px": None, "at": "lens", "past_rim_px"}``.  Pixels farther past, or
     not unprojectable for another reason, are kept: solving on them raises the usual ObservationError
     naming them.  Nothing is set aside for a rig of one-pinhole robots."""
-    if getattr(rig, "central_pinhole", True) or not len(obs):
+    if not SET_ASIDE_PAST_RIM or getattr(rig, "central_pinhole", True) or not len(obs):
         return obs, []
     scale = obs.scales_of()
     keep: list[int] = []
