@@ -39,7 +39,13 @@ def _past_rim(rig, key: str, uv, past_px: float):
 
 
 def _fisheye_rows(rig, obs):
-    return [(k, m) for k, v in obs.items() for m in v if rig.mount(k).camera.model == "fisheye"]
+    """Fisheye observations whose lens circle, 20 px past it along their azimuth, is still in the image."""
+    def inside(k, uv):
+        w, h = rig.mount(k).camera.size
+        u, v = _past_rim(rig, k, uv, 20.0)
+        return 0 <= u <= w - 1 and 0 <= v <= h - 1
+    return [(k, m) for k, v in obs.items() for m in v
+            if rig.mount(k).camera.model == "fisheye" and inside(k, v[m])]
 
 
 def _pair_scene():
