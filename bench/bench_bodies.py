@@ -4,6 +4,7 @@
 
     python bench/bench_bodies.py --n 2000 --teams 400   # the figures in docs/benchmarks.md
     python bench/bench_bodies.py --n 200                # a smoke run (teams: n / 4)
+    python bench/bench_bodies.py --n 2000 --teams 400 --refusals   # pixels past a lens's rim: refused vs set aside
 
 Each robot is a body with 2-3 cameras looking out around it, each a fisheye (180-200 deg, Kannala-Brandt),
 an omnidirectional (Mei) or a pinhole lens (mutloc.sim.bodies.random_body); the robots stand 1.5-5 m apart
@@ -350,13 +351,73 @@ def team_cost(n: int, seed: int, runs: int = 5) -> dict:
     return res
 
 
+def refusals(n: int, teams: int, seed: int, runs: int = 3) -> dict:
+    """Pairs and teams at sigma = 1 px refused (ObservationError: a noisy pixel past a fisheye's rim) with
+    such pixels refused (``mutloc.core.rays.SET_ASIDE_PAST_RIM = False``, as before) and set aside (now), on
+    the same observations; CPU time per ``localize`` call on the pair scenes both ways (median of ``runs``)."""
+    import mutloc.core.rays as rays
+
+    pairs = [(rig, body_observations(rig, poses, sigma=1.0, rng=rng)) for rng, rig, poses, _, _ in
+             scenes(n, seed + 1, "refusals: pairs")]
+    team_cases = [(rig, body_observations(rig, poses, sigma=1.0, rng=rng)) for rng, rig, poses, _ in
+                  _team_scenes(teams, seed + 4, False, "refusals: teams")]
+    out: dict = {"pairs": len(pairs), "teams": len(team_cases)}
+    for aside in (False, True):
+        rays.SET_ASIDE_PAST_RIM = aside
+        key = "set_aside" if aside else "refused_before"
+        np_, nt, lens = 0, 0, 0
+        for rig, obs in pairs:
+            try:
+                est = mutloc.localize(rig, obs, "p", "q")
+                lens += sum(r.get("at") == "lens" for r in est.rejected)
+            except mutloc.errors.ObservationError:
+                np_ += 1
+            except mutloc.errors.MutlocError:
+                pass
+        tlens = 0
+        for rig, obs in team_cases:
+            try:
+                est = mutloc.localize_team(rig, obs, "r0")
+                tlens += sum(r.get("at") == "lens" for r in est.rejected)
+            except mutloc.errors.ObservationError:
+                nt += 1
+            except mutloc.errors.MutlocError:
+                pass
+        out[key] = {"pairs_refused": np_, "teams_refused": nt, "pair_pixels_set_aside": lens,
+                    "team_pixels_set_aside": tlens}
+    load0 = os.getloadavg()[0]
+    times: dict = {"refused_before": [], "set_aside": []}
+    for _ in range(runs):
+        for aside in (False, True):
+            rays.SET_ASIDE_PAST_RIM = aside
+            t0 = time.thread_time()
+            for rig, obs in pairs:
+                try:
+                    mutloc.localize(rig, obs, "p", "q")
+                except mutloc.errors.MutlocError:
+                    pass
+            times["set_aside" if aside else "refused_before"].append((time.thread_time() - t0) / len(pairs) * 1e6)
+    rays.SET_ASIDE_PAST_RIM = True
+    out["localize_us"] = {k: {"median": float(np.median(v)), "runs": v} for k, v in times.items()}
+    out["load_before_after"] = [load0, os.getloadavg()[0]]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--teams", type=int, default=None, help="teams per team study (default n / 4)")
+    ap.add_argument("--refusals", action="store_true",
+                    help="only: pairs and teams refused for a pixel past a lens's rim, before (refused) and now "
+                         "(set aside), and the cost per localize call both ways")
     args = ap.parse_args()
     teams = args.teams or max(args.n // 4, 10)
+    if args.refusals:
+        res = {"machine": machine(), "refusals": refusals(args.n, teams, args.seed)}
+        print(json.dumps(res["refusals"], indent=1))
+        Path(result_file("bodies_refusals.json")).write_text(json.dumps(res, indent=1) + "\n")
+        return
     res = {"machine": machine(), "exactness": exactness(args.n, args.seed), "noisy": noisy(args.n, args.seed + 1),
            "cost": cost(min(args.n, 300), args.seed + 2),
            "team_bodies": team_study(teams, args.seed + 3, False), "team_pinhole": team_study(teams, args.seed + 3, True),

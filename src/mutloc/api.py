@@ -16,7 +16,7 @@ from .core.geometry import skew
 from .core.observations import ObservationSet, PairObservations
 from .core.pose import Pose
 from .core.refine import tangent_bases
-from .core.rays import pair_rays
+from .core.rays import pair_rays, set_aside_past_rim
 from .core.rig import Rig
 from .core.robust import (MIN_VERIFIABLE, NONLINEARITY_LIMIT, covariance_nonlinearity, largest_consistent_set,
                           observation_errors, other_consistent_poses)
@@ -157,6 +157,18 @@ class Estimate:
         return d
 
 
+def rejected_text(entries: Sequence[Mapping[str, Any]]) -> str:
+    """A result's ``rejected`` entries in words, for a row's reason: ``"p saw q1 (3.2 px off)"``, or for a
+    pixel set aside past its lens's rim (``"at": "lens"``) ``"p/front saw q1 (1.8 px past the lens's rim)"``."""
+    def one(r: Mapping[str, Any]) -> str:
+        if r.get("at") == "lens":
+            return f"{r['observer']} saw {r['marker']} ({r['past_rim_px']:.1f} px past the lens's rim)"
+        off = r.get("residual_px")
+        return f"{r['observer']} saw {r['marker']} " + (f"({off:.1f} px off)" if off is not None else
+                                                         "(behind the camera)")
+    return ", ".join(one(r) for r in entries)
+
+
 def _get_candidates(est: Estimate) -> Pose:
     c = est.__dict__["_candidates"]
     if not isinstance(c, Pose):
@@ -262,6 +274,30 @@ def localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source:
     residual (``sqrt(cost / dof)``, reported as ``pixel_sigma``); the test then
     uses ``pixel_sigma`` as the largest noise accepted.
     """
+    try:
+        return _localize(rig, observations, source, target, pixel_sigma=pixel_sigma, refine=refine,
+                         root_filter=root_filter, initializer=initializer, confidence=confidence,
+                         reject_outliers=reject_outliers, scale_covariance=scale_covariance,
+                         allow_unverified=allow_unverified)
+    except ObservationError:
+        # a pixel noise pushed a little past a lens's rim: set aside and named in ``rejected``, not a refusal
+        rig = load_rig(rig)
+        kept, aside = set_aside_past_rim(rig, ObservationSet.from_dict(observations),
+                                         positive_number(pixel_sigma, "pixel_sigma"))
+        if not aside:
+            raise
+    est = _localize(rig, kept, source, target, pixel_sigma=pixel_sigma, refine=refine, root_filter=root_filter,
+                    initializer=initializer, confidence=confidence, reject_outliers=reject_outliers,
+                    scale_covariance=scale_covariance, allow_unverified=allow_unverified)
+    est.rejected = aside + est.rejected
+    return est
+
+
+def _localize(rig: Any, observations: ObservationSet | Mapping[str, Any], source: str | None = None,
+             target: str | None = None, *, pixel_sigma: float = 1.0, refine: bool = True, root_filter: bool = False,
+             initializer: str = "minimal", confidence: float = DEFAULT_CONFIDENCE, reject_outliers: bool = True,
+             scale_covariance: bool = False, allow_unverified: bool = True) -> Estimate:
+    """:func:`localize` without setting aside pixels past a lens's rim."""
     rig = load_rig(rig)
     source, target = rig.default_pair(source, target)
     if not (type(pixel_sigma) is float and 0.0 < pixel_sigma < math.inf):  # the common case, at once

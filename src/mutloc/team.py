@@ -13,9 +13,10 @@ from .api import Estimate, load_rig
 from .core.consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .core.observations import ObservationSet
 from .core.pose import Pose
+from .core.rays import set_aside_past_rim
 from .core.rig import Rig
 from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, checked_factor, inverse_from_factor,
-                        other_poses, relative_jacobian, residual_norms, solve_team)
+                        misfit_robots, other_poses, relative_jacobian, residual_norms, solve_team)
 from .errors import (DegenerateGeometryError, InconsistentObservationsError, MutlocError, ObservationError,
                      TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
@@ -33,7 +34,9 @@ class TeamEstimate:
     poses fit those exactly and nothing can confirm the one chosen (as a
     pair's ``"unverified"`` status) -- and robots whose few observations fit
     a second, distant pose within their noise as well: ``ambiguous`` holds
-    those other poses (``T_ref_r``, best first; :meth:`candidates`)."""
+    those other poses (``T_ref_r``, best first; :meth:`candidates`) -- and
+    robots whose own observations fit far worse than the team's residuals
+    say the noise is (``misfit``; :func:`mutloc.core.team.misfit_robots`)."""
 
     reference: str
     poses: dict[str, Pose]
@@ -46,6 +49,7 @@ class TeamEstimate:
     consistency: Consistency
     unverified: list[str] = field(default_factory=list)
     ambiguous: dict[str, Pose] = field(default_factory=dict)
+    misfit: list[str] = field(default_factory=list)
     rejected: list[dict[str, Any]] = field(default_factory=list)
     markers_between: dict[frozenset, list[str]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -277,7 +281,16 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         reference = names[0]
     if not isinstance(reference, str) or reference not in rig.robots:
         raise ObservationError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
-    problem, names, markers = team_problem(rig, ObservationSet.from_dict(observations))
+    observations = ObservationSet.from_dict(observations)
+    try:
+        problem, names, markers = team_problem(rig, observations)
+        aside: list[dict[str, Any]] = []
+    except ObservationError:
+        # a pixel noise pushed a little past a lens's rim: set aside and named in ``rejected``, not a refusal
+        observations, aside = set_aside_past_rim(rig, observations, pixel_sigma)
+        if not aside:
+            raise
+        problem, names, markers = team_problem(rig, observations)
     ref = names.index(reference)
     start = None
     if initial is not None:
@@ -291,7 +304,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
             Rs[i], ts[i], loc[i] = T.R, T.t, True
         start = (Rs, ts, loc)
     keep = np.arange(len(problem.cam))
-    rejected: list[dict[str, Any]] = []
+    rejected: list[dict[str, Any]] = list(aside)
     while True:
         sub = problem.take(keep)
         sol = solve_team(sub, ref, initial=start, max_iter=max_iter, sigma=pixel_sigma, confidence=confidence)
@@ -309,7 +322,7 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
             except DegenerateGeometryError:
                 pass
             test = _test(sol, pixel_sigma, confidence)
-        if test.passed is not False or not reject_outliers or len(rejected) >= len(problem.cam) // 5:
+        if test.passed is not False or not reject_outliers or len(rejected) - len(aside) >= len(problem.cam) // 5:
             break
         # drop the worst-fitting observation and solve again from scratch
         # (a wrong detection may have misled the start as well)
@@ -327,8 +340,11 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         except DegenerateGeometryError:
             others = {}
         test = _test(sol, pixel_sigma, confidence)
+    # a robot whose ties fit far worse than the team's residuals say the
+    # noise is: in a wrong basin, though the joint test passes
+    misfit = set(misfit_robots(sub, sol, pixel_sigma, confidence)) if test.passed is not False else set()
     try:
-        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, test, others)
+        est = _estimate(sol, names, [markers[k] for k in keep], sub, reference, pixel_sigma, test, others, misfit)
     except DegenerateGeometryError:
         if test.passed is not False:
             raise
@@ -339,7 +355,8 @@ def localize_team(rig: Any, observations: ObservationSet | Mapping[str, Any], re
         raise InconsistentObservationsError(
             f"the team's observations do not fit one set of poses with {pixel_sigma:g} px noise (chi2 {test.chi2:.1f} "
             f"over {test.dof} degrees of freedom, above {test.threshold:.1f} at {100 * confidence:g}%"
-            + (f", even without the {len(rejected)} worst observations" if rejected else "")
+            + (f", even without the {len(rejected) - len(aside)} worst observations" if len(rejected) > len(aside)
+               else "")
             + "): a wrong detection, a wrong rig or more noise than --pixel-sigma says", est)
     return est
 
@@ -352,7 +369,8 @@ def _test(sol: TeamSolution, sigma: float, confidence: float) -> Consistency:
 
 
 def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: TeamProblem, reference: str,
-              sigma: float, test: Consistency, others: Mapping[int, list] | None = None) -> TeamEstimate:
+              sigma: float, test: Consistency, others: Mapping[int, list] | None = None,
+              misfit: set[int] | None = None) -> TeamEstimate:
     robots = [names[i] for i in sol.order]
     poses = {names[i]: Pose(sol.Rs[i].copy(), sol.ts[i].copy()) for i in np.flatnonzero(sol.localized)}
     poses[reference] = Pose.identity()
@@ -372,7 +390,9 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
     # robot unverified already
     others = others or {}
     far = {i for i, alts in others.items() if max(a[3] for a in alts) > AMBIGUITY_SIGMAS}
-    unverified = [names[i] for i in sol.order if ties[i] <= MIN_TIES or i in unverified or i in far]
+    misfit = misfit or set()
+    unverified = [names[i] for i in sol.order
+                  if ties[i] <= MIN_TIES or i in unverified or i in far or i in misfit]
     ambiguous = {names[i]: Pose.concatenate([Pose(a[0], a[1]) for a in alts]) for i, alts in others.items()
                  if names[i] in unverified}
     est = TeamEstimate(
@@ -381,7 +401,8 @@ def _estimate(sol: TeamSolution, names: list[str], markers: list[str], problem: 
         information=sol.information, factor=checked_factor(sol.information) if sol.information.size else None,
         pixel_sigma=sigma,
         reprojection_rms_px=float(np.sqrt(sol.cost / max(sol.n_obs, 1))), observations_used=sol.n_obs,
-        consistency=test, unverified=unverified, ambiguous=ambiguous, markers_between=between,
+        consistency=test, unverified=unverified, ambiguous=ambiguous,
+        misfit=[names[i] for i in sol.order if i in misfit], markers_between=between,
         extra={"iterations": sol.iterations})
     return est
 
@@ -420,8 +441,11 @@ def require_verified(team: TeamEstimate, allow_unverified: bool) -> None:
     """UnverifiedError when some robot rests on three observations and the
     caller did not accept that (the command line without ``--allow-unverified``)."""
     if team.unverified and not allow_unverified:
-        few = [n for n in team.unverified if n not in team.ambiguous]
+        few = [n for n in team.unverified if n not in team.ambiguous and n not in team.misfit]
         parts = []
+        if team.misfit:
+            parts.append(f"robot{'s' if len(team.misfit) > 1 else ''} {', '.join(team.misfit)}: its observations fit "
+                         "far worse than the team's residuals say the noise is (a wrong pose, or a wrong detection)")
         if few:
             parts.append(f"robot{'s' if len(few) > 1 else ''} {', '.join(few)}: only three observations tie it to "
                          "the team, several poses fit them exactly and nothing can verify the one chosen")

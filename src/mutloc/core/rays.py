@@ -21,6 +21,7 @@ first order (on the Cramér-Rao bound).
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
@@ -33,7 +34,8 @@ from .camera import intrinsics, project_jac_scalar, undistort_normalized
 from .lenses import fisheye_project_jac_scalar, fisheye_unproject_scalar, omni_project_jac_scalar, omni_unproject_scalar
 from .refine import tangent_bases
 
-__all__ = ["ray_frames", "pair_rays", "LensTable", "lens_table", "rays_kernel"]
+__all__ = ["ray_frames", "pair_rays", "LensTable", "lens_table", "rays_kernel", "past_rim_px", "set_aside_past_rim",
+           "RIM_TOLERANCE_PX", "RIM_TOLERANCE_SIGMAS"]
 
 #: Lens codes of :func:`rays_kernel`.
 PINHOLE, FISHEYE, OMNI = 0, 1, 2
@@ -185,3 +187,67 @@ def pair_rays(mounts: Mapping[str, Any] | LensTable, keys: Sequence[str], uv: np
     index = table.index
     cam = np.array([index[k] for k in keys], dtype=np.int64)
     return _build(table, cam, uv, label)
+
+
+#: A pixel past its lens's rim (where the lens images nothing: past ``max_angle``, where the lens model stops
+#: being one-to-one) by at most this many pixels, or this many of its pixel sigmas, is set aside rather than
+#: refused: detection noise puts a marker seen at the very rim of a fisheye there (:func:`set_aside_past_rim`).
+RIM_TOLERANCE_PX = 4.0
+RIM_TOLERANCE_SIGMAS = 4.0
+#: False: nothing is set aside (every such pixel refused, as before; bench/bench_bodies.py --refusals compares).
+SET_ASIDE_PAST_RIM = True
+
+
+def past_rim_px(camera: Any, uv: Any) -> float:
+    """How far (pixels, along the line from the principal point) the pixel ``uv`` lies past the rim of what
+    ``camera``'s lens images (the image of directions at ``max_angle`` off the axis); NaN when the lens has no
+    such rim (a pinhole) or the pixel is not past it."""
+    if getattr(camera, "model", "pinhole") == "pinhole":
+        return math.nan
+    theta = float(camera.max_angle)
+    K = np.asarray(camera.K, dtype=float)
+    u, v = (float(x) for x in np.asarray(uv, dtype=float).reshape(2))
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    phi = math.atan2(y, x)
+    t = theta * (1.0 - 1e-9)
+    rim = np.asarray(camera.project(np.array([math.sin(t) * math.cos(phi), math.sin(t) * math.sin(phi),
+                                              math.cos(t)])), dtype=float).reshape(2)
+    if not np.all(np.isfinite(rim)):
+        return math.nan
+    past = math.hypot(u - K[0, 2], v - K[1, 2]) - math.hypot(rim[0] - K[0, 2], rim[1] - K[1, 2])
+    return past if past > 0 else math.nan
+
+
+def set_aside_past_rim(rig: Any, obs: Any, pixel_sigma: float) -> tuple[Any, list[dict[str, Any]]]:
+    """The observations (an ObservationSet) without the pixels its lenses cannot unproject that lie at most
+    ``max(RIM_TOLERANCE_PX, RIM_TOLERANCE_SIGMAS * sigma)`` past the lens's rim (``sigma`` the row's noise,
+    ``pixel_sigma`` times its ``sigma_scale``), and those set aside, each as a result's ``rejected`` entry
+    ``{"observer", "marker", "residual_px": None, "at": "lens", "past_rim_px"}``.  Pixels farther past, or
+    not unprojectable for another reason, are kept: solving on them raises the usual ObservationError
+    naming them.  Nothing is set aside for a rig of one-pinhole robots."""
+    if not SET_ASIDE_PAST_RIM or getattr(rig, "central_pinhole", True) or not len(obs):
+        return obs, []
+    scale = obs.scales_of()
+    keep: list[int] = []
+    aside: list[dict[str, Any]] = []
+    for i, (o, m) in enumerate(zip(obs.observer, obs.marker)):
+        try:
+            mount = rig.mount(o)
+            ray_frames(mount, obs.uv[i])
+            keep.append(i)
+            continue
+        except Exception:  # noqa: BLE001 -- unknown observer, or a pixel the lens cannot unproject: judged below
+            pass
+        try:
+            past = past_rim_px(rig.mount(o).camera, obs.uv[i])
+        except Exception:  # noqa: BLE001
+            past = math.nan
+        sigma = pixel_sigma * (1.0 if scale is None else float(scale[i]))
+        if math.isfinite(past) and past <= max(RIM_TOLERANCE_PX, RIM_TOLERANCE_SIGMAS * sigma):
+            aside.append({"observer": o, "marker": m, "residual_px": None, "at": "lens", "past_rim_px": past})
+        else:
+            keep.append(i)
+    if not aside:
+        return obs, []
+    return obs.take(np.array(keep, dtype=np.int64)), aside

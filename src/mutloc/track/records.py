@@ -11,7 +11,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..api import Estimate
+from ..api import Estimate, rejected_text
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.team import MIN_TIES, TeamProblem, residual_norms
@@ -67,8 +67,7 @@ def reprojection(problem: TeamProblem, f: TeamFilter) -> np.ndarray:
 def dropped_note(team: TeamEstimate) -> str:
     if not team.rejected:
         return ""
-    return "joint estimate dropped " + ", ".join(f"{d['observer']} saw {d['marker']} ({d['residual_px']:.1f} px off)"
-                                                 for d in team.rejected)
+    return "joint estimate dropped " + rejected_text(team.rejected)
 
 
 def join(a: str, b: str) -> str:

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..api import localize
+from ..api import localize, rejected_text
 from ..core.observations import MIN_OBSERVATIONS, PairObservations
 from ..core.rig import Rig
 from ..detect.base import observations_of
@@ -68,8 +68,7 @@ def _solve_observations(row: "TrackRow", rig: Rig, source: str, target: str, pix
         row.estimate = localize(rig, obs, source, target, pixel_sigma=pixel_sigma, confidence=confidence)
         row.status = FrameStatus.SOLVED if row.estimate.status == "solved" else FrameStatus.UNVERIFIED
         if row.estimate.rejected:
-            row.reason = "dropped " + ", ".join(f"{r['observer']} saw {r['marker']} ({r['residual_px']:.1f} px off)"
-                                                for r in row.estimate.rejected)
+            row.reason = "dropped " + rejected_text(row.estimate.rejected)
     except InconsistentObservationsError as exc:
         row.status = FrameStatus.REJECTED
         row.reason = " ".join(str(exc).split())

@@ -17,10 +17,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..api import Estimate
+from ..api import Estimate, rejected_text
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
+from ..core.rays import set_aside_past_rim
 from ..core.rig import Rig
 from ..core.team import MIN_TIES, TeamProblem, residual_norms
 from ..core.filter import STATE_DIM
@@ -256,8 +257,16 @@ class TeamTracker(Starts, Hindsight, Rows):
                 tr.undo = None  # beyond the lag its reports are out: taken as they stand
         if obs.has_alternatives and self.tracks:
             obs = self._nearest_candidates(obs)
+        aside: list[dict[str, Any]] = []
         try:
-            problem, names, markers = team_problem(self.rig, obs)
+            try:
+                problem, names, markers = team_problem(self.rig, obs)
+            except ObservationError:
+                # a pixel noise pushed a little past a lens's rim: set aside (named in the rows' reasons)
+                obs, aside = set_aside_past_rim(self.rig, obs, self.pixel_sigma)
+                if not aside:
+                    raise
+                problem, names, markers = team_problem(self.rig, obs)
         except MutlocError as exc:
             why = " ".join(str(exc).split())
             self._coast(rows, set())
@@ -271,6 +280,9 @@ class TeamTracker(Starts, Hindsight, Rows):
         touch = {r: (problem.cam == index[r]) | (problem.own == index[r]) for r in self.robots}
         used = np.zeros(len(problem.cam), dtype=bool)
         notes: dict[str, list[str]] = {r: [] for r in self.robots}
+        for a in aside:
+            for r in {self.rig.observer(a["observer"])[0], self.rig.owner(a["marker"])} & set(notes):
+                notes[r].append("set aside " + rejected_text([a]))
         # Where a tentative track predicts each of its observations (before the update): a record confirms
         # a track started on three only through observations it predicted sharply (see _confirms).
         spread = {j: self._spread_px(problem, j) for r, tr in self.tracks.items() if tr.strict
