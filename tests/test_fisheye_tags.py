@@ -83,7 +83,8 @@ def test_simulate_tags_on_fisheye_bodies_truth_and_localize_images(tmp_path: Pat
     # facing each other, each front camera sees the other's front tag unhidden
     assert "M1" in frame["observations"]["p/front"] and "M1" not in frame["hidden"]["p/front"]
     assert "M5" in frame["observations"]["q/front"] and "M5" not in frame["hidden"]["q/front"]
-    images = [a for k in ("p/front", "p/back", "q/front", "q/back") for a in ("--image", f"{k}={out / frame['images'][k]}")]
+    images = [a for k in ("p/front", "p/back", "q/front", "q/back")
+              for a in ("--image", f"{k}={out / frame['images'][k]}")]
     est_file, det_file = tmp_path / "est.json", tmp_path / "det.json"
     assert main(["localize-images", "--rig", str(out / "rig.yaml"), *images, "--output", str(est_file),
                  "--detections-out", str(det_file)]) == 0
