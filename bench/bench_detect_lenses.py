@@ -5,6 +5,7 @@ image size, the pinhole path as the peer in the same run.
     python bench/bench_detect_lenses.py            # 5 runs of 6 frames per case, then lights and cylinders
     python bench/bench_detect_lenses.py --quick    # 3 runs of 3 frames
     python bench/bench_detect_lenses.py --bodies-only   # lights and cylinders only (detect_lenses_bodies_results.json)
+    python bench/bench_detect_lenses.py --bodies-only --no-lights --quick   # cylinders and balls, 8 frames
 
 Cases: a tag36h11 tag and a red ball (one detector call each per frame, both timed) in
 
@@ -24,7 +25,9 @@ the frames after the first 0.7 s in which the light is visible, those where the 
 pinhole pair (``standard_rig("lights")``, 640x400, f = 400 px) moving 2 m ahead.  Cylinders: 1280x800
 fisheye frames in a room, q/front and q/back at 8 times, band error and detection rate (of the cylinders
 whose centre is not hidden, those found with every band within 1 px) per band of angles and
-:func:`detect_image` frames/s; peer: the standard pinhole pair at 1280x800 (f = 800 px), 1.5 m.
+:func:`detect_image` frames/s; peers: coloured balls in the same fisheye frames (the same robots and
+poses, the simulator's balls above the bodies; error of the centre, rate within 1 px) and the standard pinhole
+pair at 1280x800 (f = 800 px), 1.5 m.
 
 Every call gets a new image (frames are ray-traced beforehand, the marker moved each frame, as in
 tests/test_detect_lenses.py).  The views (remap tables) are built once per camera before timing -- a
@@ -54,7 +57,7 @@ from mutloc.core.camera import Camera  # noqa: E402
 from mutloc.core.lenses import FisheyeCamera, OmniCamera  # noqa: E402
 from mutloc.core.rig import MarkerKind  # noqa: E402
 from mutloc.detect import detect_image, image_detector  # noqa: E402
-from mutloc.detect.views import detect_in_views, views_for  # noqa: E402
+from mutloc.detect.views import detect_in_views, needs_views, views_for  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -141,6 +144,8 @@ def _cylinders_run(cases, rig, markers) -> dict:
     elapsed = 0.0
     for world, key, t in cases:
         camera = rig.mount(key).camera
+        if needs_views(camera):
+            views_for(camera)  # built once per camera, before timing
         img = render(world, key, t, seed=1, noise_sigma=1.0)
         shown = project_markers(world, key, t, check_occlusion=True)  # centres not hidden (e.g. by q's body)
         T = world.camera_pose(key, t).inverse() @ world.robot("p").pose_at(t)
@@ -166,16 +171,52 @@ def _cylinders_run(cases, rig, markers) -> dict:
             "error_max_px": float(np.max(e)), "detection_rate": {k: f"{a}/{b}" for k, (a, b) in sorted(rate.items())}}
 
 
-def bodies(quick: bool) -> list[dict]:
+def _balls_run(cases, rig, markers) -> dict:
+    """:func:`_cylinders_run` for coloured balls: the error of each found ball's centre against the
+    simulator's projection of it; rate: balls not hidden found within 1 px."""
+    from mutloc.sim.render import project_markers, render
+
+    errs: list[float] = []
+    rate: dict[str, list[int]] = {}
+    elapsed = 0.0
+    for world, key, t in cases:
+        camera = rig.mount(key).camera
+        views_for(camera)  # built once per camera, before timing
+        img = render(world, key, t, seed=1, noise_sigma=1.0)
+        shown = project_markers(world, key, t, check_occlusion=True)
+        t0 = time.perf_counter()
+        res = detect_image(MarkerKind.BALL, img, markers, camera)
+        elapsed += time.perf_counter() - t0
+        for name, uv in shown.items():
+            d = res.detections.get(name)
+            e = float(np.linalg.norm(d.uv - np.asarray(uv))) if d is not None else float("inf")
+            if d is not None:
+                errs.append(e)
+            r = rate.setdefault(_band(_off_deg(camera, uv)), [0, 0])
+            r[0] += e <= 1.0
+            r[1] += 1
+    e = np.array(errs) if errs else np.array([np.nan])
+    return {"frames": len(cases), "fps": len(cases) / elapsed, "balls_measured": len(errs),
+            "error_median_px": float(np.median(e)), "error_p90_px": float(np.percentile(e, 90)),
+            "error_max_px": float(np.max(e)), "detection_rate": {k: f"{a}/{b}" for k, (a, b) in sorted(rate.items())}}
+
+
+def bodies(quick: bool, lights: bool = True) -> list[dict]:
     """Lights and cylinders: fisheye out to the rim and the pinhole peer, in one run (see the docstring)."""
-    from mutloc.core.pose import Pose
+    rows: list[dict] = []
+    n = 40 if quick else 60
+    if lights:
+        rows += _lights_rows(n)
+    rows += _cylinder_rows(quick)
+    return rows
+
+
+def _lights_rows(n: int) -> list[dict]:
     from mutloc.sim.body_scenes import fisheye_pair_rig, passing_body_world
-    from mutloc.sim.render import moving_world, two_robot_world
+    from mutloc.sim.render import moving_world
     from mutloc.sim.world import standard_rig
-    from mutloc.track.frames import expanded_rig
 
     rows = []
-    n = 40 if quick else 60
     rig = fisheye_pair_rig("lights", size=(640, 400))
     world = passing_body_world(rig, lateral=1.1, speed=0.3 * 60.0 / n)
     rows.append({"markers": "lights", "case": "fisheye 640x400 (q/front, p passing 60-100 deg)",
@@ -186,6 +227,19 @@ def bodies(quick: bool) -> list[dict]:
     rows.append({"markers": "lights", "case": "pinhole 640x400 f=400 (peer, standard pair 2 m)",
                  **_lights_run(pworld, "q", prig.robot("q").camera, prig.robot("p").markers, n)})
     print("  lights pinhole: done", file=sys.stderr)
+    return rows
+
+
+def _cylinder_rows(quick: bool) -> list[dict]:
+    """Cylinders through the fisheye, coloured balls in the same scenes (same robots, poses, views), and
+    cylinders through the pinhole peer."""
+    from mutloc.core.pose import Pose
+    from mutloc.sim.body_scenes import fisheye_pair_rig, passing_body_world
+    from mutloc.sim.render import two_robot_world
+    from mutloc.sim.world import standard_rig
+    from mutloc.track.frames import expanded_rig
+
+    rows = []
     rig0 = fisheye_pair_rig("cylinders")
     crig = expanded_rig(rig0)
     cworld = passing_body_world(rig0, lateral=1.0, room=True, seed=0)
@@ -194,6 +248,12 @@ def bodies(quick: bool) -> list[dict]:
     rows.append({"markers": "cylinders", "case": "fisheye 1280x800 (q/front, q/back, p passing, room)",
                  **_cylinders_run(cases, crig, rig0.robot("p").markers)})
     print("  cylinders fisheye: done", file=sys.stderr)
+    brig = fisheye_pair_rig("balls")
+    bworld = passing_body_world(brig, lateral=1.0, room=True, seed=0)
+    bcases = [(bworld, key, t) for _, key, t in cases]
+    rows.append({"markers": "balls", "case": "fisheye 1280x800 (same robots, poses and times; balls)",
+                 **_balls_run(bcases, brig, brig.robot("p").markers)})
+    print("  balls fisheye: done", file=sys.stderr)
     srig0 = standard_rig("cylinders", size=(1280, 800), f=800.0)
     srig = expanded_rig(srig0)
     pcases = []
@@ -210,6 +270,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--bodies-only", action="store_true", help="lights and cylinders only")
+    ap.add_argument("--no-lights", action="store_true", help="with --bodies-only: cylinders (and balls) only")
     ap.add_argument("--out", default=result_file("detect_lenses_results.json"))
     args = ap.parse_args()
     if args.bodies_only and args.out == result_file("detect_lenses_results.json"):
@@ -255,7 +316,7 @@ def main() -> None:
     for r in result["cases"]:
         print(f"{r['case']:28s} {r['views']:5d} {r['view_megapixels']:8.2f} {r['views_build_s']:7.2f} "
               f"{r['tag_fps']:8.1f} {r['tag_found']:>5s} {r['ball_fps']:8.1f} {r['ball_found']:>5s}")
-    result["bodies"] = bodies(args.quick)
+    result["bodies"] = bodies(args.quick, lights=not args.no_lights)
     print(f"{'markers':9s} {'case':52s} {'fps':>7s} {'median px':>9s} {'p90 px':>7s} {'max px':>7s}  detection rate")
     for r in result["bodies"]:
         print(f"{r['markers']:9s} {r['case']:52s} {r['fps']:7.1f} {r['error_median_px']:9.3f} "

@@ -67,3 +67,38 @@ def test_axis_from_the_silhouette(x):
     u_edges = [cx + f * math.tan(phi + s * half) for s in (-1, 1)]
     u_mid, R = 0.5 * sum(u_edges), 0.5 * (u_edges[1] - u_edges[0])
     assert axis_u(u_mid, R, cam) == pytest.approx(cx + f * x / z, abs=1e-9)
+
+
+def test_match_scores_shared_placements_once_with_the_same_result():
+    """The detector scores each placement of a code once across the chains of an image (``memo``): the
+    chains of a cluttered image share runs.  Every chain's best match must be what matching it alone gives,
+    on many chains through the same runs: bands whose heights and gaps vary, some a band apart."""
+    rng = np.random.default_rng(5)
+    codes = [CODE, np.array([1, 0, 1, 0, 0, 1]), np.array([1, 1, 0, 1, 0, 1]), np.array([1, 0, 0, 1, 1, 1])]
+    found = 0
+    for trial in range(3):
+        runs, v = [], 0
+        for _ in range(9):
+            v += int(rng.integers(3, 14))
+            h = int(rng.integers(6, 22))
+            x = 100 + float(rng.normal(0.0, 0.6))
+            runs.append(Run(v, v + h - 1, x, x + 23 + float(rng.normal(0.0, 0.6))))
+            if rng.uniform() < 0.5:  # a run beside it, as clutter makes: paths branch and join again
+                runs.append(Run(v + 1, v + h - 2, x + 1, x + 24))
+            v += h
+        chains = stack_chains(runs)
+        assert len(chains) > 20
+        for code in codes:
+            aspect = 24 / 10
+            memo: dict = {}
+            for chain in chains:
+                alone = match(chain, code, aspect)
+                shared = match(chain, code, aspect, memo)
+                assert (alone is None) == (shared is None)
+                if alone is not None:
+                    found += 1
+                    assert shared[0] == alone[0]
+                    assert [(r.top, r.bot, r.left, r.right, r.synthetic) for r in shared[1]] == \
+                        [(r.top, r.bot, r.left, r.right, r.synthetic) for r in alone[1]]
+    print(f"{found} chains matched")
+    assert found > 50

@@ -215,7 +215,6 @@ def test_simulate_cli_sequence_and_refusals(tmp_path: Path, capsys: pytest.Captu
     assert sorted(truth["frames"][1]["observations"]) == ["p/front", "q/front"]
     capsys.readouterr()
     for extra in (["--facing", "away"], ["--cameras", "back-to-back-fisheye", "--focal", "300"],
-                  ["--cameras", "back-to-back-fisheye", "--markers", "tags"],
                   ["--cameras", "back-to-back-fisheye", "--robots", "3"]):
         assert main(["simulate", "--out", str(tmp_path / "x"), *extra]) != 0
         err = capsys.readouterr().err.strip()

@@ -81,7 +81,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "frame; default) or back-to-back-fisheye (robots with several cameras: two fisheyes of "
                         "about 200 degrees, front and back, 1280x800; the robots' frames are base_link bodies; "
                         "writes an image per camera, p_front.png ... or p_front/ ... folders, and rig.yaml with "
-                        "cameras:; with --markers balls, lights or cylinders)")
+                        "cameras:; --markers balls, lights or cylinders above the body, or tags: one printed "
+                        "tag on each of the body's four sides, their corners' pixels in truth.json)")
     p.add_argument("--facing", choices=FACINGS, default="toward",
                    help="toward: the robots face each other (default); away: back to back, so only the back "
                         "cameras see the other robot (needs --cameras back-to-back-fisheye)")

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from ..core.geometry import so3_exp
+from ..core.geometry import so3_exp, so3_log
 from ..core.lenses import FisheyeCamera
 from ..core.pose import Pose
 from ..core.rig import Marker, Mount, Rig, Robot
@@ -38,16 +38,18 @@ from ..errors import InputError
 from ..io import save_rig, write_json
 from ..io.trajectory import write_tum
 from .render import project_markers, relative_pose, render, room_around
-from .world import DEFAULT_BALL_RADIUS, DEFAULT_LIGHT_RADIUS, World, WorldRobot
+from .world import DEFAULT_BALL_RADIUS, DEFAULT_LIGHT_RADIUS, World, WorldRobot, tag_corners
 
-__all__ = ["CAMERA_SETS", "FACINGS", "BODY_MARKER_KINDS", "FISHEYE_DIST", "FISHEYE_SIZE", "FISHEYE_FOCAL",
+__all__ = ["CAMERA_SETS", "FACINGS", "BODY_MARKER_KINDS", "TAG_FACES", "TAG_SIZE", "face_tag_rotation",
+           "tag_corner_pixels", "FISHEYE_DIST", "FISHEYE_SIZE", "FISHEYE_FOCAL",
            "fisheye_pair_rig", "body_pair_pose", "body_pair_world", "moving_body_world", "passing_body_world",
            "write_cameras_simulation", "image_name"]
 
 CAMERA_SETS = ("single", "back-to-back-fisheye")
 FACINGS = ("toward", "away")
-#: Marker kinds a simulated body carries (seen from all round: balls, lights and upright banded cylinders).
-BODY_MARKER_KINDS = ("balls", "lights", "cylinders")
+#: Marker kinds a simulated body carries, seen from all round: balls, lights, upright banded cylinders, and
+#: printed tags on the body's four sides (one tag per side, :data:`TAG_FACES`).
+BODY_MARKER_KINDS = ("balls", "lights", "cylinders", "tags")
 
 #: Kannala-Brandt k1..k4 of the simulated fisheyes: the model images up to 99.7 degrees off the axis
 #: (a 199-degree image circle, black outside), compressing towards the rim as real fisheyes do.
@@ -73,6 +75,24 @@ _BLINK = {"M1": 2.0, "M2": 3.0, "M3": 5.0, "M4": 7.5}
 #: fisheyes.
 CYLINDER_RADIUS, CYLINDER_HEIGHT, CYLINDER_Z = 0.05, 0.24, 0.505
 _CODES = {"M1": [1, 0, 1, 0, 0, 1], "M2": [1, 1, 0, 1, 0, 1], "M3": [1, 0, 0, 1, 1, 1], "M4": [1, 1, 1, 0, 0, 1]}
+#: Printed tags (tag36h11, 20 cm; the card with its white margin 25 cm) on the body's four sides, 1 cm proud of
+#: the faces of :data:`mutloc.sim.render.BODY_BOX`, centred 15.5 cm above the floor (below the cameras, which
+#: are 30 cm up): face -> (outward normal in base_link, centre).  q carries M1..M4 (ids 0..3: front, left,
+#: back, right), p M5..M8 (ids 4..7).  A tag of 20 cm is 33 px across 1.6 m away through the 1280x800 fisheyes.
+TAG_SIZE = 0.20
+TAG_FACES = {"front": ((1.0, 0.0, 0.0), (0.21, 0.0, 0.155)), "left": ((0.0, 1.0, 0.0), (0.0, 0.16, 0.155)),
+             "back": ((-1.0, 0.0, 0.0), (-0.21, 0.0, 0.155)), "right": ((0.0, -1.0, 0.0), (0.0, -0.16, 0.155))}
+_TAG_NAMES = {"q": ("M1", "M2", "M3", "M4"), "p": ("M5", "M6", "M7", "M8")}
+
+
+def face_tag_rotation(normal: Any) -> np.ndarray:
+    """``R_robot_tag`` of a tag printed on a vertical face whose outward normal is ``normal`` (base_link):
+    the tag frame (:mod:`mutloc.detect.tags`: x right and y down as printed, z into the tag) upright, read
+    from outside: z = -normal, y = -z_up, x = y x z."""
+    n = np.asarray(normal, float)
+    z = -n / np.linalg.norm(n)
+    y = np.array([0.0, 0.0, -1.0])
+    return np.column_stack([np.cross(y, z), y, z])
 
 
 def image_name(key: str) -> str:
@@ -85,7 +105,9 @@ def fisheye_pair_rig(markers: str = "balls", *, size: tuple[int, int] = FISHEYE_
 
     Cameras: :class:`~mutloc.core.lenses.FisheyeCamera` with :data:`FISHEYE_DIST`, centred principal
     point, focal :data:`FISHEYE_FOCAL` scaled with ``size`` (default 1280x800).  Markers: coloured balls,
-    blinking lights or upright banded cylinders (``markers``, :data:`BODY_MARKER_KINDS`) above the body.
+    blinking lights or upright banded cylinders (``markers``, :data:`BODY_MARKER_KINDS`) above the body,
+    or printed tags on its four sides (``"tags"``: q M1..M4, p M5..M8, :data:`TAG_FACES`), each with its
+    ``rotation`` so that its corners are known points.
     """
     if markers not in BODY_MARKER_KINDS:
         raise InputError(f"robots with several cameras carry {', '.join(BODY_MARKER_KINDS)}, not {markers!r}")
@@ -96,7 +118,13 @@ def fisheye_pair_rig(markers: str = "balls", *, size: tuple[int, int] = FISHEYE_
     for rname in ("p", "q"):
         cams = {c: Mount(c, FisheyeCamera(K, FISHEYE_DIST, (w, h)), T) for c, T in _MOUNTS.items()}
         ms = {}
-        for mname, pos in _LAYOUT[rname].items():
+        if markers == "tags":
+            for i, (mname, (normal, pos)) in enumerate(zip(_TAG_NAMES[rname], TAG_FACES.values())):
+                tid = i + (0 if rname == "q" else 4)
+                ms[mname] = Marker(mname, rname, np.array(pos), tag={
+                    "family": "tag36h11", "id": tid, "size": TAG_SIZE,
+                    "rotation": [float(x) for x in so3_log(face_tag_rotation(normal))]})
+        for mname, pos in ({} if markers == "tags" else _LAYOUT[rname]).items():
             if markers == "balls":
                 ms[mname] = Marker(mname, rname, np.array(pos), color=_COLORS[mname],
                                    extra={"radius": DEFAULT_BALL_RADIUS})
@@ -182,6 +210,21 @@ def passing_body_world(rig: Rig, *, lateral: float = 1.1, start: float = 0.55, s
     return World(robots=robots, room=rm)
 
 
+def tag_corner_pixels(world: World, key: str, t: float, names: Any) -> dict[str, list[list[float]]]:
+    """Exact raw pixels, through camera ``key``'s lens and mount, of the four corners (OpenCV order: the
+    tag's top-left, top-right, bottom-right, bottom-left as printed) of each tag marker in ``names`` at
+    ``t``: the truth for a detector's tag corners (``NAME#0..3``).  Corners may lie outside the image."""
+    camera = world.camera(key)
+    T_cw = world.camera_pose(key, t).inverse()
+    out: dict[str, list[list[float]]] = {}
+    for wr in world.robots.values():
+        for m in wr.robot.markers.values():
+            if m.name in names and m.tag is not None:
+                X = (T_cw @ wr.pose_at(t)).apply(tag_corners(m))
+                out[m.name] = np.asarray(camera.project(X), float).reshape(4, 2).tolist()
+    return out
+
+
 def write_cameras_simulation(out: str | Path, *, cameras: str = "back-to-back-fisheye", facing: str = "toward",
                              markers: str = "balls", distance: float = 2.0, frames: int = 1, fps: float = 30.0,
                              seed: int = 0, noise: float = 1.0, jpeg: int | None = None, blur: float = 0.0,
@@ -198,8 +241,10 @@ def write_cameras_simulation(out: str | Path, *, cameras: str = "back-to-back-fi
     :func:`mutloc.sim.scenario.write_simulation`'s, poses between robot
     (body) frames: per frame ``T_qp``, ``images`` per camera,
     ``observations`` (exact raw pixels of every marker centre in a camera's
-    view) and ``hidden`` (those something hides), plus ``cameras`` and
-    ``facing``.  ``distance``: between the robots' origins.
+    view) and ``hidden`` (those something hides), for tags also ``corners``
+    (per camera, per tag whose centre it views: its four corners' exact raw
+    pixels, :func:`tag_corner_pixels`, the truth of the corner markers
+    ``NAME#0..3``), plus ``cameras`` and ``facing``.  ``distance``: between the robots' origins.
     """
     if cameras not in CAMERA_SETS or cameras == "single":
         raise InputError(f"cameras must be one of {', '.join(CAMERA_SETS[1:])} here, got {cameras!r}")
@@ -232,7 +277,7 @@ def write_cameras_simulation(out: str | Path, *, cameras: str = "back-to-back-fi
     for i in steps:
         t = i / fps
         images = {}
-        obs, hidden = {}, {}
+        obs, hidden, corners = {}, {}, {}
         for k in keys:
             img = render(world, k, t, seed=seed + i, noise_sigma=noise, jpeg_quality=jpeg, blur_px=blur)
             rel = f"{image_name(k)}/{i:06d}.png" if sequence else f"{image_name(k)}.png"
@@ -244,9 +289,11 @@ def write_cameras_simulation(out: str | Path, *, cameras: str = "back-to-back-fi
             if allm:
                 obs[k] = {m: list(uv) for m, uv in allm.items()}
                 hidden[k] = sorted(set(allm) - set(seen))
+                if markers == "tags":
+                    corners[k] = tag_corner_pixels(world, k, t, allm)
         truth_frames.append({"frame": i, "timestamp": t, "images": images,
                              "T_qp": relative_pose(world, "p", "q", t).to_dict(),
-                             "observations": obs, "hidden": hidden})
+                             "observations": obs, "hidden": hidden, **({"corners": corners} if corners else {})})
     truth = {"source": "p", "target": "q", "cameras": cameras, "facing": facing, "markers": markers,
              "frames_count": frames, "fps": fps if sequence else None, "seed": seed, "noise_sigma": noise,
              "jpeg_quality": jpeg, "blur_px": blur, "frames": truth_frames}

@@ -883,6 +883,17 @@ def _marker_extent(m: Any) -> tuple[np.ndarray, np.ndarray]:
     return m.position - e, m.position + e
 
 
+def _body_marker_extent(m: Any) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_marker_extent`, but a tag's is its card's (a flat square, white margin included): a tag
+    printed on a body's side, just proud of it, does not cut the body back."""
+    if m.kind != "tag":
+        return _marker_extent(m)
+    fam, tid, size, Rt = tag_spec(m)
+    half = 0.5 * size * tag_scale(fam, tid)
+    corners = m.position + np.array([[a, b, 0.0] for a in (-half, half) for b in (-half, half)]) @ Rt.T
+    return corners.min(axis=0), corners.max(axis=0)
+
+
 def _overlaps(lo: np.ndarray, hi: np.ndarray, lo2: np.ndarray, hi2: np.ndarray) -> bool:
     return bool(np.all(lo < hi2) and np.all(lo2 < hi))
 
@@ -911,7 +922,7 @@ def body_box(robot: Any, *, margin: float = 0.01) -> tuple[np.ndarray, np.ndarra
         else:
             lo[a] = max(lo[a], c[a] + margin)
     for m in robot.markers.values():
-        mlo, mhi = _marker_extent(m)
+        mlo, mhi = _body_marker_extent(m)
         if not _overlaps(lo, hi, mlo - margin, mhi + margin):
             continue
         # cut the face that needs the least cut

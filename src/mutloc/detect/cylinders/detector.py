@@ -112,14 +112,16 @@ def detect_cylinders(image: Any, markers: Mapping[str, Marker] | Robot, *, camer
     cands = []  # (cost, -length, marker, part)
     for name, (radius, height, code) in specs.items():
         aspect = 2 * radius / (height / len(code))
+        memo: dict = {}  # the chains share runs: each placement of the code scored once
         for chain in chains:
-            got = match(chain, code, aspect)
+            got = match(chain, code, aspect, memo)
             if got is not None:
                 cost, part = got
                 cands.append((cost, -(part[-1].bot - part[0].top), name, part))
     cands.sort(key=lambda c: (c[0], c[1]))
     used: list[tuple[int, int, float, float]] = []
     tries: dict[str, int] = {}
+    failed: set[tuple] = set()
     for cost, _, name, part in cands:
         if name in result.detections or tries.get(name, 0) >= MAX_REFINES:
             continue
@@ -131,8 +133,14 @@ def detect_cylinders(image: Any, markers: Mapping[str, Marker] | Robot, *, camer
             continue
         radius, height, code = specs[name]
         tries[name] = tries.get(name, 0) + 1
+        # Chains sharing runs propose the same placement again and again: refined once (a failure counts
+        # as a try each time, as if refined again, so what is found does not change).
+        same = (name, tuple((r.top, r.bot, r.left, r.right, r.synthetic) for r in part))
+        if same in failed:
+            continue
         ref = refine(gray, part, code, 2 * radius / (height / len(code)))
         if ref is None:
+            failed.add(same)
             continue
         if camera is not None:
             # The silhouette's middle is not the axis's image: seen off to one

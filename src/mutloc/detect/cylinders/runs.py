@@ -226,7 +226,8 @@ def code_runs(code: np.ndarray) -> tuple[int, int, list[tuple[int, int]]] | None
     return int(ones[0]), int(ones[-1]) + 1, runs
 
 
-def match(chain: list[Run], code: np.ndarray, aspect: float) -> tuple[float, list[Run]] | None:
+def match(chain: list[Run], code: np.ndarray, aspect: float, memo: dict | None = None
+          ) -> tuple[float, list[Run]] | None:
     """Best (cost, runs) placing the code's dark runs on a contiguous part of ``chain``.
 
     ``aspect`` is the cylinder's diameter over one band's height: a dark run's
@@ -237,6 +238,13 @@ def match(chain: list[Run], code: np.ndarray, aspect: float) -> tuple[float, lis
     over its whole height) and is put where the code says, marked
     ``synthetic``; such a match costs 0.5 more and is only kept if
     :func:`refine` verifies every band.
+
+    ``memo``: a dict kept by the caller across the chains of one image for
+    one ``code`` and ``aspect``: a placement's score depends on the runs it
+    covers only, and the chains of a cluttered image (maximal paths through
+    the same runs, :func:`stack_chains`) share most of their runs, so each
+    placement is scored once (a wide rectified view of a textured room makes
+    thousands of chains).
     """
     cr = code_runs(code)
     if cr is None:
@@ -250,25 +258,22 @@ def match(chain: list[Run], code: np.ndarray, aspect: float) -> tuple[float, lis
         ms = len(sub)
         for off in range(len(chain) - ms + 1):
             part = chain[off:off + ms]
-            if any(r.synthetic for r in part):
-                continue
-            # The narrowest run: dark clutter touching a band only widens it.
-            unit_w = min(r.width for r in part) / aspect
-            if full:
-                unit = (part[-1].bot + 1 - part[0].top) / (last - first)
+            if memo is not None:
+                key = (tuple(map(id, part)), full, tuple(sub))
+                hit = memo.get(key)
+                if hit is None:
+                    hit = memo[key] = _score(part, druns, sub, full, first, last, aspect)
+                if not hit:
+                    continue
+                cost, o, unit = hit
             else:
-                unit = unit_w
-            if unit < 2.0 or not 0.7 < unit / unit_w < 1.3:
-                continue
-            obs = [druns[k] for k in sub]
-            # offset: v of code index 0 (least squares over the observed boundaries)
-            ends = ([r.top - s0 * unit for (s0, _), r in zip(obs, part)]
-                    + [r.bot + 1 - e0 * unit for (_, e0), r in zip(obs, part)])
-            o = sum(ends) / len(ends)
-            cost = 0.0
-            for (s0, e0), run in zip(obs, part):
-                cost = max(cost, abs((run.top - o) / unit - s0), abs((run.bot + 1 - o) / unit - e0))
-            if cost >= 0.35:
+                got = _score(part, druns, sub, full, first, last, aspect)
+                if not got:
+                    continue
+                cost, o, unit = got
+            if not full:
+                cost += 0.5
+            if best is not None and not cost < best[0]:
                 continue
             runs, it = [], iter(part)
             left = statistics.median(r.left for r in part)
@@ -279,10 +284,32 @@ def match(chain: list[Run], code: np.ndarray, aspect: float) -> tuple[float, lis
                 else:
                     runs.append(Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right,
                                      synthetic=True))
-            if not full:
-                cost += 0.5
-            if best is None or cost < best[0]:
-                best = (cost, runs)
+            best = (cost, runs)
     return best
 
 
+def _score(part: list[Run], druns: list[tuple[int, int]], sub: list[int], full: bool, first: int, last: int,
+           aspect: float) -> tuple[float, float, float] | tuple[()]:
+    """(cost, offset, band height) of the code's dark runs ``sub`` placed on ``part``, or () if it does not fit
+    (see :func:`match`)."""
+    if any(r.synthetic for r in part):
+        return ()
+    # The narrowest run: dark clutter touching a band only widens it.
+    unit_w = min(r.width for r in part) / aspect
+    if full:
+        unit = (part[-1].bot + 1 - part[0].top) / (last - first)
+    else:
+        unit = unit_w
+    if unit < 2.0 or not 0.7 < unit / unit_w < 1.3:
+        return ()
+    obs = [druns[k] for k in sub]
+    # offset: v of code index 0 (least squares over the observed boundaries)
+    ends = ([r.top - s0 * unit for (s0, _), r in zip(obs, part)]
+            + [r.bot + 1 - e0 * unit for (_, e0), r in zip(obs, part)])
+    o = sum(ends) / len(ends)
+    cost = 0.0
+    for (s0, e0), run in zip(obs, part):
+        cost = max(cost, abs((run.top - o) / unit - s0), abs((run.bot + 1 - o) / unit - e0))
+    if cost >= 0.35:
+        return ()
+    return cost, o, unit
