@@ -9,7 +9,7 @@ Frames: the synthetic sequence of tests/test_filter.py (10 s at 30 fps,
 2 px noise, 20% of frames missing a marker, two blind seconds, 2% outliers;
 mutloc.sim.tracking).  Timings (one core, wall clock, best of ``--repeat``):
 
-- ``kernel``: ConstantVelocityFilter.predict + update on frames with four
+- ``kernel``: the team filter's (``TeamFilter``) predict + update on frames with four
   markers, median over frames of each frame's best call (what the 100 us
   target is about);
 - ``tracker``: the pair's track (the team tracker of the two robots) on every frame (observations -> row,

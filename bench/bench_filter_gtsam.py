@@ -12,8 +12,9 @@ dt``, both in q's frame);
 
 - between frames a constant-velocity factor, error ``(log(R1 (exp(w0 dt)
   R0)^T), t1 - t0 - v0 dt, vel1 - vel0)`` with the covariance mutloc's
-  filter adds over ``dt`` (its own ``cv_predict`` from a zero covariance:
-  the same white-acceleration prior, default ``MotionNoise``);
+  filter adds over ``dt`` (its own prediction, ``TeamFilter.predict``'s
+  kernel, from a zero covariance: the same white-acceleration prior,
+  default ``MotionNoise``);
 - per observation a pixel factor (q sees p's marker at ``T_qp X_p``, p sees
   q's at ``T_qp^-1 X_q``, through the camera's ``K`` and distortion) whose
   residual and Jacobian are mutloc's own (``core.refine.residuals``), at
@@ -60,10 +61,11 @@ from _machine import machine, result_file  # noqa: E402
 from bench_filter import NOISE, SIGMA, figures, sequence, track_estimates, translation_errors  # noqa: E402
 
 from mutloc.core.consistency import DEFAULT_CONFIDENCE  # noqa: E402
-from mutloc.core.filter import STATE_DIM, cv_predict  # noqa: E402
+from mutloc.core.filter import STATE_DIM  # noqa: E402
 from mutloc.core.geometry import so3_exp, so3_log  # noqa: E402
 from mutloc.core.pose import Pose  # noqa: E402
 from mutloc.core.refine import MODE_PIXEL, WS_SIZE, residuals  # noqa: E402
+from mutloc.core.team_kernels import team_predict  # noqa: E402
 from mutloc.sim.world import standard_rig  # noqa: E402
 from mutloc.track.filtering import FilterOptions, pair_problem  # noqa: E402
 from mutloc.track.solving import solve_row  # noqa: E402
@@ -119,10 +121,11 @@ def from_pose3(T: "gtsam.Pose3") -> Pose:
 
 def process_noise(dt: float) -> np.ndarray:
     """The 12x12 covariance mutloc's filter adds over ``dt`` (its own
-    ``cv_predict`` from a zero covariance: the integrated white acceleration)."""
-    R, t, P = np.empty((3, 3)), np.empty(3), np.empty((STATE_DIM, STATE_DIM))
-    cv_predict(np.eye(3), np.zeros(3), np.zeros(6), np.zeros((STATE_DIM, STATE_DIM)), dt, NOISE.angular**2,
-               NOISE.linear**2, R, t, P)
+    prediction, ``TeamFilter.predict``'s kernel, of one robot at rest from a
+    zero covariance: the integrated white acceleration)."""
+    P = np.zeros((STATE_DIM, STATE_DIM))
+    team_predict(np.zeros(1, np.int64), np.eye(3)[None].copy(), np.zeros((1, 3)), np.zeros((1, 6)), P, dt,
+                 NOISE.angular**2, NOISE.linear**2)
     return P
 
 

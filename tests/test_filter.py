@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from mutloc.cli.main import main
-from mutloc.core.estimate import PairProblem
-from mutloc.core.filter import ConstantVelocityFilter, MotionNoise, cv_predict, iekf_update
-from mutloc.core.geometry import so3_exp, so3_log
+from mutloc.core.filter import MotionNoise
+from mutloc.core.geometry import so3_log
 from mutloc.core.pose import Pose
 from mutloc.errors import InputError
 from mutloc.io import save_rig
@@ -198,142 +197,13 @@ def test_none_is_every_frame_on_its_own(runs):
     assert "partial" not in st and "predicted" not in st and "too_few" in st
 
 
-# -- the filter's maths on its own ------------------------------------------------
-
-
-def test_prediction_moves_by_the_velocity_and_grows_the_covariance():
-    R = so3_exp([0.1, 2.0, -0.2])
-    t = np.array([0.3, -0.1, 2.0])
-    vel = np.array([0.0, 0.5, 0.1, 0.2, 0.0, -0.3])
-    P = np.eye(12) * 1e-4
-    Ro, to, Po = np.empty((3, 3)), np.empty(3), np.empty((12, 12))
-    cv_predict(R, t, vel, P, 0.5, 0.01, 0.04, Ro, to, Po)
-    np.testing.assert_allclose(Ro, so3_exp(vel[:3] * 0.5) @ R, atol=1e-12)
-    np.testing.assert_allclose(to, t + vel[3:] * 0.5, atol=1e-12)
-    assert np.all(np.diag(Po)[:6] > np.diag(P)[:6]) and np.allclose(Po, Po.T)
-    # Monte Carlo of the error state through the exact motion: the first-order covariance matches.
-    rng = np.random.default_rng(0)
-    L = np.diag([1e-3, 2e-3, 1e-3, 1e-2, 1e-2, 2e-2, 0.05, 0.02, 0.05, 0.1, 0.1, 0.1])
-    cv_predict(R, t, vel, L @ L.T, 0.5, 1e-12, 1e-12, Ro, to, Po)
-    samples = []
-    for _ in range(4000):
-        d = L @ rng.normal(size=12)
-        Rs, ts, ws = so3_exp(d[:3]) @ R, t + d[3:6], vel + d[6:]
-        R1, t1 = so3_exp(ws[:3] * 0.5) @ Rs, ts + ws[3:] * 0.5
-        samples.append(np.r_[so3_log(R1 @ Ro.T), t1 - to])
-    C = np.cov(np.array(samples).T)
-    np.testing.assert_allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(Po)[:6]), rtol=0.06)
-
-
-def _problem(rig, T, markers=None, noise=0.0, rng=None):
-    """Pixels of the rig's markers at T_qp as a PairProblem (p sees q's, q sees p's)."""
-    table = rig.pair_table("p", "q")
-    side, prow, uv = [], [], []
-    for name, (s, row) in table.index.items():
-        if markers is not None and name not in markers:
-            continue
-        X = T.inverse().apply(table.points[row]) if s == 0 else T.apply(table.points[row])
-        cam = rig.robot("p" if s == 0 else "q").camera
-        p = cam.project(X) + (0 if rng is None else rng.normal(scale=noise, size=2))
-        side.append(s)
-        prow.append(row)
-        uv.append(p)
-    return PairProblem.trusted(np.array(side, np.int64), np.ascontiguousarray(table.points[prow]), None,
-                               np.array(uv), table.K, table.dist, [f"m{k}" for k in range(len(side))])
-
-
-def test_update_is_the_map_estimate():
-    """One update from a prior 5 cm / 1 degree off: the posterior is the
-    minimiser of ``e' P^-1 e + |r(e)|^2 / sigma^2`` (found here by SciPy),
-    and with exact pixels it lands near the truth."""
-    from scipy.optimize import least_squares
-
-    rig = standard_rig("balls")
-    T = _path()(1.0)
-    prob = _problem(rig, T, noise=1.0, rng=np.random.default_rng(1))
-    P6 = np.diag([0.02] * 3 + [0.05] * 3) ** 2
-    prior = Pose(so3_exp([0.01, -0.02, 0.005]) @ T.R, T.t + np.array([0.03, -0.02, 0.05]))
-    f = ConstantVelocityFilter(MotionNoise(), pixel_sigma=1.0, max_iter=20)
-    f.reset(0.0, prior, P6)
-    upd = f.update(prob)
-    assert upd.accepted
-    Li = np.linalg.cholesky(np.linalg.inv(P6))
-
-    def res(e):
-        Tp = Pose(so3_exp(e[:3]) @ prior.R, prior.t + e[3:])
-        return np.r_[Li.T @ e, (_problem(rig, Tp).pixels - prob.pixels).ravel()]
-
-    e = least_squares(res, np.zeros(6), xtol=1e-14, ftol=1e-14, gtol=1e-14).x
-    ref = Pose(so3_exp(e[:3]) @ prior.R, prior.t + e[3:])
-    assert upd.state.pose.translation_error(ref) < 2e-5 and upd.state.pose.rotation_error_deg(ref) < 1e-3
-    assert upd.state.pose.translation_error(T) < 0.01 < prior.translation_error(T)
-    # The gate's chi-square is the minimum of that cost (2n degrees of freedom).
-    assert upd.test.chi2 == pytest.approx(np.sum(res(e) ** 2), rel=0.02) and upd.test.dof == 8
-    # Two markers seen by one camera: four constraints on six unknowns; the
-    # covariance shrinks, but not in every direction.
-    f.reset(0.0, prior, P6)
-    upd = f.update(_problem(rig, T, markers={"M1", "M2"}))
-    assert upd.accepted and len(upd.used) == 2
-    from scipy.linalg import eigh
-
-    ratio = eigh(upd.state.pose_covariance, P6, eigvals_only=True)  # posterior over prior, per direction
-    # two directions the two rays cannot see keep the prior exactly; four shrink
-    assert np.sum(np.abs(ratio - 1) < 1e-6) == 2 and np.sum(ratio < 0.5) == 4, ratio
-
-
-def test_a_far_off_detection_is_dropped_and_named():
-    rig = standard_rig("balls")
-    T = _path()(2.0)
-    rng = np.random.default_rng(3)
-    f = ConstantVelocityFilter(MotionNoise(), pixel_sigma=1.0)
-    f.reset(0.0, T, np.diag([0.002] * 3 + [0.01] * 3) ** 2)
-    prob = _problem(rig, T, noise=1.0, rng=rng)
-    prob.pixels[2] += [35.0, -20.0]
-    upd = f.update(prob)
-    assert upd.accepted and upd.dropped.tolist() == [2] and upd.residuals_px[2] > 25
-    # Alone, that detection is not enough to tell which one is wrong: rejected, with the prediction.
-    f.reset(0.0, T, np.diag([0.002] * 3 + [0.01] * 3) ** 2)
-    bad = _problem(rig, T, markers={"M1"})
-    bad.pixels[0] += [40.0, 0.0]
-    upd = f.update(bad)
-    assert not upd.accepted and "inconsistent with the track" in upd.reason
-    assert upd.state.pose.translation_error(T) == 0.0
-
-
-def test_filter_refuses_misuse():
-    f = ConstantVelocityFilter()
-    with pytest.raises(InputError):
-        f.predict(1.0)
-    f.reset(1.0, Pose.identity(), np.eye(6))
-    with pytest.raises(InputError, match="back"):
-        f.predict(0.5)
+def test_options_refuse_misuse():
     with pytest.raises(InputError):
         MotionNoise(linear=-1.0)
     with pytest.raises(InputError):
         FilterOptions(kind="kalman")
     with pytest.raises(InputError, match="needs the filter"):
         FilterOptions(kind="none", smooth_lag=5)
-
-
-def test_iekf_matches_the_map_estimate_of_a_linear_gaussian_prior():
-    """One update from a prior centred on the truth with exact pixels: nothing moves,
-    the covariance is the information sum (P^-1 + J^T J / sigma^2)^-1."""
-    rig = standard_rig("balls")
-    T = _path()(3.0)
-    prob = _problem(rig, T)
-    P0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [0.1] * 6) ** 2
-    R, t, vel, P, res = np.empty((3, 3)), np.empty(3), np.empty(6), np.empty((12, 12)), np.empty(4)
-    chi2, _, _ = iekf_update(prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1], np.ones(4),
-                             2.0,
-                          T.R, T.t, np.zeros(6), P0, 5, R, t, vel, P, res, 2.0, P0, np.empty((12, 12)))
-    assert chi2 < 1e-12 and np.max(res) < 1e-9
-    # J by finite differences of the projection, independent of the kernel's Jacobian.
-    def pix(dx):
-        Tp = Pose(so3_exp(dx[:3]) @ T.R, T.t + dx[3:])
-        return _problem(rig, Tp).pixels.ravel()
-    J = np.array([(pix(h) - pix(-h)) / 2e-7 for h in np.eye(6) * 1e-7]).T
-    info = np.linalg.inv(P0[:6, :6]) + J.T @ J / 4.0
-    np.testing.assert_allclose(P[:6, :6], np.linalg.inv(info), rtol=1e-5, atol=1e-12)
 
 
 # -- through the command line, on a log file -----------------------------------------
@@ -515,42 +385,3 @@ def test_detections_better_than_stated_do_not_make_the_track_lag():
     assert med["default"] <= med["none"], med  # measured 0.052 vs 0.059 cm
     assert med["causal"] <= 1.2 * med["none"], med
     assert med["stated"] >= 3 * med["none"], med
-
-
-def test_the_gain_may_weigh_measured_noise_and_the_covariance_stays_the_stated_ones():
-    """iekf_update with the gain at 0.5 px and the stated noise 2 px: the
-    posterior covariance is the 0.5 px one, the reported covariance the
-    Joseph form of that same gain under 2 px (computed here with a
-    finite-difference Jacobian), and the gate is under 2 px."""
-    rig = standard_rig("balls")
-    T = _path()(3.0)
-    rng = np.random.default_rng(4)
-    prob = _problem(rig, T, noise=0.5, rng=rng)
-    prior = Pose(so3_exp([0.002, -0.001, 0.001]) @ T.R, T.t + np.array([0.004, -0.003, 0.002]))
-    P0 = np.diag([2e-3] * 3 + [1e-2] * 3 + [0.1] * 6) ** 2
-    Pr0 = 3.0 * P0
-    R, t, vel, P, res, Pr = np.empty((3, 3)), np.empty(3), np.empty(6), np.empty((12, 12)), np.empty(4), \
-        np.empty((12, 12))
-    args = (prob.side, prob.points, prob.pixels, prob.K[0], prob.dist[0], prob.K[1], prob.dist[1], np.ones(4))
-    chi2, _, ls = iekf_update(*args, 0.5, prior.R, prior.t, np.zeros(6), P0, 20, R, t, vel, P, res, 2.0, Pr0, Pr)
-    post = Pose(R.copy(), t.copy())
-
-    def pix(dx):
-        Tp = Pose(so3_exp(dx[:3]) @ post.R, post.t + dx[3:])
-        return _problem(rig, Tp).pixels.ravel()
-
-    H = np.zeros((8, 12))
-    H[:, :6] = np.array([(pix(h) - pix(-h)) / 2e-7 for h in np.eye(6) * 1e-7]).T
-    K = P0 @ H.T @ np.linalg.inv(H @ P0 @ H.T + 0.25 * np.eye(8))
-    A = np.eye(12) - K @ H
-    np.testing.assert_allclose(P, A @ P0 @ A.T + 0.25 * K @ K.T, rtol=1e-4, atol=1e-14)
-    np.testing.assert_allclose(Pr, A @ Pr0 @ A.T + 4.0 * K @ K.T, rtol=1e-4, atol=1e-14)
-    # The gate: the innovation against the stated noise's covariance.
-    nu = prob.pixels.ravel() - _problem(rig, prior).pixels.ravel()
-    S = H @ Pr0 @ H.T + 4.0 * np.eye(8)
-    assert chi2 == pytest.approx(nu @ np.linalg.solve(S, nu), rel=0.05)
-    # The observations on their own: what no pose explains, 2 degrees of freedom.
-    from scipy.optimize import least_squares
-
-    fit = least_squares(lambda d: pix(d) - prob.pixels.ravel(), np.zeros(6), xtol=1e-14, ftol=1e-14)
-    assert ls == pytest.approx(np.sum(fit.fun**2), rel=0.02)

@@ -207,3 +207,79 @@ def test_detections_as_stated_leave_the_filter_as_it_was():
             assert x.update(prob).accepted
         assert f.Pg is None and np.array_equal(f.P, g.P) and np.array_equal(f.t, g.t) and np.array_equal(f.R, g.R)
     assert 0.7 < f.detection_sigma < 1.3 and f.gain_sigma == 1.0 and g.gain_sigma == 1.0
+
+
+def test_an_update_is_the_map_estimate():
+    """One update of two robots from a prior about 5 cm / 1 degree off: the
+    posterior poses are the minimiser of ``e' P^-1 e + |r(e)|^2 / sigma^2``
+    over both robots' poses (found here by SciPy on the team's pixel
+    residuals), the gate's chi-square is that minimum (``2m`` degrees of
+    freedom), and the posterior is nearer the truth than the prior.  Then two
+    markers of one robot seen by the reference's camera: four constraints on
+    six unknowns, the covariance shrinks in four directions and keeps the
+    prior exactly in two."""
+    from scipy.linalg import eigh
+    from scipy.optimize import least_squares
+
+    from mutloc.core.geometry import so3_exp
+    from mutloc.core.team import team_residuals
+
+    rng = np.random.default_rng(11)
+    scene = random_team(3, rng, one_way=0.0)
+    names = scene.names
+    truth = scene.truth(names[0])
+    P6 = np.diag([0.02] * 3 + [0.05] * 3) ** 2
+    prior = {r: Pose(so3_exp(rng.normal(0, 0.01, 3)) @ truth[r].R, truth[r].t + rng.normal(0, 0.03, 3))
+             for r in names[1:]}
+    prob = team_problem(scene.rig, scene.observations(1.0, rng))[0]
+    m = len(prob.cam)
+
+    def fresh():
+        f = TeamFilter(names, names[0], pixel_sigma=1.0, max_iter=20, measure_noise=False)
+        f.time = 0.0
+        for r in names[1:]:
+            f.add(r, prior[r], P6)
+        return f
+
+    f = fresh()
+    R0, t0 = f.R.copy(), f.t.copy()
+    upd = f.update(prob)
+    assert upd.accepted and len(upd.dropped) == 0
+    idx = [f.index(r) for r in names[1:]]
+
+    def moved(e):
+        R, t = R0.copy(), t0.copy()
+        for x, i in enumerate(idx):
+            R[i] = so3_exp(e[6 * x:6 * x + 3]) @ R[i]
+            t[i] = t[i] + e[6 * x + 3:6 * x + 6]
+        return R, t
+
+    def pix(R, t):
+        r = np.empty(2 * m)
+        J = np.empty((m, 2, 6))
+        assert team_residuals(prob.cam, prob.own, prob.points, prob.uv, prob.wt, prob.K, prob.dist, R, t, r, J, J,
+                              False)
+        return r
+
+    Li = np.linalg.cholesky(np.linalg.inv(P6))
+    n_r = len(idx)
+
+    def cost(e):
+        return np.r_[np.concatenate([Li.T @ e[6 * x:6 * x + 6] for x in range(n_r)]), pix(*moved(e))]
+
+    e = least_squares(cost, np.zeros(6 * n_r), xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+    Rm, tm = moved(e)
+    for x, (r, i) in enumerate(zip(names[1:], idx)):
+        ref = Pose(Rm[i], tm[i])
+        assert f.pose(r).translation_error(ref) < 2e-5 and f.pose(r).rotation_error_deg(ref) < 1e-3
+        assert f.pose(r).translation_error(truth[r]) < prior[r].translation_error(truth[r])
+    assert upd.test.chi2 == pytest.approx(np.sum(cost(e) ** 2), rel=0.02) and upd.test.dof == 2 * m
+    # two markers of one robot, seen by the reference's camera
+    ref_i, r1 = f.index(names[0]), idx[0]
+    rows = np.flatnonzero((prob.cam == ref_i) & (prob.own == r1))[:2]
+    assert len(rows) == 2
+    g = fresh()
+    assert g.update(prob.take(rows)).accepted
+    ratio = eigh(g.covariance(names[1]), P6, eigvals_only=True)  # posterior over prior, per direction
+    assert np.sum(np.abs(ratio - 1) < 1e-6) == 2 and np.sum(ratio < 0.9) == 4, ratio
+    assert np.allclose(g.covariance(names[2]), P6)  # the other robot: uncorrelated, untouched

@@ -1,10 +1,13 @@
 """The fixed-lag smoother of the joint team state (mutloc.core.team_smoother)
-against independent references: the pair filter's RTS smoother robot by
-robot, and a textbook linear RTS smoother over the whole window."""
+against independent references: a plain-NumPy RTS smoother on SE(3) robot by
+robot (tests/_oracles.py), and a textbook linear RTS smoother over the whole
+window."""
 
 import numpy as np
 
-from mutloc.core.filter import STATE_DIM, FilterState, MotionNoise, cv_transition, rts_smooth
+from _oracles import State, cv_transition, rts_smooth
+
+from mutloc.core.filter import STATE_DIM, MotionNoise
 from mutloc.core.geometry import so3_exp, so3_log
 from mutloc.core.pose import Pose
 from mutloc.core.team_filter import TeamFilter, TeamSnapshot
@@ -27,11 +30,11 @@ def _set(f: TeamFilter, s: TeamSnapshot) -> None:
     f.P, f.time = s.P.copy(), s.time
 
 
-def test_uncorrelated_robots_smooth_as_the_pair_smoother_does():
+def test_uncorrelated_robots_smooth_as_each_robot_alone_does():
     """Two robots with block-diagonal covariances (no correlation), arbitrary
     posteriors after each prediction, moving and turning: the joint
-    smoother's states are each robot's pair-filter RTS smoothing (a separate
-    implementation, through FilterState), records 0 .. 6 with lag 6."""
+    smoother's states are each robot's RTS smoothing on its own (the
+    reference smoother of tests/_oracles.py), records 0 .. 6 with lag 6."""
     rng = np.random.default_rng(1)
     f = TeamFilter(["r0", "r1", "r2"], "r0", NOISE)
     for name in ("r1", "r2"):
@@ -60,15 +63,15 @@ def test_uncorrelated_robots_smooth_as_the_pair_smoother_does():
         b = slice(STATE_DIM * x, STATE_DIM * (x + 1))
 
         def state(s):
-            return FilterState(s.time, Pose(s.R[x], s.t[x]), s.vel[x], s.P[b, b])
+            return State(s.time, s.R[x], s.t[x], s.vel[x], s.P[b, b])
 
         want = rts_smooth([state(s) for s in priors], [state(s) for s in posts])
         for k in range(7):
             got = sm.smoothed(k)
-            assert np.allclose(got.R[x], want[k].pose.R, atol=1e-10)
-            assert np.allclose(got.t[x], want[k].pose.t, atol=1e-10)
-            assert np.allclose(got.vel[x], want[k].velocity, atol=1e-10)
-            assert np.allclose(got.P[b, b], want[k].covariance, atol=1e-12)
+            assert np.allclose(got.R[x], want[k].R, atol=1e-10)
+            assert np.allclose(got.t[x], want[k].t, atol=1e-10)
+            assert np.allclose(got.vel[x], want[k].vel, atol=1e-10)
+            assert np.allclose(got.P[b, b], want[k].P, atol=1e-12)
             other = slice(STATE_DIM * (1 - x), STATE_DIM * (2 - x))
             assert np.abs(got.P[b, other]).max() < 1e-12
 
@@ -118,9 +121,8 @@ def test_a_robot_dropped_within_the_window_is_smoothed_by_what_came_before():
         f.predict(dt * k)
         prior = f.snapshot()
         F = np.zeros((2 * STATE_DIM,) * 2)
-        Fi = np.empty((STATE_DIM, STATE_DIM))
         for x in range(2):
-            cv_transition(np.r_[np.zeros(3), m[STATE_DIM * x + 9:STATE_DIM * x + 12]], dt if k else 0.0, Fi)
+            Fi = cv_transition(np.r_[np.zeros(3), m[STATE_DIM * x + 9:STATE_DIM * x + 12]], dt if k else 0.0)
             F[STATE_DIM * x:STATE_DIM * (x + 1), STATE_DIM * x:STATE_DIM * (x + 1)] = Fi
         pm = F @ m if k else m
         pP = P if not k else None
@@ -187,12 +189,13 @@ def test_the_kernel_rotation_log_is_the_geometry_one():
             assert np.allclose(so3_exp(out), R, atol=1e-9)
 
 
-def test_with_measured_noise_the_gains_are_the_filters_own_as_for_the_pair():
+def test_with_measured_noise_the_gains_are_the_filters_own():
     """A robot whose filter's gain weighed measured noise below the stated
     (a second, own covariance and noise_scale 4, then back to none at the
     last record): the joint smoother's means, own covariances and reported
-    covariances are the pair smoother's (gains from the own covariances, the
-    reported covariance the smaller bound of the stated one), records 0 .. 6."""
+    covariances are the reference smoother's of tests/_oracles.py (gains from
+    the own covariances, the reported covariance the smaller bound of the
+    stated one), records 0 .. 6."""
     rng = np.random.default_rng(6)
     f = TeamFilter(["r0", "r1"], "r0", NOISE)
     f.add("r1", Pose(so3_exp(rng.normal(size=3)), rng.normal(size=3)), _spd(rng, 6, 0.01),
@@ -219,17 +222,17 @@ def test_with_measured_noise_the_gains_are_the_filters_own_as_for_the_pair():
         posts.append(post)
 
     def state(s):
-        return FilterState(s.time, Pose(s.R[0], s.t[0]), s.vel[0], s.P, s.Pg, s.noise_scale)
+        return State(s.time, s.R[0], s.t[0], s.vel[0], s.P, s.Pg, s.noise_scale)
 
     want = rts_smooth([state(s) for s in priors], [state(s) for s in posts])
     used_scaled = 0
     for k in range(7):
         got = sm.smoothed(k)
-        assert np.allclose(got.R[0], want[k].pose.R, atol=1e-10)
-        assert np.allclose(got.t[0], want[k].pose.t, atol=1e-10)
-        assert np.allclose(got.vel[0], want[k].velocity, atol=1e-10)
-        assert np.allclose(got.P, want[k].covariance, atol=1e-12)
-        assert (got.Pg is None) == (want[k].gain_covariance is None)
-        assert np.allclose(got.own, want[k].own_covariance, atol=1e-12)
+        assert np.allclose(got.R[0], want[k].R, atol=1e-10)
+        assert np.allclose(got.t[0], want[k].t, atol=1e-10)
+        assert np.allclose(got.vel[0], want[k].vel, atol=1e-10)
+        assert np.allclose(got.P, want[k].P, atol=1e-12)
+        assert (got.Pg is None) == (want[k].Pg is None)
+        assert np.allclose(got.own, want[k].own, atol=1e-12)
         used_scaled += k < 6 and np.allclose(got.P, 4.0 * got.own, atol=1e-12)
     assert used_scaled >= 1  # the scaled own bound was the smaller one somewhere

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from mutloc.cli.main import main
-from mutloc.core.filter import ConstantVelocityFilter, MotionNoise
 from mutloc.core.geometry import so3_exp, so3_log
 from mutloc.core.observations import ObservationSet
 from mutloc.core.pose import Pose
@@ -135,33 +134,6 @@ def test_partial_predicted_and_rejected_frames(team_log):
     assert status[45] == "solved"
     # the other robots are unaffected
     assert all(row.status.value == "solved" for rr in ("r1", "r2") for row in traj.tracks[rr].rows)
-
-
-def test_pose_update_is_the_information_filter():
-    """update_pose against the information form: posterior pose covariance (P^-1 + C^-1)^-1."""
-    rng = np.random.default_rng(0)
-    f = ConstantVelocityFilter(MotionNoise(), confidence=1.0)
-    A = rng.normal(size=(6, 6))
-    P6 = A @ A.T * 1e-3 + np.eye(6) * 1e-4
-    f.reset(0.0, Pose(so3_exp([0.1, 0.2, 0.3]), np.array([1.0, 0.0, 2.0])), P6)
-    B = rng.normal(size=(6, 6))
-    C = B @ B.T * 1e-3 + np.eye(6) * 1e-4
-    z = Pose(so3_exp([0.1001, 0.2, 0.3]), np.array([1.001, 0.0, 2.0]))
-    upd = f.update_pose(z, C)
-    assert upd.accepted
-    P0 = np.linalg.inv(np.linalg.inv(P6) + np.linalg.inv(C))
-    # velocity is uncorrelated at the start, so the pose block is the two-Gaussian fusion
-    np.testing.assert_allclose(f.state.covariance[:6, :6], P0, rtol=1e-8, atol=1e-12)
-    # and the mean is the information-weighted one (small innovation: linear regime)
-    e = np.r_[so3_log(z.R @ so3_exp([0.1, 0.2, 0.3]).T), z.t - [1.0, 0.0, 2.0]]
-    dx = P0 @ np.linalg.solve(C, e)
-    np.testing.assert_allclose(so3_log(f.state.pose.R @ so3_exp([0.1, 0.2, 0.3]).T), dx[:3], atol=1e-9)
-    np.testing.assert_allclose(f.state.pose.t - [1.0, 0.0, 2.0], dx[3:], atol=1e-12)
-    # a far pose fails the gate and leaves the state
-    g = ConstantVelocityFilter(MotionNoise())
-    g.reset(0.0, Pose(np.eye(3), np.zeros(3)), np.eye(6) * 1e-4)
-    bad = g.update_pose(Pose(np.eye(3), np.array([0.5, 0.0, 0.0])), np.eye(6) * 1e-4)
-    assert not bad.accepted and g.state.pose.t[0] == 0.0
 
 
 def test_sync_streams_groups_by_time():

@@ -4,7 +4,7 @@ observations at that camera's own capture time.
 
 State: for each tracked robot ``i`` (not the reference, whose pose is the
 identity) the pose ``T_ref_i = (R_i, t_i)`` and its velocity ``(w_i, v_i)``
--- the pair filter's state (:mod:`mutloc.core.filter`) per robot -- and one
+-- the constant-velocity state of :mod:`mutloc.core.filter` per robot -- and one
 ``12k x 12k`` covariance over all ``k`` tracked robots' error states
 ``(dtheta, dt, dw, dv)`` (SPEC perturbations: ``R <- exp(dtheta) R``,
 ``t <- t + dt``).  The off-diagonal blocks are the robots' correlations:
@@ -20,14 +20,14 @@ taken at one time (typically one camera's frame) -- "camera ``a`` saw
 marker ``P`` of robot ``b``", either of them possibly the reference --
 through the team solver's residuals and Jacobians
 (:func:`mutloc.core.team.team_residuals`), touching only the blocks of the
-robots involved (Numba kernels: :mod:`mutloc.core.team_kernels`).  Gated like the pair filter: the innovation's Mahalanobis
+robots involved (Numba kernels: :mod:`mutloc.core.team_kernels`).  Gated: the innovation's Mahalanobis
 distance against the chi-square quantile with ``2n`` degrees of freedom; a
 failing update is retried without each single observation (with three or
 more) and exactly one passing subset drops that observation, else the
 update is rejected and the state stays the prediction.  Observations of
 robots not tracked are not used (the caller starts them first).
 
-Detection noise, as the pair filter's: ``pixel_sigma`` is the stated noise
+Detection noise: ``pixel_sigma`` is the stated noise
 behind the reported covariance (:attr:`TeamFilter.P`) and the gate.  The
 filter also measures the noise from each accepted update's residual that no
 pose explains (its observations fitted on their own: the involved robots'

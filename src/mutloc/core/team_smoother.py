@@ -28,8 +28,7 @@ Where the filter's gain weighed measured detection noise below the stated
 (:attr:`~mutloc.core.team_filter.TeamSnapshot.Pg`), the gains and the
 recursion use the filter's own covariances, and the reported covariance is
 the smaller (by the trace of the pose blocks) of two bounds of the stated
-one: the filter's, and the smoothed own one times ``noise_scale`` (as the
-pair smoother, :func:`mutloc.core.filter.rts_smooth`).
+one: the filter's, and the smoothed own one times ``noise_scale``.
 
 Nothing here reads files or decides statuses.
 """

@@ -51,7 +51,7 @@ class FilterOptions:
     default: ``DEFAULT_SMOOTH_LAG`` with the filter, 0 without);
     ``measure_noise``: the gain uses the detections' measured noise when it
     is clearly below ``pixel_sigma`` (see
-    :attr:`~mutloc.core.filter.ConstantVelocityFilter.gain_sigma`);
+    :attr:`~mutloc.core.team_filter.TeamFilter.gain_sigma`);
     ``start_window`` (s): a track may also start from the records of the
     last ``start_window`` seconds together -- cameras that are not
     synchronized, each record one camera's frame -- their pose and velocity
