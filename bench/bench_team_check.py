@@ -11,8 +11,8 @@ actual noise below the stated one) and on pixels with sigma = 1 px noise, twice 
 
 - before: the team judged at the stated noise only (its joint chi-square test;
   `mutloc.core.team.JUDGE_AT_MEASURED_NOISE = False`);
-- after: besides, each robot's ties tested at the noise the team's residuals show, when that is below the
-  stated one (`mutloc.core.team.misfit_robots`; misfit robots are restarted from other poses, and those
+- after: besides, each robot's ties tested at the noise the team's residuals show, when they reject the
+  stated one as too large (`mutloc.core.team.misfit_robots`; misfit robots are restarted from other poses, and those
   still misfit are `unverified`).
 
 Per robot: `solved` / `unverified` (ambiguous included) counts, `solved` poses beyond 5 sigma of their own
