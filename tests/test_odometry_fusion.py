@@ -89,11 +89,13 @@ def _random_spd(rng, n, scale):
     return scale * (A @ A.T / n + 0.2 * np.eye(n))
 
 
-def test_the_references_odometry_moves_every_pose_with_its_noise_shared():
-    """One prediction of a three-robot team (r0 the reference, with odometry;
-    r1 with odometry; r2 without, constant velocity) against sampled truth:
-    the initial state, both increments and the velocity drawn from their
-    covariances, each sample moved exactly (``U^-1 T D``, ``U^-1 CV(T)``).
+@pytest.mark.parametrize("reference", [True, False])
+def test_the_references_odometry_moves_every_pose_with_its_noise_shared(reference):
+    """One prediction of a three-robot team (r0 the reference, with odometry
+    or, ``reference`` False, without; r1 with odometry; r2 without, constant
+    velocity) against sampled truth: the initial state, the increments and
+    the velocity drawn from their covariances, each sample moved exactly
+    (``U^-1 T D``, ``U^-1 CV(T)``; without ``U``: ``CV(T D)``, ``CV(T)``).
     The sampled errors' covariance matches the predicted joint covariance
     entry by entry (as correlations), the cross-robot blocks included --
     which only the reference's shared noise correlates here."""
@@ -106,13 +108,13 @@ def test_the_references_odometry_moves_every_pose_with_its_noise_shared():
     for x in range(2):  # independent robots before: any correlation after comes from U
         s = slice(STATE_DIM * x, STATE_DIM * (x + 1))
         P0[s, s] = _random_spd(rng, STATE_DIM, 1e-4)
-    D = OdometryIncrement(0.0, dt, Pose(so3_exp([0.05, 0.3, -0.02]), np.array([0.1, 0.0, 0.25])),
+    D = OdometryIncrement(0.0, dt, Pose(so3_exp([0.05, 0.3, -0.02]), np.array([0.5, 0.0, 1.5])),
                           _random_spd(rng, 6, 4e-4))
     U = OdometryIncrement(0.0, dt, Pose(so3_exp([0.02, -0.4, 0.05]), np.array([-0.05, 0.01, 0.3])),
                           _random_spd(rng, 6, 4e-4))
     qa = ql = 1e-12
     Rp, tp, vp = R.copy(), t.copy(), vel.copy()
-    (P,), F = odometry_predict(Rp, tp, vp, tracked, [P0], dt, qa, ql, {1: D}, U)
+    (P,), F = odometry_predict(Rp, tp, vp, tracked, [P0], dt, qa, ql, {1: D}, U if reference else None)
     assert F.shape == (2, STATE_DIM, STATE_DIM)
 
     n = 6000
@@ -129,9 +131,10 @@ def test_the_references_odometry_moves_every_pose_with_its_noise_shared():
             Ri, ti, vi = so3_exp(d0[o:o + 3]) @ R[i], t[i] + d0[o + 3:o + 6], vel[i] + d0[o + 6:o + 12]
             if i == 1:
                 Ri, ti = Ri @ RD, Ri @ tD + ti
-            else:
+            if i == 2 or not reference:
                 Ri, ti = so3_exp(vi[:3] * dt) @ Ri, ti + vi[3:] * dt
-            Ri, ti, vi = RU.T @ Ri, RU.T @ (ti - tU), np.r_[RU.T @ vi[:3], RU.T @ vi[3:]]
+            if reference:
+                Ri, ti, vi = RU.T @ Ri, RU.T @ (ti - tU), np.r_[RU.T @ vi[:3], RU.T @ vi[3:]]
             errs[s, o:o + 12] = np.r_[so3_log(Ri @ Rp[i].T), ti - tp[i], vi - vp[i]]
     C = np.cov(errs.T)
     sd = np.sqrt(np.diag(P))
@@ -139,7 +142,10 @@ def test_the_references_odometry_moves_every_pose_with_its_noise_shared():
     corr_diff = np.abs(C - P) / np.outer(sd, sd)
     assert corr_diff.max() < 0.08
     cross = np.abs(P[:STATE_DIM, STATE_DIM:]) / np.outer(sd[:STATE_DIM], sd[STATE_DIM:])
-    assert cross.max() > 0.3  # the shared noise: the robots are now strongly correlated
+    if reference:
+        assert cross.max() > 0.3  # the shared noise: the robots are now strongly correlated
+    else:
+        assert cross.max() < 1e-12
     assert np.allclose(np.diag(C) / np.diag(P), 1.0, atol=0.1)
 
 
