@@ -159,9 +159,9 @@ def _small_log(tmp_path):
     return o
 
 
-def _track(tmp_path, *extra):
+def _track(tmp_path, *extra, team=True):
     return main(["track", "--rig", str(tmp_path / "rig.yaml"), "--observations", str(tmp_path / "log.jsonl"),
-                 "--reference", "r0", "--out", str(tmp_path / "out"), "--no-progress", *extra])
+                 *(["--reference", "r0"] if team else []), "--out", str(tmp_path / "out"), "--no-progress", *extra])
 
 
 def test_track_takes_odometry_and_refuses_bad_odometry_in_one_line(tmp_path, capsys):
@@ -169,6 +169,8 @@ def test_track_takes_odometry_and_refuses_bad_odometry_in_one_line(tmp_path, cap
     assert _track(tmp_path, "--odometry", f"r1={tmp_path / 'odo.tum'}") == 0
     out = capsys.readouterr()
     assert "rejected" not in out.err and "Traceback" not in out.err
+    assert _track(tmp_path, "--odometry", f"r1={tmp_path / 'odo.tum'}", team=False) == 0  # a pair's track too
+    capsys.readouterr()
     lines = (tmp_path / "odo.tum").read_text().splitlines()
     jump = lines[3].split()
     jump[1] = str(float(jump[1]) + 3.0)  # 3 m off for one sample (150 m/s)
