@@ -60,8 +60,8 @@ class FilterOptions:
     fitted with every observation at its own time (0: only from one record).
     ``odometry``: robots' own odometry (name ->
     :class:`~mutloc.core.odometry.Odometry`, stamps on the reference's
-    clock), the motion between records where it covers them (SPEC "The
-    robots' own motion and clocks"; needs the filter).
+    clock), the motion between records where it covers them (needs the
+    filter).
     """
 
     kind: str = "cv"
