@@ -168,7 +168,7 @@ def test_track_takes_odometry_and_refuses_bad_odometry_in_one_line(tmp_path, cap
     o = _small_log(tmp_path)
     assert _track(tmp_path, "--odometry", f"r1={tmp_path / 'odo.tum'}") == 0
     out = capsys.readouterr()
-    assert "rejected" not in out.err and "Traceback" not in out.err
+    assert "rejected" not in out.err and "not used" not in out.err and "Traceback" not in out.err
     assert _track(tmp_path, "--odometry", f"r1={tmp_path / 'odo.tum'}", team=False) == 0  # a pair's track too
     capsys.readouterr()
     lines = (tmp_path / "odo.tum").read_text().splitlines()
@@ -179,6 +179,12 @@ def test_track_takes_odometry_and_refuses_bad_odometry_in_one_line(tmp_path, cap
            "backwards": ["1.0 0 0 0 0 0 0 1", "0.5 0 0 0 0 0 0 1", "0.2 0 0 0 0 0 0 1"]}
     for name, text in bad.items():
         (tmp_path / f"{name}.tum").write_text("\n".join(text) + "\n")
+    # stamps on another clock: the track runs without it, and says so
+    shifted = [" ".join([str(float(ln.split()[0]) + 1000.0)] + ln.split()[1:]) for ln in lines]
+    (tmp_path / "shifted.tum").write_text("\n".join(shifted) + "\n")
+    assert _track(tmp_path, "--odometry", f"r1={tmp_path / 'shifted.tum'}") == 0
+    err = capsys.readouterr().err
+    assert "odometry of r1" in err and "not used" in err and "Traceback" not in err
     # one sample that jumps, amid good ones: rejected and counted, the rest used
     assert _track(tmp_path, "--odometry", f"r1={tmp_path / 'jump.tum'}") == 0
     err = capsys.readouterr().err

@@ -134,7 +134,22 @@ def _odometry(args: argparse.Namespace, rig, team: bool) -> dict:
         rejected = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in odo.counts.items() if n)
         if rejected:
             print(f"note: odometry of {robot} ({odo.source}): samples rejected: {rejected}", file=sys.stderr)
+    args.odometry_loaded = odometry
     return odometry
+
+
+def _odometry_unused(args: argparse.Namespace, times: list[float]) -> None:
+    """A note on stderr for each robot's odometry whose stamps the records'
+    times never fall in (it moved no prediction: another clock?)."""
+    import sys
+
+    if not times or not getattr(args, "odometry_loaded", None):
+        return
+    lo, hi = min(times), max(times)
+    for robot, odo in args.odometry_loaded.items():
+        if odo.end < lo or odo.start > hi:
+            print(f"note: odometry of {robot} ({odo.source}) not used: its stamps {odo.start:.3f}-{odo.end:.3f} s "
+                  f"miss the records' {lo:.3f}-{hi:.3f} s (on another clock?)", file=sys.stderr)
 
 
 def _stream_options(args: argparse.Namespace, rig) -> tuple[dict, dict, dict]:
@@ -240,6 +255,7 @@ def _written_as_it_runs(work, out, args, rig, log: LogUpToBadLine | None = None)
     if log is not None:
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"{traj.summary()}; {_wrote(outputs, args, before)}")
+    _odometry_unused(args, [row.t for row in traj.rows])
     for note in traj.notes:
         print(note)
     return 0
@@ -330,4 +346,5 @@ def _run_team(args, rig, options, out) -> int:
     if log is not None:
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"reference {traj.reference}; {traj.summary()}; {_wrote(outputs, args, before)}")
+    _odometry_unused(args, [row.t for tr in traj.tracks.values() for row in tr.rows])
     return 0
