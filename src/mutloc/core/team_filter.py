@@ -159,8 +159,6 @@ class TeamFilter:
         self.odometry: dict[int, tuple[Odometry, float]] = {}
         #: The last prediction's transition where odometry moved it (:attr:`TeamSnapshot.F`).
         self.transition: np.ndarray | None = None
-        #: Predictions each robot's odometry moved (by name).
-        self.odometry_used: dict[str, int] = {}
 
     def set_odometry(self, name: str, odometry: Odometry | None, clock_offset: float = 0.0) -> None:
         """``name``'s odometry (None: none) for the predictions from now on,
@@ -177,7 +175,6 @@ class TeamFilter:
         if not math.isfinite(off):
             raise InputError(f"clock offset of {name!r} must be finite, got {clock_offset!r}")
         self.odometry[i] = (odometry, off)
-        self.odometry_used.setdefault(name, 0)
 
     def _increment(self, i: int, t0: float, t1: float) -> OdometryIncrement | None:
         """Robot ``i``'s odometry increment from ``t0`` to ``t1`` (the filter's clock), or None."""
@@ -348,7 +345,6 @@ class TeamFilter:
         new = copy.copy(self)
         new.R, new.t, new.vel, new.serial = self.R.copy(), self.t.copy(), self.vel.copy(), self.serial.copy()
         new.tracked = list(self.tracked)
-        new.odometry_used = dict(self.odometry_used)
         new._noise_window, new._noise_sum = deque(self._noise_window), list(self._noise_sum)
         return new
 
@@ -382,8 +378,6 @@ class TeamFilter:
             ref = self._increment(self.index(self.reference), t0, self.time)
             own = {i: inc for i in self.tracked if (inc := self._increment(i, t0, self.time)) is not None}
             if ref is not None or own:
-                for i in ([self.index(self.reference)] if ref is not None else []) + list(own):
-                    self.odometry_used[self.robots[i]] = self.odometry_used.get(self.robots[i], 0) + 1
                 covs = [self.P] + ([self.Pg] if self.Pg is not None else [])
                 out, self.transition = odometry_predict(self.R, self.t, self.vel, self.tracked, covs, dt, qa, ql,
                                                         own, ref)
