@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import NOISE, ODOMETRY, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map, robot_value, team_mode
+from ._common import (NOISE, ODOMETRY, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map,
+                      robot_value, team_mode)
 
 ORDER = 30
 
