@@ -27,7 +27,8 @@ from ..core.team import MIN_TIES, TeamProblem, residual_norms
 from ..core.filter import STATE_DIM
 from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
-from ..errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
+from ..errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, OdometryError,
+                      positive_number)
 from ..team import TeamEstimate, localize_team, team_problem
 from . import lifecycle
 from .lifecycle import PoseCov, Track, TrackState, UndoRequest, ties_to_one
@@ -60,6 +61,11 @@ class TeamTracker(Starts, Hindsight, Rows):
         self.options = options if options is not None else FilterOptions()
         self.filter = TeamFilter(names, reference, self.options.noise, pixel_sigma, confidence,
                                  measure_noise=self.options.measure_noise)
+        for name, odo in self.options.odometry.items():
+            if name not in rig.robots:
+                raise OdometryError(f"odometry of {name!r}: no robot {name!r} in the rig "
+                                    f"(robots: {', '.join(names)})")
+            self.filter.set_odometry(name, odo)
         #: With ``smooth_lag``: the joint filter's states of the records not yet
         #: final and their rows (see :meth:`finalize`).
         self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
