@@ -20,7 +20,8 @@ wrong offset cannot win by losing observations.  Minimised by a coarse
 grid over ``+-search`` s, then golden section in the best cell; with
 several robots, coordinate passes.  The sigma is from the cost's
 curvature at the minimum (``sigma^2 = 2 / cost''``, by central
-differences).  A robot whose curvature is not positive, whose minimum
+differences).  A robot whose track moves less than ``min_motion``
+relative to the reference (its noise alone fits some offset), whose curvature is not positive, whose minimum
 lies at the search's edge, or whose sigma exceeds ``max_sigma`` (robots
 that barely move relative to each other) cannot be determined yet: its
 offset is None with the reason.
@@ -42,12 +43,16 @@ from .filtering import FilterOptions
 from .team_tracker import TeamTracker
 
 __all__ = ["ClockOffset", "shift_records", "estimate_clock_offsets", "clock_offsets_json", "DEFAULT_SEARCH",
-           "DEFAULT_MAX_SIGMA"]
+           "DEFAULT_MAX_SIGMA",
+           "DEFAULT_MIN_MOTION"]
 
 #: Offsets searched (s, either way).
 DEFAULT_SEARCH = 0.2
 #: A sigma beyond this (s): the offset cannot be determined (yet).
 DEFAULT_MAX_SIGMA = 0.02
+#: A robot that moves less than this relative to the reference (metres, degrees) over the log: its offset
+#: cannot be determined (a track's noise alone fits some offset).
+DEFAULT_MIN_MOTION = (0.05, 5.0)
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 
@@ -126,6 +131,7 @@ class _Cost:
         self.pixel_sigma, self.confidence = pixel_sigma, confidence
         self.drop_cost = chi2_quantile(confidence, 2) if confidence < 1.0 else 25.0
         self.calls = 0
+        self.motion: dict[str, tuple[float, float]] = {}  #: the last run's (see _motion)
 
     def __call__(self, offsets: Mapping[str, float]) -> float:
         self.calls += 1
@@ -153,9 +159,23 @@ class _Cost:
             return upd
 
         f.update = counted  # this run's filter only
+        poses: dict[str, list] = {}
         for t, obs in shift_records(self.rig, self.records, offsets):
             tracker.step(t, obs)
+            for r in tracker.tracks:
+                if f.is_tracked(r):
+                    poses.setdefault(r, []).append(f.pose(r))
+        self.motion = {r: _motion(p) for r, p in poses.items()}
         return total[0]
+
+
+def _motion(poses: list) -> tuple[float, float]:
+    """How far a robot moved relative to the reference over its track: the 90th percentile of its poses'
+    distance (m) and angle (degrees) from their middle one (the track's start, still settling, left out)."""
+    mid = poses[len(poses) // 2]
+    dist = [float(np.linalg.norm(p.t - mid.t)) for p in poses]
+    ang = [math.degrees(math.acos(float(np.clip((np.trace(mid.R.T @ p.R) - 1.0) / 2.0, -1.0, 1.0)))) for p in poses]
+    return float(np.percentile(dist, 90)), float(np.percentile(ang, 90))
 
 
 def _golden(fn, a: float, b: float, tol: float) -> tuple[float, float]:
@@ -177,12 +197,14 @@ def estimate_clock_offsets(rig: Rig, records: Iterable[tuple[float, ObservationS
                            options: FilterOptions | None = None, pixel_sigma: float = 1.0,
                            confidence: float = DEFAULT_CONFIDENCE, search: float = DEFAULT_SEARCH,
                            grid: int = 9, tol: float = 0.001, step: float = 0.01,
-                           max_sigma: float = DEFAULT_MAX_SIGMA, passes: int | None = None) -> dict[str, ClockOffset]:
+                           max_sigma: float = DEFAULT_MAX_SIGMA, min_motion: tuple[float, float] = DEFAULT_MIN_MOTION,
+                           passes: int | None = None) -> dict[str, ClockOffset]:
     """Each robot's (not the reference's) clock offset from ``records`` (``(time, ObservationSet)``, each
     observation on its observer's clock; see the module docstring).  ``rig``: the expanded rig the tracker
     takes; ``search``: offsets within +-search s; ``grid``: the coarse grid's points; ``tol``: the golden
     section's final bracket (s); ``step``: the central differences' step (s); ``passes``: coordinate passes
-    (default 1 for two robots, 2 for more).  Raises InputError for bad parameters."""
+    (default 1 for two robots, 2 for more); ``min_motion``: (metres, degrees) a robot's track must move
+    relative to the reference (either), else its offset cannot be determined.  Raises InputError for bad parameters."""
     if reference not in rig.robots:
         raise InputError(f"unknown reference robot {reference!r} (rig has {sorted(rig.robots)})")
     if not (search > 0 and math.isfinite(search)) or grid < 3 or not (0 < tol < search) or not (0 < step < search):
@@ -205,10 +227,14 @@ def estimate_clock_offsets(rig: Rig, records: Iterable[tuple[float, ObservationS
     out: dict[str, ClockOffset] = {}
     for r in robots:
         x = offsets[r]
-        c0 = cost(offsets)
         cp, cm = cost({**offsets, r: x + step}), cost({**offsets, r: x - step})
+        c0 = cost(offsets)
         curv = (cp - 2.0 * c0 + cm) / step**2
-        if edge[r] and (x <= -search + step or x >= search - step):
+        moved, turned = cost.motion.get(r, (0.0, 0.0))
+        if moved < min_motion[0] and turned < min_motion[1]:
+            out[r] = ClockOffset(None, None, f"the robots barely move relative to each other ({moved * 100:.1f} cm, "
+                                              f"{turned:.1f} deg)")
+        elif edge[r] and (x <= -search + step or x >= search - step):
             out[r] = ClockOffset(None, None, f"the best offset lies at the search's edge (+-{search:g} s)")
         elif not curv > 0:
             out[r] = ClockOffset(None, None, "the observations do not depend on it (the robots barely move)")
