@@ -114,3 +114,17 @@ def test_clock_offsets_need_a_log_and_the_filter(moving, tmp_path, capsys):
     assert "needs --filter cv" in capsys.readouterr().err
     assert main([*base, "--stream", f"r0={tmp_path}", "--stream", f"r1={tmp_path}"]) != 0
     assert "--observations" in capsys.readouterr().err
+
+
+def test_a_robots_odometry_is_put_on_the_reference_clock_by_its_offset(moving):
+    from mutloc.core.odometry import Odometry
+    from mutloc.io.trajectory import read_tum
+    from mutloc.track.filtering import FilterOptions
+    from mutloc.track.team_tracker import TeamTracker
+
+    out, rig, truth = moving
+    stamps, poses = read_tum(out / "odometry_r1.tum")  # on r1's clock: the true times minus 40 ms
+    odo = Odometry(stamps, poses, source="sim r1")
+    tracker = TeamTracker(rig, "r0", options=FilterOptions(odometry={"r1": odo}, clock_offsets={"r1": 0.04}))
+    held, offset = tracker.filter.odometry[tracker.filter.index("r1")]
+    assert held is odo and offset == truth["clock_offsets"]["r1"]
