@@ -17,7 +17,7 @@ from mutloc.track.frames import expanded_rig
 from mutloc.track.team import track_team_log
 
 FRAMES = 90  # 3 s at 30 fps
-FAST = dict(grid=7, tol=0.002)  # a coarser search than the default: seconds, not tens
+FAST = {"grid": 7, "tol": 0.002}  # a coarser search than the default: seconds, not tens
 
 
 @pytest.fixture(scope="module")
