@@ -50,6 +50,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--frames", choices=("camera", "base"), default="camera",
                    help="poses between the cameras' optical frames (default) or between the robots' base frames "
                         "(the rig's base_from_camera of both robots)")
+    p.add_argument("--clock-offsets", choices=("estimate",), metavar="estimate",
+                   help="estimate each robot's clock offset to the reference's from the observations of moving "
+                        "robots (with --observations), correct every stamp of that robot (its odometry's too), "
+                        "print them and write DIR/clock_offsets.json")
     f = p.add_argument_group("filter (SPEC \"Filtered tracking\")")
     f.add_argument("--filter", choices=("cv", "none"), default="cv",
                    help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
@@ -90,14 +94,16 @@ def run(args: argparse.Namespace) -> int:
                             smooth_lag=args.smooth_lag, odometry=_odometry(args, rig, team))
     if args.observations and args.annotate:
         raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
+    log = LogUpToBadLine(args.observations) if args.observations else None
+    records = iter(log) if log is not None else None
+    if args.clock_offsets:
+        records, options = _clock_offsets(args, rig, log, options, out, team)
     if team:
-        return _run_team(args, rig, options, out)
+        return _run_team(args, rig, options, out, log, records)
     if args.observations:
 
-        log = LogUpToBadLine(args.observations)
-
         def work(sink):
-            return track_log(rig, iter(log), args.source, args.target,
+            return track_log(rig, records, args.source, args.target,
                              pixel_sigma=args.pixel_sigma, confidence=args.confidence, progress=args.progress,
                              filter=options, rerun=args.rerun, sink=sink)
         return _written_as_it_runs(work, out, args, rig, log)
@@ -111,6 +117,36 @@ def run(args: argparse.Namespace) -> int:
                      fps=args.fps, annotate=args.annotate, observations_out=args.observations_out,
                      progress=args.progress, filter=options, rerun=args.rerun, sink=sink)
     return _written_as_it_runs(work, out, args, rig)
+
+
+def _clock_offsets(args: argparse.Namespace, rig, log: "LogUpToBadLine | None", options, out: Path, team: bool):
+    """``--clock-offsets estimate``: each robot's offset estimated from the whole log (read here), printed and
+    written to ``DIR/clock_offsets.json``; returns the records with every robot's stamps corrected and the
+    options with its odometry's (see :mod:`mutloc.track.clocks`)."""
+    import json
+    from dataclasses import replace
+
+    from ..errors import InputError
+    from ..track.clocks import clock_offsets_json, estimate_clock_offsets, shift_records
+    from ..track.frames import expanded_rig
+
+    if log is None:
+        raise InputError("--clock-offsets estimate needs an observation log (--observations LOG); with --stream, "
+                         "not yet")
+    if args.filter != "cv":
+        raise InputError("--clock-offsets estimate runs the filter: it needs --filter cv")
+    reference = (args.reference if args.reference is not None else next(iter(rig.robots))) if team \
+        else rig.default_pair(args.source, args.target)[1]
+    full = expanded_rig(rig)
+    records = list(log)
+    found = estimate_clock_offsets(full, records, reference, options=options, pixel_sigma=args.pixel_sigma,
+                                   confidence=args.confidence)
+    for robot, c in found.items():
+        print(c.text(robot))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "clock_offsets.json").write_text(json.dumps(clock_offsets_json(found), indent=1) + "\n", encoding="utf-8")
+    offsets = {r: c.offset_s for r, c in found.items() if c.offset_s is not None}
+    return iter(shift_records(full, records, offsets)), replace(options, clock_offsets=offsets)
 
 
 def _odometry(args: argparse.Namespace, rig, team: bool) -> dict:
@@ -285,7 +321,7 @@ def _wrote(outputs, args, before: dict[str, int | None]) -> str:
     return f"wrote {', '.join(files)}" if files else "no files written"
 
 
-def _run_team(args, rig, options, out) -> int:
+def _run_team(args, rig, options, out, log: "LogUpToBadLine | None", records) -> int:
     """A team: one stream per robot (or a log), one trajectory per robot,
     every file appended row by row as the track runs (Ctrl-C: exit 130 with
     every row so far written, and said)."""
@@ -308,7 +344,6 @@ def _run_team(args, rig, options, out) -> int:
 
         viz = RerunWriter(args.rerun, None, reference)
     before = _side_files(args)
-    log = LogUpToBadLine(args.observations) if args.observations else None
     with TrackOutputs(out, robots, reference, bag=args.bag, mcap=args.mcap, base_frames=base) as outputs:
         to_base = outputs.to_base
 
@@ -322,7 +357,7 @@ def _run_team(args, rig, options, out) -> int:
 
         try:
             if args.observations:
-                traj = track_team_log(rig, iter(log), args.reference,
+                traj = track_team_log(rig, records, args.reference,
                                       pixel_sigma=args.pixel_sigma, confidence=args.confidence,
                                       progress=args.progress, filter=options, sink=sink)
             else:

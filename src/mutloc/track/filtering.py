@@ -60,8 +60,10 @@ class FilterOptions:
     fitted with every observation at its own time (0: only from one record).
     ``odometry``: robots' own odometry (name ->
     :class:`~mutloc.core.odometry.Odometry`, stamps on the reference's
-    clock), the motion between records where it covers them (needs the
-    filter).
+    clock unless ``clock_offsets`` names the robot), the motion between
+    records where it covers them (needs the filter).  ``clock_offsets``:
+    robot -> seconds added to its odometry's stamps to put them on the
+    reference's clock (``--clock-offsets estimate``, :mod:`mutloc.track.clocks`).
     """
 
     kind: str = "cv"
@@ -73,6 +75,7 @@ class FilterOptions:
     measure_noise: bool = True
     start_window: float = DEFAULT_START_WINDOW
     odometry: Mapping[str, Odometry] = field(default_factory=dict)
+    clock_offsets: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in FILTERS:

@@ -65,7 +65,7 @@ class TeamTracker(Starts, Hindsight, Rows):
             if name not in rig.robots:
                 raise OdometryError(f"odometry of {name!r}: no robot {name!r} in the rig "
                                     f"(robots: {', '.join(names)})")
-            self.filter.set_odometry(name, odo)
+            self.filter.set_odometry(name, odo, self.options.clock_offsets.get(name, 0.0))
         #: With ``smooth_lag``: the joint filter's states of the records not yet
         #: final and their rows (see :meth:`finalize`).
         self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
