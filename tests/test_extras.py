@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+import mutloc
 from mutloc._extras import PACKAGES
 from mutloc.cli.main import NEEDS, build_parser
 from mutloc.io import save_rig
@@ -25,6 +26,9 @@ from mutloc.sim.tracking import observation_sequence
 from mutloc.sim.world import standard_rig
 
 ROOT = Path(__file__).resolve().parents[1]
+# The subprocesses run the mutloc under test (not whichever one is installed), so they also
+# share its Numba cache: a copy elsewhere would be other code, and would compile every kernel again.
+SOURCES = Path(mutloc.__file__).resolve().parents[1]
 BLOCKED = sorted(PACKAGES)  # every optional package, and the core's pupil_apriltags
 
 BLOCKER = f"""
@@ -60,17 +64,19 @@ def scene(tmp_path_factory):
 
 
 def _run(d: Path, args: list[str]) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(d / "blocker")}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(d / "blocker"), str(SOURCES)])}
     return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=300, cwd=d, env=env)
 
 
 def test_the_blocker_blocks(scene):
     d, _ = scene
     code = ("import importlib\nfor m in " + repr(BLOCKED) + ":\n"
-            "    try:\n        importlib.import_module(m)\n    except ImportError:\n        print(m)\n")
+            "    try:\n        importlib.import_module(m)\n    except ImportError:\n        print(m)\n"
+            "import mutloc\nprint(mutloc.__file__)\n")
     out = _run(d, ["-c", code])
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == BLOCKED
+    # every optional package refused, and the mutloc imported is the one under test
+    assert out.stdout.splitlines() == [*BLOCKED, mutloc.__file__]
 
 
 def test_localize_and_track_from_a_log_need_no_extra(scene):

@@ -40,8 +40,30 @@ def warm_balls(tmp: Path) -> None:
     _cli("demo", "--out", str(tmp / "demo"), "--frames", "3", "--no-progress")
 
 
+def _solve_without_images(tmp: Path) -> None:
+    """Localize and track balls from simulated detections: the pose solver and the filter, no rendering."""
+    from mutloc.io import save_rig
+    from mutloc.io.logs import write_observation_log
+    from mutloc.sim.tracking import observation_sequence
+    from mutloc.sim.world import standard_rig
+
+    d = tmp / "solve"
+    d.mkdir()
+    rig = standard_rig("balls")
+    save_rig(rig, d / "rig.yaml")
+    seq = observation_sequence(rig, duration=0.5, fps=10.0, seed=1)
+    write_observation_log(d / "log.jsonl", seq.frames)
+    _cli("track", "--rig", str(d / "rig.yaml"), "--observations", str(d / "log.jsonl"), "--out", str(d / "out"),
+         "--no-progress")
+
+
 def warm_others(tmp: Path) -> None:
-    """Tags and cylinders in images, blinking lights in a short sequence, a team solved and tracked."""
+    """Tags and cylinders in images, blinking lights in a short sequence, a team solved and tracked.
+
+    It starts with the solver on simulated detections (no rendering) while the other group compiles the
+    renderer, so that each compiles its own kernels and finds the other's in the cache when it gets there:
+    both started by rendering, and both compiled the renderer's and the solver's kernels at the same time."""
+    _solve_without_images(tmp)
     for kind in ("tags", "cylinders"):
         d = tmp / kind
         _cli("simulate", "--out", str(d), "--markers", kind, "--size", "480x270", "--focal", "400",

@@ -1229,10 +1229,14 @@ def render(world: World, observer: str, t: float = 0.0, *, seed: int = 0, noise_
         raise InputError(f"jpeg_quality must be an integer in 1..100 or None, got {jpeg_quality!r}")
     rgb, emit = render_linear(world, observer, t)
     sensor = world.sensor
-    if sensor.bloom_strength > 0 and sensor.bloom_sigma_px > 0 and np.any(emit > 0):
+    # The pixels that emit (a few lights), found in one pass over the contiguous array:
+    # a reduction over the colour axis took a tenth of a second a frame at 1920x1080.
+    lit = np.flatnonzero(emit.reshape(-1) > 0) // 3 if sensor.bloom_strength > 0 and sensor.bloom_sigma_px > 0 \
+        else np.empty(0, np.int64)
+    if lit.size:
         # Glare around lights: a Gaussian PSF of the emitted light, computed on
         # the lights' neighbourhood only.
-        ys, xs = np.nonzero(emit.max(axis=2) > 0)
+        ys, xs = np.divmod(lit, emit.shape[1])
         m = int(math.ceil(4 * sensor.bloom_sigma_px))
         y0, y1 = max(0, ys.min() - m), min(rgb.shape[0], ys.max() + m + 1)
         x0, x1 = max(0, xs.min() - m), min(rgb.shape[1], xs.max() + m + 1)
