@@ -129,6 +129,14 @@ class RigCheck:
         self.last = test
         return test
 
+    def copy(self) -> "RigCheck":
+        """An independent copy (the tracker's state an undo goes back to)."""
+        new = RigCheck(self.window, self.false_alarm, self.record_cap)
+        new._records = deque(self._records)
+        new._chi2, new._dof, new.flagged, new.records, new.last = self._chi2, self._dof, self.flagged, self.records, \
+            self.last
+        return new
+
     @property
     def disagrees(self) -> bool:
         """Whether the latest window disagrees."""
