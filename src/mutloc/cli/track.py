@@ -305,4 +305,6 @@ def _run_team(args, rig, options, out) -> int:
     if log is not None:
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"reference {traj.reference}; {traj.summary()}; {_wrote(outputs, args, before)}")
+    for note in traj.notes:
+        print(note)
     return 0
