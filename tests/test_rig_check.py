@@ -194,3 +194,29 @@ def test_cli_team_track_prints_the_hint_and_the_rows_say_it(tmp_path, capsys):
             assert hints == [] and not any(said), out
         else:
             assert len(hints) == 1 and sum(said) > len(said) / 3, out
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_team_update_reports_its_observations_fitted_on_their_own(seed):
+    """``TeamUpdate.own``, accepted (the true rig) or rejected by the gate
+    (every marker 1-2 cm off, the filter tight about the true poses): the
+    chi-square and degrees of freedom of the same observations fitted on
+    their own by the joint solver (nonlinear least squares, nothing left out)."""
+    from mutloc.core.team_filter import TeamFilter
+    from mutloc.team import localize_team, team_problem
+
+    rng = np.random.default_rng(seed)
+    scene = random_team(3, rng, one_way=0.0)
+    names, truth = scene.names, scene.truth(scene.names[0])
+    obs = scene.observations(0.5, rng)  # (as stated: the chi-square is over pixel_sigma squared)
+    wrong = load_rig(perturb_rig(scene.rig.to_dict(), np.random.default_rng([seed, 38])))
+    for rig, accepted in ((scene.rig, True), (wrong, False)):
+        f = TeamFilter(names, names[0], pixel_sigma=0.5)
+        f.time = 0.0
+        for r in names[1:]:
+            f.add(r, truth[r], np.diag([0.01] * 3 + [0.02] * 3) ** 2)
+        upd = f.update(team_problem(rig, obs)[0])
+        fit = localize_team(rig, obs, names[0], pixel_sigma=0.5, confidence=1.0, reject_outliers=False).consistency
+        assert upd.accepted is accepted and len(upd.dropped) == (0 if accepted else len(obs))
+        assert upd.own[1] == fit.dof == 2 * len(obs) - 12
+        assert upd.own[0] == pytest.approx(fit.chi2, rel=0.01)
