@@ -19,7 +19,7 @@ from mutloc.sim.team import random_team, team_sequence
 from mutloc.sim.tracking import observation_sequence
 from mutloc.sim.world import standard_rig
 from mutloc.track.frames import expanded_rig
-from mutloc.track.rig_check import FALSE_ALARM, RIG_HINT, WINDOW, RigCheck, record_chi2
+from mutloc.track.rig_check import FALSE_ALARM, RIG_HINT, WINDOW, RigCheck
 from mutloc.track.team import track_team_log
 from mutloc.track.tracker import track_log
 
@@ -114,21 +114,6 @@ def test_pair_tracker_flags_a_rig_with_markers_off_and_not_the_right_one(seed):
     assert flagged and flagged[0] < 3 * WINDOW, flagged[:3]
     assert len(flagged) > 0.5 * len(bad.rows)
     assert len(bad.notes) == 1 and bad.notes[0].startswith(RIG_HINT)
-
-
-def test_record_chi2_is_the_records_own_fit():
-    """Noise-free observations with the true rig fit exactly (chi2 ~ 0, dof
-    2n - 6); with the markers moved they do not; three observations say nothing."""
-    rig = standard_rig("balls")
-    src, tgt = rig.default_pair(None, None)
-    exact = observation_sequence(rig, default_path(2.0, 12.0, 0.3), duration=0.2, fps=30.0, pixel_sigma=0.0,
-                                 drop=0.0, blind=(), outliers=0.0).frames[0]
-    c, d = record_chi2(rig, exact, src, tgt, 1.0)
-    assert d == 2 * len(exact) - 6 and c < 1e-8
-    wrong = expanded_rig(load_rig(perturb_rig(rig.to_dict(), np.random.default_rng(5))))
-    c_wrong, _ = record_chi2(wrong, exact, src, tgt, 1.0)
-    assert c_wrong > 1.0
-    assert record_chi2(rig, exact.take(np.arange(3)), src, tgt, 1.0)[1] == 0
 
 
 def test_cli_track_prints_the_hint(tmp_path, capsys):
