@@ -84,8 +84,8 @@ class RigTest:
 
     def words(self) -> str:
         """The row's note when the window disagrees."""
-        return (f"the rig disagrees: chi2 {self.chi2:.0f} over {self.dof} degrees of freedom in the last "
-                f"{self.records} records, above {self.threshold:.0f}; {RIG_HINT}")
+        return (f"the rig disagrees: chi2 {self.chi2:.1f} over {self.dof} degrees of freedom in the last "
+                f"{self.records} records, above {self.threshold:.1f}; {RIG_HINT}")
 
     def to_dict(self) -> dict[str, Any]:
         return {"chi2": self.chi2, "dof": self.dof, "threshold": self.threshold, "records": self.records,
