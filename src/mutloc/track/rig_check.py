@@ -25,9 +25,11 @@ Stray detections must not raise it: each record counts at most its own
 counts as one bad record, not as thousands), which keeps the test at or
 below its level on a correct rig with honest noise (a capped sum is never
 larger) while a rig that keeps disagreeing drives most records to the cap.
-Measured (bench/rig_check.py) on correct logs with 2 % of records holding
-a detection 30-60 px off, the largest window of 20 ten-second logs reached
-0.80 of its threshold (0.96 with the cap at the 0.999 quantile).  Noise above
+Measured (bench/rig_check.py, docs/benchmarks.md) on correct logs with 2 %
+of records holding a detection 30-60 px off, each record refitted on its
+own, the largest window of 20 ten-second logs reached 0.80 of its threshold
+(0.96 with the cap at the 0.999 quantile); fed by the team tracker, 0.72
+(the pair) and 0.89 (a team of three).  Noise above
 ``--pixel-sigma`` raises it too (every record's chi-square scaled by the
 ratio squared, about 1.5x at the default window and level): the hint names
 the rig, the docs say to check the noise as well.
