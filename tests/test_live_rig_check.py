@@ -25,8 +25,9 @@ T0 = 1_800_000_000.0  # the robots' wall clock at the records' time 0
 LATENCY = 0.008
 
 
-def _run(tmp_path, seed, wrong):
-    """The localizer on a team's messages (rig file true, or every marker 1-2 cm off); its lines said."""
+def _run(tmp_path, seed, wrong, again=None):
+    """The localizer on a team's messages (rig file true, or every marker 1-2 cm off); its lines said.
+    ``again``: the same records once more, that many seconds later."""
     scene = random_team(3, np.random.default_rng(seed), one_way=0.3)
     spec = perturb_rig(scene.rig.to_dict(), np.random.default_rng([seed, 38])) if wrong else scene.rig
     path = tmp_path / f"rig_{seed}_{wrong}.yaml"
@@ -35,6 +36,8 @@ def _run(tmp_path, seed, wrong):
     said: list[str] = []
     loc = Localizer(path, notify=said.append)
     recs = team_camera_records(scene, 2.5, sigma=1.0, seed=seed)
+    if again is not None:
+        recs = recs + [(t + again, a, w, obs) for t, a, w, obs in recs]
     for k, (t, a, _, obs) in enumerate(recs):
         now = T0 + t + LATENCY
         while loc.next_due() is not None and loc.next_due() <= now:
@@ -63,6 +66,14 @@ def test_diagnostics_warn_with_the_hint_when_the_rig_is_off(tmp_path, seed):
     assert sum(RIG_HINT in line for line in said) == 1, said  # said once
     # held for NOTICE_HOLD s after the last record whose window disagreed, then not said
     assert all(RIG_HINT not in s.message for s in loc.diagnostics(at + NOTICE_HOLD + 0.1))
+
+
+def test_the_hint_is_said_once_in_a_run(tmp_path):
+    """The rig disagrees again 12 s later (beyond the 10 s after which other
+    notices are said again): still one line."""
+    loc, said, end = _run(tmp_path, 1, wrong=True, again=12.0)
+    assert loc.rig_flag is not None and loc.rig_flag[0] > T0 + 12.0  # it disagreed in the second part too
+    assert sum(RIG_HINT in line for line in said) == 1, said
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
