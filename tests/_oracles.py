@@ -9,7 +9,9 @@ exponential and logarithm of mutloc.core.geometry, tested on their own).
   ``t <- t + dt``), with the rule for a filter whose gain weighed measured
   noise below the stated one (the gains from the filter's own covariances;
   the reported covariance the smaller, by the trace of its pose block, of the
-  filter's and the smoothed own one times ``noise_scale``).
+  filter's and the smoothed own one times ``noise_scale``);
+- :func:`kb_project`: the Kannala-Brandt (OpenCV fisheye) projection, any
+  angle off the axis, written from its formula.
 """
 
 from __future__ import annotations
@@ -82,3 +84,13 @@ def rts_smooth(priors: list[State], posts: list[State]) -> list[State]:
         out[k] = State(post.time, so3_exp(e[:3]) @ post.R, post.t + e[3:6], post.vel + e[6:], 0.5 * (P + P.T), Pg,
                        post.noise_scale)
     return out
+
+
+def kb_project(K: np.ndarray, k: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Kannala-Brandt (OpenCV fisheye) projection of camera-frame points (n, 3), any angle off the axis."""
+    X = np.atleast_2d(np.asarray(X, float))
+    r = np.hypot(X[:, 0], X[:, 1])
+    th = np.arctan2(r, X[:, 2])
+    thd = th * (1 + k[0] * th**2 + k[1] * th**4 + k[2] * th**6 + k[3] * th**8)
+    s = np.where(r > 0, thd / np.where(r > 0, r, 1.0), 0.0)
+    return np.stack([K[0, 0] * s * X[:, 0] + K[0, 2], K[1, 1] * s * X[:, 1] + K[1, 2]], axis=1)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _oracles import kb_project
 
 from mutloc.cli.main import main
 from mutloc.core.geometry import rotation_error_deg
@@ -28,16 +29,6 @@ SIZE = (640, 400)
 FACES = {"front": ((1.0, 0.0, 0.0), (0.21, 0.0, 0.155)), "left": ((0.0, 1.0, 0.0), (0.0, 0.16, 0.155)),
          "back": ((-1.0, 0.0, 0.0), (-0.21, 0.0, 0.155)), "right": ((0.0, -1.0, 0.0), (0.0, -0.16, 0.155))}
 NAMES = {"q": ("M1", "M2", "M3", "M4"), "p": ("M5", "M6", "M7", "M8")}
-
-
-def kb_project(K: np.ndarray, k: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Kannala-Brandt (OpenCV fisheye) projection of camera-frame points (n, 3), any angle off the axis."""
-    X = np.atleast_2d(np.asarray(X, float))
-    r = np.hypot(X[:, 0], X[:, 1])
-    th = np.arctan2(r, X[:, 2])
-    thd = th * (1 + k[0] * th**2 + k[1] * th**4 + k[2] * th**6 + k[3] * th**8)
-    s = np.where(r > 0, thd / np.where(r > 0, r, 1.0), 0.0)
-    return np.stack([K[0, 0] * s * X[:, 0] + K[0, 2], K[1, 1] * s * X[:, 1] + K[1, 2]], axis=1)
 
 
 def face_corners(face: str, size: float = 0.20) -> np.ndarray:

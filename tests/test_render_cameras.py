@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _oracles import kb_project
 
 import mutloc
 from mutloc.cli.main import main
@@ -31,16 +32,6 @@ from mutloc.sim.render import (
 )
 from mutloc.sim.scenario import single_frame_pose
 from mutloc.sim.world import Light, Sensor, World, WorldRobot, standard_rig
-
-
-def kb_project(K: np.ndarray, k: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Independent Kannala-Brandt (OpenCV fisheye) projection of camera-frame points (n, 3), any angle."""
-    X = np.atleast_2d(np.asarray(X, float))
-    r = np.hypot(X[:, 0], X[:, 1])
-    th = np.arctan2(r, X[:, 2])
-    thd = th * (1 + k[0] * th**2 + k[1] * th**4 + k[2] * th**6 + k[3] * th**8)
-    s = np.where(r > 0, thd / np.where(r > 0, r, 1.0), 0.0)
-    return np.stack([K[0, 0] * s * X[:, 0] + K[0, 2], K[1, 1] * s * X[:, 1] + K[1, 2]], axis=1)
 
 
 def silhouette_centroid(C: np.ndarray, r: float, K: np.ndarray, k: np.ndarray, n: int = 4000) -> np.ndarray:

@@ -110,3 +110,43 @@ def test_children_stopped_by_process_group(kind):
             os.killpg(child.pid, signal.SIGKILL)
             child.wait()
         child.stdout.close()
+
+
+_EXIT_ON_STOP = """
+import os, signal, sys, time
+from mutloc.signals import exit_on_stop, sigterm_as_interrupt
+signal.signal(signal.SIGINT, signal.default_int_handler)  # (a background job starts with SIGINT ignored)
+with sigterm_as_interrupt():
+    try:
+        with exit_on_stop("interrupted while compiling"):
+            os.kill(os.getpid(), {sig})
+            time.sleep(5)
+            print("the block went on")
+        print("after the block")
+    finally:
+        print("a finally block ran")
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_stop_signal_in_an_exit_on_stop_block_ends_the_process_with_one_line(sig):
+    """Inside exit_on_stop (a node loading its kernels) a stop signal ends the
+    process at once: its one line, status 130, no KeyboardInterrupt raised
+    into the block (nothing after it runs, no traceback)."""
+    p = subprocess.run([sys.executable, "-c", _EXIT_ON_STOP.format(sig=int(sig))], capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 130
+    assert p.stderr == "interrupted while compiling\n"
+    assert p.stdout == ""
+
+
+def test_exit_on_stop_restores_ctrl_c_after_the_block():
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        from mutloc.signals import exit_on_stop
+
+        with exit_on_stop("x"):
+            assert signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, old)

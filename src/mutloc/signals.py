@@ -9,6 +9,10 @@ One place for the process's stop signals:
   installs it for the time of the command.
 - :func:`deferred_interrupt`: both held back until a block that writes one
   row in several steps ends.
+- :func:`exit_on_stop`: within a block that must not be interrupted half
+  way and has nothing to write yet (Numba compiling or loading kernels: a
+  ``KeyboardInterrupt`` raised inside its callbacks leaves it broken), a
+  stop signal prints one line and ends the process at once, status 130.
 - :func:`stop_process_group`: a child started with ``start_new_session=True``
   is stopped with SIGTERM to its whole process group, then SIGKILL after a
   timeout.  SIGTERM, not SIGINT: a background job (``cmd &`` in a script)
@@ -25,7 +29,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterable, Iterator
 
-__all__ = ["STOP_SIGNALS", "sigterm_as_interrupt", "deferred_interrupt", "stop_process_group", "STOP_TIMEOUT"]
+__all__ = ["STOP_SIGNALS", "sigterm_as_interrupt", "deferred_interrupt", "exit_on_stop", "stop_process_group",
+           "STOP_TIMEOUT"]
 
 #: The signals that stop a run as Ctrl-C does.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -72,6 +77,34 @@ def deferred_interrupt() -> Iterator[None]:
             signal.signal(s, signal.default_int_handler)
         if got:
             raise KeyboardInterrupt
+
+
+@contextmanager
+def exit_on_stop(line: str) -> Iterator[None]:
+    """Within the block, a stop signal (Ctrl-C, or SIGTERM under
+    :func:`sigterm_as_interrupt`) writes ``line`` to stderr and ends the
+    process at once with status 130, instead of raising
+    ``KeyboardInterrupt`` wherever the block happens to be.  For work with
+    nothing to save that an exception must not cut in half -- Numba
+    compiling a kernel, which a ``KeyboardInterrupt`` in its callbacks
+    leaves unusable (``RuntimeError: no compiled object yet``).  Only in the
+    main thread, and only for the signals whose handler is Python's own
+    Ctrl-C handler; restored after."""
+    held = [s for s in STOP_SIGNALS if signal.getsignal(s) is signal.default_int_handler] if _main_thread() else []
+
+    def stop(signum: int, frame: object) -> None:
+        try:
+            os.write(2, (line.rstrip("\n") + "\n").encode())
+        finally:
+            os._exit(130)
+
+    for s in held:
+        signal.signal(s, stop)
+    try:
+        yield
+    finally:
+        for s in held:
+            signal.signal(s, signal.default_int_handler)
 
 
 def _signal_group(p: subprocess.Popen, sig: int) -> None:

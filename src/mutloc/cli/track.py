@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import NOISE, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map, robot_value, team_mode
+from ._common import (NOISE, ODOMETRY, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map,
+                      robot_value, team_mode)
 
 ORDER = 30
 
@@ -13,7 +14,7 @@ ORDER = 30
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``track``."""
     p = subparsers.add_parser(
-        "track", parents=[RIG, PAIR, TEAM, NOISE, PROGRESS],
+        "track", parents=[RIG, PAIR, TEAM, NOISE, ODOMETRY, PROGRESS],
         help="relative pose over time from two videos, image folders, a ROS bag or an observation log",
         description="Detect the markers in every camera frame and fuse each at its own timestamp (frames of the "
         "robots within --tolerance make one record; cameras need not be synchronized), "
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
                          "is already there")
     team = team_mode(rig, args)
     options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
-                            smooth_lag=args.smooth_lag)
+                            smooth_lag=args.smooth_lag, odometry=_odometry(args, rig, team))
     if args.observations and args.annotate:
         raise InputError("--annotate draws on the images: it needs --stream, not an observation log")
     if team:
@@ -110,6 +111,46 @@ def run(args: argparse.Namespace) -> int:
                      fps=args.fps, annotate=args.annotate, observations_out=args.observations_out,
                      progress=args.progress, filter=options, rerun=args.rerun, sink=sink)
     return _written_as_it_runs(work, out, args, rig)
+
+
+def _odometry(args: argparse.Namespace, rig, team: bool) -> dict:
+    """``--odometry`` by robot (a pair's robots only), each source's rejected
+    samples said on stderr (one line per robot); one-line OdometryError for a
+    source that cannot be used."""
+    import sys
+
+    from ._common import odometry_options
+    from ..errors import OdometryError
+
+    odometry = odometry_options(args, rig)
+    if odometry and args.filter != "cv":
+        raise OdometryError("--odometry is fused by the filter: it needs --filter cv")
+    if not team:
+        pair = rig.default_pair(args.source, args.target)
+        for robot in odometry:
+            if robot not in pair:
+                raise OdometryError(f"--odometry {robot}=...: robot {robot!r} is not tracked (the pair is "
+                                    f"{pair[0]} and {pair[1]})")
+    for robot, odo in odometry.items():
+        rejected = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in odo.counts.items() if n)
+        if rejected:
+            print(f"note: odometry of {robot} ({odo.source}): samples rejected: {rejected}", file=sys.stderr)
+    args.odometry_loaded = odometry
+    return odometry
+
+
+def _odometry_unused(args: argparse.Namespace, times: list[float]) -> None:
+    """A note on stderr for each robot's odometry whose stamps the records'
+    times never fall in (it moved no prediction: another clock?)."""
+    import sys
+
+    if not times or not getattr(args, "odometry_loaded", None):
+        return
+    lo, hi = min(times), max(times)
+    for robot, odo in args.odometry_loaded.items():
+        if odo.end < lo or odo.start > hi:
+            print(f"note: odometry of {robot} ({odo.source}) not used: its stamps {odo.start:.3f}-{odo.end:.3f} s "
+                  f"miss the records' {lo:.3f}-{hi:.3f} s (on another clock?)", file=sys.stderr)
 
 
 def _stream_options(args: argparse.Namespace, rig) -> tuple[dict, dict, dict]:
@@ -215,6 +256,7 @@ def _written_as_it_runs(work, out, args, rig, log: LogUpToBadLine | None = None)
     if log is not None:
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"{traj.summary()}; {_wrote(outputs, args, before)}")
+    _odometry_unused(args, [row.t for row in traj.rows])
     for note in traj.notes:
         print(note)
     return 0
@@ -305,6 +347,7 @@ def _run_team(args, rig, options, out) -> int:
     if log is not None:
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"reference {traj.reference}; {traj.summary()}; {_wrote(outputs, args, before)}")
+    _odometry_unused(args, [row.t for tr in traj.tracks.values() for row in tr.rows])
     for note in traj.notes:
         print(note)
     return 0

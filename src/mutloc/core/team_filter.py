@@ -13,7 +13,9 @@ each is known in the reference's frame, and an observation of one moves the
 other.
 
 Motion: each robot's constant-velocity model, independent white-noise
-accelerations (:class:`~mutloc.core.filter.MotionNoise`).
+accelerations (:class:`~mutloc.core.filter.MotionNoise`); where robots
+have odometry (:meth:`TeamFilter.set_odometry`), their increments between
+the two times move the poses instead (:mod:`mutloc.core.team_odometry`).
 
 Update: an iterated EKF on the pixel residuals of any set of observations
 taken at one time (typically one camera's frame) -- "camera ``a`` saw
@@ -53,9 +55,11 @@ import numpy as np
 from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .filter import NOISE_WINDOW, STATE_DIM, MotionNoise, measured_noise, single_outlier
+from .odometry import Odometry, OdometryIncrement
 from .pose import Pose
 from .team import TeamProblem
 from .team_kernels import team_iekf, team_ls_residual, team_predict
+from .team_odometry import odometry_predict
 
 __all__ = ["TeamFilter", "TeamUpdate", "TeamSnapshot"]
 
@@ -101,6 +105,9 @@ class TeamSnapshot:
     P: np.ndarray
     Pg: np.ndarray | None = None
     noise_scale: float = 1.0
+    #: The transition of the prediction to this time where odometry moved
+    #: it (k x 12 x 12, state order); None: each robot's constant velocity.
+    F: np.ndarray | None = None
 
     @property
     def own(self) -> np.ndarray:
@@ -154,6 +161,36 @@ class TeamFilter:
         #: Each robot's track: a new number whenever it enters the state (see :class:`TeamSnapshot`).
         self.serial = np.zeros(n, np.int64)
         self._serials = 0
+        #: Each robot's odometry (by index) and its clock's offset to the
+        #: reference's (s, added to its stamps), see :meth:`set_odometry`.
+        self.odometry: dict[int, tuple[Odometry, float]] = {}
+        #: The last prediction's transition where odometry moved it (:attr:`TeamSnapshot.F`).
+        self.transition: np.ndarray | None = None
+
+    def set_odometry(self, name: str, odometry: Odometry | None, clock_offset: float = 0.0) -> None:
+        """``name``'s odometry (None: none) for the predictions from now on,
+        its stamps on a clock ``clock_offset`` s behind the filter's (the
+        offset added to them puts them on the filter's clock).  An interval
+        its odometry does not cover falls back to the constant-velocity model."""
+        i = self.index(name)
+        if odometry is None:
+            self.odometry.pop(i, None)
+            return
+        if not isinstance(odometry, Odometry):
+            raise InputError(f"odometry of {name!r} must be an Odometry, got {type(odometry).__name__}")
+        off = float(clock_offset)
+        if not math.isfinite(off):
+            raise InputError(f"clock offset of {name!r} must be finite, got {clock_offset!r}")
+        self.odometry[i] = (odometry, off)
+
+    def _increment(self, i: int, t0: float, t1: float) -> OdometryIncrement | None:
+        """Robot ``i``'s odometry increment from ``t0`` to ``t1`` (the filter's clock), or None."""
+        if i not in self.odometry:
+            return None
+        odo, off = self.odometry[i]
+        if not odo.covers(t0 - off, t1 - off):
+            return None
+        return odo.increment(t0 - off, t1 - off)
 
     # -- the state ----------------------------------------------------------
 
@@ -324,23 +361,37 @@ class TeamFilter:
         return TeamSnapshot(-math.inf if self.time is None else self.time, tuple(self.tracked),
                             tuple(int(s) for s in self.serial[idx]), self.R[idx].copy(), self.t[idx].copy(),
                             self.vel[idx].copy(), self.P.copy(), None if self.Pg is None else self.Pg.copy(),
-                            self.noise_scale)
+                            self.noise_scale, None if self.transition is None else self.transition.copy())
 
     # -- motion ---------------------------------------------------------------
 
     def predict(self, time: float) -> None:
-        """Every tracked robot moved to ``time`` by its motion model."""
+        """Every tracked robot moved to ``time`` by its motion model (its
+        odometry and the reference's where they cover the interval, see
+        :mod:`mutloc.core.team_odometry`)."""
+        self.transition = None
         if self.time is None:
             self.time = float(time)
             return
         dt = float(time) - self.time
         if dt < 0.0:
             raise InputError(f"time goes back: {time} after {self.time}")
-        self.time = float(time)
+        t0, self.time = self.time, float(time)
         if dt == 0.0 or not self.tracked:
             return
         tracked = np.asarray(self.tracked, np.int64)
         qa, ql = self.noise.angular**2, self.noise.linear**2
+        if self.odometry:
+            ref = self._increment(self.index(self.reference), t0, self.time)
+            own = {i: inc for i in self.tracked if (inc := self._increment(i, t0, self.time)) is not None}
+            if ref is not None or own:
+                covs = [self.P] + ([self.Pg] if self.Pg is not None else [])
+                out, self.transition = odometry_predict(self.R, self.t, self.vel, self.tracked, covs, dt, qa, ql,
+                                                        own, ref)
+                self.P = out[0]
+                if self.Pg is not None:
+                    self.Pg = out[1]
+                return
         if self.Pg is not None:  # (the poses move once: with the stated covariance below)
             Pg = np.array(self.Pg, dtype=float, order="C")
             team_predict(tracked, self.R.copy(), self.t.copy(), self.vel, Pg, dt, qa, ql)

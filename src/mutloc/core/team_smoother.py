@@ -11,8 +11,9 @@ state (all tracked robots' poses and velocities with their correlations):
     P_k^s = P_k + G_k (P_k+1^s - P_k+1^-) G_k'
 
 on the error state (SPEC perturbations: ``R <- exp(dtheta) R``), ``F_k``
-each robot's constant-velocity transition (the motion is independent per
-robot: ``F`` is block diagonal).
+each robot's constant-velocity transition, or the prediction's own where
+odometry moved it (:attr:`~mutloc.core.team_filter.TeamSnapshot.F`; block
+diagonal either way: one block per robot).
 
 Robots entering and leaving the state: a step from record ``k + 1`` back to
 ``k`` carries only the robots tracked at both on the same track (same
@@ -85,7 +86,10 @@ def _gain(post: TeamSnapshot, prior: TeamSnapshot, nxt_post: TeamSnapshot) -> _G
     # Cov(x_k, x_k+1^-) = P_k[:, C] F_C' with F block diagonal: F_C P_k[C, :] block by block.
     FP = np.empty((len(rows), post.P.shape[0]))
     for n, x in enumerate(carried):
-        cv_transition(post.vel[x], dt, F)
+        if prior.F is not None:  # odometry moved the prediction: its own transition
+            F = prior.F[x]
+        else:
+            cv_transition(post.vel[x], dt, F)
         FP[STATE_DIM * n:STATE_DIM * (n + 1)] = F @ post.own[STATE_DIM * x:STATE_DIM * (x + 1)]
     Pp = prior.own[np.ix_(rows, rows)]
     G = np.linalg.solve(Pp, FP).T

@@ -33,6 +33,8 @@ __all__ = ["run_live_demo", "run_live_pair", "format_live_summary"]
 SOURCE, TARGET = "p", "q"
 #: Seconds between starting the nodes and their first frame (DDS discovery, loading the detectors).
 LEAD_IN = 4.0
+#: A node's lead-in is at least this many times the time the localizer took to start (a loaded machine).
+NODE_START_FACTOR = 2.5
 #: Seconds the localizer may take to start listening.
 READY_TIMEOUT = 60.0
 
@@ -70,6 +72,29 @@ def _render(folder: Path, seconds: float, fps: float, seed: int, progress: bool)
     return times
 
 
+def warm_up_kernels(rig: Any, folders: dict[str, Path], fps: float, progress: bool = False) -> None:
+    """Compile (on a cold cache: a fresh install) or load the numerical
+    kernels the nodes and the localizer will use, here, before they start:
+    each robot's detector on drawn markers
+    (:func:`~mutloc.live.node.warm_up_detector`) and the team tracker on the
+    first frames of ``folders``.  The processes then load them from the
+    cache within their lead-in instead of compiling them while the replays
+    run (and a stop during a compilation is never what ends them)."""
+    from itertools import islice
+
+    from ..track.frames import expanded_rig
+    from ..track.sources import folder_frames
+    from ..track.team import track_team
+    from .node import warm_up_detector
+
+    rig = expanded_rig(rig)
+    if progress:
+        print("loading the numerical kernels (compiled once on a fresh install: up to a few minutes)", flush=True)
+    for r in folders:
+        warm_up_detector(rig, r, [o for o in folders if o != r], fps)
+    track_team(rig, {r: islice(folder_frames(f), 6) for r, f in folders.items()}, progress=False)
+
+
 def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fps: float = 10.0, seed: int = 0,
                   domain: int | None = None, progress: bool = False) -> dict[str, Any]:
     """Render ``seconds`` of the demo sequence at ``fps``, run two nodes and a
@@ -98,9 +123,12 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
     times = _render(out / "cameras", seconds, fps, seed, progress)
     render_s = time.perf_counter() - t0
     world = moving_world(rig, seed=seed, source=SOURCE, target=TARGET)
+    t0 = time.perf_counter()
+    warm_up_kernels(rig, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, fps, progress)
+    warm_s = time.perf_counter() - t0
     summary = run_live_pair(rig_file, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, out, seconds=seconds,
                             truth=lambda t: relative_pose(world, SOURCE, TARGET, t), domain=domain)
-    summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s)
+    summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s, warm_up_seconds=warm_s)
     (out / "live_summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     return summary
 
@@ -145,14 +173,20 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
 
     try:
         launch("localizer", exe + ["localizer", *common, "--out", str(out / "localizer"), "--duration",
-                                   f"{run_for + READY_TIMEOUT:g}"])
+                                   f"{run_for + (1 + NODE_START_FACTOR) * READY_TIMEOUT:g}"])
         # the nodes' replays start once the localizer listens (it says so when ready)
-        deadline = time.monotonic() + READY_TIMEOUT
+        launched = time.monotonic()
+        deadline = launched + READY_TIMEOUT
         while "localizer: rig_id" not in (out / "localizer.log").read_text(encoding="utf-8"):
             if procs[0].poll() is not None or time.monotonic() > deadline:
                 break
             time.sleep(0.05)
+        # a node takes as long to start as the localizer did (the same imports and DDS on this machine at its
+        # present load), then loads its detectors: its replay starts after that, not while it is still starting
+        ready_s = time.monotonic() - launched
+        lead_in = max(lead_in, NODE_START_FACTOR * ready_s + 1.0)
         start_at = time.time() + lead_in
+        run_for = lead_in + seconds + 2.0
         for r, f in folders.items():
             launch(r, exe + ["node", *common, "--robot", r, "--camera", str(f), "--realtime", "--start-at",
                              f"{start_at:.6f}", "--duration", f"{run_for:g}", "--no-progress"])
@@ -184,6 +218,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     summary["observation_messages"] = messages
     summary["stages_ms"] = _stages(received, arrived)
     summary["start_at"] = start_at  # the wall-clock time of every recording's first frame
+    summary["localizer_start_s"], summary["lead_in_s"] = ready_s, lead_in
     # the first pose's capture time after the first frame, and the rate of poses from then on
     first = min((stamp for _, stamp, _ in received), default=None)
     summary["first_pose_s"] = None if first is None else first - start_at

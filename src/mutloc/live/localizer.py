@@ -98,6 +98,7 @@ from ..track.rows import TrackRow
 from ..track.status import FrameStatus
 from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
                        rig_id as rig_id_of)
+from .ties import TieWindow
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
            "WARN_AFTER", "MAX_LAG", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
@@ -200,6 +201,14 @@ class RobotCounts:
     status: str = ""
     #: Time of its track's last measured row (solved, unverified or partial).
     last_measured: float | None = None
+    #: Whether the observations of the last ``max_coast`` s tied it to the reference at the last record
+    #: (see :mod:`mutloc.live.ties`; its pose is published only then), and since when they do not.
+    tied: bool = False
+    untied_since: float | None = None
+    #: Distinct observations tying it to other robots within the last ``max_coast`` s, at the last record.
+    ties: int = 0
+    #: Its rows not published because the observations of the last ``max_coast`` s did not tie it.
+    untied: int = 0
     #: Arrival time of its last refused message, and why it was refused (None: none refused).
     last_refused_at: float | None = None
     last_refusal: str = ""
@@ -319,6 +328,8 @@ class Localizer:
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
         self.counts = {r: RobotCounts() for r in names}
+        #: The observations of the last ``max_coast`` s that tie robots to the reference.
+        self.ties = TieWindow(self.reference, self.max_coast)
         self.unattributed = 0  #: refused messages that named no robot of the rig
         self.records = 0  #: records fused
         self.fused_until = -math.inf  #: capture time of the last record fused
@@ -572,20 +583,33 @@ class Localizer:
         self._rig_said(t)
         stamps = list({h.ns: h for h in sorted(group, key=lambda h: h.ns)}.values())  # one message per stamp
         involved: set[str] = set()
+        owner = self.rig.owner
         for h in group:
             self.counts[h.robot].fused += 1
             involved.update(self.engine.involved(h.robot, h.observations))
+            self.ties.add(h.t, h.robot, h.key or h.robot,
+                          [(m, owner(m)) for m in set(h.observations.marker) if m is not None])
+        tied = self.ties.tied(t)
+        self.ties.forget_before(t)
         out = []
         for robot, row in rows.items():
             rc = self.counts[robot]
             rc.status = str(row.status)
+            rc.ties = self.ties.ties_of(robot, t)
+            if robot in tied:
+                rc.tied, rc.untied_since = True, None
+            elif rc.tied or rc.untied_since is None:
+                rc.tied, rc.untied_since = False, row.t
             e = row.estimate
             if e is None or robot not in involved:
                 continue
             if row.status in MEASURED:
                 rc.last_measured = row.t
-            elif not (row.status == FrameStatus.PREDICTED and rc.last_measured is not None
-                      and row.t - rc.last_measured <= self.max_coast):
+            elif row.status != FrameStatus.PREDICTED:
+                continue
+            if robot not in tied:
+                # the observations of the last max_coast s do not fix it (any more, or yet): not published
+                rc.untied += 1
                 continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
             body: list = []  # (their bytes but the stamp: made once)
@@ -639,6 +663,11 @@ class Localizer:
                 message = f"no observations for {age:.2f} s"
             else:
                 message = f"dropped: no observations for {age:.2f} s"
+            if level == OK and r != self.reference and not c.tied and c.untied_since is not None:
+                # observations come, but too few of them (over the last max_coast s) to fix its pose
+                level = STALE
+                message = (f"not published: tied by {c.ties} distinct observation(s) in the last {self.max_coast:g} s "
+                           f"(three fix a pose), for {max(0.0, now - c.untied_since):.2f} s")
             said = []
             if c.last_refused_at is not None and now - c.last_refused_at <= NOTICE_HOLD:
                 said.append(f"refused {c.refused} observations: {c.last_refusal}")
@@ -656,7 +685,8 @@ class Localizer:
                       "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates, "shed": c.shed,
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
-                      "poses_published": c.poses, "poses_unsent": c.unsent}
+                      "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
+                      "untied_not_published": c.untied}
             rig_test = self.engine.tracker.rig_check.last
             if rig_test is not None:
                 values.update(rig_chi2=f"{rig_test.chi2:.1f}", rig_dof=rig_test.dof,

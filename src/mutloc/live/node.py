@@ -53,6 +53,7 @@ from ..core.observations import ObservationSet
 from ..core.pose import Pose
 from ..core.rig import MarkerKind, Mount, Rig
 from ..errors import InputError, MutlocError
+from ..signals import exit_on_stop
 from ..detect.tags import tag_corner_points
 from ..track.frames import expanded_rig
 from ..track.sources import Frame
@@ -62,7 +63,8 @@ from .cameras import CameraSource, LiveFrame, ReplaySource
 from .messages import (DIAGNOSTICS_TOPIC, OK, TF_TOPIC, WARN, RobotStatus, diagnostics_message,
                        observations_message, observations_topic, rig_id as rig_file_id, ros_types, stamp_of)
 
-__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "camera_key", "camera_arguments", "with_camera",
+__all__ = ["Node", "NodeStats", "percentile_ms", "warm_up_images", "warm_up_detector", "camera_key",
+           "camera_arguments", "with_camera",
            "run_nodes", "LATENCY_WINDOW", "TF_MAX_AGE", "BEHIND_WINDOW"]
 
 #: The latencies a node keeps (the most recent: an hour at 30 frames/s), so a node running for days stays small.
@@ -335,6 +337,23 @@ def warm_up_images(rig: Rig, others: list[str], size: tuple[int, int], fps: floa
     return images
 
 
+def warm_up_detector(rig: Rig, key: str, others: list[str], fps: float) -> None:
+    """Run a throwaway detector of camera ``key`` (looking for ``others``'
+    markers) on a blank and a noise image, then on drawn images of the
+    markers (:func:`warm_up_images`): every kernel it uses is compiled (on a
+    cold cache) or loaded.  What is detected is thrown away."""
+    w, h = rig.mount(key).camera.size or (640, 480)
+    spare = ObserverDetector(rig, key, others, fps)
+    # faint noise: full-range noise is a blob on every pixel, and the blinking lights' tracker
+    # would spend minutes giving each a track
+    noise = np.random.default_rng(0).integers(0, 8, (h, w, 3), dtype=np.uint8)
+    images = [np.zeros((h, w, 3), np.uint8), noise, *warm_up_images(rig, others, (w, h), fps)]
+    for k, image in enumerate(images):
+        frame = Frame(k, k / fps, image)
+        spare.feed(frame)
+        spare.detect(frame)
+
+
 class Node:
     """Robot ``robot``'s node: detections of ``source``'s frames published on ``bus``.
 
@@ -393,25 +412,14 @@ class Node:
         self._tf: dict[str, tuple[str, float, Pose]] = {}
 
     def warm_up(self) -> None:
-        """Run a throwaway copy of the detectors on a blank and a noise image,
-        then on drawn images of the markers they look for (balls, blinking
-        lights over a second of frames, tags): loads every compiled kernel
-        they use before the first frame.  A kernel first needed when a marker
-        is first seen costs up to half a second (Numba loading it and its
+        """Load every compiled kernel the detectors use before the first frame
+        (:func:`warm_up_detector`).  A kernel first needed when a marker is
+        first seen costs up to half a second (Numba loading it and its
         registries): the frame, and those behind it, would be that late, and
         a blinking light's tracker would miss frames."""
         self._warm = True
-        w, h = self.rig.mount(self.key).camera.size or (640, 480)
-        spare = ObserverDetector(self.rig, self.key, self.others, self.detector_fps)
-        # faint noise: full-range noise is a blob on every pixel, and the blinking lights' tracker
-        # would spend minutes giving each a track
-        noise = np.random.default_rng(0).integers(0, 8, (h, w, 3), dtype=np.uint8)
-        images = [np.zeros((h, w, 3), np.uint8), noise, *warm_up_images(self.rig, self.others, (w, h),
-                                                                         self.detector_fps)]
-        for k, image in enumerate(images):
-            frame = Frame(k, k / self.detector_fps, image)
-            spare.feed(frame)
-            spare.detect(frame)
+        with exit_on_stop(f"interrupted while loading the detectors: node {self.key}: 0 frames captured"):
+            warm_up_detector(self.rig, self.key, self.others, self.detector_fps)
 
     def subscribers(self) -> int:
         """How many readers the observations topic has now."""

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import numpy as np
 
 from ..core.estimate import PairProblem
 from ..core.filter import MotionNoise
+from ..core.odometry import Odometry
 from ..core.observations import PairObservations
 from ..core.rays import pair_rays
 from ..errors import InputError, positive_number
@@ -56,6 +58,10 @@ class FilterOptions:
     last ``start_window`` seconds together -- cameras that are not
     synchronized, each record one camera's frame -- their pose and velocity
     fitted with every observation at its own time (0: only from one record).
+    ``odometry``: robots' own odometry (name ->
+    :class:`~mutloc.core.odometry.Odometry`, stamps on the reference's
+    clock), the motion between records where it covers them (needs the
+    filter).
     """
 
     kind: str = "cv"
@@ -66,6 +72,7 @@ class FilterOptions:
     smooth_lag: int | None = None
     measure_noise: bool = True
     start_window: float = DEFAULT_START_WINDOW
+    odometry: Mapping[str, Odometry] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in FILTERS:
@@ -80,6 +87,11 @@ class FilterOptions:
             raise InputError("smoothing (--smooth-lag) needs the filter (--filter cv)")
         if not (isinstance(self.start_window, (int, float)) and 0.0 <= self.start_window < math.inf):
             raise InputError(f"start_window must be a number of seconds >= 0, got {self.start_window!r}")
+        if self.odometry and self.kind != "cv":
+            raise InputError("odometry (--odometry) is fused by the filter: it needs --filter cv")
+        for name, odo in self.odometry.items():
+            if not isinstance(odo, Odometry):
+                raise InputError(f"odometry of {name!r} must be an Odometry, got {type(odo).__name__}")
         positive_number(self.lost_sigma_t, "lost_sigma_t")
         positive_number(self.lost_sigma_r_deg, "lost_sigma_r_deg")
 

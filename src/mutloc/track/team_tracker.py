@@ -27,7 +27,8 @@ from ..core.team import MIN_TIES, TeamProblem, residual_norms
 from ..core.filter import STATE_DIM
 from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
-from ..errors import InconsistentObservationsError, InputError, MutlocError, ObservationError, positive_number
+from ..errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, OdometryError,
+                      positive_number)
 from ..team import TeamEstimate, localize_team, team_problem
 from . import lifecycle
 from .lifecycle import PoseCov, Track, TrackState, UndoRequest, ties_to_one
@@ -61,6 +62,11 @@ class TeamTracker(Starts, Hindsight, Rows):
         self.options = options if options is not None else FilterOptions()
         self.filter = TeamFilter(names, reference, self.options.noise, pixel_sigma, confidence,
                                  measure_noise=self.options.measure_noise)
+        for name, odo in self.options.odometry.items():
+            if name not in rig.robots:
+                raise OdometryError(f"odometry of {name!r}: no robot {name!r} in the rig "
+                                    f"(robots: {', '.join(names)})")
+            self.filter.set_odometry(name, odo)
         #: With ``smooth_lag``: the joint filter's states of the records not yet
         #: final and their rows (see :meth:`finalize`).
         self.smoother = TeamSmoother(self.options.smooth_lag) if self.options.smooth_lag and self.filtering else None
@@ -76,8 +82,8 @@ class TeamTracker(Starts, Hindsight, Rows):
         self.last_time: float | None = None
         self.joint_solves = 0  #: records solved on their own to start (or restart) a robot
         #: Do the records keep disagreeing with the rig? (a window test, see .rig_check): fed each
-        #: record's observations fitted on their own (the filter's accepted updates; without the
-        #: filter, the record's joint solve); when its window disagrees, the record's rows say so.
+        #: record's observations fitted on their own (see _rig_test); while its window disagrees,
+        #: the records' rows say so.
         self.rig_check = RigCheck()
         self._own = [0.0, 0]  # the record's (chi2, dof) so far: its filter updates'
         self._own_solve: Any = None  # the record's joint solve's test (covers all of it: preferred)
