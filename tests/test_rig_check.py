@@ -1,7 +1,8 @@
 """The window test of rig disagreement (issue 38, mutloc.track.rig_check):
 on synthetic chi-square streams against the chi-square distribution, and
-through the pair tracker on simulated logs whose rig is right or has every
-marker 1-2 cm off (the simulator's truth says which)."""
+through the team tracker (a pair's track and a team's) on simulated logs
+whose rig is right or has every marker 1-2 cm off (the simulator's truth
+says which)."""
 
 import math
 
@@ -14,10 +15,12 @@ from mutloc.cli.main import main
 from mutloc.io.logs import write_observation_log
 from mutloc.sim.calibration import perturb_rig
 from mutloc.sim.render import default_path
+from mutloc.sim.team import random_team, team_sequence
 from mutloc.sim.tracking import observation_sequence
 from mutloc.sim.world import standard_rig
 from mutloc.track.frames import expanded_rig
-from mutloc.track.rig_check import FALSE_ALARM, RIG_HINT, WINDOW, RigCheck, record_chi2
+from mutloc.track.rig_check import FALSE_ALARM, RIG_HINT, WINDOW, RigCheck
+from mutloc.track.team import track_team_log
 from mutloc.track.tracker import track_log
 
 
@@ -113,21 +116,6 @@ def test_pair_tracker_flags_a_rig_with_markers_off_and_not_the_right_one(seed):
     assert len(bad.notes) == 1 and bad.notes[0].startswith(RIG_HINT)
 
 
-def test_record_chi2_is_the_records_own_fit():
-    """Noise-free observations with the true rig fit exactly (chi2 ~ 0, dof
-    2n - 6); with the markers moved they do not; three observations say nothing."""
-    rig = standard_rig("balls")
-    src, tgt = rig.default_pair(None, None)
-    exact = observation_sequence(rig, default_path(2.0, 12.0, 0.3), duration=0.2, fps=30.0, pixel_sigma=0.0,
-                                 drop=0.0, blind=(), outliers=0.0).frames[0]
-    c, d = record_chi2(rig, exact, src, tgt, 1.0)
-    assert d == 2 * len(exact) - 6 and c < 1e-8
-    wrong = expanded_rig(load_rig(perturb_rig(rig.to_dict(), np.random.default_rng(5))))
-    c_wrong, _ = record_chi2(wrong, exact, src, tgt, 1.0)
-    assert c_wrong > 1.0
-    assert record_chi2(rig, exact.take(np.arange(3)), src, tgt, 1.0)[1] == 0
-
-
 def test_cli_track_prints_the_hint(tmp_path, capsys):
     rig, seq = _sequence(0, seconds=3.0)
     from mutloc.io import save_rig
@@ -138,3 +126,82 @@ def test_cli_track_prints_the_hint(tmp_path, capsys):
                  "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert any(line.startswith(RIG_HINT) for line in out), out
+
+
+def _team(seed, seconds=2.5):
+    """Three robots (some pairs seen one way), every camera at once at 30 fps, honest 1 px noise; the
+    rig as measured (true) and one with every marker 1-2 cm off."""
+    scene = random_team(3, np.random.default_rng(seed), one_way=0.3)
+    seq = team_sequence(scene, int(30 * seconds), 30.0, sigma=1.0, seed=seed)
+    wrong = perturb_rig(scene.rig.to_dict(), np.random.default_rng([seed, 38]))
+    return scene.rig, wrong, [(t, o) for t, _, o in seq]
+
+
+def _flagged(traj):
+    """The records (indices) whose rows say the rig disagrees."""
+    n = len(next(iter(traj.tracks.values())).rows)
+    return [k for k in range(n) if any(RIG_HINT in tr.rows[k].reason for tr in traj.tracks.values())]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_team_tracker_flags_a_rig_with_markers_off_and_not_the_right_one(seed):
+    """The team path (``track`` with more than two robots): the true rig is
+    never flagged; with every marker 1-2 cm off, the rows say so from the
+    first full window on (or soon after) and the track's note is the hint."""
+    rig, wrong, records = _team(seed)
+    good = track_team_log(rig, records, progress=False)
+    assert good.notes == [] and _flagged(good) == []
+    bad = track_team_log(wrong, records, progress=False)
+    flagged = _flagged(bad)
+    assert flagged and flagged[0] < 2 * WINDOW, flagged[:3]
+    assert len(flagged) > 0.5 * (len(records) - flagged[0])
+    assert len(bad.notes) == 1 and bad.notes[0].startswith(RIG_HINT)
+    assert all(RIG_HINT in bad.tracks[r].rows[flagged[0]].reason for r in bad.robots)  # every robot's row
+
+
+def test_cli_team_track_prints_the_hint_and_the_rows_say_it(tmp_path, capsys):
+    """``mutloc track`` on a team's log: with the rig 1-2 cm off one hint line
+    and the reason column of the robots' files names it; with the true rig neither."""
+    from mutloc.io import save_rig
+    from mutloc.io.trajectory import read_trajectory_csv
+
+    rig, wrong, records = _team(0)
+    write_observation_log(tmp_path / "log.jsonl", [o for _, o in records])
+    for name, spec in (("true", rig), ("wrong", wrong)):
+        save_rig(spec, tmp_path / f"{name}.yaml")
+        assert main(["track", "--rig", str(tmp_path / f"{name}.yaml"), "--observations", str(tmp_path / "log.jsonl"),
+                     "--out", str(tmp_path / name), "--no-progress"]) == 0
+        out = capsys.readouterr().out.splitlines()
+        hints = [line for line in out if line.startswith(RIG_HINT)]
+        rows = read_trajectory_csv(tmp_path / name / "trajectory_r1.csv")
+        said = [RIG_HINT in r["reason"] for r in rows]
+        if name == "true":
+            assert hints == [] and not any(said), out
+        else:
+            assert len(hints) == 1 and sum(said) > len(said) / 3, out
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_team_update_reports_its_observations_fitted_on_their_own(seed):
+    """``TeamUpdate.own``, accepted (the true rig) or rejected by the gate
+    (every marker 1-2 cm off, the filter tight about the true poses): the
+    chi-square and degrees of freedom of the same observations fitted on
+    their own by the joint solver (nonlinear least squares, nothing left out)."""
+    from mutloc.core.team_filter import TeamFilter
+    from mutloc.team import localize_team, team_problem
+
+    rng = np.random.default_rng(seed)
+    scene = random_team(3, rng, one_way=0.0)
+    names, truth = scene.names, scene.truth(scene.names[0])
+    obs = scene.observations(0.5, rng)  # (as stated: the chi-square is over pixel_sigma squared)
+    wrong = load_rig(perturb_rig(scene.rig.to_dict(), np.random.default_rng([seed, 38])))
+    for rig, accepted in ((scene.rig, True), (wrong, False)):
+        f = TeamFilter(names, names[0], pixel_sigma=0.5)
+        f.time = 0.0
+        for r in names[1:]:
+            f.add(r, truth[r], np.diag([0.01] * 3 + [0.02] * 3) ** 2)
+        upd = f.update(team_problem(rig, obs)[0])
+        fit = localize_team(rig, obs, names[0], pixel_sigma=0.5, confidence=1.0, reject_outliers=False).consistency
+        assert upd.accepted is accepted and len(upd.dropped) == (0 if accepted else len(obs))
+        assert upd.own[1] == fit.dof == 2 * len(obs) - 12
+        assert upd.own[0] == pytest.approx(fit.chi2, rel=0.01)

@@ -383,4 +383,6 @@ def _run_team(args, rig, options, out, log: "LogUpToBadLine | None", records) ->
         log.raise_if_cut(_wrote(outputs, args, before))
     print(f"reference {traj.reference}; {traj.summary()}; {_wrote(outputs, args, before)}")
     _odometry_unused(args, [row.t for tr in traj.tracks.values() for row in tr.rows])
+    for note in traj.notes:
+        print(note)
     return 0

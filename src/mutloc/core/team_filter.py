@@ -69,7 +69,13 @@ class TeamUpdate:
     """What one set of observations did: ``accepted`` (the state was
     updated), the gate's ``test``, the rows ``used`` and ``dropped``, each
     row's reprojection error (px) at the resulting state, and the ``reason``
-    of a rejection."""
+    of a rejection.  ``own``: the update's observations fitted on their own
+    (those ``used`` when accepted, all of them when rejected) -- ``(chi2,
+    dof)``, the squared residual no pose explains over ``pixel_sigma**2``
+    and its degrees of freedom (what the filter measures the noise from,
+    accepted updates only; ``(nan, 0)`` without degrees of freedom): with a
+    correct rig and honest noise, chi-square with ``dof`` whatever the track
+    (see :mod:`mutloc.track.rig_check`)."""
 
     accepted: bool
     test: Consistency
@@ -77,6 +83,7 @@ class TeamUpdate:
     dropped: np.ndarray
     residuals_px: np.ndarray
     reason: str = ""
+    own: tuple[float, int] = (math.nan, 0)
 
 
 @dataclass(frozen=True)
@@ -409,19 +416,20 @@ class TeamFilter:
                               "no observation of tracked robots")
         first = self._try(problem, rows)
         if first is not None and first[1].passed is not False:
-            self._accept(first)
-            return TeamUpdate(True, first[1], rows, np.empty(0, np.int64), first[2])
+            own = self._accept(first)
+            return TeamUpdate(True, first[1], rows, np.empty(0, np.int64), first[2], own=own)
         single = single_outlier(lambda keep: self._try(problem, keep), rows)
         if single is not None:
             j, keep, alt = single
-            self._accept(alt)
-            return TeamUpdate(True, alt[1], keep, np.array([j]), alt[2])
+            own = self._accept(alt)
+            return TeamUpdate(True, alt[1], keep, np.array([j]), alt[2], own=own)
         test = first[1] if first is not None else Consistency(math.inf, 2 * n, self.confidence,
                                                               chi2_quantile(self.confidence, 2 * n))
         res = first[2] if first is not None else np.full(n, np.inf)
         reason = (f"inconsistent with the track: chi2 {test.chi2:.1f} over {test.dof} degrees of freedom, above "
                   f"{test.threshold:.1f} at {100 * test.confidence:g}%")
-        return TeamUpdate(False, test, np.empty(0, np.int64), rows, res, reason)
+        own = self._own(first[3]) if first is not None else (math.nan, 0)
+        return TeamUpdate(False, test, np.empty(0, np.int64), rows, res, reason, own=own)
 
     def _try(self, problem: TeamProblem, rows: np.ndarray):
         """The iterated update with observations ``rows``: ``(state, test,
@@ -501,14 +509,23 @@ class TeamFilter:
         pos[np.asarray(self.tracked, np.int64)] = np.arange(len(self.tracked))
         return pos
 
-    def _accept(self, result) -> None:
+    def _accept(self, result) -> tuple[float, int]:
+        """Take ``result`` (of :meth:`_try`) as the state; its observations'
+        own residual (``TeamUpdate.own``) joins the noise's window."""
         (self.R, self.t, self.vel, self.P, self.Pg, self.noise_scale), _, _, (H, r, blocks) = result
         chi2, dof = team_ls_residual(H, r, blocks)
-        if dof > 0:
-            self._noise_window.append((chi2, dof))
-            self._noise_sum[0] += chi2
-            self._noise_sum[1] += dof
-            if len(self._noise_window) > NOISE_WINDOW:
-                c, d = self._noise_window.popleft()
-                self._noise_sum[0] -= c
-                self._noise_sum[1] -= d
+        if dof <= 0:
+            return math.nan, 0
+        self._noise_window.append((chi2, dof))
+        self._noise_sum[0] += chi2
+        self._noise_sum[1] += dof
+        if len(self._noise_window) > NOISE_WINDOW:
+            c, d = self._noise_window.popleft()
+            self._noise_sum[0] -= c
+            self._noise_sum[1] -= d
+        return float(chi2) / self.pixel_sigma**2, int(dof)
+
+    def _own(self, linearisation) -> tuple[float, int]:
+        """``TeamUpdate.own`` of an update's observations (its last linearisation ``(H, r, blocks)``)."""
+        chi2, dof = team_ls_residual(*linearisation)
+        return (float(chi2) / self.pixel_sigma**2, int(dof)) if dof > 0 else (math.nan, 0)

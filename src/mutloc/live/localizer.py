@@ -58,6 +58,14 @@ whose markers it saw (the others' rows are the motion model's prediction
 alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
 them a second).
 
+Observations that keep disagreeing with the rig file (the team tracker's
+window test, :mod:`mutloc.track.rig_check`: markers moved since the rig was
+measured) make every robot WARN, with the test's ``rig_chi2``, ``rig_dof``
+and ``rig_threshold`` among the key-values (there from the first record
+tested) and the hint to run ``calibrate-markers``, for :data:`NOTICE_HOLD`
+s after the last record whose window disagreed; ``notify`` gets the hint
+line once.
+
 A robot whose last observation (its capture time) is older than
 ``warn_after`` (0.5 s) is WARN in the diagnostics, older than
 ``max_coast`` STALE (dropped).  A robot's pose is published only while its
@@ -335,6 +343,8 @@ class Localizer:
         #: Where a line saying what is wrong goes (the CLI: stderr); each cause once, then rate-limited.
         self.notify = notify
         self._notices: dict[tuple, list] = {}  # cause -> [time printed, refused since]
+        #: The last record whose rig check window disagreed: (its capture time, the test), else None.
+        self.rig_flag: tuple[float, Any] | None = None
 
     def warm_up(self) -> None:
         """Run throwaway trackers on synthetic records (the first two robots
@@ -570,6 +580,7 @@ class Localizer:
             self.log.write(t, obs)
         self.fused_until = max(h.t for h in group)
         self.records += 1
+        self._rig_said(t)
         stamps = list({h.ns: h for h in sorted(group, key=lambda h: h.ns)}.values())  # one message per stamp
         involved: set[str] = set()
         owner = self.rig.owner
@@ -621,6 +632,13 @@ class Localizer:
 
     # -- diagnostics ----------------------------------------------------------
 
+    def _rig_said(self, t: float) -> None:
+        """After the record at ``t``: if the rig check's window disagrees, remember it and say the hint once."""
+        test = self.engine.tracker.rig_check.last
+        if test is not None and test.disagrees:
+            self.rig_flag = (t, test)
+            self._notice(("rig",), test.words(), t, once=True)
+
     def level(self, robot: str, now: float) -> int:
         """OK, WARN (last observation older than ``warn_after``) or STALE (older than ``max_coast``, or none)."""
         c = self.counts[robot]
@@ -657,6 +675,8 @@ class Localizer:
                 said.append(f"falling behind: shed {c.shed} of {c.received}")
             if c.foreign_at is not None and now - c.foreign_at <= NOTICE_HOLD:
                 said.append(f"another localizer publishes on this domain: {c.foreign}")
+            if self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD:
+                said.append(self.rig_flag[1].words())
             if said:
                 # (none received: what was refused is the news; a robot not stale is WARN)
                 message = "; ".join(said if age is None else [message, *said])
@@ -667,6 +687,10 @@ class Localizer:
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
                       "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
                       "untied_not_published": c.untied}
+            rig_test = self.engine.tracker.rig_check.last
+            if rig_test is not None:
+                values.update(rig_chi2=f"{rig_test.chi2:.1f}", rig_dof=rig_test.dof,
+                              rig_threshold=f"{rig_test.threshold:.1f}")
             out.append(RobotStatus(r, level, message, values))
         return out
 

@@ -36,9 +36,9 @@ class Hindsight:
     # -- taking back records of three that a record solved on its own contradicts
 
     def _save(self) -> tuple:
-        """The tracker's state (the filter and the tracks) as an undo restores it."""
+        """The tracker's state (the filter, the tracks, the rig check) as an undo restores it."""
         return (self.filter.copy(), {r: tr.copy() for r, tr in self.tracks.items()}, tuple(self._recent),
-                self.last_time)
+                self.last_time, self.rig_check.copy())
 
     def _undoable(self, undo: lifecycle.Undo) -> bool:
         """Whether the state before the undo's first record is still kept."""
@@ -55,8 +55,9 @@ class Hindsight:
         undo = self.tracks[u.robot].undo
         assert sm is not None and undo is not None
         redo = self._unfinal[undo.first - sm.first:]
-        filt, tracks, recent, last = redo[0].saved
+        filt, tracks, recent, last, rig_check = redo[0].saved
         self.filter, self.tracks, self._recent, self.last_time = filt, tracks, deque(recent), last
+        self.rig_check = rig_check.copy()
         sm.truncate(undo.first)
         del self._unfinal[undo.first - sm.first:]
         self._confirmations = [c for c in self._confirmations if c[3] < undo.first]

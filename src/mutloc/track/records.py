@@ -94,6 +94,7 @@ class Rows:
                 row.status, row.reason = FrameStatus.UNPAIRED, "no frame"
             return
         team, status, reason = self._solve(obs, self.reference)
+        self._own_solve = self._solve_test  # the record fitted on its own: the rig check's (see TeamTracker)
         for r, row in rows.items():
             if team is not None and r in team.poses:
                 row.estimate = robot_estimate(team, r, team.poses[r], team.covariance(r))

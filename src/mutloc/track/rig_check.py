@@ -25,20 +25,28 @@ Stray detections must not raise it: each record counts at most its own
 counts as one bad record, not as thousands), which keeps the test at or
 below its level on a correct rig with honest noise (a capped sum is never
 larger) while a rig that keeps disagreeing drives most records to the cap.
-Measured (bench/rig_check.py) on correct logs with 2 % of records holding
-a detection 30-60 px off, the largest window of 20 ten-second logs reached
-0.80 of its threshold (0.96 with the cap at the 0.999 quantile).  Noise above
+Measured (bench/rig_check.py, docs/benchmarks.md) on correct logs with 2 %
+of records holding a detection 30-60 px off, each record refitted on its
+own, the largest window of 20 ten-second logs reached 0.80 of its threshold
+(0.96 with the cap at the 0.999 quantile); fed by the team tracker, 0.72
+(the pair) and 0.89 (a team of three).  Noise above
 ``--pixel-sigma`` raises it too (every record's chi-square scaled by the
 ratio squared, about 1.5x at the default window and level): the hint names
 the rig, the docs say to check the noise as well.
 
-No I/O; :class:`RigCheck` is fed one ``(chi2, dof)`` per record.
-:func:`record_chi2` gives a record's own value for a pair (its own
-least-squares fit with the rig, every observation kept).
+No I/O; :class:`RigCheck` is fed one ``(chi2, dof)`` per record: the team
+tracker (:class:`~mutloc.track.team_tracker.TeamTracker`, which ``track``
+runs for a pair and for a team, and the live localizer) feeds it each
+record's observations fitted on their own -- the record's joint solve's
+chi-square when it had one, else the sum of its filter updates' own
+residuals (:attr:`mutloc.core.team_filter.TeamUpdate.own`, accepted or
+rejected by the gate: a rig that is off makes the gate reject records, and
+those say the most).
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -46,7 +54,7 @@ from typing import Any
 
 from ..core.consistency import chi2_quantile
 
-__all__ = ["RigCheck", "RigTest", "record_chi2", "RIG_HINT", "WINDOW", "FALSE_ALARM", "RECORD_CAP"]
+__all__ = ["RigCheck", "RigTest", "RIG_HINT", "WINDOW", "FALSE_ALARM", "RECORD_CAP"]
 
 #: The one-line hint a track that keeps disagreeing with its rig prints.
 RIG_HINT = "observations keep disagreeing with the rig file: run `mutloc calibrate-markers`"
@@ -78,8 +86,8 @@ class RigTest:
 
     def words(self) -> str:
         """The row's note when the window disagrees."""
-        return (f"the rig disagrees: chi2 {self.chi2:.0f} over {self.dof} degrees of freedom in the last "
-                f"{self.records} records, above {self.threshold:.0f}; {RIG_HINT}")
+        return (f"the rig disagrees: chi2 {self.chi2:.1f} over {self.dof} degrees of freedom in the last "
+                f"{self.records} records, above {self.threshold:.1f}; {RIG_HINT}")
 
     def to_dict(self) -> dict[str, Any]:
         return {"chi2": self.chi2, "dof": self.dof, "threshold": self.threshold, "records": self.records,
@@ -129,6 +137,12 @@ class RigCheck:
         self.last = test
         return test
 
+    def copy(self) -> "RigCheck":
+        """An independent copy (the tracker's state an undo goes back to)."""
+        new = copy.copy(self)
+        new._records = deque(self._records)
+        return new
+
     @property
     def disagrees(self) -> bool:
         """Whether the latest window disagrees."""
@@ -144,23 +158,3 @@ class RigCheck:
         if not self.flagged:
             return None
         return f"{RIG_HINT} (the window disagreed at {self.flagged} of {self.records} records that test it)"
-
-
-def record_chi2(rig: Any, observations: Any, source: str, target: str, pixel_sigma: float) -> tuple[float, int]:
-    """A pair's record on its own: the chi-square of its least-squares fit
-    with ``rig`` (every observation kept, at ``pixel_sigma``) and its
-    degrees of freedom (``2n - 6``); ``(nan, 0)`` when it cannot be fitted
-    (too few observations, or none of the pair).  The best candidate of
-    each marker is used."""
-    from ..api import localize
-    from ..errors import MutlocError
-
-    obs = observations.best() if observations.has_alternatives else observations
-    if len(obs) < 4:
-        return math.nan, 0
-    try:
-        est = localize(rig, obs, source=source, target=target, pixel_sigma=pixel_sigma, confidence=1.0)
-    except MutlocError:
-        return math.nan, 0
-    c = est.consistency
-    return (float(c.chi2), int(c.dof)) if c is not None else (math.nan, 0)

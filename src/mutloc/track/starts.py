@@ -100,6 +100,8 @@ class Starts:
         self.joint_solves += 1
         solve_on, conf = (obs, None) if bridged is None else (bridged, 1.0)
         team, status, reason = self._solve(solve_on, self.reference, conf)
+        if bridged is None:
+            self._own_solve = self._solve_test  # the record fitted on its own: the rig check's
         guesses: dict[str, tuple[Pose, bool]] = {}
         outliers = set()  # observations the joint solve dropped: left out of the update too
         if team is not None:
@@ -149,6 +151,8 @@ class Starts:
             rows = np.array([j for j in rows.tolist() if (names[problem.cam[j]], markers[j]) not in outliers],
                             dtype=np.int64)
         upd = f.update(problem.take(rows)) if len(rows) else None
+        if not set(guesses) & before:
+            self._took(upd)  # (a restart's observations were in the tracked robots' update: counted there)
         started = {}
         if upd is not None and upd.accepted:
             used[rows[upd.used]] = True

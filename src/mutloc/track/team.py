@@ -76,7 +76,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
@@ -116,6 +116,8 @@ class TeamTrajectory:
     reference: str
     tracks: dict[str, Trajectory]
     fps: float | None = None
+    #: One line each, for people: what the track found wrong beyond its rows (the rig check's hint).
+    notes: list[str] = field(default_factory=list)
 
     @property
     def robots(self) -> list[str]:
@@ -141,7 +143,8 @@ class TeamTrajectory:
         of each robot and of the reference; see
         :meth:`~mutloc.track.tracker.Trajectory.in_base_frames`); still keyed
         by robot name (files ``trajectory_NAME.*``)."""
-        return TeamTrajectory(self.reference, {r: tr.in_base_frames(rig) for r, tr in self.tracks.items()}, self.fps)
+        return TeamTrajectory(self.reference, {r: tr.in_base_frames(rig) for r, tr in self.tracks.items()}, self.fps,
+                              list(self.notes))
 
     def write_rerun(self, path: str | Path) -> None:
         """A Rerun recording (``.rrd``) of every robot's track in the
@@ -276,7 +279,7 @@ def track_team_log(rig: Any, frames: Iterable[tuple[float, ObservationSet]], ref
     except KeyboardInterrupt:
         emitter.emit(end=True)  # every record finished so far, reported as if the input ended here
         raise
-    return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r]) for r in tracker.robots})
+    return _noted(TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r]) for r in tracker.robots}), tracker)
 
 
 def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str | None = None, *,
@@ -368,7 +371,16 @@ def track_team(rig: Any, streams: Mapping[str, Iterable[Frame]], reference: str 
         raise
     finally:
         close_all(bar, writer, log)
-    return TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate)
+    return _noted(TeamTrajectory(reference, {r: Trajectory(r, reference, rows[r], rate) for r in tracker.robots}, rate),
+                  tracker)
+
+
+def _noted(traj: TeamTrajectory, tracker: TeamTracker) -> TeamTrajectory:
+    """The trajectory with the track's notes (the rig check's hint, when its window disagreed)."""
+    note = tracker.rig_check.summary()
+    if note:
+        traj.notes.append(note)
+    return traj
 
 
 def camera_sizes(rig: Rig, images: Mapping[str, tuple[Any, Any]], sizes: dict[str, tuple[int, int]],

@@ -37,6 +37,7 @@ from .status import FrameStatus
 from .rows import TrackRow
 from .hindsight import Hindsight
 from .records import Record, Rows, Tentative, join
+from .rig_check import RigCheck
 from .starts import Starts
 
 __all__ = ["TeamTracker"]
@@ -80,6 +81,13 @@ class TeamTracker(Starts, Hindsight, Rows):
         self._recent: deque[tuple[float, ObservationSet]] = deque()
         self.last_time: float | None = None
         self.joint_solves = 0  #: records solved on their own to start (or restart) a robot
+        #: Do the records keep disagreeing with the rig? (a window test, see .rig_check): fed each
+        #: record's observations fitted on their own (see _rig_test); while its window disagrees,
+        #: the records' rows say so.
+        self.rig_check = RigCheck()
+        self._own = [0.0, 0]  # the record's (chi2, dof) so far: its filter updates'
+        self._own_solve: Any = None  # the record's joint solve's test (covers all of it: preferred)
+        self._solve_test: Any = None
 
     @property
     def filtering(self) -> bool:
@@ -108,7 +116,9 @@ class TeamTracker(Starts, Hindsight, Rows):
         rec = Record(float(t), observations, times, problems, rows)
         if not self.filtering:
             self.last_time = rec.t
+            self._own, self._own_solve = [0.0, 0], None
             self._per_record(observations, rows)
+            self._rig_test(rows)
             self._input_problems(rec)
             return rows
         undo = self._filter_record(rec)
@@ -236,12 +246,16 @@ class TeamTracker(Starts, Hindsight, Rows):
 
     def _solve(self, obs: ObservationSet, reference: str, confidence: float | None = None
                ) -> tuple[TeamEstimate | None, FrameStatus, str]:
-        """The record's joint estimate in ``reference``'s frame, or None with a status and reason."""
+        """The record's joint estimate in ``reference``'s frame, or None with a status and reason.
+        ``_solve_test``: its chi-square test (a rejected one's best attempt's; None: nothing fitted)."""
+        self._solve_test = None
         try:
-            return (localize_team(self.rig, obs, reference, pixel_sigma=self.pixel_sigma,
-                                  confidence=self.confidence if confidence is None else confidence),
-                    FrameStatus.SOLVED, "")
+            team = localize_team(self.rig, obs, reference, pixel_sigma=self.pixel_sigma,
+                                 confidence=self.confidence if confidence is None else confidence)
+            self._solve_test = team.consistency
+            return team, FrameStatus.SOLVED, ""
         except InconsistentObservationsError as exc:
+            self._solve_test = getattr(exc.estimate, "consistency", None)
             return None, FrameStatus.REJECTED, " ".join(str(exc).split())
         except ObservationError as exc:
             status = FrameStatus.TOO_FEW if "three or more" in str(exc) else FrameStatus.FAILED
@@ -253,6 +267,7 @@ class TeamTracker(Starts, Hindsight, Rows):
 
     def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> UndoRequest | None:
         f = self.filter
+        self._own, self._own_solve = [0.0, 0], None
         if obs is None or len(obs) == 0:
             self._coast(rows, set())
             for r, row in rows.items():
@@ -352,7 +367,27 @@ class TeamTracker(Starts, Hindsight, Rows):
         # 3. every robot's row (see .records)
         self._fill_rows(t, rows, problem, names, markers, touch, used, notes, started, rejected, why_rejected,
                         confirmed, failed, test, prior)
+        self._rig_test(rows)
         return None
+
+    def _took(self, upd: Any) -> None:
+        """Count an update's observations fitted on their own (``TeamUpdate.own``, accepted or not) in the
+        record's (each observation once: the caller leaves out an update of observations counted before)."""
+        if upd is not None and upd.own[1] > 0:
+            self._own[0] += upd.own[0]
+            self._own[1] += upd.own[1]
+
+    def _rig_test(self, rows: dict[str, TrackRow]) -> None:
+        """The record's observations fitted on their own into the rig check
+        (its joint solve's chi-square when it had one, else the sum of its
+        filter updates'); while the window disagrees (the last test stands
+        through records that fit any rig), every row says so (and names the hint)."""
+        c = self._own_solve
+        chi2, dof = (float(c.chi2), int(c.dof)) if c is not None and c.dof > 0 else self._own
+        test = self.rig_check.add(chi2, dof)
+        if test is not None and test.disagrees:
+            for row in rows.values():
+                row.reason = join(row.reason, test.words())
 
     def _nearest_candidates(self, obs: ObservationSet) -> ObservationSet:
         """Where a detector handed over several candidates for a marker, the
@@ -396,6 +431,7 @@ class TeamTracker(Starts, Hindsight, Rows):
         if len(rows) == 0:
             return set(), None, "", none
         upd = f.update(problem.take(rows))
+        self._took(upd)
         if upd.accepted:
             used[rows[upd.used]] = True
             return set(), upd.test, "", rows[upd.dropped]
@@ -408,7 +444,7 @@ class TeamTracker(Starts, Hindsight, Rows):
                 keep = rows[~touch[r][rows]]
                 if len(keep) == 0:
                     continue
-                alt = f.update(problem.take(keep))
+                alt = f.update(problem.take(keep))  # (its observations are upd's: counted once, there)
                 if alt.accepted:
                     used[keep[alt.used]] = True
                     return {r}, alt.test, reason, keep[alt.dropped]

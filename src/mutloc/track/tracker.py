@@ -33,7 +33,6 @@ from .frames import DEFAULT_FPS, ObserverDetector, check_streams, expanded_rig, 
 from .second_look import look_again
 from .tag_look import look_where_tracked
 from .sources import Frame
-from .rig_check import RigCheck, record_chi2
 from .rows import TrackRow
 from .status import FrameStatus
 from .team import RowEmitter, TeamTracker, camera_sizes, close_all, sync_streams
@@ -59,8 +58,6 @@ class PairTrack:
         self.team = TeamTracker(pair, target, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
         self._others = len(rig.robots) > 2
         self.pixel_sigma = pixel_sigma
-        #: Do the records keep disagreeing with the rig? (a window test, see .rig_check)
-        self.rig_check = RigCheck()
 
     def step(self, row: TrackRow) -> bool:
         """Fill ``row``; rows without observations (unpaired, corrupt) are
@@ -69,9 +66,6 @@ class PairTrack:
             return False
         obs = self._pair_only(row.observations) if self._others else row.observations
         self.team.step(row.t, obs, {self.source: row.t_source, self.target: row.t_target}, rows={self.source: row})
-        test = self.rig_check.add(*record_chi2(self.rig, obs, self.source, self.target, self.pixel_sigma))
-        if test is not None and test.disagrees:
-            row.reason = f"{row.reason}; {test.words()}" if row.reason else test.words()
         return True
 
     def _pair_only(self, obs: ObservationSet) -> ObservationSet:
@@ -376,7 +370,7 @@ def _options(filter: str | FilterOptions) -> FilterOptions:
 
 def _noted(traj: Trajectory, tracker: PairTrack) -> Trajectory:
     """The trajectory with the track's notes (the rig check's hint, when its window disagreed)."""
-    note = tracker.rig_check.summary()
+    note = tracker.team.rig_check.summary()
     if note:
         traj.notes.append(note)
     return traj
