@@ -759,7 +759,7 @@ def test_over_dds(setup, tmp_path, dds_domain):
     # are max-coast (1 s) old, its diagnostics saying so
     p_status = [st["p"] for a, st in q_level if 2.7 < a < 3.3]
     assert p_status and all(dict((kv.key, kv.value) for kv in s.values)["status"] == "partial" for s in p_status)
-    p_dropped = [st["p"] for a, st in q_level if 3.8 < a < 4.0]
+    p_dropped = [st["p"] for a, st in q_level if 3.6 < a < 4.4]
     assert p_dropped and all(s.level == M.STALE and "tied by 2 distinct" in s.message for s in p_dropped)
     assert not [t for _, t, _ in stamps if 2.5 + 1.0 < t < 4.0]
     sig = [(t, math.sqrt(sum(s.pose.covariance[k * 7] for k in range(3)))) for _, t, s in stamps if 2.5 < t < 3.5]
