@@ -120,10 +120,12 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0, stalled: str = "") -> dict:
+def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0, stalled: str = "",
+             written: bool = False) -> dict:
     """One run of ``mutloc localizer`` over DDS loopback (see the module docstring).  ``stalled``
     "stop": with another process subscribed to every pose topic and /tf (ROS 2's default QoS) that
-    stops (SIGSTOP) once matched; "idle": one that never takes a sample."""
+    stops (SIGSTOP) once matched; "idle": one that never takes a sample.  ``written``: the localizer
+    writes its files (``--out``), so its smoother runs."""
     from cyclonedds.core import Policy, Qos
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
@@ -141,7 +143,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     lease = dds_domain()  # held until this run ends (its localizer and subscribers on it)
     domain = lease.domain
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
-           "--duration", str(seconds + 30)]
+           "--duration", str(seconds + 30), *(["--out", str(tmp / "out")] if written else [])]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     children: list = []
     try:
@@ -229,6 +231,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     import re
 
     shed = re.search(r"shed (\d+)", said)
+    unsmoothed = re.search(r"(\d+) records? written unsmoothed", said)
     err = np.array(errors[len(errors) // 10:]) * 100  # (the tracks' start left out)
     return {"robots": robots, "rate_hz": rate, "seconds": round(wall1 - wall0, 2), "messages": sent,
             "cpu_share_of_one_core": round((cpu1 - cpu0) / (wall1 - wall0), 3),
@@ -240,7 +243,8 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             "poses_per_expected": round(len(measured) / expected, 3) if expected else None,
             "error_cm_median": round(float(np.median(err)), 2) if len(err) else None,
             "error_cm_p90": round(float(np.percentile(err, 90)), 2) if len(err) else None,
-            "shed": int(shed.group(1)) if shed else None,
+            "shed": int(shed.group(1)) if shed else None, "files_written": written,
+            "records_unsmoothed": int(unsmoothed.group(1)) if unsmoothed else (0 if written else None),
             "poses_received": len(measured), "poses_expected": expected,
             **({"stalled_subscriber": stalled, "its_cpu_share_of_one_core": round(slow_cpu / (wall1 - wall0), 3)}
                if stalled else {}),
@@ -302,6 +306,8 @@ def main() -> int:
     ap.add_argument("--smoother", action="store_true",
                     help="only the in-process cost per message without and with the smoother (what --out adds), "
                          "alternating, --runs times each: how much of a record's cost the smoother is")
+    ap.add_argument("--written", action="store_true",
+                    help="with --load: the localizer writes its files (--out), so its smoother runs")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
     args = ap.parse_args()
     results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
@@ -322,14 +328,15 @@ def main() -> int:
         return 0
     if args.load:
         keys = ("latency_ms_p50", "latency_ms_p99", "latency_ms_p50_second_half", "latency_ms_p99_second_half",
-                "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core")
+                "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core",
+                "records_unsmoothed")
         for n in args.robots:
             for load in args.load:
                 runs = []
                 for k in range(args.runs):
                     before = load_now()
                     with cpu_hog(load == "hog"):
-                        r = over_dds(n, args.rate, args.seconds, seed=k)
+                        r = over_dds(n, args.rate, args.seconds, seed=k, written=args.written)
                     r.update(load=load, load_average_before=before, load_average_after=load_now())
                     print(json.dumps(r), flush=True)
                     runs.append(r)
