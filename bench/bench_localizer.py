@@ -17,7 +17,10 @@ every pose topic.  Measured:
   as a share of one core;
 - message-in -> pose-out latency: a pose's arrival here minus the
   publication of the message it was fused from (same stamp): DDS both ways,
-  the reorder buffer's wait, the fusion and the publication;
+  the reorder buffer's wait, the fusion and the publication; and, with
+  ``--load``, the same to the pose's writing by the localizer (its DDS
+  source timestamp: the localizer's own latency, without this process's
+  delay in taking the poses when it is itself behind);
 - poses received against the poses expected (one per message per tracked
   robot it is about: its observer, the robots it saw), and whether a
   backlog grew (latency over the last second);
@@ -172,6 +175,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
         time.sleep(0.5)
         published: dict[tuple[str, int], float] = {}
         arrivals: list[tuple[float, float]] = []  # (pose arrival, its message's publication)
+        written: list[tuple[float, float]] = []  # (pose written by the localizer: its source timestamp, publication)
         errors: list[float] = []  # translation error (m) of each pose against the truth at its stamp
 
         def take() -> None:
@@ -180,8 +184,11 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 for s in rd.take(N=1000):
                     if hasattr(s, "header"):
                         key = round(M.stamp_of(s.header) * 1e6)
-                        arrivals.append((now, published.get(key, np.nan) if key in published else
-                                         _grouped(published, key)))
+                        pub = published.get(key, np.nan) if key in published else _grouped(published, key)
+                        arrivals.append((now, pub))
+                        info = getattr(s, "sample_info", None)
+                        if info is not None and getattr(info, "source_timestamp", 0) > 0:
+                            written.append((info.source_timestamp * 1e-9, pub))
                         x = s.pose.pose.position
                         true = truth[r](M.stamp_of(s.header) - start)
                         errors.append(float(np.linalg.norm(np.array([x.x, x.y, x.z]) - true.t)))
@@ -227,6 +234,9 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     lat = np.array([a - p for a, p in measured]) * 1000
     last = np.array([a - p for a, p in measured if p > wall1 - 1.0]) * 1000
     half = np.array([a - p for a, p in measured if p > (wall0 + wall1) / 2]) * 1000
+    out = [(a, p) for a, p in written if p >= wall0 and np.isfinite(p)]
+    wlat = np.array([a - p for a, p in out]) * 1000
+    whalf = np.array([a - p for a, p in out if p > (wall0 + wall1) / 2]) * 1000
     said = summary[0] if summary else ""
     import re
 
@@ -240,6 +250,12 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             "latency_ms_p50_last_second": round(float(np.percentile(last, 50)), 1) if len(last) else None,
             "latency_ms_p99_second_half": round(float(np.percentile(half, 99)), 1) if len(half) else None,
             "latency_ms_p50_second_half": round(float(np.percentile(half, 50)), 1) if len(half) else None,
+            # message published -> its pose written by the localizer (the pose's DDS source timestamp, same
+            # clock): the localizer's own latency, without this process's delay in taking the poses
+            "written_ms_p50": round(float(np.percentile(wlat, 50)), 1) if len(wlat) else None,
+            "written_ms_p99": round(float(np.percentile(wlat, 99)), 1) if len(wlat) else None,
+            "written_ms_p99_second_half": round(float(np.percentile(whalf, 99)), 1) if len(whalf) else None,
+            "bench_send_seconds": round(wall1 - wall0, 2),
             "poses_per_expected": round(len(measured) / expected, 3) if expected else None,
             "error_cm_median": round(float(np.median(err)), 2) if len(err) else None,
             "error_cm_p90": round(float(np.percentile(err, 90)), 2) if len(err) else None,
@@ -329,6 +345,7 @@ def main() -> int:
     if args.load:
         keys = ("latency_ms_p50", "latency_ms_p99", "latency_ms_p50_second_half", "latency_ms_p99_second_half",
                 "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core",
+                "written_ms_p50", "written_ms_p99", "written_ms_p99_second_half",
                 "records_unsmoothed")
         for n in args.robots:
             for load in args.load:

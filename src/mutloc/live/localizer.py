@@ -378,7 +378,14 @@ class Localizer:
         (a start from several records), and both cameras' frames together (a
         start from one record's joint solve), so that the compiled kernels
         are loaded before the first message rather than while messages wait
-        (about a second in a new process; the joint solve's alone 90 ms)."""
+        (about a second in a new process; the joint solve's alone 90 ms).
+        The chi-square quantiles' library (scipy.stats) is imported here too:
+        a team's first joint solve of three robots or more needs it, and its
+        import took 4 s of a loaded machine inside a record, every message
+        waiting."""
+        from ..core.consistency import chi2_quantile
+
+        chi2_quantile(DEFAULT_CONFIDENCE, 6)
         a, b = self.names[0], self.names[1]
         if self.rig.robot(a).is_body or self.rig.robot(b).is_body:
             T = Pose.from_rotvec([0.0, 0.0, math.pi], [2.0, 0.0, 0.0])  # bodies (z up): a ahead of b, facing it
