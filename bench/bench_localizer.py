@@ -175,7 +175,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
         time.sleep(0.5)
         published: dict[tuple[str, int], float] = {}
         arrivals: list[tuple[float, float]] = []  # (pose arrival, its message's publication)
-        written: list[tuple[float, float]] = []  # (pose written by the localizer: its source timestamp, publication)
+        writes: list[tuple[float, float]] = []  # (pose written by the localizer: its source timestamp, publication)
         errors: list[float] = []  # translation error (m) of each pose against the truth at its stamp
 
         def take() -> None:
@@ -188,7 +188,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                         arrivals.append((now, pub))
                         info = getattr(s, "sample_info", None)
                         if info is not None and getattr(info, "source_timestamp", 0) > 0:
-                            written.append((info.source_timestamp * 1e-9, pub))
+                            writes.append((info.source_timestamp * 1e-9, pub))
                         x = s.pose.pose.position
                         true = truth[r](M.stamp_of(s.header) - start)
                         errors.append(float(np.linalg.norm(np.array([x.x, x.y, x.z]) - true.t)))
@@ -234,7 +234,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     lat = np.array([a - p for a, p in measured]) * 1000
     last = np.array([a - p for a, p in measured if p > wall1 - 1.0]) * 1000
     half = np.array([a - p for a, p in measured if p > (wall0 + wall1) / 2]) * 1000
-    out = [(a, p) for a, p in written if p >= wall0 and np.isfinite(p)]
+    out = [(a, p) for a, p in writes if p >= wall0 and np.isfinite(p)]
     wlat = np.array([a - p for a, p in out]) * 1000
     whalf = np.array([a - p for a, p in out if p > (wall0 + wall1) / 2]) * 1000
     said = summary[0] if summary else ""
