@@ -17,7 +17,10 @@ every pose topic.  Measured:
   as a share of one core;
 - message-in -> pose-out latency: a pose's arrival here minus the
   publication of the message it was fused from (same stamp): DDS both ways,
-  the reorder buffer's wait, the fusion and the publication;
+  the reorder buffer's wait, the fusion and the publication; and, with
+  ``--load``, the same to the pose's writing by the localizer (its DDS
+  source timestamp: the localizer's own latency, without this process's
+  delay in taking the poses when it is itself behind);
 - poses received against the poses expected (one per message per tracked
   robot it is about: its observer, the robots it saw), and whether a
   backlog grew (latency over the last second);
@@ -120,10 +123,12 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0, stalled: str = "") -> dict:
+def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: int = 0, stalled: str = "",
+             written: bool = False) -> dict:
     """One run of ``mutloc localizer`` over DDS loopback (see the module docstring).  ``stalled``
     "stop": with another process subscribed to every pose topic and /tf (ROS 2's default QoS) that
-    stops (SIGSTOP) once matched; "idle": one that never takes a sample."""
+    stops (SIGSTOP) once matched; "idle": one that never takes a sample.  ``written``: the localizer
+    writes its files (``--out``), so its smoother runs."""
     from cyclonedds.core import Policy, Qos
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
@@ -141,7 +146,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     lease = dds_domain()  # held until this run ends (its localizer and subscribers on it)
     domain = lease.domain
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(path), "--domain", str(domain), "--loopback",
-           "--duration", str(seconds + 30)]
+           "--duration", str(seconds + 30), *(["--out", str(tmp / "out")] if written else [])]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     children: list = []
     try:
@@ -170,6 +175,7 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
         time.sleep(0.5)
         published: dict[tuple[str, int], float] = {}
         arrivals: list[tuple[float, float]] = []  # (pose arrival, its message's publication)
+        writes: list[tuple[float, float]] = []  # (pose written by the localizer: its source timestamp, publication)
         errors: list[float] = []  # translation error (m) of each pose against the truth at its stamp
 
         def take() -> None:
@@ -178,8 +184,11 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
                 for s in rd.take(N=1000):
                     if hasattr(s, "header"):
                         key = round(M.stamp_of(s.header) * 1e6)
-                        arrivals.append((now, published.get(key, np.nan) if key in published else
-                                         _grouped(published, key)))
+                        pub = published.get(key, np.nan) if key in published else _grouped(published, key)
+                        arrivals.append((now, pub))
+                        info = getattr(s, "sample_info", None)
+                        if info is not None and getattr(info, "source_timestamp", 0) > 0:
+                            writes.append((info.source_timestamp * 1e-9, pub))
                         x = s.pose.pose.position
                         true = truth[r](M.stamp_of(s.header) - start)
                         errors.append(float(np.linalg.norm(np.array([x.x, x.y, x.z]) - true.t)))
@@ -225,10 +234,14 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
     lat = np.array([a - p for a, p in measured]) * 1000
     last = np.array([a - p for a, p in measured if p > wall1 - 1.0]) * 1000
     half = np.array([a - p for a, p in measured if p > (wall0 + wall1) / 2]) * 1000
+    out = [(a, p) for a, p in writes if p >= wall0 and np.isfinite(p)]
+    wlat = np.array([a - p for a, p in out]) * 1000
+    whalf = np.array([a - p for a, p in out if p > (wall0 + wall1) / 2]) * 1000
     said = summary[0] if summary else ""
     import re
 
     shed = re.search(r"shed (\d+)", said)
+    unsmoothed = re.search(r"(\d+) records? written unsmoothed", said)
     err = np.array(errors[len(errors) // 10:]) * 100  # (the tracks' start left out)
     return {"robots": robots, "rate_hz": rate, "seconds": round(wall1 - wall0, 2), "messages": sent,
             "cpu_share_of_one_core": round((cpu1 - cpu0) / (wall1 - wall0), 3),
@@ -237,10 +250,17 @@ def over_dds(robots: int = 10, rate: float = 30.0, seconds: float = 10.0, seed: 
             "latency_ms_p50_last_second": round(float(np.percentile(last, 50)), 1) if len(last) else None,
             "latency_ms_p99_second_half": round(float(np.percentile(half, 99)), 1) if len(half) else None,
             "latency_ms_p50_second_half": round(float(np.percentile(half, 50)), 1) if len(half) else None,
+            # message published -> its pose written by the localizer (the pose's DDS source timestamp, same
+            # clock): the localizer's own latency, without this process's delay in taking the poses
+            "written_ms_p50": round(float(np.percentile(wlat, 50)), 1) if len(wlat) else None,
+            "written_ms_p99": round(float(np.percentile(wlat, 99)), 1) if len(wlat) else None,
+            "written_ms_p99_second_half": round(float(np.percentile(whalf, 99)), 1) if len(whalf) else None,
+            "bench_send_seconds": round(wall1 - wall0, 2),
             "poses_per_expected": round(len(measured) / expected, 3) if expected else None,
             "error_cm_median": round(float(np.median(err)), 2) if len(err) else None,
             "error_cm_p90": round(float(np.percentile(err, 90)), 2) if len(err) else None,
-            "shed": int(shed.group(1)) if shed else None,
+            "shed": int(shed.group(1)) if shed else None, "files_written": written,
+            "records_unsmoothed": int(unsmoothed.group(1)) if unsmoothed else (0 if written else None),
             "poses_received": len(measured), "poses_expected": expected,
             **({"stalled_subscriber": stalled, "its_cpu_share_of_one_core": round(slow_cpu / (wall1 - wall0), 3)}
                if stalled else {}),
@@ -302,6 +322,8 @@ def main() -> int:
     ap.add_argument("--smoother", action="store_true",
                     help="only the in-process cost per message without and with the smoother (what --out adds), "
                          "alternating, --runs times each: how much of a record's cost the smoother is")
+    ap.add_argument("--written", action="store_true",
+                    help="with --load: the localizer writes its files (--out), so its smoother runs")
     ap.add_argument("--out", default=result_file("localizer_results.json"))
     args = ap.parse_args()
     results = {"machine": machine(), "command": " ".join(["python", *sys.argv]), "runs": []}
@@ -322,14 +344,16 @@ def main() -> int:
         return 0
     if args.load:
         keys = ("latency_ms_p50", "latency_ms_p99", "latency_ms_p50_second_half", "latency_ms_p99_second_half",
-                "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core")
+                "poses_per_expected", "error_cm_median", "error_cm_p90", "shed", "cpu_share_of_one_core",
+                "written_ms_p50", "written_ms_p99", "written_ms_p99_second_half",
+                "records_unsmoothed")
         for n in args.robots:
             for load in args.load:
                 runs = []
                 for k in range(args.runs):
                     before = load_now()
                     with cpu_hog(load == "hog"):
-                        r = over_dds(n, args.rate, args.seconds, seed=k)
+                        r = over_dds(n, args.rate, args.seconds, seed=k, written=args.written)
                     r.update(load=load, load_average_before=before, load_average_after=load_now())
                     print(json.dumps(r), flush=True)
                     runs.append(r)

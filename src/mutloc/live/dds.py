@@ -67,23 +67,41 @@ class Reader:
         """Up to ``limit`` waiting samples, oldest first (never blocks)."""
         if self._take_raw is None:
             return self._take_one_by_one(limit)
+        out: list[Any] = []
+        for data, info in self.take_bytes(limit):
+            sample = self.decode(data, info)
+            if sample is not None:
+                out.append(sample)
+        return out
+
+    def take_bytes(self, limit: int = 256) -> list[tuple[bytes, Any]]:
+        """Up to ``limit`` waiting samples as ``(CDR bytes, sample info)``, oldest first, not
+        decoded (:meth:`decode` each one kept); empty when this binding cannot take bytes
+        (:attr:`raw`)."""
+        if self._take_raw is None:
+            return []
         got = self._take_raw(self._reader._ref, self._mask, limit)
         if isinstance(got, int):  # a DDS error code (not the data's fault)
             from cyclonedds.core import DDSException
 
             raise DDSException(got, f"Occurred while taking data in {self._reader!r}")
-        out: list[Any] = []
-        for data, info in got:
-            if not info.valid_data:
-                continue  # a writer gone or an instance disposed: no data
-            try:
-                sample = self._decode(data)
-            except Exception:  # noqa: BLE001 -- bytes that do not decode: counted, never raised
-                self.malformed += 1
-                continue
-            sample.sample_info = info
-            out.append(sample)
-        return out
+        return [(data, info) for data, info in got if info.valid_data]  # (else a writer gone: no data)
+
+    @property
+    def raw(self) -> bool:
+        """Whether :meth:`take_bytes` can take samples undecoded."""
+        return self._take_raw is not None
+
+    def decode(self, data: bytes, info: Any = None) -> Any:
+        """A sample from its bytes (``info``: its sample info, set on it), or None -- counted in
+        :attr:`malformed` -- for bytes that do not decode."""
+        try:
+            sample = self._decode(data)
+        except Exception:  # noqa: BLE001 -- bytes that do not decode: counted, never raised
+            self.malformed += 1
+            return None
+        sample.sample_info = info
+        return sample
 
     def _take_one_by_one(self, limit: int) -> list[Any]:
         # (a binding without the raw take: its own take decodes, a sample at a

@@ -48,7 +48,25 @@ newer message of the same camera is waiting (that camera's newest is always
 fused; messages of different cameras are never coalesced), counted as
 ``shed`` per robot; the robot is WARN in the diagnostics ("falling behind:
 shed N of M", M the messages received) for :data:`NOTICE_HOLD` s after its
-last shed message.
+last shed message.  On the wire the same rule is applied first, before any
+work: the samples a reader holds are taken as bytes, each one's camera and
+stamp read from its header alone (:meth:`Localizer.select`), and only those
+that are not shed are decoded and checked -- a shed message costs a few
+microseconds, however far behind the localizer is (its content is not
+checked: a shed message is never refused).
+
+With ``--out`` the trajectory files get the rows smoothed over the
+tracker's lag (the published poses never wait for the smoother).  The
+smoother is what a record costs most, so it gives way first: a record fused
+more than ``max_lag`` behind its capture is not smoothed then (deferred);
+the deferred records are smoothed, oldest first, when the localizer has
+slack (:meth:`Localizer.catch_up`: nothing due to fuse), which gives the
+same rows as smoothing them at once.  At most ``max_deferred``
+(:data:`MAX_DEFERRED`) records wait so; beyond that the oldest are written
+as the causal filter gave them -- the pose published for them -- and
+counted (``records_unsmoothed``, in the summary "N records written
+unsmoothed").  Every fused record is in ``log.jsonl`` either way: ``track
+--observations DIR/log.jsonl`` gives every row smoothed after the run.
 
 Each fused message gives a pose of every tracked robot it is about (a
 record of several messages one per message, stamped with each one's capture
@@ -101,7 +119,7 @@ from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_
 from .ties import TieWindow
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
-           "WARN_AFTER", "MAX_LAG", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
+           "WARN_AFTER", "MAX_LAG", "MAX_DEFERRED", "REORDER_WINDOW", "DIAGNOSTICS_PERIOD", "NOTICE_HOLD", "NOTICE_PERIOD"]
 
 #: Seconds a robot's track may coast on its motion model before its pose is no longer published (``--max-coast``).
 MAX_COAST = 1.0
@@ -124,6 +142,11 @@ NOTICE_HOLD = 5.0
 FOREIGN_PERIOD = 0.25
 #: Seconds between two printed lines of one cause (robot and kind of refusal): the first is printed at once.
 NOTICE_PERIOD = 10.0
+
+#: Records whose smoothing may wait for slack (``--out``); beyond them the oldest are written unsmoothed.
+MAX_DEFERRED = 60
+#: Seconds of smoothing done at a time when there is slack (then new messages are taken).
+SMOOTH_SLICE = 0.01
 
 #: Observation messages a robot's reader keeps until taken (a second at 100 Hz).
 READER_DEPTH = 100
@@ -256,13 +279,32 @@ class _TeamEngine:
         # rows handed to ``sink`` once final (after the smoother's lag), as track_team_log does
         self._emitter = RowEmitter(self.tracker, final)
 
-    def step(self, t: float, obs: ObservationSet) -> dict[str, TrackRow]:
-        """The record's rows, their poses the causal filter's (published at once)."""
+    def step(self, t: float, obs: ObservationSet, smooth: bool = True) -> dict[str, TrackRow]:
+        """The record's rows, their poses the causal filter's (published at once).  ``smooth``: the
+        smoother makes final up to two of the records it may (this one's turn and one deferred);
+        False: none (deferred, see :meth:`backlog`)."""
         rows = self.tracker.step(t, obs)
         live = {r: replace(row) for r, row in rows.items()}  # the smoother may revise the rows later
         self._emitter.add(rows, True)
-        self._emitter.emit()
+        if smooth or self.tracker.history is None:
+            self.smooth(2)
         return live
+
+    def backlog(self) -> int:
+        """Records past the smoother's lag not yet made final: their smoothing deferred (0 without it)."""
+        sm = self.tracker.history
+        return 0 if sm is None else max(0, len(sm) - sm.first - sm.lag - 1)
+
+    def smooth(self, most: int, smooth: bool = True) -> int:
+        """Make final at most ``most`` records, smoothed (``smooth`` False: as the causal filter gave
+        them); returns how many were."""
+        sm = self.tracker.history
+        if sm is None:
+            self._emitter.emit()
+            return 0
+        first = sm.first
+        self._emitter.emit(most=most, smooth=smooth)
+        return sm.first - first
 
     def involved(self, observer: str, obs: ObservationSet) -> list[str]:
         """The robots a record is about: its observer and the robots whose markers it saw."""
@@ -294,7 +336,7 @@ class Localizer:
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
                  log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None,
-                 max_lag: float = MAX_LAG) -> None:
+                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
@@ -316,6 +358,9 @@ class Localizer:
         self.reorder = _nonnegative(reorder, "reorder")
         self.tolerance = _nonnegative(tolerance, "tolerance")
         self.max_lag = _nonnegative(max_lag, "max_lag")
+        if isinstance(max_deferred, bool) or not isinstance(max_deferred, int) or max_deferred < 0:
+            raise InputError(f"max_deferred must be an integer >= 0 (records), got {max_deferred!r}")
+        self.max_deferred = max_deferred
         self.names = names
         if reference is None:
             # two robots: the pose of the first in the second's frame, as ``track``; more: the first's frame
@@ -332,6 +377,8 @@ class Localizer:
         self.ties = TieWindow(self.reference, self.max_coast)
         self.unattributed = 0  #: refused messages that named no robot of the rig
         self.records = 0  #: records fused
+        self.records_deferred = 0  #: records fused while behind (their smoothing deferred)
+        self.records_unsmoothed = 0  #: records written as the causal filter gave them (see the module docstring)
         self.fused_until = -math.inf  #: capture time of the last record fused
         self.log = log
         self._held: list[_Held] = []
@@ -352,7 +399,14 @@ class Localizer:
         (a start from several records), and both cameras' frames together (a
         start from one record's joint solve), so that the compiled kernels
         are loaded before the first message rather than while messages wait
-        (about a second in a new process; the joint solve's alone 90 ms)."""
+        (about a second in a new process; the joint solve's alone 90 ms).
+        The chi-square quantiles' library (scipy.stats) is imported here too:
+        a team's first joint solve of three robots or more needs it, and its
+        import took 4 s of a loaded machine inside a record, every message
+        waiting."""
+        from ..core.consistency import chi2_quantile
+
+        chi2_quantile(DEFAULT_CONFIDENCE, 6)
         a, b = self.names[0], self.names[1]
         if self.rig.robot(a).is_body or self.rig.robot(b).is_body:
             T = Pose.from_rotvec([0.0, 0.0, math.pi], [2.0, 0.0, 0.0])  # bodies (z up): a ahead of b, facing it
@@ -436,6 +490,33 @@ class Localizer:
         self._waiting[got.key] = self._waiting.get(got.key, 0) + 1
         return "held"
 
+    def select(self, topic: str, heads: Sequence[tuple[str, int] | None], now: float) -> list[int]:
+        """Which of the samples taken at once from robot ``topic``'s reader to
+        decode (their indices): ``heads`` is each one's ``(header.frame_id,
+        stamp in ns)`` (:func:`~mutloc.live.messages.observations_peek`; None:
+        unreadable so, decoded).  A sample more than ``max_lag`` behind ``now``
+        with a newer sample of its camera among them is shed here, before
+        it is decoded (counted as received and ``shed``; the rule of
+        :meth:`poll`, applied early); the others are kept."""
+        keys = self.frame_ids.get(topic)
+        c = self.counts.get(topic)
+        if keys is None or c is None:
+            return list(range(len(heads)))
+        newest: dict[str, int] = {}  # camera key -> its newest stamp among them
+        for h in heads:
+            if h is not None and h[0] in keys:
+                k = keys[h[0]]
+                newest[k] = max(newest.get(k, h[1]), h[1])
+        keep = []
+        for i, h in enumerate(heads):
+            if h is not None and h[0] in keys and h[1] < newest[keys[h[0]]] and now - h[1] * 1e-9 > self.max_lag:
+                c.received += 1
+                c.shed += 1
+                c.last_shed_at = now
+            else:
+                keep.append(i)
+        return keep
+
     def malformed(self, robot: str, n: int = 1, now: float | None = None) -> None:
         """Count ``n`` samples of ``robot``'s topic that could not even be decoded (arrived at ``now``)."""
         for _ in range(max(0, n)):
@@ -517,7 +598,7 @@ class Localizer:
                 now = clock()
             if not self._due(self._held[0], now):
                 break
-            out += self._fuse(self._shed(self._group(), now))
+            out += self._fuse(self._shed(self._group(), now), now)
         return out
 
     def _shed(self, group: list[_Held], now: float) -> list[_Held]:
@@ -534,6 +615,22 @@ class Localizer:
                 keep.append(h)
         return keep
 
+    def deferred(self) -> int:
+        """Records fused whose smoothing waits for slack (0 without ``--out``: no smoother)."""
+        return self.engine.backlog()
+
+    def catch_up(self, clock: Callable[[], float], until: float) -> int:
+        """Smooth deferred records, oldest first, while ``clock()`` is before
+        ``until`` (the localizer's slack: nothing due to fuse); returns how
+        many were made final."""
+        done = 0
+        while self.engine.backlog() > 0 and clock() < until:
+            n = self.engine.smooth(1)
+            if n == 0:
+                break  # (held back by a track not yet confirmed: later)
+            done += n
+        return done
+
     def feed(self, msg: Any, now: float, topic: str | None = None) -> list[LivePose]:
         """:meth:`receive` then :meth:`poll`."""
         self.receive(msg, now, topic)
@@ -543,7 +640,7 @@ class Localizer:
         """Fuse every held message now (the input ends)."""
         out: list[LivePose] = []
         while self._held:
-            out += self._fuse(self._group())
+            out += self._fuse(self._group(), None)
         return out
 
     def _group(self) -> list[_Held]:
@@ -557,7 +654,8 @@ class Localizer:
             self._waiting[h.key] -= 1
         return group
 
-    def _fuse(self, group: list[_Held]) -> list[LivePose]:
+    def _fuse(self, group: list[_Held], now: float | None) -> list[LivePose]:
+        """Fuse one record (``now``: the clock, None at the end of the input: never behind)."""
         late = [h for h in group if h.t < self.fused_until]  # (let through too early for them)
         for h in late:
             self.counts[h.robot].dropped_late += 1
@@ -569,8 +667,9 @@ class Localizer:
         else:
             t = sum(h.t for h in group) / len(group)
             obs = ObservationSet.concatenate([h.observations for h in group]).with_time(t)  # one record, one time
+        behind = now is not None and now - t > self.max_lag
         try:
-            rows = self.engine.step(t, obs)
+            rows = self.engine.step(t, obs, smooth=not behind)
         except (MutlocError, ArithmeticError, ValueError):
             # Input the checks let through and the tracker cannot take: refused, never a stop.
             for h in group:
@@ -581,6 +680,10 @@ class Localizer:
         self.fused_until = max(h.t for h in group)
         self.records += 1
         self._rig_said(t)
+        self.records_deferred += behind
+        over = self.engine.backlog() - self.max_deferred
+        if over > 0:  # (the smoother too far behind: the oldest deferred written as the filter gave them)
+            self.records_unsmoothed += self.engine.smooth(over, smooth=False)
         stamps = list({h.ns: h for h in sorted(group, key=lambda h: h.ns)}.values())  # one message per stamp
         involved: set[str] = set()
         owner = self.rig.owner
@@ -705,7 +808,9 @@ class Localizer:
         return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
                 + (f" ({', '.join(kinds)})" if kinds else "")
                 + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}"
-                + f", shed {sum(c.shed for c in cs)}")
+                + f", shed {sum(c.shed for c in cs)}"
+                + (f"; {self.records_unsmoothed} record{'s' if self.records_unsmoothed != 1 else ''} written "
+                   "unsmoothed (behind)" if self.records_unsmoothed else ""))
 
 
 def _short(rig_id: str) -> str:
@@ -823,6 +928,24 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     return run
 
 
+def _take(rd: Any, robot: str, loc: Localizer, clock: Callable[[], float]) -> None:
+    """Give ``loc`` what robot ``robot``'s reader holds: taken as bytes, the samples shed
+    (:meth:`Localizer.select`) never decoded; each kept one decoded and received at its own time."""
+    from .messages import observations_peek
+
+    if not rd.raw:  # (a binding that decodes as it takes)
+        for sample in rd.take():
+            loc.receive(sample, clock(), robot)
+        return
+    got = rd.take_bytes()
+    if not got:
+        return
+    for i in loc.select(robot, [observations_peek(data) for data, _ in got], clock()):
+        sample = rd.decode(*got[i])
+        if sample is not None:
+            loc.receive(sample, clock(), robot)  # (its own arrival: taking many may take a while)
+
+
 def _foreign(bus: Any, loc: Localizer, others: dict, now: float) -> None:
     """Tell ``loc`` of the poses someone else published on its topics (``others``: topic -> (robot, reader
     of the others' samples)): on a pose topic any, on ``/tf`` a transform of a tracked robot in the
@@ -905,11 +1028,12 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
             break
         due = loc.next_due()
         wake = min(end, next_diag, due if due is not None else math.inf, now + 0.1)
+        if loc.deferred():
+            wake = now  # (smoothing to do: only look for messages)
         waitset.wait(max(0, int((wake - now) * 1e9)))
         now = clock()
         for r, rd in readers.items():
-            for sample in rd.take():
-                loc.receive(sample, clock(), r)  # (its own arrival: taking many may take a while)
+            _take(rd, r, loc, clock)
             loc.malformed(r, rd.malformed - malformed[r], clock())
             malformed[r] = rd.malformed
         if now >= next_foreign:  # (four times a second: what others publish needs no hurry)
@@ -917,6 +1041,9 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
             next_foreign = now + FOREIGN_PERIOD
         now = clock()
         publish(loc.poll(now, clock))
+        if loc.deferred():  # slack: some of the smoothing deferred while behind, then new messages again
+            due = loc.next_due()
+            loc.catch_up(clock, min(clock() + SMOOTH_SLICE, due if due is not None else math.inf))
         if now >= next_diag:
             say(now)
             next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)

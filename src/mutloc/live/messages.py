@@ -35,7 +35,7 @@ from ..errors import InputError
 from ..io.ros import TF_TOPIC, pose_topic, ros_covariance
 
 __all__ = ["ros_types", "MSG_PACKAGE", "rig_id", "observations_topic", "dds_topic", "OBSERVATIONS_TYPE",
-           "observations_message", "observations_from_message", "observations_from_cdr", "pose_messages", "pose_cdr",
+           "observations_message", "observations_from_message", "observations_from_cdr", "observations_peek", "pose_messages", "pose_cdr",
            "pose_cdr_body", "raw_sample", "diagnostics_message", "odometry_message",
            "stamp_of", "stamp", "MessageError", "RobotStatus", "DIAGNOSTICS_TOPIC", "TF_TOPIC", "TF_STATIC_TOPIC",
            "pose_topic", "static_transforms_message", "observer_frame_ids",
@@ -342,6 +342,26 @@ def observations_from_cdr(data: bytes) -> Any:
         raise MessageError(f"observations message: {exc}") from None
     return T.Observations(header=T.Header(stamp=T.Time(sec=sec, nanosec=nanosec), frame_id=frame_id), robot=robot,
                           rig_id=rig, frame=frame, source_time=source_time, observations=entries)
+
+
+def observations_peek(data: bytes) -> tuple[str, int] | None:
+    """``(header.frame_id, stamp in ns)`` of an ``Observations`` message's CDR
+    bytes, read without decoding the rest (what the localizer needs to tell
+    which camera's newest message a sample is before it decodes any); None
+    for bytes it cannot read so (another encapsulation, too short, a bad
+    string): those are decoded, and refused if they are not a message."""
+    if len(data) < 16 or data[0] != 0 or data[1] > 1:
+        return None
+    u32, i32u32 = _STRUCTS["<" if data[1] == 1 else ">"][:2]
+    sec, nanosec = i32u32.unpack_from(data, 4)
+    (k,) = u32.unpack_from(data, 12)
+    if k < 1 or 16 + k > len(data) or data[15 + k] != 0 or sec < 0 or nanosec >= 1_000_000_000:
+        return None
+    try:
+        frame_id = bytes(data[16:15 + k]).decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+    return frame_id, sec * 1_000_000_000 + nanosec
 
 
 _STRUCTS = {e: (struct.Struct(e + "I"), struct.Struct(e + "iI"), struct.Struct(e + "d"), struct.Struct(e + "ddf"))

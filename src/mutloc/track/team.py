@@ -193,8 +193,9 @@ class RowEmitter:
     def add(self, item: Any, filtered: bool, payload: Any = None) -> None:
         self.queue.append((item, filtered, payload))
 
-    def emit(self, end: bool = False) -> None:
-        final = math.inf if self.tracker.history is None else self.tracker.finalize(end)
+    def emit(self, end: bool = False, *, most: int | None = None, smooth: bool = True) -> None:
+        """Hand on the items final now (``most``, ``smooth``: as :meth:`TeamTracker.finalize`'s)."""
+        final = math.inf if self.tracker.history is None else self.tracker.finalize(end, most=most, smooth=smooth)
         while self.queue:
             item, filtered, payload = self.queue[0]
             if filtered and self.done >= final:

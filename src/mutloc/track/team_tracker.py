@@ -177,10 +177,13 @@ class TeamTracker(Starts, Hindsight, Rows):
         """The smoother's records (None without smoothing: every row is final at once)."""
         return self.smoother
 
-    def finalize(self, end: bool = False) -> int:
+    def finalize(self, end: bool = False, *, most: int | None = None, smooth: bool = True) -> int:
         """Make final the rows of the records that nothing to come can
         change, in input order, and return how many records are final (all
-        of them without smoothing).
+        of them without smoothing).  ``most``: at most this many records
+        made final by this call (the others wait for the next); ``smooth``
+        False: those records' rows are made final as the causal filter gave
+        them, not smoothed (the live localizer when it cannot keep up).
 
         With ``smooth_lag``: each robot's pose, covariance and velocity in a
         record's rows become the fixed-lag smoothed ones of the joint state
@@ -202,7 +205,9 @@ class TeamTracker(Starts, Hindsight, Rows):
                 if tr.undo is not None:
                     limit = min(limit, tr.undo.first - sm.lag)
             limit = max(limit, sm.first)
-        for k in range(sm.first, limit):
+        if most is not None:
+            limit = min(limit, sm.first + max(0, most))
+        for k in range(sm.first, limit if smooth else sm.first):
             state = sm.smoothed(k)
             for r, row in self._unfinal[k - sm.first].rows.items():
                 e = row.estimate
