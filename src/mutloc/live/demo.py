@@ -215,6 +215,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
         tail = (out / f"{name}.log").read_text(encoding="utf-8").strip().splitlines()[-1:] or ["(no output)"]
         raise InputError(f"the {name} process stopped (exit {failed[0][1]}): {tail[0]}")
     summary = _summary(out, received, source_time, truth, seconds, domain)
+    summary.update(_process_counts(out, [*folders]))
     summary["observation_messages"] = messages
     summary["stages_ms"] = _stages(received, arrived)
     summary["start_at"] = start_at  # the wall-clock time of every recording's first frame
@@ -231,6 +232,26 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     summary["latency_ms_second_half"] = {q: float(np.percentile(half, int(q[1:])) * 1e3) if half else None
                                          for q in ("p50", "p99")}
     return summary
+
+
+def _process_counts(out: Path, robots: list[str]) -> dict[str, Any]:
+    """What the processes' last lines say they did: the localizer's records
+    fused, poses published and messages shed; each node's frames captured and
+    dropped (None where a log has no such line: a process that did not finish)."""
+    import re
+
+    def last(name: str, pattern: str) -> tuple[int, ...] | None:
+        path = out / f"{name}.log"
+        text = path.read_text(encoding="utf-8") if path.exists() else ""
+        found = re.findall(pattern, text)
+        return tuple(int(x) for x in found[-1]) if found else None
+
+    loc = last("localizer", r"(\d+) records fused; (\d+) poses published;.*?, shed (\d+)")
+    nodes = {r: last(r, r"(\d+) frames captured from .*?, (\d+) processed .*?, (\d+) dropped") for r in robots}
+    return {"localizer": None if loc is None else {"records_fused": loc[0], "poses_published": loc[1],
+                                                   "shed": loc[2]},
+            "nodes": {r: None if n is None else {"captured": n[0], "processed": n[1], "dropped": n[2]}
+                      for r, n in nodes.items()}}
 
 
 def _ns(t: float) -> int:
