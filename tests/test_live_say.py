@@ -69,14 +69,18 @@ def test_refused_messages_are_warn_with_why_and_printed_once_then_rate_limited(s
     assert q.message == (f"refused {n_q} observations: rig_id {OTHER_RIG} is not this rig's ({setup.rid}): "
                          "its node runs with another rig file"), q.message
     assert q.values["refused_rig_id"] == n_q and q.values["fused"] == 0
-    assert status["p"].level == M.OK and "refused" not in status["p"].message
+    # p's own messages are fine (nothing refused of it); with every q message refused only p's camera ties p
+    # to q, by two markers: p is not published and says so
+    assert "refused" not in status["p"].message and status["p"].values["refused"] == 0
+    assert status["p"].level == M.STALE and "tied by 2 distinct observation(s)" in status["p"].message
     assert len(lines) == 1 and lines[0].startswith("robot q: refused observations (rig_id): rig_id 0123"), lines
     # a frame_id that is neither p nor one of its cameras
     bad = M.observations_message("p", setup.rid, 10**6, T0 + 2.0, setup.recs.frames[0])
     bad.header.frame_id = "p/nosuchcamera"
     assert loc.receive(bad, T0 + 2.01, "p").startswith("refused")
     p = {s.robot: s for s in loc.diagnostics(T0 + 2.02)}["p"]
-    assert p.level == M.WARN and "refused 1 observations" in p.message and "p/nosuchcamera" in p.message, p
+    # (p stays STALE: not published, see above; the refusal is named beside it)
+    assert p.level == M.STALE and "refused 1 observations" in p.message and "p/nosuchcamera" in p.message, p
     assert len(lines) == 2 and lines[1].startswith("robot p: refused observations (malformed)") and \
         "p/nosuchcamera" in lines[1], lines
     # rate-limited: the next q refusal after NOTICE_PERIOD prints one line with the count since
