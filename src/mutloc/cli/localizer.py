@@ -26,8 +26,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="also write what track writes (trajectory files) and the observations received "
                         "(DIR/log.jsonl: replay with mutloc track --observations DIR/log.jsonl)")
     p.add_argument("--max-coast", type=positive_float, default=1.0, metavar="S",
-                   help="a robot's pose is published while its track was measured within S seconds (default 1); "
-                        "a robot without observations for S seconds is STALE")
+                   help="a robot's pose is published while the observations of the last S seconds tie it to the "
+                        "reference (three distinct camera-marker observations per link; default 1); a robot without "
+                        "observations for S seconds is STALE")
     p.add_argument("--max-clock-skew", type=nonnegative_float, default=0.05, metavar="S",
                    help="observations stamped more than S seconds in the future are refused (default 0.05)")
     p.add_argument("--reorder", type=nonnegative_float, default=0.03, metavar="S",
