@@ -692,13 +692,14 @@ class Localizer:
             involved.update(self.engine.involved(h.robot, h.observations))
             self.ties.add(h.t, h.robot, h.key or h.robot,
                           [(m, owner(m)) for m in set(h.observations.marker) if m is not None])
-        tied = self.ties.tied(t)
         self.ties.forget_before(t)
+        counts = self.ties.counts(t)  # (once per record: every robot's ties below)
+        tied = self.ties.tied(t, counts)
         out = []
         for robot, row in rows.items():
             rc = self.counts[robot]
             rc.status = str(row.status)
-            rc.ties = self.ties.ties_of(robot, t)
+            rc.ties = self.ties.ties_of(robot, t, counts)
             if robot in tied:
                 rc.tied, rc.untied_since = True, None
             elif rc.tied or rc.untied_since is None:

@@ -53,10 +53,12 @@ class TieWindow:
         since = t - self.window
         return {pair: sum(1 for s in ties.values() if s >= since) for pair, ties in self._ties.items()}
 
-    def tied(self, t: float) -> set[str]:
+    def tied(self, t: float, counts: dict[frozenset, int] | None = None) -> set[str]:
         """The robots (not the reference) a chain of pairs, each tied by
-        ``min_ties`` distinct observations within the window, links to the reference."""
-        strong = [tuple(pair) for pair, n in self.counts(t).items() if n >= self.min_ties and len(pair) == 2]
+        ``min_ties`` distinct observations within the window, links to the
+        reference (``counts``: :meth:`counts` at ``t``, if already made)."""
+        counts = self.counts(t) if counts is None else counts
+        strong = [tuple(pair) for pair, n in counts.items() if n >= self.min_ties and len(pair) == 2]
         seen, todo = {self.reference}, [self.reference]
         while todo:
             a = todo.pop()
@@ -67,9 +69,10 @@ class TieWindow:
                     todo.append(b)
         return seen - {self.reference}
 
-    def ties_of(self, robot: str, t: float) -> int:
+    def ties_of(self, robot: str, t: float, counts: dict[frozenset, int] | None = None) -> int:
         """Distinct observations within the window between ``robot`` and any other robot."""
-        return sum(n for pair, n in self.counts(t).items() if robot in pair)
+        counts = self.counts(t) if counts is None else counts
+        return sum(n for pair, n in counts.items() if robot in pair)
 
     def forget_before(self, t: float) -> None:
         """Drop what is older than the window ending at ``t`` (memory stays bounded)."""
