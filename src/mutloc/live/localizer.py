@@ -114,7 +114,7 @@ from ..track.filtering import FilterOptions
 from ..track.frames import expanded_rig
 from ..track.rows import TrackRow
 from ..track.status import FrameStatus
-from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
+from .messages import (ERROR, OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
                        rig_id as rig_id_of)
 from .ties import TieWindow
 
@@ -232,6 +232,8 @@ class RobotCounts:
     ties: int = 0
     #: Its rows not published because the observations of the last ``max_coast`` s did not tie it.
     untied: int = 0
+    #: Its rows not published because the records kept disagreeing with the rig (see ``Localizer.rig_withheld``).
+    rig_withheld: int = 0
     #: Arrival time of its last refused message, and why it was refused (None: none refused).
     last_refused_at: float | None = None
     last_refusal: str = ""
@@ -392,6 +394,10 @@ class Localizer:
         self._notices: dict[tuple, list] = {}  # cause -> [time printed, refused since]
         #: The last record whose rig check window disagreed: (its capture time, the test), else None.
         self.rig_flag: tuple[float, Any] | None = None
+        #: Since when the poses are withheld because the records keep disagreeing with the rig (None: not):
+        #: from a window that disagrees until the windows fit no worse than their mean for a window's length.
+        self.rig_withheld: float | None = None
+        self._rig_fits = 0  # tests in a row, while withheld, whose window fitted no worse than its mean
 
     def warm_up(self) -> None:
         """Run throwaway trackers on synthetic records (the first two robots
@@ -715,6 +721,10 @@ class Localizer:
                 # the observations of the last max_coast s do not fix it (any more, or yet): not published
                 rc.untied += 1
                 continue
+            if self.rig_withheld is not None:
+                # the records keep disagreeing with the rig: its poses would be confident and wrong
+                rc.rig_withheld += 1
+                continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
             body: list = []  # (their bytes but the stamp: made once)
             for h in stamps:
@@ -742,6 +752,16 @@ class Localizer:
         if test is not None and test.disagrees:
             self.rig_flag = (t, test)
             self._notice(("rig",), test.words(), t, once=True)
+            if self.rig_withheld is None:
+                self.rig_withheld = t
+            self._rig_fits = 0
+        elif self.rig_withheld is not None and test is not None and test.full:
+            # published again once the window has fitted no worse than a right rig's mean (chi2 <= dof) for a
+            # whole window's worth of tests in a row (a right rig's false alarm passes; a wrong rig's windows
+            # dip below that now and then, not for long)
+            self._rig_fits = self._rig_fits + 1 if test.chi2 <= test.dof else 0
+            if self._rig_fits >= test.records:
+                self.rig_withheld = None
 
     def level(self, robot: str, now: float) -> int:
         """OK, WARN (last observation older than ``warn_after``) or STALE (older than ``max_coast``, or none)."""
@@ -772,6 +792,10 @@ class Localizer:
                 level = STALE
                 message = (f"not published: tied by {c.ties} distinct observation(s) in the last {self.max_coast:g} s "
                            f"(three fix a pose), for {max(0.0, now - c.untied_since):.2f} s")
+            if level == OK and r != self.reference and self.rig_withheld is not None and self.rig_flag is not None:
+                level = ERROR
+                message = (f"not published since {max(0.0, now - self.rig_withheld):.2f} s ago: "
+                           + self.rig_flag[1].words())
             said = []
             if c.last_refused_at is not None and now - c.last_refused_at <= NOTICE_HOLD:
                 said.append(f"refused {c.refused} observations: {c.last_refusal}")
@@ -779,7 +803,8 @@ class Localizer:
                 said.append(f"falling behind: shed {c.shed} of {c.received}")
             if c.foreign_at is not None and now - c.foreign_at <= NOTICE_HOLD:
                 said.append(f"another localizer publishes on this domain: {c.foreign}")
-            if self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD:
+            if (self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD
+                    and not message.startswith("not published since")):
                 said.append(self.rig_flag[1].words())
             if said:
                 # (none received: what was refused is the news; a robot not stale is WARN)
@@ -790,7 +815,7 @@ class Localizer:
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
                       "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
-                      "untied_not_published": c.untied}
+                      "untied_not_published": c.untied, "rig_withheld": c.rig_withheld}
             rig_test = self.engine.tracker.rig_check.last
             if rig_test is not None:
                 values.update(rig_chi2=f"{rig_test.chi2:.1f}", rig_dof=rig_test.dof,

@@ -21,7 +21,7 @@ from ..api import Estimate, rejected_text
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
-from ..core.rays import set_aside_past_rim
+from ..core.rays import ray_frames, set_aside_past_rim
 from ..core.rig import Rig
 from ..core.team import MIN_TIES, TeamProblem, residual_norms
 from ..core.filter import STATE_DIM
@@ -86,6 +86,9 @@ class TeamTracker(Starts, Hindsight, Rows):
         #: the records' rows say so.
         self.rig_check = RigCheck()
         self._own = [0.0, 0]  # the record's (chi2, dof) so far: its filter updates'
+        #: The record's update's rows when they fit any rig on their own, and the velocities predicted before it.
+        self._alone: tuple[TeamProblem, np.ndarray] | None = None
+        self._names = names  # (rig order: a TeamProblem's robot indices)
         self._own_solve: Any = None  # the record's joint solve's test (covers all of it: preferred)
         self._solve_test: Any = None
 
@@ -116,7 +119,7 @@ class TeamTracker(Starts, Hindsight, Rows):
         rec = Record(float(t), observations, times, problems, rows)
         if not self.filtering:
             self.last_time = rec.t
-            self._own, self._own_solve = [0.0, 0], None
+            self._own, self._own_solve, self._alone = [0.0, 0], None, None
             self._per_record(observations, rows)
             self._rig_test(rows)
             self._input_problems(rec)
@@ -272,7 +275,7 @@ class TeamTracker(Starts, Hindsight, Rows):
 
     def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> UndoRequest | None:
         f = self.filter
-        self._own, self._own_solve = [0.0, 0], None
+        self._own, self._own_solve, self._alone = [0.0, 0], None, None
         if obs is None or len(obs) == 0:
             self._coast(rows, set())
             for r, row in rows.items():
@@ -389,10 +392,32 @@ class TeamTracker(Starts, Hindsight, Rows):
         through records that fit any rig), every row says so (and names the hint)."""
         c = self._own_solve
         chi2, dof = (float(c.chi2), int(c.dof)) if c is not None and c.dof > 0 else self._own
+        if dof <= 0 and self._alone is not None and self.filtering:
+            f = self.filter
+            chi2, dof = self.rig_check.pooled(self.last_time, self._as_rays(self._alone[0]), self._alone[1], f.R, f.t,
+                                              f.index(self.reference), self.pixel_sigma)
         test = self.rig_check.add(chi2, dof)
         if test is not None and test.disagrees:
             for row in rows.values():
                 row.reason = join(row.reason, test.words())
+
+    def _velocities(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The filter's velocities (per robot, rig order), their joint covariance and its robots (tracked)."""
+        f = self.filter
+        robots = np.asarray(sorted(f.tracked), dtype=np.int64)
+        pos = f._positions()[robots]
+        cols = (STATE_DIM * pos[:, None] + 6 + np.arange(6)).ravel()
+        return f.vel.copy(), f.P[np.ix_(cols, cols)].copy(), robots
+
+    def _as_rays(self, problem: TeamProblem) -> TeamProblem:
+        """``problem`` in ray mode (its rows' rays through their cameras, in their robots' frames)."""
+        if problem.frames is not None:
+            return problem
+        frames = np.empty((len(problem.cam), 4, 3))
+        for a in np.unique(problem.cam).tolist():
+            ix = np.flatnonzero(problem.cam == a)
+            _, frames[ix] = ray_frames(self.rig.mount(self._names[a]), problem.uv[ix])
+        return replace(problem, frames=frames)
 
     def _nearest_candidates(self, obs: ObservationSet) -> ObservationSet:
         """Where a detector handed over several candidates for a marker, the
@@ -435,8 +460,11 @@ class TeamTracker(Starts, Hindsight, Rows):
         none = np.empty(0, dtype=np.int64)
         if len(rows) == 0:
             return set(), None, "", none
+        before = self._velocities()  # (before the update: the rig check's motion, see _rig_test)
         upd = f.update(problem.take(rows))
         self._took(upd)
+        if upd is not None and upd.own[1] <= 0:
+            self._alone = (problem.take(rows), before)  # fits any rig on its own: pooled with the next such
         if upd.accepted:
             used[rows[upd.used]] = True
             return set(), upd.test, "", rows[upd.dropped]
