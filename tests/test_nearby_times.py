@@ -9,12 +9,12 @@ import pytest
 from mutloc.core.geometry import so3_exp
 from mutloc.core.observations import ObservationSet
 from mutloc.core.nearby_times import fitted_together, moved_back
-from mutloc.core.rays import ray_frames
 from mutloc.core.team import TeamProblem, team_residuals_any
 from mutloc.io import load_rig
 from mutloc.sim.calibration import perturb_rig
 from mutloc.sim.tracking import camera_records
 from mutloc.sim.world import standard_rig
+from mutloc.team import in_rays, team_problem
 from mutloc.track.frames import expanded_rig
 from mutloc.track.rig_check import RIG_HINT
 from mutloc.track.tracker import track_log
@@ -82,13 +82,8 @@ def _two_ball_records(pixel_sigma, seed, duration=2.0):
 
 
 def _rays(rig, obs):
-    from mutloc.team import team_problem
     p, names, _ = team_problem(rig, obs)
-    frames = np.empty((len(p.cam), 4, 3))
-    for a in np.unique(p.cam).tolist():
-        ix = np.flatnonzero(p.cam == a)
-        _, frames[ix] = ray_frames(rig.mount(names[a]), p.uv[ix])
-    return TeamProblem(p.cam, p.own, p.points, p.uv, p.K, p.dist, p.wt, frames), names
+    return in_rays(rig, names, p), names
 
 
 def test_three_records_of_a_moving_pair_fitted_together_follow_chi_square():

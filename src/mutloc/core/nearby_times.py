@@ -9,12 +9,10 @@ numbers for the same relative pose up to the motion between their times --
 over that short a time the filter's velocity gives the motion to well below
 a pixel -- so fitted together they leave two degrees of freedom that do
 test the rig.  :func:`moved_back` re-expresses an earlier record's rows so
-that the poses of a later time explain them; :func:`fitted_alone` is the
-chi-square of rows fitted on their own (linearised where the state is,
-the Gauss-Newton step's residual: exact to second order near the optimum).
-
-:func:`fitted_together` does both for rows of several times, with the
-velocity's own uncertainty in the test: the velocities are the filter's
+that the poses of a later time explain them; :func:`fitted_together` is
+the chi-square of rows of several times fitted on their own (linearised
+where the state is: the Gauss-Newton step's residual, exact to second order
+near the optimum), with the velocity's own uncertainty in the test: the velocities are the filter's
 *before* the first of the rows came (not fitted to their noise, which would
 hide some of it), so their error moves the earlier rows by ``dt`` times it;
 the residuals' covariance is ``sigma^2 I + G S G^T`` (``S`` the velocities'
@@ -40,9 +38,8 @@ import numpy as np
 
 from .geometry import so3_exp
 from .team import TeamProblem, team_residuals_any
-from .team_kernels import team_ls_residual
 
-__all__ = ["moved_back", "fitted_alone", "fitted_together"]
+__all__ = ["moved_back", "fitted_together"]
 
 
 def moved_back(problem: TeamProblem, R: np.ndarray, t: np.ndarray, vel: np.ndarray, dt: float,
@@ -67,35 +64,6 @@ def moved_back(problem: TeamProblem, R: np.ndarray, t: np.ndarray, vel: np.ndarr
     frames[:, :3] = np.einsum("nij,nkj->nki", RB[cam], problem.frames[:, :3])
     frames[:, 3] = np.einsum("nij,nj->ni", RB[cam], problem.frames[:, 3]) + tB[cam]
     return TeamProblem(cam, own, points, problem.uv, problem.K, problem.dist, problem.wt, frames)
-
-
-def fitted_alone(problem: TeamProblem, R: np.ndarray, t: np.ndarray, reference: int) -> tuple[float, int]:
-    """The squared residual (px^2, weighted) of ``problem``'s rows fitted on
-    their own -- every robot's pose free but the reference's, linearised at
-    ``R``, ``t`` -- and its degrees of freedom (robots in three observations
-    or fewer left out: :func:`mutloc.core.team_kernels.team_ls_residual`).
-    ``(nan, 0)`` without a degree of freedom or with a marker behind its camera."""
-    m = len(problem.cam)
-    if m == 0:
-        return float("nan"), 0
-    r = np.empty(2 * m)
-    Ja, Jb = np.empty((m, 2, 6)), np.empty((m, 2, 6))
-    if not team_residuals_any(problem.cam, problem.own, problem.points, problem.uv, problem.wt, problem.K,
-                              problem.dist, problem.fr, np.ascontiguousarray(R), np.ascontiguousarray(t), r, Ja, Jb,
-                              True):
-        return float("nan"), 0
-    robots = np.unique(np.r_[problem.cam, problem.own])
-    robots = robots[robots != reference]
-    blocks = np.searchsorted(robots, np.c_[problem.cam, problem.own])
-    blocks[np.c_[problem.cam, problem.own] == reference] = -1
-    H = np.zeros((2 * m, 6 * len(robots)))
-    for j in range(m):
-        for s, J in ((0, Ja), (1, Jb)):
-            b = blocks[j, s]
-            if b >= 0:
-                H[2 * j:2 * j + 2, 6 * b:6 * b + 6] += J[j]
-    chi2, dof = team_ls_residual(H, r, np.ascontiguousarray(blocks, dtype=np.int64))
-    return float(chi2), int(dof)
 
 
 def _residuals(problem: TeamProblem, R: np.ndarray, t: np.ndarray, jac: bool):

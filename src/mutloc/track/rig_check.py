@@ -41,7 +41,14 @@ degrees of freedom, the motion between their
 times taken from the filter's velocities (:mod:`mutloc.core.nearby_times`):
 with two markers per robot and free-running cameras this is the only test
 there is.  Each record enters one test (a pool is emptied once it yields
-degrees of freedom), so the window's terms stay independent.
+degrees of freedom), so the window's terms stay independent.  The motion's
+uncertainty is the filter's velocity covariance, which the constant-velocity
+model's process noise makes generous: on a right two-ball rig the pooled
+chi-square runs at about 0.7 of its degrees of freedom (a conservative test:
+measured in tests/test_nearby_times.py with the true motion it is chi-square),
+a rig 1-2 cm off at 1.4-1.9; it is flagged once a window's sum shows it,
+within 1.6 s for two of three logs and after 12 s for the third
+(bench/node_outages.py, docs/benchmarks.md).
 
 No I/O; :class:`RigCheck` is fed one ``(chi2, dof)`` per record: the team
 tracker (:class:`~mutloc.track.team_tracker.TeamTracker`, which ``track``

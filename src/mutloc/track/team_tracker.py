@@ -21,7 +21,7 @@ from ..api import Estimate, rejected_text
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
 from ..core.pose import Pose
-from ..core.rays import ray_frames, set_aside_past_rim
+from ..core.rays import set_aside_past_rim
 from ..core.rig import Rig
 from ..core.team import MIN_TIES, TeamProblem, residual_norms
 from ..core.filter import STATE_DIM
@@ -29,7 +29,7 @@ from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
 from ..errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, OdometryError,
                       positive_number)
-from ..team import TeamEstimate, localize_team, team_problem
+from ..team import TeamEstimate, in_rays, localize_team, team_problem
 from . import lifecycle
 from .lifecycle import PoseCov, Track, TrackState, UndoRequest, ties_to_one
 from .filtering import FilterOptions, lost_reason
@@ -393,31 +393,14 @@ class TeamTracker(Starts, Hindsight, Rows):
         c = self._own_solve
         chi2, dof = (float(c.chi2), int(c.dof)) if c is not None and c.dof > 0 else self._own
         if dof <= 0 and self._alone is not None and self.filtering:
-            f = self.filter
-            chi2, dof = self.rig_check.pooled(self.last_time, self._as_rays(self._alone[0]), self._alone[1], f.R, f.t,
-                                              f.index(self.reference), self.pixel_sigma)
+            # (one camera's few observations: fitted with the next such records, see RigCheck.pooled)
+            f, (rows_alone, before) = self.filter, self._alone
+            chi2, dof = self.rig_check.pooled(self.last_time, in_rays(self.rig, self._names, rows_alone), before,
+                                              f.R, f.t, f.index(self.reference), self.pixel_sigma)
         test = self.rig_check.add(chi2, dof)
         if test is not None and test.disagrees:
             for row in rows.values():
                 row.reason = join(row.reason, test.words())
-
-    def _velocities(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The filter's velocities (per robot, rig order), their joint covariance and its robots (tracked)."""
-        f = self.filter
-        robots = np.asarray(sorted(f.tracked), dtype=np.int64)
-        pos = f._positions()[robots]
-        cols = (STATE_DIM * pos[:, None] + 6 + np.arange(6)).ravel()
-        return f.vel.copy(), f.P[np.ix_(cols, cols)].copy(), robots
-
-    def _as_rays(self, problem: TeamProblem) -> TeamProblem:
-        """``problem`` in ray mode (its rows' rays through their cameras, in their robots' frames)."""
-        if problem.frames is not None:
-            return problem
-        frames = np.empty((len(problem.cam), 4, 3))
-        for a in np.unique(problem.cam).tolist():
-            ix = np.flatnonzero(problem.cam == a)
-            _, frames[ix] = ray_frames(self.rig.mount(self._names[a]), problem.uv[ix])
-        return replace(problem, frames=frames)
 
     def _nearest_candidates(self, obs: ObservationSet) -> ObservationSet:
         """Where a detector handed over several candidates for a marker, the
@@ -460,7 +443,7 @@ class TeamTracker(Starts, Hindsight, Rows):
         none = np.empty(0, dtype=np.int64)
         if len(rows) == 0:
             return set(), None, "", none
-        before = self._velocities()  # (before the update: the rig check's motion, see _rig_test)
+        before = f.velocities()  # (before the update: the rig check's motion, see _rig_test)
         upd = f.update(problem.take(rows))
         self._took(upd)
         if upd is not None and upd.own[1] <= 0:
