@@ -1,0 +1,254 @@
+"""Odometry received live (SPEC "The robots' own motion and clocks"; mutloc.live.odometry).
+
+Ground truth: the simulator (:func:`mutloc.sim.team.random_team` of two
+robots moving by :func:`mutloc.sim.team.team_motion`, up to 0.72 m/s), both
+cameras at 30 fps with 1 px noise, each robot's odometry at 50 Hz from its
+true motion with the simulator's drift (1 % of the distance, 0.3 deg/m:
+:func:`mutloc.sim.odometry.drifting_odometry`).  The messages are those the
+nodes and a ROS odometry publisher send, fed to
+:class:`mutloc.live.localizer.Localizer` with their arrival times (no DDS);
+one test runs ``mutloc localizer --odometry`` over DDS (loopback, a domain of
+this run).
+"""
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mutloc.cli.main import main
+from mutloc.core.geometry import so3_log
+from mutloc.core.odometry import Odometry
+from mutloc.core.pose import Pose
+from mutloc.io import save_rig
+from mutloc.io.logs import ObservationLogWriter
+from mutloc.io.trajectory import read_tum
+from mutloc.live import messages as M
+from mutloc.live.localizer import Localizer
+from mutloc.live.odometry import LiveOdometry, OdometryStream
+from mutloc.sim.odometry import drifting_odometry, odometry_times
+from mutloc.sim.team import TeamScene, random_team, team_motion
+from mutloc.track.outputs import TrackOutputs
+
+pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
+
+T0 = 1_800_000_000.0  # the robots' wall clock at the scene's time 0
+FPS = 30.0
+ODO_RATE = 50.0
+DURATION = 6.0
+GAP = (2.5, 4.5)  # nothing seen: someone walks between the robots
+LATENCY = 0.006  # capture -> arrival
+NEES_5SIGMA = 45.0  # chi-square 6 dof at 1 - 5.7e-7 (two-sided 5 sigma)
+ROBOTS = ("r0", "r1")
+TOPICS = {"r0": "/r0/odom", "r1": "/r1/odom"}
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    d = tmp_path_factory.mktemp("live_odometry")
+    seed = 4
+    team = random_team(2, np.random.default_rng(seed), one_way=0.0)
+    at = team_motion(team, seed=seed, amplitude=0.3, speed=0.6, yaw_deg=8.0)
+    path = d / "rig.yaml"
+    save_rig(team.rig, path)
+    rng = np.random.default_rng([seed, 77])
+    frames = []  # (t, observations of the frame, truth T_r1_r0)
+    for k in range(int(DURATION * FPS)):
+        t = k / FPS
+        snap = TeamScene(team.rig, at(t), team.links, team.max_range)
+        obs = snap.observations(1.0, rng)
+        if GAP[0] <= t < GAP[1]:
+            obs = obs.take(np.empty(0, np.int64))
+        frames.append((t, obs, snap.truth("r1")["r0"]))
+    times = odometry_times(0.0, DURATION, ODO_RATE)
+    odo = {n: drifting_odometry(lambda t, n=n: at(t)[n], times, drift_pct=1.0, deg_per_m=0.3, seed=seed, stream=k)
+           for k, n in enumerate(team.names)}
+    return SimpleNamespace(path=path, rid=M.rig_id(path), frames=frames, odo_times=times, odo=odo,
+                           truth={round(t, 6): T for t, _, T in frames})
+
+
+def observation_messages(s):
+    """``[arrival, kind, robot, message]`` of each robot's camera frames (nothing seen: an empty message)."""
+    out = []
+    for k, (t, obs, _) in enumerate(s.frames):
+        for r in ROBOTS:
+            out.append([T0 + t + LATENCY, "obs", r, M.observations_message(r, s.rid, k + 1, T0 + t, obs)])
+    return out
+
+
+def odometry_messages(s, robots=ROBOTS, covariance=None):
+    out = []
+    for r in robots:
+        for t, R, tv in zip(s.odo_times, s.odo[r].R, s.odo[r].t):
+            out.append([T0 + t + LATENCY, "odo", r, M.odometry_message(T0 + t, Pose(R, tv), covariance, r)])
+    return out
+
+
+def drive(loc, msgs):
+    """Deliver ``msgs`` in arrival order, waking the localizer when its buffer is due
+    (as run_localizer's loop does); returns the poses published."""
+    out = []
+    for now, kind, robot, msg in sorted(msgs, key=lambda m: m[0]):
+        while loc.next_due() is not None and loc.next_due() <= now:
+            out += loc.poll(loc.next_due())
+        if kind == "odo":
+            loc.receive_odometry(robot, msg, now)
+            out += loc.poll(now)
+        else:
+            out += loc.feed(msg, now, robot)
+    return out + loc.finish()
+
+
+def nees_and_error(s, p):
+    """(6-dof NEES, translation error m) of a published pose against the truth at its stamp."""
+    T = s.truth[round(p.t - T0, 6)]
+    e = np.concatenate([so3_log(T.R @ p.estimate.pose.R.T), T.t - p.estimate.pose.t])
+    return float(e @ np.linalg.solve(p.estimate.covariance, e)), float(np.linalg.norm(e[3:]))
+
+
+def in_gap(p):
+    return GAP[0] + 0.1 <= p.t - T0 < GAP[1]
+
+
+def test_through_two_seconds_unseen_the_odometry_keeps_the_pose_near_the_truth(scene, tmp_path):
+    """Two seconds with nothing seen (both nodes still send their frames,
+    empty): with both robots' odometry received live every message in the
+    stretch gives a published pose of r0 in r1 within 5 cm of the truth and
+    5 sigma; with --out, replaying the log with the odometry files the
+    localizer wrote gives its trajectory file byte for byte."""
+    msgs = observation_messages(scene) + odometry_messages(scene)
+    log = ObservationLogWriter(tmp_path / "live" / "log.jsonl")
+    tums = {}
+
+    def tum(r):
+        tums[r] = open(tmp_path / "live" / f"odometry_{r}.tum", "w")
+        return tums[r]
+
+    with TrackOutputs(tmp_path / "live", "r0", "r1") as outputs:
+        loc = Localizer(scene.path, sink=outputs.write, log=log, max_coast=3.0,
+                        odometry=LiveOdometry(TOPICS, tum=tum, max_clock_skew=0.05))
+        poses = drive(loc, msgs)
+    log.close()
+    for f in tums.values():
+        f.close()
+    assert loc.reference == "r1" and loc.tracked == ["r0"]
+    gap = [p for p in poses if in_gap(p)]
+    sent = [m for m in msgs if m[1] == "obs" and m[2] == "r0" and in_gap(SimpleNamespace(t=M.stamp_of(m[3].header)))]
+    assert len({p.t for p in gap}) == len(sent) > 50  # a pose for every message in the stretch
+    checks = np.array([nees_and_error(scene, p) for p in gap])
+    assert checks[:, 1].max() < 0.05, checks[:, 1].max()
+    assert checks[:, 0].max() < NEES_5SIGMA, checks[:, 0].max()
+    counts = {r: loc.odometry.counts[r] for r in ROBOTS}
+    assert all(c.used == len(scene.odo_times) and c.refused == 0 and c.uncovered == 0 for c in counts.values())
+    # the replay: track with the log and the odometry the localizer used
+    assert main(["track", "--rig", str(scene.path), "--observations", str(tmp_path / "live" / "log.jsonl"),
+                 "--odometry", f"r0={tmp_path / 'live' / 'odometry_r0.tum'}",
+                 "--odometry", f"r1={tmp_path / 'live' / 'odometry_r1.tum'}",
+                 "--out", str(tmp_path / "replay"), "--no-progress"]) == 0
+    for name in ("trajectory.csv", "trajectory.tum"):
+        assert (tmp_path / "live" / name).read_bytes() == (tmp_path / "replay" / name).read_bytes()
+
+
+def test_without_odometry_the_same_stretch_is_coasted_far_off(scene):
+    """The control: the same messages without the odometry (and --max-coast 3
+    so that the coasted poses are published): beyond 5 cm in the stretch."""
+    loc = Localizer(scene.path, max_coast=3.0)
+    poses = drive(loc, observation_messages(scene))
+    err = [nees_and_error(scene, p)[1] for p in poses if in_gap(p)]
+    assert err and max(err) > 0.05, max(err)
+
+
+def _bad_odometry(scene):
+    """r0's odometry messages with bad ones among them, and how many of each kind."""
+    T = M.ros_types()
+    good = odometry_messages(scene, robots=("r0",))
+    out, kinds = [], {"frame": 0, "invalid": 0, "clock": 0, "not_increasing": 0, "jump": 0, "malformed": 0}
+    for k, (now, _, r, msg) in enumerate(good):
+        out.append([now, "odo", r, msg])
+        if k % 10 != 5:
+            continue
+        kind = list(kinds)[(k // 10) % len(kinds)]
+        bad = T.Odometry.deserialize(msg.serialize())
+        if kind == "frame":
+            bad.child_frame_id = "r1"
+        elif kind == "invalid":
+            if (k // 10) % 2:
+                bad.pose.pose.position.x = math.nan
+            else:
+                q = bad.pose.pose.orientation
+                q.x, q.y, q.z, q.w = 2 * q.x, 2 * q.y, 2 * q.z, 2 * q.w  # not a unit quaternion
+        elif kind == "clock":
+            bad.header.stamp = M.stamp(now + 5.0)
+        elif kind == "not_increasing":
+            bad.header.stamp = M.stamp(M.stamp_of(msg.header) - 0.5)  # time going backwards
+        elif kind == "jump":
+            bad.header.stamp = M.stamp(M.stamp_of(msg.header) + 0.01)  # between two samples, 3 m away
+            bad.pose.pose.position.x += 3.0
+        else:
+            bad = SimpleNamespace(header=msg.header)  # not an Odometry at all
+        kinds[kind] += 1
+        out.append([now + 1e-4, "odo", r, bad])
+    return out, kinds
+
+
+def test_bad_odometry_is_refused_counted_and_said_once(scene):
+    """A wrong child_frame_id, NaN, a non-unit quaternion, a stamp in the
+    future, time going backwards, a jump, something that is not an Odometry:
+    each refused or rejected and counted by kind in /diagnostics, the reason
+    said once per kind; the poses are those of the clean odometry, exactly."""
+    bad, kinds = _bad_odometry(scene)
+    said = []
+    loc = Localizer(scene.path, max_coast=3.0, odometry=LiveOdometry({"r0": "/r0/odom"}), notify=said.append)
+    poses = drive(loc, observation_messages(scene) + bad)
+    clean = Localizer(scene.path, max_coast=3.0, odometry=LiveOdometry({"r0": "/r0/odom"}))
+    ref = drive(clean, observation_messages(scene) + odometry_messages(scene, robots=("r0",)))
+    assert [(p.t, p.estimate.pose.t.tolist()) for p in poses] == [(p.t, p.estimate.pose.t.tolist()) for p in ref]
+    values = {s.robot: s for s in loc.diagnostics(T0 + DURATION)}["r0"]
+    v = values.values
+    assert v["odometry_refused_frame"] == kinds["frame"] and v["odometry_refused_invalid"] == kinds["invalid"]
+    assert v["odometry_refused_clock"] == kinds["clock"] and v["odometry_refused_malformed"] == kinds["malformed"]
+    assert v["odometry_rejected_not_increasing"] == kinds["not_increasing"]
+    assert v["odometry_rejected_jump"] == kinds["jump"] and v["odometry_resets"] == 0
+    assert v["odometry_refused"] == sum(kinds[k] for k in ("frame", "invalid", "clock", "malformed"))
+    assert v["odometry_received"] == len(bad) and v["odometry_used"] == len(scene.odo_times)
+    assert values.level == M.WARN and "refused" in values.message and "odometry" in values.message
+    lines = [x for x in said if "odometry" in x]
+    for kind in ("frame", "invalid", "clock", "malformed"):
+        assert sum(f"refused odometry ({kind})" in x for x in lines) == 1, lines
+    assert "child_frame_id 'r1' is not robot 'r0'" in " ".join(lines)
+
+
+def test_the_stream_takes_what_a_whole_file_takes(scene):
+    """OdometryStream, a sample at a time, against Odometry on the same
+    samples at once: the same samples kept (outliers dropped, a reset, a gap,
+    time going back) and the same increments and covariances, bit for bit."""
+    rng = np.random.default_rng(9)
+    times = scene.odo_times.copy()
+    R, t = scene.odo["r0"].R.copy(), scene.odo["r0"].t.copy()
+    t[40] += 2.0  # an outlier
+    t[120:] += 1.5  # a reset of the odometry frame
+    times[200:] += 0.8  # a gap
+    times[250] = times[249]  # time standing still
+    keep = np.ones(len(times), dtype=bool)
+    keep[260] = False  # a sample lost
+    whole = Odometry(times[keep], Pose(R[keep], t[keep]))
+    stream = OdometryStream("test")
+    for k in np.flatnonzero(keep):
+        stream.add(times[k], R[k], t[k])
+    assert whole.counts == stream.counts and stream.resets == 1
+    np.testing.assert_array_equal(whole.times, stream.times)
+    for _ in range(200):
+        a, b = np.sort(rng.uniform(whole.start, whole.end, 2))
+        assert whole.covers(a, b) == stream.covers(a, b)
+        if whole.covers(a, b):
+            x, y = whole.increment(a, b), stream.increment(a, b)
+            np.testing.assert_array_equal(x.pose.R, y.pose.R)
+            np.testing.assert_array_equal(x.pose.t, y.pose.t)
+            np.testing.assert_array_equal(x.covariance, y.covariance)
