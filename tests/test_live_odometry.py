@@ -252,3 +252,102 @@ def test_the_stream_takes_what_a_whole_file_takes(scene):
             np.testing.assert_array_equal(x.pose.R, y.pose.R)
             np.testing.assert_array_equal(x.pose.t, y.pose.t)
             np.testing.assert_array_equal(x.covariance, y.covariance)
+
+
+def test_over_dds_the_localizer_subscribes_to_the_odometry(scene, tmp_path, dds_domain):
+    """``mutloc localizer --odometry r0=ros:/r0/odom --odometry r1=ros:/r1/odom``
+    over DDS (loopback, a domain of this run): this process publishes both
+    robots' frames (nothing seen for two seconds) and their odometry in real
+    time, with odometry of another robot's frame among r0's.  Through the
+    unseen stretch >= 90% of r0's frames give a pose, each within 5 cm of the
+    truth and 5 sigma; the diagnostics count the odometry received and the
+    refused messages; Ctrl-C: DIR/odometry_NAME.tum holds the samples used."""
+    from mutloc.live.dds import Bus
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(scene.path), "--domain", str(dds_domain),
+           "--loopback", "--out", str(out), "--duration", "60", "--max-coast", "3",
+           "--odometry", "r0=ros:/r0/odom", "--odometry", "r1=ros:/r1/odom"]
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    poses, diagnostics = [], []
+    foreign = 0
+    try:
+        line = child.stderr.readline()  # the localizer says it is up
+        assert line.startswith("localizer: rig_id") and "odometry from r0 /r0/odom, r1 /r1/odom" in line, \
+            line + child.stderr.read()
+        bus = Bus(dds_domain, loopback=True)
+        T = M.ros_types()
+        pose_reader = bus.reader(M.pose_topic("r0", "r1"), T.PoseWithCovarianceStamped, depth=200)
+        diag_reader = bus.reader(M.DIAGNOSTICS_TOPIC, T.DiagnosticArray, depth=50)
+        obs_w = {r: bus.writer(M.observations_topic(r), T.Observations) for r in ROBOTS}
+        odo_w = {r: bus.writer(TOPICS[r], T.Odometry) for r in ROBOTS}
+        writers = [*obs_w.values(), *odo_w.values()]
+        deadline = time.time() + 20
+        while time.time() < deadline and not (pose_reader.native.get_matched_publications()
+                                               and all(w.get_matched_subscriptions() for w in writers)):
+            time.sleep(0.05)
+        assert all(w.get_matched_subscriptions() for w in writers), "no discovery"
+        start = time.time() + 0.3
+        plan = [(t, "obs", r, M.observations_message(r, scene.rid, k + 1, start + t, obs))
+                for k, (t, obs, _) in enumerate(scene.frames) for r in ROBOTS]
+        for r in ROBOTS:
+            for t, R, tv in zip(scene.odo_times, scene.odo[r].R, scene.odo[r].t):
+                plan.append((t, "odo", r, M.odometry_message(start + t, Pose(R, tv), None, r)))
+        for k, t in enumerate(scene.odo_times[::25]):  # another robot's frame on r0's topic: refused
+            plan.append((t + 0.001, "odo", "r0", M.odometry_message(start + t, Pose(np.eye(3), [0, 0, 0]), None, "r1")))
+            foreign += 1
+        plan.sort(key=lambda x: x[0])
+
+        def take():
+            now = time.time()
+            poses.extend((now, s) for s in pose_reader.take())
+            diagnostics.extend((now, s) for s in diag_reader.take())
+
+        for t, kind, r, msg in plan:
+            while time.time() < start + t:
+                take()
+                time.sleep(0.001)
+            (obs_w if kind == "obs" else odo_w)[r].write(msg)
+        end = time.time()
+        while time.time() < end + 1.0:
+            take()
+            time.sleep(0.01)
+        child.send_signal(signal.SIGINT)
+        stdout, stderr = child.communicate(timeout=60)
+        take()
+        bus.close()
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+            child.wait()
+    assert child.returncode == 130, stderr
+    # through the unseen stretch: a pose per r0 frame (>= 90% on a loaded machine), near the truth, honest
+    frames = [t for t, _, _ in scene.frames if GAP[0] + 0.1 <= t < GAP[1]]
+    got = {}
+    for _, s in poses:
+        t = M.stamp_of(s.header) - start
+        if GAP[0] + 0.1 <= t < GAP[1]:
+            got[round(t, 4)] = s
+    assert len(got) >= 0.9 * len(frames), (len(got), len(frames), stderr)
+    for t, s in got.items():
+        truth = scene.truth[round(min(scene.truth, key=lambda x: abs(x - t)), 6)]
+        p = s.pose.pose
+        est = Pose.from_quaternion_xyzw([p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w],
+                                        [p.position.x, p.position.y, p.position.z])
+        e = np.concatenate([so3_log(truth.R @ est.R.T), truth.t - est.t])
+        from mutloc.io.ros import spec_covariance
+
+        nees = float(e @ np.linalg.solve(spec_covariance(s.pose.covariance), e))
+        assert np.linalg.norm(e[3:]) < 0.05 and nees < NEES_5SIGMA, (t, np.linalg.norm(e[3:]), nees)
+    # the diagnostics: every odometry message counted, the foreign frame refused
+    last = {x.hardware_id: dict((kv.key, kv.value) for kv in x.values) for x in diagnostics[-1][1].status}
+    n = len(scene.odo_times)
+    assert int(last["r1"]["odometry_received"]) >= 0.9 * n and int(last["r1"]["odometry_refused"]) == 0
+    assert int(last["r0"]["odometry_refused_frame"]) >= 0.9 * foreign
+    assert int(last["r0"]["odometry_refused"]) == int(last["r0"]["odometry_refused_frame"])
+    assert sum("refused odometry (frame)" in x for x in stderr.splitlines()) == 1, stderr
+    # the odometry used, for the replay
+    times, _ = read_tum(out / "odometry_r1.tum")
+    assert len(times) >= 0.9 * n and np.all(np.diff(times) > 0)
+    assert "odometry_r0.tum" in stderr
