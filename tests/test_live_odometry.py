@@ -351,3 +351,17 @@ def test_over_dds_the_localizer_subscribes_to_the_odometry(scene, tmp_path, dds_
     times, _ = read_tum(out / "odometry_r1.tum")
     assert len(times) >= 0.9 * n and np.all(np.diff(times) > 0)
     assert "odometry_r0.tum" in stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--odometry", "r7=ros:/r7/odom"], "no robot 'r7' in the rig"),
+    (["--odometry", "r0=bag:/r0/odom"], "live, there is no bag"),
+    (["--odometry", "r0=ros:odom"], "a live topic is ros:/TOPIC"),
+    (["--odometry", "r0=ros:/a", "--odometry", "r0=ros:/b"], "r0"),
+    (["--odometry", "r0=ros:/a", "--odometry-noise", "distance=-1"], "distance"),
+    (["--odometry", "r0=/nonexistent/odometry.tum"], "/nonexistent/odometry.tum"),
+])
+def test_bad_odometry_arguments_are_one_line_errors(scene, capsys, args, words):
+    code = main(["localizer", "--rig", str(scene.path), "--duration", "1", "--loopback", *args])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and words in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
