@@ -76,6 +76,10 @@ whose markers it saw (the others' rows are the motion model's prediction
 alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
 them a second).
 
+With ``odometry`` (``localizer --odometry NAME=ros:/TOPIC``) the robots'
+``nav_msgs/msg/Odometry`` messages move them between records, and records
+wait for them: :mod:`mutloc.live.odometry`.
+
 Observations that keep disagreeing with the rig file (the team tracker's
 window test, :mod:`mutloc.track.rig_check`: markers moved since the rig was
 measured) make every robot WARN, with the test's ``rig_chi2``, ``rig_dof``
@@ -327,7 +331,10 @@ class Localizer:
     ``TrackOutputs.write`` takes); ``log``: an
     :class:`~mutloc.io.logs.ObservationLogWriter` of every fused record.
     Times are seconds of the robots' clock (the wall clock: stamps are
-    capture times).
+    capture times).  ``odometry``: the robots' odometry received live (a
+    :class:`~mutloc.live.odometry.LiveOdometry`; its messages given with
+    :meth:`receive_odometry`), fused by the team filter between records; a
+    record then waits for it (see :mod:`mutloc.live.odometry`).
     """
 
     def __init__(self, rig: Any, *, rig_id: str | None = None, reference: str | None = None,
