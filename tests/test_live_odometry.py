@@ -35,6 +35,8 @@ from mutloc.live.localizer import Localizer
 from mutloc.live.odometry import LiveOdometry, OdometryStream
 from mutloc.sim.odometry import drifting_odometry, odometry_times
 from mutloc.sim.team import TeamScene, random_team, team_motion
+from mutloc.track.filtering import FilterOptions
+from mutloc.track.odometry import read_tum_odometry
 from mutloc.track.outputs import TrackOutputs
 
 pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
@@ -154,6 +156,12 @@ def test_through_two_seconds_unseen_the_odometry_keeps_the_pose_near_the_truth(s
                  "--out", str(tmp_path / "replay"), "--no-progress"]) == 0
     for name in ("trajectory.csv", "trajectory.tum"):
         assert (tmp_path / "live" / name).read_bytes() == (tmp_path / "replay" / name).read_bytes()
+    # the localizer given those TUM files instead of the topics (localizer --odometry NAME=FILE) publishes the same
+    files = {r: read_tum_odometry(tmp_path / "live" / f"odometry_{r}.tum") for r in ROBOTS}
+    again = drive(Localizer(scene.path, max_coast=3.0, filter=FilterOptions(smooth_lag=0, odometry=files)),
+                  observation_messages(scene))
+    assert [(p.t, p.estimate.pose.t.tolist(), p.estimate.covariance.tolist()) for p in again] == \
+        [(p.t, p.estimate.pose.t.tolist(), p.estimate.covariance.tolist()) for p in poses]
 
 
 def test_without_odometry_the_same_stretch_is_coasted_far_off(scene):
@@ -252,6 +260,17 @@ def test_the_stream_takes_what_a_whole_file_takes(scene):
             np.testing.assert_array_equal(x.pose.R, y.pose.R)
             np.testing.assert_array_equal(x.pose.t, y.pose.t)
             np.testing.assert_array_equal(x.covariance, y.covariance)
+    # a stream keeps the last `keep` seconds: the same increments there
+    short = OdometryStream("test", keep=1.0)
+    for k in np.flatnonzero(keep):
+        short.add(times[k], R[k], t[k])
+    assert len(short) < len(stream) and short.times[0] > whole.end - 2.1 and short.end == whole.end
+    for _ in range(50):
+        a, b = np.sort(rng.uniform(whole.end - 1.0, whole.end, 2))
+        assert short.covers(a, b) == whole.covers(a, b)
+        if whole.covers(a, b):
+            np.testing.assert_array_equal(whole.increment(a, b).covariance, short.increment(a, b).covariance)
+            np.testing.assert_array_equal(whole.increment(a, b).pose.t, short.increment(a, b).pose.t)
 
 
 def test_over_dds_the_localizer_subscribes_to_the_odometry(scene, tmp_path, dds_domain):

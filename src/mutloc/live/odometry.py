@@ -295,8 +295,7 @@ class LiveOdometry:
 
     def receive(self, robot: str, msg: Any, now: float) -> tuple[str, str | None]:
         """Take one message of ``robot``'s odometry topic arrived at ``now``:
-        ``(what, why)``, ``what`` one of ``taken``, ``gap``, ``reset``,
-        ``held``, ``rejected_not_increasing``, ``refused_malformed``,
+        ``(what, why)``, ``what`` one of ``taken``, ``gap``, ``held``, ``rejected_not_increasing``, ``refused_malformed``,
         ``refused_frame``, ``refused_invalid``, ``refused_clock``; ``why`` the
         reason of a refusal in words (None otherwise).  Never raises for the
         message's content."""
@@ -331,8 +330,10 @@ class LiveOdometry:
         given = bool(np.any(cov))
         c.covariance_given |= given
         what = self.streams[robot].add(ts, R, tv, cov if given else None, line)
-        if what in ("taken", "gap", "reset", "held"):
+        if what in ("taken", "gap"):
             c.last_stamp = ts if c.last_stamp is None else max(c.last_stamp, ts)
+            return what, None
+        if what == "held":  # (beyond the bounds: the next sample says whether it is taken)
             return what, None
         if what == "invalid":  # (a rotation the checks above let through: not orthonormal once parsed)
             return self._refuse(robot, "refused_invalid", f"not a rotation at stamp {t:.9f}", now)
