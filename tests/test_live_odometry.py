@@ -384,3 +384,9 @@ def test_bad_odometry_arguments_are_one_line_errors(scene, capsys, args, words):
     code = main(["localizer", "--rig", str(scene.path), "--duration", "1", "--loopback", *args])
     err = capsys.readouterr().err.strip()
     assert code != 0 and words in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
+
+
+def test_demo_odometry_needs_live(tmp_path, capsys):
+    assert main(["demo", "--odometry", "--out", str(tmp_path)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert "--odometry is for the live demo: add --live" in err and len(err.splitlines()) == 1
