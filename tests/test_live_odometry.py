@@ -93,19 +93,21 @@ def odometry_messages(s, robots=ROBOTS, covariance=None):
     return out
 
 
-def drive(loc, msgs):
+def drive(loc, msgs, timed=False):
     """Deliver ``msgs`` in arrival order, waking the localizer when its buffer is due
-    (as run_localizer's loop does); returns the poses published."""
+    (as run_localizer's loop does); returns the poses published (``timed``: with the time of each)."""
     out = []
     for now, kind, robot, msg in sorted(msgs, key=lambda m: m[0]):
         while loc.next_due() is not None and loc.next_due() <= now:
-            out += loc.poll(loc.next_due())
+            due = loc.next_due()
+            out += [(due, p) for p in loc.poll(due)]
         if kind == "odo":
             loc.receive_odometry(robot, msg, now)
-            out += loc.poll(now)
+            out += [(now, p) for p in loc.poll(now)]
         else:
-            out += loc.feed(msg, now, robot)
-    return out + loc.finish()
+            out += [(now, p) for p in loc.feed(msg, now, robot)]
+    out += [(math.inf, p) for p in loc.finish()]
+    return out if timed else [p for _, p in out]
 
 
 def nees_and_error(s, p):
@@ -231,6 +233,21 @@ def test_bad_odometry_is_refused_counted_and_said_once(scene):
     for kind in ("frame", "invalid", "clock", "malformed"):
         assert sum(f"refused odometry ({kind})" in x for x in lines) == 1, lines
     assert "child_frame_id 'r1' is not robot 'r0'" in " ".join(lines)
+
+
+def test_an_odometry_all_refused_holds_no_record_back(scene):
+    """r1's odometry, every message of another robot's frame: refused, and the
+    records are fused when they would be without it (not after the 0.1 s a
+    record waits for an odometry that comes)."""
+    bad = odometry_messages(scene, robots=("r1",))
+    for m in bad:
+        m[3].child_frame_id = "r0"
+    loc = Localizer(scene.path, odometry=LiveOdometry({"r1": "/r1/odom"}))
+    timed = drive(loc, observation_messages(scene) + bad, timed=True)
+    ref = drive(Localizer(scene.path), observation_messages(scene), timed=True)
+    assert loc.odometry.counts["r1"].refused_frame == len(bad) and loc.odometry.counts["r1"].used == 0
+    assert [(w, p.t, p.estimate.pose.t.tolist()) for w, p in timed] == \
+        [(w, p.t, p.estimate.pose.t.tolist()) for w, p in ref] and len(ref) > 100
 
 
 def test_the_stream_takes_what_a_whole_file_takes(scene):

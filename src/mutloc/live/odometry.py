@@ -29,7 +29,7 @@ that is not finite (``refused_invalid``), a stamp in the future beyond
 reason (then rate-limited, as refused observations are).
 
 A record waits for the odometry: it is fused once every robot's odometry
-that is coming (a message arrived in the last :data:`ODOMETRY_QUIET` s)
+that is coming (a sample taken arrived in the last :data:`ODOMETRY_QUIET` s)
 has a sample at or after its stamp, or :data:`ODOMETRY_WAIT` s after it
 arrived; one fused before a robot's odometry covered it is counted
 (``odometry_uncovered``): its motion there was the constant-velocity
@@ -254,6 +254,8 @@ class OdometryCounts:
     covariance_given: bool = False
     last_stamp: float | None = None
     last_arrival: float | None = None
+    #: Arrival of its last sample taken (a record waits only for an odometry whose samples are taken).
+    last_taken_arrival: float | None = None
     last_refused_at: float | None = None
     last_refusal: str = ""
 
@@ -332,6 +334,7 @@ class LiveOdometry:
         what = self.streams[robot].add(ts, R, tv, cov if given else None, line)
         if what in ("taken", "gap"):
             c.last_stamp = ts if c.last_stamp is None else max(c.last_stamp, ts)
+            c.last_taken_arrival = now
             return what, None
         if what == "held":  # (beyond the bounds: the next sample says whether it is taken)
             return what, None
@@ -355,9 +358,10 @@ class LiveOdometry:
     # -- records ---------------------------------------------------------------------------------------
 
     def coming(self, now: float) -> list[str]:
-        """The robots whose odometry is coming: a message arrived in the last :data:`ODOMETRY_QUIET` s."""
-        return [r for r, c in self.counts.items() if c.last_arrival is not None
-                and now - c.last_arrival <= ODOMETRY_QUIET]
+        """The robots whose odometry is coming: a sample taken arrived in the last :data:`ODOMETRY_QUIET` s
+        (an odometry whose messages are all refused is not waited for)."""
+        return [r for r, c in self.counts.items() if c.last_taken_arrival is not None
+                and now - c.last_taken_arrival <= ODOMETRY_QUIET]
 
     def ready(self, t: float, arrival: float, now: float) -> bool:
         """Whether a record stamped ``t`` (its message arrived at ``arrival``) may be fused at ``now``:
