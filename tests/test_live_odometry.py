@@ -11,7 +11,6 @@ one test runs ``mutloc localizer --odometry`` over DDS (loopback, a domain of
 this run).
 """
 
-import json
 import math
 import os
 import signal
@@ -377,7 +376,7 @@ def test_over_dds_the_localizer_subscribes_to_the_odometry(scene, tmp_path, dds_
         nees = float(e @ np.linalg.solve(spec_covariance(s.pose.covariance), e))
         assert np.linalg.norm(e[3:]) < 0.05 and nees < NEES_5SIGMA, (t, np.linalg.norm(e[3:]), nees)
     # the diagnostics: every odometry message counted, the foreign frame refused
-    last = {x.hardware_id: dict((kv.key, kv.value) for kv in x.values) for x in diagnostics[-1][1].status}
+    last = {x.hardware_id: {kv.key: kv.value for kv in x.values} for x in diagnostics[-1][1].status}
     n = len(scene.odo_times)
     assert int(last["r1"]["odometry_received"]) >= 0.9 * n and int(last["r1"]["odometry_refused"]) == 0
     assert int(last["r0"]["odometry_refused_frame"]) >= 0.9 * foreign
