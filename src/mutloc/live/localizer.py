@@ -76,6 +76,10 @@ whose markers it saw (the others' rows are the motion model's prediction
 alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
 them a second).
 
+With ``odometry`` (``localizer --odometry NAME=ros:/TOPIC``) the robots'
+``nav_msgs/msg/Odometry`` messages move them between records, and records
+wait for them: :mod:`mutloc.live.odometry`.
+
 Observations that keep disagreeing with the rig file (the team tracker's
 window test, :mod:`mutloc.track.rig_check`: markers moved since the rig was
 measured) make every robot WARN, with the test's ``rig_chi2``, ``rig_dof``
@@ -329,7 +333,10 @@ class Localizer:
     ``TrackOutputs.write`` takes); ``log``: an
     :class:`~mutloc.io.logs.ObservationLogWriter` of every fused record.
     Times are seconds of the robots' clock (the wall clock: stamps are
-    capture times).
+    capture times).  ``odometry``: the robots' odometry received live (a
+    :class:`~mutloc.live.odometry.LiveOdometry`; its messages given with
+    :meth:`receive_odometry`), fused by the team filter between records; a
+    record then waits for it (see :mod:`mutloc.live.odometry`).
     """
 
     def __init__(self, rig: Any, *, rig_id: str | None = None, reference: str | None = None,
@@ -338,7 +345,7 @@ class Localizer:
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
                  log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None,
-                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED) -> None:
+                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED, odometry: Any = None) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
@@ -369,8 +376,13 @@ class Localizer:
             reference = self.rig.default_pair(None, None)[1] if len(names) == 2 else names[0]
         # the published poses are the causal filter's; the smoother (a pass over the filter's past,
         # never fed back) only serves the files: not run without them
-        self.engine: Any = _TeamEngine(self.rig, reference, pixel_sigma, confidence, filter if filter is not None
-                                       else FilterOptions(smooth_lag=None if sink is not None else 0), sink)
+        options = filter if filter is not None else FilterOptions(smooth_lag=None if sink is not None else 0)
+        #: The robots' odometry received live (:class:`mutloc.live.odometry.LiveOdometry`), or None.
+        self.odometry = odometry
+        if odometry is not None:
+            options = replace(options, odometry={**options.odometry, **odometry.streams})
+        self._record_t: float | None = None  # (the last record's time: the odometry's interval)
+        self.engine: Any = _TeamEngine(self.rig, reference, pixel_sigma, confidence, options, sink)
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
@@ -496,6 +508,19 @@ class Localizer:
         self._waiting[got.key] = self._waiting.get(got.key, 0) + 1
         return "held"
 
+    def receive_odometry(self, robot: str, msg: Any, now: float) -> str:
+        """Take one message of robot ``robot``'s odometry topic (``msg`` None: bytes
+        that did not decode) arrived at ``now``; returns what became of it
+        (:meth:`mutloc.live.odometry.LiveOdometry.receive`), a refusal said
+        once per robot and kind (then rate-limited)."""
+        what, why = (self.odometry.receive(robot, msg, now) if msg is not None
+                     else self.odometry.malformed(robot, now))
+        if why is not None:
+            self._notice((robot, "odometry", what), f"robot {robot}: refused odometry "
+                         f"({what[len('refused_'):]}): {why}", now)
+            return f"{what}: {why}"
+        return what
+
     def select(self, topic: str, heads: Sequence[tuple[str, int] | None], now: float) -> list[int]:
         """Which of the samples taken at once from robot ``topic``'s reader to
         decode (their indices): ``heads`` is each one's ``(header.frame_id,
@@ -574,6 +599,8 @@ class Localizer:
     # -- records fused, poses out ------------------------------------------
 
     def _due(self, h: _Held, now: float) -> bool:
+        if self.odometry is not None and not self.odometry.ready(h.t, h.arrival, now):
+            return False  # (waits for the robots' odometry to pass its stamp, a while at most)
         if now >= h.arrival + self.reorder:  # (the same sum as next_due: no rounding between them)
             return True
         for key in self.keys:  # each camera's messages (one node's) come in order
@@ -590,7 +617,14 @@ class Localizer:
 
     def next_due(self) -> float | None:
         """The arrival-clock time at which the oldest held message leaves the buffer at the latest."""
-        return self._held[0].arrival + self.reorder if self._held else None
+        if not self._held:
+            return None
+        due = self._held[0].arrival + self.reorder
+        if self.odometry is not None:
+            from .odometry import ODOMETRY_WAIT
+
+            due = max(due, self._held[0].arrival + ODOMETRY_WAIT)
+        return due
 
     def poll(self, now: float, clock: Callable[[], float] | None = None) -> list[LivePose]:
         """Fuse the held messages that are due, oldest first; the poses to
@@ -674,6 +708,8 @@ class Localizer:
             t = sum(h.t for h in group) / len(group)
             obs = ObservationSet.concatenate([h.observations for h in group]).with_time(t)  # one record, one time
         behind = now is not None and now - t > self.max_lag
+        if self.odometry is not None:
+            self.odometry.fused(self._record_t, t)
         try:
             rows = self.engine.step(t, obs, smooth=not behind)
         except (MutlocError, ArithmeticError, ValueError):
@@ -681,6 +717,7 @@ class Localizer:
             for h in group:
                 self.counts[h.robot].refused_malformed += 1
             return []
+        self._record_t = t
         if self.log is not None:
             self.log.write(t, obs)
         self.fused_until = max(h.t for h in group)
@@ -806,6 +843,8 @@ class Localizer:
             if (self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD
                     and not message.startswith("not published since")):
                 said.append(self.rig_flag[1].words())
+            if self.odometry is not None:
+                said += self.odometry.said(r, now, NOTICE_HOLD)
             if said:
                 # (none received: what was refused is the news; a robot not stale is WARN)
                 message = "; ".join(said if age is None else [message, *said])
@@ -816,6 +855,8 @@ class Localizer:
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
                       "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
                       "untied_not_published": c.untied, "rig_withheld": c.rig_withheld}
+            if self.odometry is not None:
+                values.update(self.odometry.values(r, now))
             rig_test = self.engine.tracker.rig_check.last
             if rig_test is not None:
                 values.update(rig_chi2=f"{rig_test.chi2:.1f}", rig_dof=rig_test.dof,
@@ -836,7 +877,8 @@ class Localizer:
                 + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}"
                 + f", shed {sum(c.shed for c in cs)}"
                 + (f"; {self.records_unsmoothed} record{'s' if self.records_unsmoothed != 1 else ''} written "
-                   "unsmoothed (behind)" if self.records_unsmoothed else ""))
+                   "unsmoothed (behind)" if self.records_unsmoothed else "")
+                + (f"; {self.odometry.summary()}" if self.odometry is not None else ""))
 
 
 def _short(rig_id: str) -> str:
@@ -896,7 +938,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
                   pixel_sigma: float = 1.0,
                   confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
                   ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time,
-                  notify: Callable[[str], None] | None = None) -> LocalizerRun:
+                  notify: Callable[[str], None] | None = None, odometry: dict | None = None,
+                  odometry_noise: Any = None) -> LocalizerRun:
     """Run the localizer on DDS domain ``domain`` until ``duration`` seconds
     passed (None: until Ctrl-C, which ends it like the end of ``duration``
     and is raised on after the files are complete: ``KeyboardInterrupt`` with
@@ -908,7 +951,12 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     for the trajectory files and ``log.jsonl`` (see the module docstring).
     ``notify``: takes a line saying what is wrong (messages refused, another
     localizer on the domain), each cause once and then rate-limited (the CLI:
-    stderr); the same is WARN in ``/diagnostics``."""
+    stderr); the same is WARN in ``/diagnostics``.  ``odometry``: ``{robot:
+    SOURCE}``, a ``nav_msgs/msg/Odometry`` topic received over DDS (a str:
+    :mod:`mutloc.live.odometry`, its noise ``odometry_noise`` where the
+    messages carry no covariance; with ``out`` the samples used are written to
+    ``DIR/odometry_NAME.tum``) or an :class:`~mutloc.core.odometry.Odometry`
+    known beforehand (a TUM file, for a replay)."""
     from .dds import Bus
     from .messages import DIAGNOSTICS_TOPIC, TF_TOPIC, diagnostics_message, observations_topic, pose_topic, ros_types
 
@@ -923,16 +971,21 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         out = writable_path(out, "--out", folder=True)
     bus = Bus(domain, loopback=loopback)
     run = None
+    odo_writers: list = []
     try:
         if out is not None:
             log = ObservationLogWriter(Path(out) / "log.jsonl")
+        live_odo, files, odo_writers = _odometry_inputs(odometry, odometry_noise, out, max_clock_skew)
+        odo_paths = [w.path for w in odo_writers]
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
                         max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
                         max_lag=max_lag, sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log,
-                        notify=notify)
+                        notify=notify, odometry=live_odo,
+                        filter=FilterOptions(smooth_lag=None if out is not None else 0, odometry=files)
+                        if files else None)
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
-        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path])
+        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path, *odo_paths])
         loc.warm_up()
         _serve(bus, loc, duration, ready, clock,
                (ros_types, observations_topic, pose_topic, TF_TOPIC, DIAGNOSTICS_TOPIC, diagnostics_message))
@@ -945,13 +998,47 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
             if run is not None:
                 run.localizer.finish()
         finally:
-            for w in (outputs, log):
+            for w in (outputs, log, *odo_writers):
                 if w is not None:
                     w.close()
             bus.close()
     if run.interrupted:
         raise KeyboardInterrupt(run)
     return run
+
+
+def _odometry_inputs(odometry: dict | None, noise: Any, out: Any, max_clock_skew: float) -> tuple[Any, dict, list]:
+    """``(LiveOdometry or None, {robot: Odometry known beforehand}, the TUM files' writers)`` of ``odometry``."""
+    from ..core.odometry import Odometry
+
+    files = {r: s for r, s in (odometry or {}).items() if isinstance(s, Odometry)}
+    topics = {r: s for r, s in (odometry or {}).items() if isinstance(s, str)}
+    writers: list = []
+    if not topics:
+        return None, files, writers
+    from ..io.streaming import LineFile
+    from .odometry import LiveOdometry
+
+    def tum(robot: str) -> Any:
+        if out is None:
+            return None
+        w = LineFile(Path(out) / f"odometry_{robot}.tum",
+                     f"# timestamp tx ty tz qx qy qz qw  (the odometry of {robot} the localizer used, from "
+                     f"{topics[robot]}: replay with track --odometry {robot}=THIS_FILE)\n")
+        writers.append(w)
+        return w
+
+    return LiveOdometry(topics, noise=noise, tum=tum, max_clock_skew=max_clock_skew), files, writers
+
+
+def _take_odometry(readers: dict, loc: Localizer, clock: Callable[[], float], malformed: dict) -> None:
+    """Give ``loc`` what each robot's odometry reader holds (and count the samples that did not decode)."""
+    for r, rd in readers.items():
+        for sample in rd.take():
+            loc.receive_odometry(r, sample, clock())
+        for _ in range(rd.malformed - malformed[r]):
+            loc.receive_odometry(r, None, clock())
+        malformed[r] = rd.malformed
 
 
 def _take(rd: Any, robot: str, loc: Localizer, clock: Callable[[], float]) -> None:
@@ -1023,6 +1110,10 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     waitset = WaitSet(bus.participant)
     mask = SampleState.Any | ViewState.Any | InstanceState.Any
     conditions = [ReadCondition(rd.native, mask) for rd in readers.values()]
+    odo_readers = {} if loc.odometry is None else {
+        r: bus.reader(topic, T.Odometry, depth=READER_DEPTH) for r, topic in loc.odometry.topics.items()}
+    odo_malformed = {r: 0 for r in odo_readers}
+    conditions += [ReadCondition(rd.native, mask) for rd in odo_readers.values()]
     for cond in conditions:
         waitset.attach(cond)
     malformed = {r: 0 for r in readers}
@@ -1058,6 +1149,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
             wake = now  # (smoothing to do: only look for messages)
         waitset.wait(max(0, int((wake - now) * 1e9)))
         now = clock()
+        _take_odometry(odo_readers, loc, clock, odo_malformed)  # (first: the records may wait for it)
         for r, rd in readers.items():
             _take(rd, r, loc, clock)
             loc.malformed(r, rd.malformed - malformed[r], clock())
