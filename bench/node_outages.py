@@ -100,7 +100,7 @@ def one(wrong: bool, seed: int, seconds: float, folder: Path, rule: bool = True)
             msgs.append((T0 + t + LATENCY, M.observations_message(c, rid, frames[c], T0 + t, obs), c))
     loc = Localizer(path)
     if not rule:
-        loc.ties.tied = lambda t: set(loc.tracked)
+        loc.ties.tied = lambda t, counts=None: set(loc.tracked)
     poses = []
     q_levels, p_levels = Counter(), Counter()
     next_diag = T0

@@ -40,7 +40,8 @@ degree of freedom) are pooled with the next such records of the last
 degrees of freedom, the motion between their
 times taken from the filter's velocities (:mod:`mutloc.core.nearby_times`):
 with two markers per robot and free-running cameras this is the only test
-there is.  Each record enters one test (a pool is emptied once it yields
+there is (not yet where odometry moves the robots: the pooled records are
+moved by the constant-velocity state).  Each record enters one test (a pool is emptied once it yields
 degrees of freedom), so the window's terms stay independent.  The motion's
 uncertainty is the filter's velocity covariance, which the constant-velocity
 model's process noise makes generous: on a right two-ball rig the pooled

@@ -392,8 +392,9 @@ class TeamTracker(Starts, Hindsight, Rows):
         through records that fit any rig), every row says so (and names the hint)."""
         c = self._own_solve
         chi2, dof = (float(c.chi2), int(c.dof)) if c is not None and c.dof > 0 else self._own
-        if dof <= 0 and self._alone is not None and self.filtering:
-            # (one camera's few observations: fitted with the next such records, see RigCheck.pooled)
+        if dof <= 0 and self._alone is not None and self.filtering and not self.filter.odometry:
+            # (one camera's few observations: fitted with the next such records, see RigCheck.pooled; moved by
+            # the constant-velocity state, so not where odometry moves the robots instead)
             f, (rows_alone, before) = self.filter, self._alone
             chi2, dof = self.rig_check.pooled(self.last_time, in_rays(self.rig, self._names, rows_alone), before,
                                               f.R, f.t, f.index(self.reference), self.pixel_sigma)
