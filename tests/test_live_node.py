@@ -893,3 +893,51 @@ def test_a_node_uses_a_pose_from_tf_only_within_its_age_limit():
         assert node.stats.looked_again == looked + found[dt]
         assert err is None or err < 0.35
     assert found == {-1.2: False, -0.8: True, 0.0: True, 0.8: True, 1.2: False}
+
+
+def test_topics_per_camera_are_checked_and_matched_to_their_cameras():
+    """``--topic CAM=TOPIC`` per camera, a bare TOPIC for the one camera; a topic of a camera not given, a camera
+    given two topics or a bare topic beside several cameras: one line each."""
+    from mutloc.live.node import camera_topics
+
+    two = [("front", "a.bag"), ("back", "b.bag")]
+    assert camera_topics(two, ["back=/p/back/image_raw", "front=/p/front/image_raw"]) == [
+        "/p/front/image_raw", "/p/back/image_raw"]
+    assert camera_topics(two, ["back=/p/back/image_raw"]) == [None, "/p/back/image_raw"]
+    assert camera_topics(two, None) == [None, None]
+    assert camera_topics([(None, "a.bag")], ["/q/image_raw"]) == ["/q/image_raw"]
+    for topics, words in ((["side=/p/side"], "no --camera side"), (["front=/a", "front=/b"], "two topics"),
+                          (["/p/image_raw"], "one --topic CAM=TOPIC per camera")):
+        with pytest.raises(InputError, match=words):
+            camera_topics(two, topics)
+
+
+def test_a_node_of_two_cameras_replays_each_camera_from_its_own_bag_topic(tmp_path, dds_domain, capsys):
+    """``mutloc node --camera front=BAG --camera back=BAG --topic front=T1 --topic back=T2``: each camera's
+    frames come from its own topic (the node names each camera's source), and a bag's wrong topic is one line."""
+    from test_sources import write_bag
+
+    from mutloc.io import save_rig
+    from mutloc.sim.body_scenes import fisheye_pair_rig
+
+    rig = fisheye_pair_rig()
+    save_rig(rig, tmp_path / "rig.yaml")
+    cams = list(rig.robots["p"].cameras)
+    assert len(cams) == 2
+    w, h = rig.robots["p"].cameras[cams[0]].camera.size
+    blank = [np.zeros((int(h), int(w), 3), np.uint8)] * 3
+    for c in cams:
+        write_bag(tmp_path / f"bag_{c}", 2, f"/p/{c}/image_raw", blank, [100.0, 100.1, 100.2])
+    argv = ["node", "--rig", str(tmp_path / "rig.yaml"), "--robot", "p", "--realtime", "--loopback",
+            "--domain", str(dds_domain), "--no-progress"]
+    for c in cams:
+        argv += ["--camera", f"{c}={tmp_path / f'bag_{c}'}", "--topic", f"{c}=/p/{c}/image_raw"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    for c in cams:
+        assert re.search(rf"camera \S*bag_{c}:/p/{c}/image_raw \(p/{c}\)", err), err
+    # the wrong topic for a camera: its bag has no such topic
+    argv[argv.index(f"{cams[1]}=/p/{cams[1]}/image_raw")] = f"{cams[1]}=/p/{cams[0]}/image_raw"
+    assert main(argv) == 2
+    lines = [x for x in capsys.readouterr().err.strip().splitlines() if not x.startswith("mutloc node: robot p")]
+    assert len(lines) == 1 and f"bag_{cams[1]}: no topic '/p/{cams[0]}/image_raw'" in lines[0], lines

@@ -36,7 +36,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--start-at", type=float, metavar="UNIX_TIME",
                    help="with --realtime: release the first frame at this wall-clock time (seconds since 1970), so "
                         "that the replays of several robots run in step")
-    p.add_argument("--topic", metavar="TOPIC", help="the image topic of a recorded bag")
+    p.add_argument("--topic", action="append", metavar="[CAM=]TOPIC",
+                   help="the image topic of a recorded bag; with several cameras one CAM=TOPIC per camera "
+                        "(repeatable, e.g. --topic front=/p/front/image_raw --topic back=/p/back/image_raw)")
     p.add_argument("--camera-info", choices=("check", "use"), default="check",
                    help="a ROS image topic's camera_info: check it against the rig's camera of this robot and warn "
                         "when they differ (default), or use it: detect in the camera it describes (K, D plumb_bob or "
@@ -57,11 +59,12 @@ def run(args: argparse.Namespace) -> int:
     from ..io import load_rig
     from ..live.cameras import camera_kind, open_camera
     from ..live.dds import Bus
-    from ..live.node import Node, camera_arguments, camera_key, run_nodes
+    from ..live.node import Node, camera_arguments, camera_key, camera_topics, run_nodes
 
     rig = load_rig(args.rig)
     rig.robot(args.robot)  # an unknown robot: one line, before the camera opens
     cameras = camera_arguments(rig, args.robot, args.camera)  # unknown or missing camera names: one line
+    topics = camera_topics(cameras, args.topic)
     domain = live_domain(args)
 
     def say(line: str) -> None:
@@ -71,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
     bus = Bus(domain, loopback=loopback_wanted(args)) if any(camera_kind(s) == "ros" for _, s in cameras) else None
     sources = []
     try:
-        for camera, spec in cameras:
-            sources.append(open_camera(spec, bus=bus, realtime=args.realtime, topic=args.topic, loop=args.loop,
+        for (camera, spec), topic in zip(cameras, topics):
+            sources.append(open_camera(spec, bus=bus, realtime=args.realtime, topic=topic, loop=args.loop,
                                        rig_camera=rig.mount(camera_key(rig, args.robot, camera)).camera,
                                        start_at=args.start_at, camera_info=args.camera_info))
         bus = bus or Bus(domain, loopback=loopback_wanted(args))

@@ -225,6 +225,34 @@ def camera_arguments(rig: Rig, robot: str, specs: list[str]) -> list[tuple[str |
     return out
 
 
+def camera_topics(cameras: list[tuple[str | None, str]], topics: list[str] | None) -> list[str | None]:
+    """The bag image topic of each of ``cameras`` (:func:`camera_arguments`'
+    result) from ``mutloc node``'s ``--topic`` arguments: ``CAM=TOPIC`` for a
+    named camera, a bare ``TOPIC`` for the one camera given (None: no topic).
+    InputError (one line) for a topic of a camera not given with --camera, a
+    camera given two topics, or a bare topic where several cameras are given."""
+    topics = topics or []
+    named: dict[str, str] = {}
+    bare: list[str] = []
+    for spec in topics:
+        m = _NAMED.match(spec)
+        if m is None:
+            bare.append(spec)
+            continue
+        camera, topic = m.group(1), m.group(2)
+        if camera not in {c for c, _ in cameras if c is not None}:
+            given = ", ".join(c for c, _ in cameras if c is not None) or "none named"
+            raise InputError(f"--topic {spec}: no --camera {camera}=... was given (cameras: {given})")
+        if camera in named:
+            raise InputError(f"--topic: camera {camera} given two topics")
+        named[camera] = topic
+    if bare and (named or len(bare) > 1 or len(cameras) > 1):
+        raise InputError("--topic: with several cameras give one --topic CAM=TOPIC per camera")
+    if bare:
+        return [bare[0]]
+    return [named.get(c) if c is not None else None for c, _ in cameras]
+
+
 def with_camera(rig: Rig, key: str, camera: Any) -> Rig:
     """``rig`` with the camera of observation key ``key`` replaced by ``camera`` (its mount's pose kept)."""
     rname, cname = rig.observer(key)
