@@ -88,22 +88,42 @@ def in_time(setup, until):
 # -- shed before decoding ---------------------------------------------------------------------
 
 
+def _big_endian_head(data: bytes) -> bytes:
+    """A little-endian Observations message's bytes with the header, the two strings' lengths and the frame
+    number swapped to big-endian (all the peek reads; the rest as it was)."""
+    import struct
+
+    out = bytearray(data)
+    out[1] = 0
+    fields = [4, 8]  # sec, nanosec
+    p = 12
+    for _ in range(3):  # frame_id, robot, rig_id
+        p += -(p - 4) % 4
+        fields.append(p)
+        p += 4 + struct.unpack_from("<I", data, p)[0]
+    p += -(p - 4) % 4
+    fields.append(p)  # frame
+    for f in fields:
+        out[f:f + 4] = data[f:f + 4][::-1]
+    return bytes(out)
+
+
 def test_the_header_is_read_without_decoding_as_the_decoder_reads_it(setup):
-    """``observations_peek``: each message's frame_id and stamp (ns) from its
-    CDR bytes, both byte orders, equal to what the full decoder gives; bytes
-    it cannot read so are None (decoded, then refused), never an exception."""
+    """``observations_peek``: each message's frame_id, stamp (ns) and frame
+    number from its CDR bytes, both byte orders, equal to what the full
+    decoder gives; bytes it cannot read so are None (decoded, then refused),
+    never an exception."""
     msgs = messages(setup, until=0.2)
     for _, msg, robot in msgs:
         data = bytes(msg.serialize())
-        assert M.observations_peek(data) == (robot, stamp_ns(msg))
+        assert M.observations_peek(data) == (robot, stamp_ns(msg), msg.frame)
         full = M.observations_from_cdr(data)
-        assert M.observations_peek(data) == (full.header.frame_id, stamp_ns(full))
+        assert M.observations_peek(data) == (full.header.frame_id, stamp_ns(full), full.frame)
     cam = M.observations_message("p", setup.rid, 7, T0 + 1.25, None, frame_id="p/left")
-    assert M.observations_peek(bytes(cam.serialize())) == ("p/left", round((T0 + 1.25) * 1e9))
-    data = bytes(msgs[0][1].serialize())
-    swapped = bytes([0, 0]) + data[2:4] + data[4:8][::-1] + data[8:12][::-1] + data[12:16][::-1] + data[16:]
-    assert M.observations_peek(swapped) == ("p", stamp_ns(msgs[0][1]))  # (big-endian CDR: the header swapped)
-    for bad in (data[:15], data[:17], b"\x00\x01\x00\x00" + b"\xff" * 40, b"\x00\x02" + data[2:]):
+    assert M.observations_peek(bytes(cam.serialize())) == ("p/left", round((T0 + 1.25) * 1e9), 7)
+    data = bytes(msgs[3][1].serialize())
+    assert M.observations_peek(_big_endian_head(data)) == (msgs[3][2], stamp_ns(msgs[3][1]), msgs[3][1].frame)
+    for bad in (data[:15], data[:17], data[:40], b"\x00\x01\x00\x00" + b"\xff" * 40, b"\x00\x02" + data[2:]):
         assert M.observations_peek(bad) is None
 
 
@@ -213,3 +233,30 @@ def test_past_max_deferred_the_oldest_rows_are_written_as_the_filter_gave_them(s
     smoothed = [row for row, _ in sunk[loc.records_unsmoothed:]]
     assert all(row.estimate.extra["smooth_lag"] == DEFAULT_SMOOTH_LAG for row in smoothed)
     assert any(not np.array_equal(row.estimate.pose.t, published[round(row.t - T0, 6)]) for row in smoothed)
+
+
+def test_frames_never_received_are_counted(setup):
+    """Frame numbers skipped between a camera's messages are counted as ``not_received`` (its node dropped
+    them, or DDS lost them: e.g. overwritten in a full reader) -- whether the messages are decoded or shed
+    as bytes; a message seen again adds nothing; a node restarting (its numbers starting over) is no loss."""
+    loc = Localizer(setup.path)
+    msgs = [(t, m, r) for t, m, r in messages(setup, until=1.0)]
+    p = [x for x in msgs if x[2] == "p"]
+    q = [x for x in msgs if x[2] == "q"]
+    skip_p = {4, 5, 6, 11}  # (p's frames 5..7 and 12 never sent: message index k has frame k + 1)
+    for k, (t, m, r) in enumerate(p):
+        if k not in skip_p:
+            loc.feed(m, t + 0.005, r)
+    loc.feed(p[3][1], p[3][0] + 0.5, "p")  # seen again
+    assert loc.counts["p"].not_received == len(skip_p)
+    # q's messages as bytes, the localizer behind: a backlog shed before decoding, frames 8..9 missing
+    late = [bytes(m.serialize()) for k, (_, m, _) in enumerate(q) if k not in (7, 8)]
+    _take(BytesReader(late), "q", loc, lambda: q[-1][0] + 0.5)
+    assert loc.counts["q"].shed > 0 and loc.counts["q"].not_received == 2
+    # p's node restarts: its numbers start over at 1
+    again = M.observations_message("p", setup.rid, 1, T0 + 1.5, setup.recs.frames[0])
+    loc.feed(again, T0 + 1.505, "p")
+    assert loc.counts["p"].not_received == len(skip_p)
+    diag = {s.robot: s for s in loc.diagnostics(T0 + 1.6)}
+    assert diag["p"].values["not_received"] == len(skip_p) and diag["q"].values["not_received"] == 2
+    assert f"not received {len(skip_p) + 2}" in loc.summary()

@@ -238,6 +238,10 @@ class RobotCounts:
     untied: int = 0
     #: Its rows not published because the records kept disagreeing with the rig (see ``Localizer.rig_withheld``).
     rig_withheld: int = 0
+    #: Frame numbers of its cameras' messages that never came (skipped between two that did: frames its
+    #: node dropped, or messages DDS lost, e.g. overwritten in a full reader); a node restarting (its numbers
+    #: going back) is not counted.
+    not_received: int = 0
     #: Arrival time of its last refused message, and why it was refused (None: none refused).
     last_refused_at: float | None = None
     last_refusal: str = ""
@@ -410,6 +414,7 @@ class Localizer:
         #: from a window that disagrees until the windows fit no worse than their mean for a window's length.
         self.rig_withheld: float | None = None
         self._rig_fits = 0  # tests in a row, while withheld, whose window fitted no worse than its mean
+        self._frame_numbers: dict[str, int] = {}  # camera key -> the last frame number of its messages
 
     def warm_up(self) -> None:
         """Run throwaway trackers on synthetic records (the first two robots
@@ -487,6 +492,7 @@ class Localizer:
         except MutlocError as exc:
             return self._refuse(robot, "refused_malformed", str(exc), now)
         c.received += 1
+        self._numbered(c, got.key, got.frame)
         ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
         key = (got.key, got.frame, ns)
         if key in c.seen:
@@ -521,10 +527,10 @@ class Localizer:
             return f"{what}: {why}"
         return what
 
-    def select(self, topic: str, heads: Sequence[tuple[str, int] | None], now: float) -> list[int]:
+    def select(self, topic: str, heads: Sequence[tuple[str, int, int] | None], now: float) -> list[int]:
         """Which of the samples taken at once from robot ``topic``'s reader to
         decode (their indices): ``heads`` is each one's ``(header.frame_id,
-        stamp in ns)`` (:func:`~mutloc.live.messages.observations_peek`; None:
+        stamp in ns, frame number)`` (:func:`~mutloc.live.messages.observations_peek`; None:
         unreadable so, decoded).  A sample more than ``max_lag`` behind ``now``
         with a newer sample of its camera among them is shed here, before
         it is decoded (counted as received and ``shed``; the rule of
@@ -538,6 +544,7 @@ class Localizer:
             if h is not None and h[0] in keys:
                 k = keys[h[0]]
                 newest[k] = max(newest.get(k, h[1]), h[1])
+                self._numbered(c, k, h[2])
         keep = []
         for i, h in enumerate(heads):
             if h is not None and h[0] in keys and h[1] < newest[keys[h[0]]] and now - h[1] * 1e-9 > self.max_lag:
@@ -547,6 +554,14 @@ class Localizer:
             else:
                 keep.append(i)
         return keep
+
+    def _numbered(self, c: "RobotCounts", key: str, frame: int) -> None:
+        """Camera ``key`` (of the robot counted by ``c``) sent frame number ``frame``: the numbers skipped since
+        its last one are counted as not received (seen again, or going back -- a node restarted: not counted)."""
+        last = self._frame_numbers.get(key)
+        if last is not None and frame > last + 1:
+            c.not_received += frame - last - 1
+        self._frame_numbers[key] = frame
 
     def malformed(self, robot: str, n: int = 1, now: float | None = None) -> None:
         """Count ``n`` samples of ``robot``'s topic that could not even be decoded (arrived at ``now``)."""
@@ -854,7 +869,8 @@ class Localizer:
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
                       "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
-                      "untied_not_published": c.untied, "rig_withheld": c.rig_withheld}
+                      "untied_not_published": c.untied, "rig_withheld": c.rig_withheld,
+                      "not_received": c.not_received}
             if self.odometry is not None:
                 values.update(self.odometry.values(r, now))
             rig_test = self.engine.tracker.rig_check.last
@@ -875,7 +891,7 @@ class Localizer:
         return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
                 + (f" ({', '.join(kinds)})" if kinds else "")
                 + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}"
-                + f", shed {sum(c.shed for c in cs)}"
+                + f", shed {sum(c.shed for c in cs)}, not received {sum(c.not_received for c in cs)}"
                 + (f"; {self.records_unsmoothed} record{'s' if self.records_unsmoothed != 1 else ''} written "
                    "unsmoothed (behind)" if self.records_unsmoothed else "")
                 + (f"; {self.odometry.summary()}" if self.odometry is not None else ""))

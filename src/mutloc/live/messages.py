@@ -344,12 +344,13 @@ def observations_from_cdr(data: bytes) -> Any:
                           rig_id=rig, frame=frame, source_time=source_time, observations=entries)
 
 
-def observations_peek(data: bytes) -> tuple[str, int] | None:
-    """``(header.frame_id, stamp in ns)`` of an ``Observations`` message's CDR
-    bytes, read without decoding the rest (what the localizer needs to tell
-    which camera's newest message a sample is before it decodes any); None
-    for bytes it cannot read so (another encapsulation, too short, a bad
-    string): those are decoded, and refused if they are not a message."""
+def observations_peek(data: bytes) -> tuple[str, int, int] | None:
+    """``(header.frame_id, stamp in ns, frame number)`` of an ``Observations``
+    message's CDR bytes, read without decoding the rest (what the localizer
+    needs to tell which camera's newest message a sample is before it decodes
+    any, and which frame numbers never came); None for bytes it cannot read
+    so (another encapsulation, too short, a bad string): those are decoded,
+    and refused if they are not a message."""
     if len(data) < 16 or data[0] != 0 or data[1] > 1:
         return None
     u32, i32u32 = _STRUCTS["<" if data[1] == 1 else ">"][:2]
@@ -361,7 +362,20 @@ def observations_peek(data: bytes) -> tuple[str, int] | None:
         frame_id = bytes(data[16:15 + k]).decode("utf-8")
     except UnicodeDecodeError:
         return None
-    return frame_id, sec * 1_000_000_000 + nanosec
+    p = 16 + k
+    for _ in range(2):  # robot, rig_id: skipped
+        p += -(p - 4) % 4
+        if p + 4 > len(data):
+            return None
+        (k,) = u32.unpack_from(data, p)
+        p += 4 + k
+        if k < 1 or p > len(data):
+            return None
+    p += -(p - 4) % 4
+    if p + 4 > len(data):
+        return None
+    (frame,) = u32.unpack_from(data, p)
+    return frame_id, sec * 1_000_000_000 + nanosec, frame
 
 
 _STRUCTS = {e: (struct.Struct(e + "I"), struct.Struct(e + "iI"), struct.Struct(e + "d"), struct.Struct(e + "ddf"))
