@@ -123,7 +123,6 @@ def _clock_offsets(args: argparse.Namespace, rig, log: "LogUpToBadLine | None", 
     """``--clock-offsets estimate``: each robot's offset estimated from the whole log (read here), printed and
     written to ``DIR/clock_offsets.json``; returns the records with every robot's stamps corrected and the
     options with its odometry's (see :mod:`mutloc.track.clocks`)."""
-    import json
     from dataclasses import replace
 
     from ..errors import InputError
@@ -143,8 +142,7 @@ def _clock_offsets(args: argparse.Namespace, rig, log: "LogUpToBadLine | None", 
                                    confidence=args.confidence)
     for robot, c in found.items():
         print(c.text(robot))
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "clock_offsets.json").write_text(json.dumps(clock_offsets_json(found), indent=1) + "\n", encoding="utf-8")
+    write_clock_offsets(out, found)
     offsets = {r: c.offset_s for r, c in found.items() if c.offset_s is not None}
     return iter(shift_records(full, records, offsets)), replace(options, clock_offsets=offsets)
 
