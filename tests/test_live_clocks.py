@@ -88,7 +88,7 @@ def test_a_40_ms_offset_is_estimated_and_every_later_stamp_corrected(moving):
     c = loc.clocks.estimate("r1")
     assert c.offset_s is not None, c.reason
     assert abs(c.offset_s - 0.04) < 0.005, c
-    assert 0 < c.sigma_s < 0.01 and abs(c.offset_s - 0.04) < 3 * c.sigma_s, c
+    assert 0 < c.sigma_s < 0.02 and abs(c.offset_s - 0.04) < 3 * c.sigma_s, c
     # the diagnostics say it, in seconds
     values = {s.robot: s.values for s in loc.diagnostics(T0 + 6.0)}
     assert float(values["r1"]["clock_offset_s"]) == pytest.approx(c.offset_s, abs=1e-6)

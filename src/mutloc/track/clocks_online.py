@@ -12,7 +12,9 @@ slices of one record, when the caller has nothing else to do:
   (:class:`~mutloc.track.clocks._Cost`, the causal team tracker's -2 log-likelihood): while no offset
   of the robot is known, first a coarse grid over ``+-search`` s; then three points ``step`` s apart
   around the best (or the current estimate) and the parabola through them, its vertex the window's
-  offset and its curvature the window's sigma (``sigma^2 = 2 / cost''``), re-centred on the vertex
+  offset and its curvature the window's sigma (``sigma^2 = 2 / cost''``, times :data:`SIGMA_SCALE`:
+  discrete events -- an update the gate rejects, a track restarted -- make a short window's cost
+  rough, and its curvature alone about half the windows' measured spread), re-centred on the vertex
   (at most ``2 step`` at a time) while the vertex lies outside the three points;
 - the window's result counts when the robot moved enough relative to the reference within it
   (``min_motion``, looked at first: one run at the current offset, no search when it did not), the
@@ -43,7 +45,7 @@ from ..errors import InputError
 from .clocks import DEFAULT_MAX_SIGMA, DEFAULT_MIN_MOTION, DEFAULT_SEARCH, ClockOffset, _Cost, shift_records
 from .filtering import FilterOptions
 
-__all__ = ["OnlineClockOffsets", "WINDOW", "PERIOD", "KEEP"]
+__all__ = ["KEEP", "PERIOD", "SIGMA_SCALE", "WINDOW", "OnlineClockOffsets"]
 
 #: Seconds of stamps in one window.
 WINDOW = 2.0
@@ -51,6 +53,9 @@ WINDOW = 2.0
 PERIOD = 10.0
 #: Counted windows a robot's estimate is the mean of.
 KEEP = 10
+#: A window's sigma is its cost's curvature's times this: over 2 s windows that sigma is about half the
+#: spread of the windows' offsets (measured: bench/clock_offsets_live.py, docs/benchmarks.md).
+SIGMA_SCALE = 2.0
 _UNDETERMINED = "no window evaluated yet"
 
 
@@ -182,11 +187,11 @@ class OnlineClockOffsets:
                 self.reasons[r] = f"the best offset lies beyond the search (+-{self.search:g} s)"
                 return
         sigma = math.sqrt(2.0 / curv)
-        if sigma > self.max_sigma:
+        if SIGMA_SCALE * sigma > self.max_sigma:
             self.reasons[r] = (f"sigma {sigma * 1000:.0f} ms above {self.max_sigma * 1000:.0f} ms (the robots "
                                "barely move)")
         else:
-            self.windows[r].append((float(vertex), sigma))
+            self.windows[r].append((float(vertex), SIGMA_SCALE * sigma))
             self.reasons[r] = ""
 
     # -- the estimates --------------------------------------------------------
