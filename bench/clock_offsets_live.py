@@ -7,7 +7,7 @@ reference, ``speed`` 0.7 m/s, both cameras at 30 fps, 1 px noise, ``--seconds`` 
 seed); r1's clock ``--offset`` s behind r0's.  Each frame's observations are the message its robot's node
 would publish (stamped on its clock), fed in-process to :class:`mutloc.live.localizer.Localizer` (no DDS)
 arriving 8 ms after the true capture time; the estimate's work is done after every message (as the wire
-loop does it in its slack), with its default windows (2 s of stamps every 10 s).  Three localizers on the
+loop does it in its slack), with its default windows (4 s of stamps every 10 s; ``--window``, ``--period``).  Three localizers on the
 same messages, in the same run: with the estimate, without it, and without it on the synchronized
 messages (every robot on the true time).  Per seed: the estimate after each window against the truth;
 CPU seconds (``time.process_time``) per message of each, the estimate's work apart; the longest single
@@ -15,7 +15,7 @@ step of that work (CPU and wall: what a slice of slack can overrun by); r1's pub
 (median / p90, cm; the truth interpolated at each pose's stamp) after the first estimate, and how many of
 r1's messages were fused.
 
-    .venv/bin/python bench/clock_offsets_live.py [--seeds N] [--seconds S] [--offset S]
+    .venv/bin/python bench/clock_offsets_live.py [--seeds N] [--seconds S] [--offset S] [--window S] [--period S]
 
 Writes bench/results/clock_offsets_live.json.
 """
@@ -39,6 +39,7 @@ from mutloc.live import messages as M  # noqa: E402
 from mutloc.live.localizer import Localizer  # noqa: E402
 from mutloc.sim.scenario import write_team_simulation  # noqa: E402
 from mutloc.sim.truth_log import truth_log  # noqa: E402
+from mutloc.track.clocks_online import PERIOD, WINDOW  # noqa: E402
 from mutloc.track.frames import expanded_rig  # noqa: E402
 
 FPS = 30.0
@@ -111,7 +112,7 @@ def errors_cm(poses, truth):
     return {"poses": len(e), "median_cm": round(float(np.median(e)), 2), "p90_cm": round(float(np.percentile(e, 90)), 2)}
 
 
-def run(seed: int, seconds: float, offset: float) -> dict:
+def run(seed: int, seconds: float, offset: float, settings: dict) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         write_team_simulation(tmp, robots=2, frames=int(seconds * FPS), fps=FPS, seed=seed, images=False,
                               room=False, speed=0.7, clock_offset={"r1": offset})
@@ -122,7 +123,7 @@ def run(seed: int, seconds: float, offset: float) -> dict:
         first = None
         for label, (estimate, clocks) in runs.items():
             msgs = messages(rig_path, truth, seed, clocks)
-            loc = Localizer(rig_path, reference="r0", clock_offsets=estimate)
+            loc = Localizer(rig_path, reference="r0", clock_offsets=settings if estimate else False)
             loc.warm_up()
             poses = []
             orig_feed, orig_poll = loc.feed, loc.poll
@@ -164,10 +165,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=32.0)
     ap.add_argument("--offset", type=float, default=0.04)
+    ap.add_argument("--window", type=float, default=WINDOW, help="seconds of stamps per window")
+    ap.add_argument("--period", type=float, default=PERIOD, help="seconds from one window's start to the next's")
     args = ap.parse_args()
-    out = {"machine": machine(), "seconds": args.seconds, "offset_s": args.offset, "runs": {}}
+    settings = {"window": args.window, "period": args.period}
+    out = {"machine": machine(), "seconds": args.seconds, "offset_s": args.offset, **settings, "runs": {}}
     for seed in range(args.seeds):
-        r = out["runs"][seed] = run(seed, args.seconds, args.offset)
+        r = out["runs"][seed] = run(seed, args.seconds, args.offset, settings)
         e = r["estimated"]
         est = (f"{1000 * e['offset_s']:.1f} ms +- {1000 * e['sigma_s']:.1f} (error {e['error_ms']:+.1f} ms, "
                f"{e['error_over_sigma']:+.1f} sigma)" if e["offset_s"] is not None else f"undetermined: {e['reason']}")
@@ -185,7 +189,8 @@ def main() -> None:
               + "; ".join(f"{k} {r[k]['r1_error_after_first_estimate'].get('median_cm')} / "
                           f"{r[k]['r1_error_after_first_estimate'].get('p90_cm')}"
                           for k in ("estimated", "without", "synchronized")), flush=True)
-    path = Path(result_file("clock_offsets_live.json"))
+    path = Path(result_file("clock_offsets_live.json" if settings == {"window": WINDOW, "period": PERIOD}
+                            else f"clock_offsets_live_w{args.window:g}_p{args.period:g}.json"))
     path.write_text(json.dumps(out, indent=1))
     print(f"wrote {path}")
 

@@ -19,13 +19,16 @@ slices of one record, when the caller has nothing else to do:
 - the window's result counts when the robot moved enough relative to the reference within it
   (``min_motion``, looked at first: one run at the current offset, no search when it did not), the
   curvature is positive and the sigma below ``max_sigma``; the robot's estimate is
-  the inverse-variance mean of its last ``keep`` counted windows (independent data: disjoint windows),
-  so that it follows a clock that drifts slowly.  A robot with no counted window cannot be determined
+  the mean of its last ``keep`` counted windows (disjoint windows: independent data; the last ones only,
+  so that it follows a clock that drifts slowly), its sigma the larger of the windows' own (their rms
+  over sqrt n) and their spread's (their standard deviation over sqrt n).  A robot with no counted window cannot be determined
   yet (the reason of its last window).
 
-The cost of a window is (points evaluated) x (records in it) tracker steps: three points of a
-two-second window every ``period`` (10) s is 0.6 x the tracking of those records' own share; the first
-window of a robot, with the coarse grid, some four times that.  :meth:`OnlineClockOffsets.work` does
+The cost of a window is (points evaluated) x (records in it) tracker steps, per robot but the
+reference: three points (sometimes six) of a four-second window every ``period`` (10) s, one step per
+message (the localizer's records merge messages of one instant); the first window of a robot, with the
+coarse grid, four times that.  Measured (bench/clock_offsets_live.py): over the first 32 s of two robots
+at 30 fps, 3-5 ms of CPU per message against the localizer's own 0.7-1.2 ms.  :meth:`OnlineClockOffsets.work` does
 it in slices of one record until a deadline, so a caller that runs it only in slack is never made to
 fall behind by it.
 """
@@ -47,8 +50,9 @@ from .filtering import FilterOptions
 
 __all__ = ["KEEP", "PERIOD", "SIGMA_SCALE", "WINDOW", "OnlineClockOffsets"]
 
-#: Seconds of stamps in one window.
-WINDOW = 2.0
+#: Seconds of stamps in one window (2 s windows were measured 4-7 ms off on some scenes, 4 s within 1 ms:
+#: docs/benchmarks.md).
+WINDOW = 4.0
 #: Seconds (of stamps) from one window's start to the next's.
 PERIOD = 10.0
 #: Counted windows a robot's estimate is the mean of.
