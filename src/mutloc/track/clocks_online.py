@@ -60,6 +60,8 @@ KEEP = 10
 #: A window's sigma is its cost's curvature's times this: over 2 s windows that sigma is about half the
 #: spread of the windows' offsets (measured: bench/clock_offsets_live.py, docs/benchmarks.md).
 SIGMA_SCALE = 2.0
+#: Coordinate passes over a team's robots in a window while one of them is not yet known.
+TEAM_PASSES = 4
 _UNDETERMINED = "no window evaluated yet"
 
 
@@ -138,13 +140,31 @@ class OnlineClockOffsets:
         return done
 
     def _evaluate(self, records: list[tuple[float, ObservationSet]]) -> Generator[None, None, None]:
+        """Each robot's window offset, the others at their current offsets -- or, in a team with a robot
+        not yet known, :data:`TEAM_PASSES` coordinate passes, each robot's at the others' of the pass
+        before (as the offline estimator's passes: a robot's offset biases the others')."""
         cost = _Cost(self.rig, self.reference, records, self.options, self.pixel_sigma, self.confidence)
-        for r in self.robots:
-            yield from self._robot(cost, r)
+        trial = {o: self.offset(o) for o in self.robots}
+        known = {o: bool(self.windows[o]) for o in self.robots}
+        passes = TEAM_PASSES if len(self.robots) > 1 and not all(known.values()) else 1
+        found: dict[str, tuple[float, float] | None] = {}
+        for k in range(passes):
+            for r in self.robots:
+                if k > 0 and found[r] is None:
+                    continue  # (undetermined in the first pass: not again)
+                found[r] = yield from self._robot(cost, r, trial, search=k == 0 and not known[r])
+                if found[r] is not None:
+                    trial[r] = found[r][0]
+        for r, got in found.items():
+            if got is not None:
+                self.windows[r].append(got)
+                self.reasons[r] = ""
         self.evaluated += 1
 
-    def _robot(self, cost: _Cost, r: str) -> Generator[None, None, None]:
-        base = {o: self.offset(o) for o in self.robots}
+    def _robot(self, cost: _Cost, r: str, base: dict[str, float],
+               search: bool) -> Generator[None, None, tuple[float, float] | None]:
+        """Robot ``r``'s offset in this window and its sigma, the others at ``base``; None (its reason
+        set) when the window does not determine it.  ``search``: the coarse grid first."""
         values: dict[float, float] = {}
         motion: dict[float, tuple[float, float]] = {}
 
@@ -155,15 +175,14 @@ class OnlineClockOffsets:
                 motion[x] = cost.motion.get(r, (0.0, 0.0))
             return values[x]
 
-        known = bool(self.windows[r])
         h = self.step
         yield from at(base[r])  # first whether it moved in this window at all (one run, not a search)
         moved, turned = motion[round(base[r], 9)]
         if moved < self.min_motion[0] and turned < self.min_motion[1]:
             self.reasons[r] = (f"the robots barely move relative to each other ({moved * 100:.1f} cm, "
                                f"{turned:.1f} deg in the last window)")
-            return
-        if known:
+            return None
+        if not search:
             centre = base[r]
         else:
             xs = np.linspace(-self.search, self.search, self.grid)
@@ -173,7 +192,7 @@ class OnlineClockOffsets:
             k = int(np.argmin(cs))
             if k in (0, self.grid - 1):
                 self.reasons[r] = f"the best offset lies at the search's edge (+-{self.search:g} s)"
-                return
+                return None
             centre = float(xs[k])
         for _ in range(4):
             c0 = yield from at(centre)
@@ -182,21 +201,20 @@ class OnlineClockOffsets:
             curv = (cp - 2.0 * c0 + cm) / h**2
             if not curv > 0:
                 self.reasons[r] = "the observations do not depend on it (the robots barely move)"
-                return
+                return None
             vertex = centre - h * (cp - cm) / (2.0 * (cp - 2.0 * c0 + cm))
             if abs(vertex - centre) <= h:
                 break
             centre = float(np.clip(vertex, centre - 2 * h, centre + 2 * h))
             if abs(centre) > self.search:
                 self.reasons[r] = f"the best offset lies beyond the search (+-{self.search:g} s)"
-                return
-        sigma = math.sqrt(2.0 / curv)
-        if SIGMA_SCALE * sigma > self.max_sigma:
+                return None
+        sigma = SIGMA_SCALE * math.sqrt(2.0 / curv)
+        if sigma > self.max_sigma:
             self.reasons[r] = (f"sigma {sigma * 1000:.0f} ms above {self.max_sigma * 1000:.0f} ms (the robots "
                                "barely move)")
-        else:
-            self.windows[r].append((float(vertex), SIGMA_SCALE * sigma))
-            self.reasons[r] = ""
+            return None
+        return float(vertex), sigma
 
     # -- the estimates --------------------------------------------------------
 
