@@ -32,15 +32,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _machine import machine, result_file  # noqa: E402
+from _machine import machine, result_file
 
-from mutloc.api import load_rig  # noqa: E402
-from mutloc.live import messages as M  # noqa: E402
-from mutloc.live.localizer import Localizer  # noqa: E402
-from mutloc.sim.scenario import write_team_simulation  # noqa: E402
-from mutloc.sim.truth_log import truth_log  # noqa: E402
-from mutloc.track.clocks_online import PERIOD, WINDOW  # noqa: E402
-from mutloc.track.frames import expanded_rig  # noqa: E402
+from mutloc.api import load_rig
+from mutloc.live import messages as M
+from mutloc.live.localizer import Localizer
+from mutloc.sim.scenario import write_team_simulation
+from mutloc.sim.truth_log import truth_log
+from mutloc.track.clocks_online import PERIOD, WINDOW
+from mutloc.track.frames import expanded_rig
 
 FPS = 30.0
 T0 = 1_800_000_000.0

@@ -12,8 +12,9 @@ never be estimated, and its messages never taken."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..core.observations import ObservationSet
 from ..core.rig import Rig
@@ -41,7 +42,7 @@ class LiveClocks:
     def corrected(self, robot: str, t: float, ns: int) -> tuple[float, int]:
         """A stamp of ``robot`` (seconds and nanoseconds) on the reference's clock."""
         off = self.estimator.offset(robot)
-        return (t, ns) if off == 0.0 else (t + off, ns + int(round(off * 1e9)))
+        return (t, ns) if off == 0.0 else (t + off, ns + round(off * 1e9))
 
     def add(self, t: float, obs: ObservationSet) -> None:
         """A message taken, as stamped (uncorrected)."""

@@ -37,7 +37,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any, Callable, Generator
+from collections.abc import Callable, Generator
+from typing import Any
 
 import numpy as np
 
@@ -45,7 +46,14 @@ from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
 from ..core.rig import Rig
 from ..errors import InputError
-from .clocks import DEFAULT_MAX_SIGMA, DEFAULT_MIN_MOTION, DEFAULT_SEARCH, ClockOffset, _Cost, shift_records
+from .clocks import (
+    DEFAULT_MAX_SIGMA,
+    DEFAULT_MIN_MOTION,
+    DEFAULT_SEARCH,
+    ClockOffset,
+    _Cost,
+    shift_records,
+)
 from .filtering import FilterOptions
 
 __all__ = ["KEEP", "PERIOD", "SIGMA_SCALE", "WINDOW", "OnlineClockOffsets"]
