@@ -20,7 +20,7 @@ from .core.team import (AMBIGUITY_SIGMAS, MIN_TIES, TeamProblem, TeamSolution, c
 from .errors import (DegenerateGeometryError, InconsistentObservationsError, MutlocError, ObservationError,
                      TooFewObservationsError, UnverifiedError, confidence_level, positive_number)
 
-__all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "require_verified"]
+__all__ = ["TeamEstimate", "localize_team", "localize_team_images", "team_problem", "in_rays", "require_verified"]
 
 
 @dataclass(eq=False)
@@ -219,6 +219,21 @@ def _problem(rig: Rig, names: list[str], obs: ObservationSet, cam: np.ndarray, o
     # (K and dist are unused in ray mode)
     K = np.tile(np.eye(3), (len(names), 1, 1))
     return TeamProblem(cam, own, points, obs.uv, K, np.zeros((len(names), 8)), 1.0 / obs.sigma_scale, frames)
+
+
+def in_rays(rig: Rig, names: list[str], problem: TeamProblem) -> TeamProblem:
+    """``problem`` (of :func:`team_problem`, robots ``names``) in ray mode:
+    each row's ray through its camera, in its robot's frame (already so: itself)."""
+    if problem.frames is not None:
+        return problem
+    from .core.rays import ray_frames
+
+    frames = np.empty((len(problem.cam), 4, 3))
+    for a in np.unique(problem.cam).tolist():
+        ix = np.flatnonzero(problem.cam == a)
+        _, frames[ix] = ray_frames(rig.mount(names[a]), problem.uv[ix])
+    return TeamProblem(problem.cam, problem.own, problem.points, problem.uv, problem.K, problem.dist, problem.wt,
+                       frames)
 
 
 def _team_problem_rows(rig: Rig, observations: ObservationSet, names: list[str]) -> tuple[TeamProblem, list[str],

@@ -28,6 +28,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                            "subscriber receives, their error and latency (needs the live extra)")
     live.add_argument("--seconds", type=positive_float, default=10.0, metavar="S",
                       help="with --live: seconds of camera replayed (default 10)")
+    live.add_argument("--odometry", action="store_true",
+                      help="with --live: each moving robot's odometry too, simulated with drift (1 %% of the "
+                           "distance, 0.3 deg/m, 50 Hz) and published as nav_msgs/msg/Odometry on /NAME/odom by a "
+                           "separate process; the localizer subscribes to it (--odometry NAME=ros:/NAME/odom)")
     live.add_argument("--domain", type=int, default=None, metavar="N",
                       help="with --live: the DDS domain id (default: one from 100-199 chosen by the process id)")
     return p
@@ -35,11 +39,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
+    if args.odometry and not args.live:
+        from ..errors import InputError
+
+        raise InputError("--odometry is for the live demo: add --live")
     if args.live:
         from ..live.demo import format_live_summary, run_live_demo
 
         summary = run_live_demo(args.out, seconds=args.seconds, fps=args.fps, seed=args.seed, domain=args.domain,
-                                progress=args.progress)
+                                progress=args.progress, odometry=args.odometry)
         print(format_live_summary(summary))
         return 0
     from ..sim.demo import format_summary, run_demo

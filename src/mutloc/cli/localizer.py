@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import LIVE, NOISE, RIG, live_domain, loopback_wanted, nonnegative_float, positive_float
+from ._common import LIVE, NOISE, ODOMETRY, RIG, live_domain, loopback_wanted, nonnegative_float, positive_float
 
 ORDER = 36
 
@@ -12,12 +12,15 @@ ORDER = 36
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``localizer``."""
     p = subparsers.add_parser(
-        "localizer", parents=[RIG, LIVE, NOISE],
+        "localizer", parents=[RIG, LIVE, NOISE, ODOMETRY],
         help="live: fuse every robot's observations (from mutloc node, over DDS) and publish the poses",
         description="Subscribes to /mutloc/NAME/observations of every robot of the rig, fuses each message at its "
         "own capture time and publishes /mutloc/NAME_in_REF (geometry_msgs/PoseWithCovarianceStamped), /tf and "
         "/diagnostics (ROS 2 topics over DDS; no ROS installation needed). Messages of another rig, malformed, "
-        "stamped in the future, duplicated or too late are counted in /diagnostics, never fused.",
+        "stamped in the future, duplicated or too late are counted in /diagnostics, never fused. --odometry "
+        "NAME=ros:/TOPIC subscribes to a robot's nav_msgs/msg/Odometry too: the motion between two of its poses moves "
+        "the robot between observations (bad odometry refused and counted in /diagnostics; --out writes what was "
+        "used to DIR/odometry_NAME.tum for the replay).",
     )
     p.add_argument("--reference", metavar="NAME",
                    help="the frame of the poses (default: with two robots the second robot of the rig, as track; "
@@ -57,12 +60,14 @@ def run(args: argparse.Namespace) -> int:
     from ..live.localizer import run_localizer
 
     domain = live_domain(args)
+    odometry, noise = _odometry(args)
     try:
         result = run_localizer(args.rig, reference=args.reference, domain=domain, out=args.out,
                                max_coast=args.max_coast, max_clock_skew=args.max_clock_skew, reorder=args.reorder,
                                tolerance=args.tolerance, max_lag=args.max_lag,
                                pixel_sigma=args.pixel_sigma, confidence=args.confidence, loopback=loopback_wanted(args),
                                duration=args.duration, ready=lambda loc: _started(loc, domain),
+                               odometry=odometry, odometry_noise=noise,
                                clock_offsets=args.clock_offsets == "estimate",
                                notify=lambda line: print(f"localizer: {line}", file=sys.stderr, flush=True))
     except KeyboardInterrupt as exc:
@@ -75,10 +80,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _odometry(args: argparse.Namespace) -> tuple[dict, object]:
+    """``--odometry`` (``{robot: topic}`` for ros:/TOPIC, an Odometry for a TUM file) and ``--odometry-noise``."""
+    from ..api import load_rig
+    from ._common import odometry_noise, odometry_options
+
+    if not args.odometry:
+        return {}, None
+    return odometry_options(args, load_rig(args.rig), live=True), odometry_noise(args.odometry_noise)
+
+
 def _started(loc, domain: int) -> None:
     import sys
 
     topics = ", ".join(f"/mutloc/{r}_in_{loc.reference}" for r in loc.tracked)
     static = ", /tf_static" if any(r.is_body for r in loc.rig.robots.values()) else ""  # (the cameras' mounts)
+    odo = "" if loc.odometry is None else "; odometry from " + ", ".join(
+        f"{r} {t}" for r, t in loc.odometry.topics.items())
     print(f"localizer: rig_id {loc.rig_id}, domain {domain}; publishing {topics}, /tf{static}, /diagnostics "
-          "(Ctrl-C stops)", file=sys.stderr, flush=True)
+          f"(Ctrl-C stops){odo}", file=sys.stderr, flush=True)

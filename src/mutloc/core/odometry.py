@@ -212,25 +212,25 @@ class Odometry:
         n = len(self.times)
         q = np.empty((n - 1, 6, 6))
         for k in range(n - 1):
-            grown = None
-            if cov is not None:
-                g = cov[k + 1] - cov[k]
-                g = 0.5 * (g + g.T)
-                w, V = np.linalg.eigh(g)
-                if w.max() > 0 and np.any(cov[k + 1]):
-                    g = (V * np.clip(w, 0.0, None)) @ V.T
-                    Rt = self.poses.R[k].T
-                    J = np.zeros((6, 6))
-                    J[:3, :3] = Rt
-                    J[3:, 3:] = Rt
-                    grown = J @ g @ J.T
-            if grown is None:
-                xi = self._twists[k]
-                dist = float(np.linalg.norm(self.poses.t[k + 1] - self.poses.t[k]))
-                grown = self.noise.covariance(dist, float(np.linalg.norm(xi[:3])),
-                                              float(self.times[k + 1] - self.times[k]))
-            q[k] = grown
+            q[k] = self._noise_of(k, None if cov is None else cov[k], None if cov is None else cov[k + 1])
         return q
+
+    def _noise_of(self, k: int, c0: np.ndarray | None, c1: np.ndarray | None) -> np.ndarray:
+        """Interval ``k``'s error covariance (its samples' pose covariances ``c0``, ``c1``; None: not given)."""
+        if c0 is not None and c1 is not None:
+            g = c1 - c0
+            g = 0.5 * (g + g.T)
+            w, V = np.linalg.eigh(g)
+            if w.max() > 0 and np.any(c1):
+                g = (V * np.clip(w, 0.0, None)) @ V.T
+                Rt = self.poses.R[k].T
+                J = np.zeros((6, 6))
+                J[:3, :3] = Rt
+                J[3:, 3:] = Rt
+                return J @ g @ J.T
+        xi = self._twists[k]
+        dist = float(np.linalg.norm(self.poses.t[k + 1] - self.poses.t[k]))
+        return self.noise.covariance(dist, float(np.linalg.norm(xi[:3])), float(self.times[k + 1] - self.times[k]))
 
     # -- queries ------------------------------------------------------------------------------------------
 

@@ -149,6 +149,19 @@ class TeamProblem:
         return TeamProblem(self.cam[rows], self.own[rows], self.points[rows], self.uv[rows], self.K, self.dist,
                            self.wt[rows], None if self.frames is None else self.frames[rows])
 
+    @staticmethod
+    def concatenate(problems: "list[TeamProblem]") -> "TeamProblem":
+        """The rows of several problems over the same robots, in order (all in
+        pixels or all in rays)."""
+        first = problems[0]
+        rays = first.frames is not None
+        if any((p.frames is not None) != rays for p in problems):
+            raise ValueError("cannot concatenate pixel-mode and ray-mode rows")
+        return TeamProblem(np.concatenate([p.cam for p in problems]), np.concatenate([p.own for p in problems]),
+                           np.concatenate([p.points for p in problems]), np.concatenate([p.uv for p in problems]),
+                           first.K, first.dist, np.concatenate([p.wt for p in problems]),
+                           np.concatenate([p.frames for p in problems]) if rays else None)
+
     def counts(self) -> np.ndarray:
         """``C[a, b]``: observations camera ``a`` made of robot ``b``'s markers."""
         C = np.zeros((self.n_robots, self.n_robots), dtype=np.int64)

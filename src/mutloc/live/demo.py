@@ -96,13 +96,17 @@ def warm_up_kernels(rig: Any, folders: dict[str, Path], fps: float, progress: bo
 
 
 def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fps: float = 10.0, seed: int = 0,
-                  domain: int | None = None, progress: bool = False) -> dict[str, Any]:
+                  domain: int | None = None, progress: bool = False, odometry: bool = False) -> dict[str, Any]:
     """Render ``seconds`` of the demo sequence at ``fps``, run two nodes and a
     localizer on it in real time (DDS on the loopback interface, domain
     ``domain``, default one chosen from this process's id) and return what a
     subscriber received: poses, error against the truth, latency.  Writes
     ``out_dir/live/`` (the images, the localizer's ``--out`` files, each
-    process's log, ``live_summary.json``)."""
+    process's log, ``live_summary.json``).  ``odometry``: each moving robot's
+    odometry too, simulated with drift (:func:`mutloc.sim.odometry.write_odometry`,
+    ``out_dir/live/odometry/``) and published by a separate process as a
+    robot's driver would (:mod:`mutloc.live.odometry_replay`); the localizer
+    subscribes to it (``--odometry NAME=ros:/NAME/odom``)."""
     from ..sim.render import moving_world, relative_pose
     from ..sim.world import standard_rig
 
@@ -126,16 +130,28 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
     t0 = time.perf_counter()
     warm_up_kernels(rig, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, fps, progress)
     warm_s = time.perf_counter() - t0
+    odo_files = _simulated_odometry(out / "odometry", world, seconds, seed) if odometry else None
     summary = run_live_pair(rig_file, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, out, seconds=seconds,
-                            truth=lambda t: relative_pose(world, SOURCE, TARGET, t), domain=domain)
+                            truth=lambda t: relative_pose(world, SOURCE, TARGET, t), domain=domain,
+                            odometry=odo_files)
     summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s, warm_up_seconds=warm_s)
     (out / "live_summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     return summary
 
 
+def _simulated_odometry(folder: Path, world: Any, seconds: float, seed: int) -> dict[str, Path]:
+    """Each moving robot's drifting odometry (the simulator's default drift and rate) as a TUM file of ``folder``."""
+    from ..sim.odometry import DEFAULT_DRIFT, DEFAULT_RATE, write_odometry
+
+    folder.mkdir(parents=True, exist_ok=True)
+    names = write_odometry(folder, {r: (lambda t, r=r: world.pose(r, t)) for r in (SOURCE, TARGET)}, seconds,
+                           rate=DEFAULT_RATE, drift=DEFAULT_DRIFT, seed=seed, clock_offset={})
+    return {n[len("odometry_"):-len(".tum")]: folder / n for n in names}
+
+
 def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, seconds: float,
                   truth: Callable[[float], Any] | None = None, domain: int | None = None,
-                  lead_in: float = LEAD_IN) -> dict[str, Any]:
+                  lead_in: float = LEAD_IN, odometry: dict[str, Path] | None = None) -> dict[str, Any]:
     """Run a ``mutloc localizer`` and one ``mutloc node`` per robot of
     ``folders`` (replaying that recording in real time, all released in step
     ``lead_in`` s from now) as separate processes on loopback DDS for
@@ -143,7 +159,10 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     frame like any subscriber.  Returns the poses received, their latency
     (capture -> arrival here) and, with ``truth`` (time in the recording ->
     the true pose), their error.  Each process's output goes to
-    ``out/NAME.log``, the localizer's files to ``out/localizer``."""
+    ``out/NAME.log``, the localizer's files to ``out/localizer``.  ``odometry``:
+    ``{robot: TUM file}``, published in step with the cameras by a separate
+    process (:mod:`mutloc.live.odometry_replay`, ``out/odometry.log``) and
+    subscribed to by the localizer."""
     from ..io import load_rig
     from .dds import Bus, check_domain
 
@@ -165,14 +184,17 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
     source_time: dict[int, float] = {}  # stamp ns -> time in the recording
     arrived: dict[int, float] = {}  # stamp ns -> arrival here of the last observation message of that stamp
     messages = 0
-    labels = ["localizer", *folders]
+    labels = ["localizer", *folders, *(["odometry"] if odometry else [])]
+    from .odometry_replay import odometry_topic
+
+    odo_args = [a for r in (odometry or {}) for a in ("--odometry", f"{r}=ros:{odometry_topic(r)}")]
     def launch(name: str, cmd: list[str]) -> None:
         log = open(out / f"{name}.log", "w", encoding="utf-8")
         logs.append(log)
         procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True))
 
     try:
-        launch("localizer", exe + ["localizer", *common, "--out", str(out / "localizer"), "--duration",
+        launch("localizer", exe + ["localizer", *common, *odo_args, "--out", str(out / "localizer"), "--duration",
                                    f"{run_for + (1 + NODE_START_FACTOR) * READY_TIMEOUT:g}"])
         # the nodes' replays start once the localizer listens (it says so when ready)
         launched = time.monotonic()
@@ -190,6 +212,10 @@ def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, second
         for r, f in folders.items():
             launch(r, exe + ["node", *common, "--robot", r, "--camera", str(f), "--realtime", "--start-at",
                              f"{start_at:.6f}", "--duration", f"{run_for:g}", "--no-progress"])
+        if odometry:
+            launch("odometry", [sys.executable, "-m", "mutloc.live.odometry_replay", "--domain", str(domain),
+                                "--loopback", "--start-at", f"{start_at:.6f}", "--duration", f"{seconds:g}",
+                                *(a for r, f in odometry.items() for a in ("--odometry", f"{r}={f}"))])
         end = start_at + seconds + 1.5
         while time.time() < end:
             if any(p.poll() not in (None, 0) for p in procs):
@@ -247,11 +273,15 @@ def _process_counts(out: Path, robots: list[str]) -> dict[str, Any]:
         return tuple(int(x) for x in found[-1]) if found else None
 
     loc = last("localizer", r"(\d+) records fused; (\d+) poses published;.*?, shed (\d+)")
+    path = out / "localizer.log"
+    odo = re.findall(r"odometry (\w+) (\d+) used(?: \(([^)]*)\))?", path.read_text(encoding="utf-8")
+                     if path.exists() else "")
     nodes = {r: last(r, r"(\d+) frames captured from .*?, (\d+) processed .*?, (\d+) dropped") for r in robots}
     return {"localizer": None if loc is None else {"records_fused": loc[0], "poses_published": loc[1],
                                                    "shed": loc[2]},
             "nodes": {r: None if n is None else {"captured": n[0], "processed": n[1], "dropped": n[2]}
-                      for r, n in nodes.items()}}
+                      for r, n in nodes.items()},
+            "odometry": {r: {"used": int(n), "note": note} for r, n, note in odo}}
 
 
 def _ns(t: float) -> int:
@@ -327,5 +357,7 @@ def format_live_summary(s: dict[str, Any]) -> str:
         f"rotation median {f(s['rotation_error_deg']['median'], '.2f')} deg",
         f"  latency capture -> pose received: p50 {f(s['latency_ms']['p50'], '.1f')} ms, "
         f"p99 {f(s['latency_ms']['p99'], '.1f')} ms",
+        *([f"  odometry fused: " + ", ".join(f"{r} {o['used']} samples" + (f" ({o['note']})" if o["note"] else "")
+                                             for r, o in s["odometry"].items())] if s.get("odometry") else []),
         f"  files: {s['folder']} (localizer/ holds the trajectory and the received log; *.log each process's output)",
     ])

@@ -76,6 +76,10 @@ whose markers it saw (the others' rows are the motion model's prediction
 alone, and a team of ten at 30 frames/s would otherwise publish 2,700 of
 them a second).
 
+With ``odometry`` (``localizer --odometry NAME=ros:/TOPIC``) the robots'
+``nav_msgs/msg/Odometry`` messages move them between records, and records
+wait for them: :mod:`mutloc.live.odometry`.
+
 Observations that keep disagreeing with the rig file (the team tracker's
 window test, :mod:`mutloc.track.rig_check`: markers moved since the rig was
 measured) make every robot WARN, with the test's ``rig_chi2``, ``rig_dof``
@@ -114,7 +118,7 @@ from ..track.filtering import FilterOptions
 from ..track.frames import expanded_rig
 from ..track.rows import TrackRow
 from ..track.status import FrameStatus
-from .messages import (OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
+from .messages import (ERROR, OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
                        rig_id as rig_id_of)
 from .clocks import LiveClocks
 from .ties import TieWindow
@@ -233,6 +237,8 @@ class RobotCounts:
     ties: int = 0
     #: Its rows not published because the observations of the last ``max_coast`` s did not tie it.
     untied: int = 0
+    #: Its rows not published because the records kept disagreeing with the rig (see ``Localizer.rig_withheld``).
+    rig_withheld: int = 0
     #: Arrival time of its last refused message, and why it was refused (None: none refused).
     last_refused_at: float | None = None
     last_refusal: str = ""
@@ -328,7 +334,10 @@ class Localizer:
     ``TrackOutputs.write`` takes); ``log``: an
     :class:`~mutloc.io.logs.ObservationLogWriter` of every fused record.
     Times are seconds of the robots' clock (the wall clock: stamps are
-    capture times).
+    capture times).  ``odometry``: the robots' odometry received live (a
+    :class:`~mutloc.live.odometry.LiveOdometry`; its messages given with
+    :meth:`receive_odometry`), fused by the team filter between records; a
+    record then waits for it (see :mod:`mutloc.live.odometry`).
     """
 
     def __init__(self, rig: Any, *, rig_id: str | None = None, reference: str | None = None,
@@ -337,7 +346,7 @@ class Localizer:
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
                  log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None,
-                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED,
+                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED, odometry: Any = None,
                  clock_offsets: bool | dict[str, Any] = False) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
@@ -369,15 +378,21 @@ class Localizer:
             reference = self.rig.default_pair(None, None)[1] if len(names) == 2 else names[0]
         # the published poses are the causal filter's; the smoother (a pass over the filter's past,
         # never fed back) only serves the files: not run without them
-        self.engine: Any = _TeamEngine(self.rig, reference, pixel_sigma, confidence, filter if filter is not None
-                                       else FilterOptions(smooth_lag=None if sink is not None else 0), sink)
+        options = filter if filter is not None else FilterOptions(smooth_lag=None if sink is not None else 0)
+        #: The robots' odometry received live (:class:`mutloc.live.odometry.LiveOdometry`), or None.
+        self.odometry = odometry
+        if odometry is not None:
+            options = replace(options, odometry={**options.odometry, **odometry.streams})
+        self._record_t: float | None = None  # (the last record's time: the odometry's interval)
+        self.engine: Any = _TeamEngine(self.rig, reference, pixel_sigma, confidence, options, sink)
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
         #: ``--clock-offsets estimate``: each robot's offset estimated in slack and its stamps corrected
-        #: by it (:mod:`mutloc.live.clocks`); None: the stamps as sent.
+        #: by it (:mod:`mutloc.live.clocks`); None: the stamps as sent.  (From the observations alone:
+        #: the live odometry's stamps are not corrected by it yet.)
         self.clocks = None if not clock_offsets else LiveClocks(
-            self.rig, self.reference, self.engine.tracker.options, pixel_sigma, confidence,
+            self.rig, self.reference, replace(self.engine.tracker.options, odometry={}), pixel_sigma, confidence,
             **(clock_offsets if isinstance(clock_offsets, dict) else {}))
         self.counts = {r: RobotCounts() for r in names}
         #: The observations of the last ``max_coast`` s that tie robots to the reference.
@@ -399,6 +414,10 @@ class Localizer:
         self._notices: dict[tuple, list] = {}  # cause -> [time printed, refused since]
         #: The last record whose rig check window disagreed: (its capture time, the test), else None.
         self.rig_flag: tuple[float, Any] | None = None
+        #: Since when the poses are withheld because the records keep disagreeing with the rig (None: not):
+        #: from a window that disagrees until the windows fit no worse than their mean for a window's length.
+        self.rig_withheld: float | None = None
+        self._rig_fits = 0  # tests in a row, while withheld, whose window fitted no worse than its mean
 
     def warm_up(self) -> None:
         """Run throwaway trackers on synthetic records (the first two robots
@@ -510,6 +529,19 @@ class Localizer:
         self._waiting[got.key] = self._waiting.get(got.key, 0) + 1
         return "held"
 
+    def receive_odometry(self, robot: str, msg: Any, now: float) -> str:
+        """Take one message of robot ``robot``'s odometry topic (``msg`` None: bytes
+        that did not decode) arrived at ``now``; returns what became of it
+        (:meth:`mutloc.live.odometry.LiveOdometry.receive`), a refusal said
+        once per robot and kind (then rate-limited)."""
+        what, why = (self.odometry.receive(robot, msg, now) if msg is not None
+                     else self.odometry.malformed(robot, now))
+        if why is not None:
+            self._notice((robot, "odometry", what), f"robot {robot}: refused odometry "
+                         f"({what[len('refused_'):]}): {why}", now)
+            return f"{what}: {why}"
+        return what
+
     def select(self, topic: str, heads: Sequence[tuple[str, int] | None], now: float) -> list[int]:
         """Which of the samples taken at once from robot ``topic``'s reader to
         decode (their indices): ``heads`` is each one's ``(header.frame_id,
@@ -590,6 +622,8 @@ class Localizer:
     # -- records fused, poses out ------------------------------------------
 
     def _due(self, h: _Held, now: float) -> bool:
+        if self.odometry is not None and not self.odometry.ready(h.t, h.arrival, now):
+            return False  # (waits for the robots' odometry to pass its stamp, a while at most)
         if now >= h.arrival + self.reorder:  # (the same sum as next_due: no rounding between them)
             return True
         for key in self.keys:  # each camera's messages (one node's) come in order
@@ -606,7 +640,14 @@ class Localizer:
 
     def next_due(self) -> float | None:
         """The arrival-clock time at which the oldest held message leaves the buffer at the latest."""
-        return self._held[0].arrival + self.reorder if self._held else None
+        if not self._held:
+            return None
+        due = self._held[0].arrival + self.reorder
+        if self.odometry is not None:
+            from .odometry import ODOMETRY_WAIT
+
+            due = max(due, self._held[0].arrival + ODOMETRY_WAIT)
+        return due
 
     def poll(self, now: float, clock: Callable[[], float] | None = None) -> list[LivePose]:
         """Fuse the held messages that are due, oldest first; the poses to
@@ -700,6 +741,8 @@ class Localizer:
             t = sum(h.t for h in group) / len(group)
             obs = ObservationSet.concatenate([h.observations for h in group]).with_time(t)  # one record, one time
         behind = now is not None and now - t > self.max_lag
+        if self.odometry is not None:
+            self.odometry.fused(self._record_t, t)
         try:
             rows = self.engine.step(t, obs, smooth=not behind)
         except (MutlocError, ArithmeticError, ValueError):
@@ -707,6 +750,7 @@ class Localizer:
             for h in group:
                 self.counts[h.robot].refused_malformed += 1
             return []
+        self._record_t = t
         if self.log is not None:
             self.log.write(t, obs)
         self.fused_until = max(h.t for h in group)
@@ -747,6 +791,10 @@ class Localizer:
                 # the observations of the last max_coast s do not fix it (any more, or yet): not published
                 rc.untied += 1
                 continue
+            if self.rig_withheld is not None:
+                # the records keep disagreeing with the rig: its poses would be confident and wrong
+                rc.rig_withheld += 1
+                continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
             body: list = []  # (their bytes but the stamp: made once)
             for h in stamps:
@@ -776,6 +824,16 @@ class Localizer:
         if test is not None and test.disagrees:
             self.rig_flag = (t, test)
             self._notice(("rig",), test.words(), t, once=True)
+            if self.rig_withheld is None:
+                self.rig_withheld = t
+            self._rig_fits = 0
+        elif self.rig_withheld is not None and test is not None and test.full:
+            # published again once the window has fitted no worse than a right rig's mean (chi2 <= dof) for a
+            # whole window's worth of tests in a row (a right rig's false alarm passes; a wrong rig's windows
+            # dip below that now and then, not for long)
+            self._rig_fits = self._rig_fits + 1 if test.chi2 <= test.dof else 0
+            if self._rig_fits >= test.records:
+                self.rig_withheld = None
 
     def level(self, robot: str, now: float) -> int:
         """OK, WARN (last observation older than ``warn_after``) or STALE (older than ``max_coast``, or none)."""
@@ -806,6 +864,10 @@ class Localizer:
                 level = STALE
                 message = (f"not published: tied by {c.ties} distinct observation(s) in the last {self.max_coast:g} s "
                            f"(three fix a pose), for {max(0.0, now - c.untied_since):.2f} s")
+            if level == OK and r != self.reference and self.rig_withheld is not None and self.rig_flag is not None:
+                level = ERROR
+                message = (f"not published since {max(0.0, now - self.rig_withheld):.2f} s ago: "
+                           + self.rig_flag[1].words())
             said = []
             if c.last_refused_at is not None and now - c.last_refused_at <= NOTICE_HOLD:
                 said.append(f"refused {c.refused} observations: {c.last_refusal}")
@@ -813,8 +875,11 @@ class Localizer:
                 said.append(f"falling behind: shed {c.shed} of {c.received}")
             if c.foreign_at is not None and now - c.foreign_at <= NOTICE_HOLD:
                 said.append(f"another localizer publishes on this domain: {c.foreign}")
-            if self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD:
+            if (self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD
+                    and not message.startswith("not published since")):
                 said.append(self.rig_flag[1].words())
+            if self.odometry is not None:
+                said += self.odometry.said(r, now, NOTICE_HOLD)
             if said:
                 # (none received: what was refused is the news; a robot not stale is WARN)
                 message = "; ".join(said if age is None else [message, *said])
@@ -824,7 +889,9 @@ class Localizer:
                       "refused": c.refused, "refused_rig_id": c.refused_rig_id,
                       "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
                       "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
-                      "untied_not_published": c.untied}
+                      "untied_not_published": c.untied, "rig_withheld": c.rig_withheld}
+            if self.odometry is not None:
+                values.update(self.odometry.values(r, now))
             if self.clocks is not None:
                 values.update(self.clocks.values(r))
             rig_test = self.engine.tracker.rig_check.last
@@ -848,6 +915,7 @@ class Localizer:
                 + f", shed {sum(c.shed for c in cs)}"
                 + (f"; {self.records_unsmoothed} record{'s' if self.records_unsmoothed != 1 else ''} written "
                    "unsmoothed (behind)" if self.records_unsmoothed else "")
+                + (f"; {self.odometry.summary()}" if self.odometry is not None else "")
                 + ("" if self.clocks is None else "; " + self.clocks.summary()))
 
 
@@ -908,7 +976,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
                   pixel_sigma: float = 1.0,
                   confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
                   ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time,
-                  notify: Callable[[str], None] | None = None, clock_offsets: bool = False) -> LocalizerRun:
+                  notify: Callable[[str], None] | None = None, odometry: dict | None = None,
+                  odometry_noise: Any = None, clock_offsets: bool = False) -> LocalizerRun:
     """Run the localizer on DDS domain ``domain`` until ``duration`` seconds
     passed (None: until Ctrl-C, which ends it like the end of ``duration``
     and is raised on after the files are complete: ``KeyboardInterrupt`` with
@@ -920,8 +989,13 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     for the trajectory files and ``log.jsonl`` (see the module docstring).
     ``notify``: takes a line saying what is wrong (messages refused, another
     localizer on the domain), each cause once and then rate-limited (the CLI:
-    stderr); the same is WARN in ``/diagnostics``.  ``clock_offsets``: ``--clock-offsets estimate``
-    (:mod:`mutloc.live.clocks`; with ``out``, ``OUT/clock_offsets.json`` written at the end)."""
+    stderr); the same is WARN in ``/diagnostics``.  ``odometry``: ``{robot:
+    SOURCE}``, a ``nav_msgs/msg/Odometry`` topic received over DDS (a str:
+    :mod:`mutloc.live.odometry`, its noise ``odometry_noise`` where the
+    messages carry no covariance; with ``out`` the samples used are written to
+    ``DIR/odometry_NAME.tum``) or an :class:`~mutloc.core.odometry.Odometry`
+    known beforehand (a TUM file, for a replay).  ``clock_offsets``: ``--clock-offsets
+    estimate`` (:mod:`mutloc.live.clocks`; with ``out``, ``OUT/clock_offsets.json`` written at the end)."""
     from .dds import Bus
     from .messages import DIAGNOSTICS_TOPIC, TF_TOPIC, diagnostics_message, observations_topic, pose_topic, ros_types
 
@@ -936,16 +1010,21 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         out = writable_path(out, "--out", folder=True)
     bus = Bus(domain, loopback=loopback)
     run = None
+    odo_writers: list = []
     try:
         if out is not None:
             log = ObservationLogWriter(Path(out) / "log.jsonl")
+        live_odo, files, odo_writers = _odometry_inputs(odometry, odometry_noise, out, max_clock_skew)
+        odo_paths = [w.path for w in odo_writers]
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
                         max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
                         max_lag=max_lag, sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log,
-                        notify=notify, clock_offsets=clock_offsets)
+                        notify=notify, odometry=live_odo, clock_offsets=clock_offsets,
+                        filter=FilterOptions(smooth_lag=None if out is not None else 0, odometry=files)
+                        if files else None)
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
-        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path]
+        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path, *odo_paths]
                            + ([Path(out) / "clock_offsets.json"] if out is not None and loc.clocks is not None else []))
         loc.warm_up()
         _serve(bus, loc, duration, ready, clock,
@@ -961,13 +1040,47 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
                 if out is not None and run.localizer.clocks is not None:
                     run.localizer.clocks.write(out)
         finally:
-            for w in (outputs, log):
+            for w in (outputs, log, *odo_writers):
                 if w is not None:
                     w.close()
             bus.close()
     if run.interrupted:
         raise KeyboardInterrupt(run)
     return run
+
+
+def _odometry_inputs(odometry: dict | None, noise: Any, out: Any, max_clock_skew: float) -> tuple[Any, dict, list]:
+    """``(LiveOdometry or None, {robot: Odometry known beforehand}, the TUM files' writers)`` of ``odometry``."""
+    from ..core.odometry import Odometry
+
+    files = {r: s for r, s in (odometry or {}).items() if isinstance(s, Odometry)}
+    topics = {r: s for r, s in (odometry or {}).items() if isinstance(s, str)}
+    writers: list = []
+    if not topics:
+        return None, files, writers
+    from ..io.streaming import LineFile
+    from .odometry import LiveOdometry
+
+    def tum(robot: str) -> Any:
+        if out is None:
+            return None
+        w = LineFile(Path(out) / f"odometry_{robot}.tum",
+                     f"# timestamp tx ty tz qx qy qz qw  (the odometry of {robot} the localizer used, from "
+                     f"{topics[robot]}: replay with track --odometry {robot}=THIS_FILE)\n")
+        writers.append(w)
+        return w
+
+    return LiveOdometry(topics, noise=noise, tum=tum, max_clock_skew=max_clock_skew), files, writers
+
+
+def _take_odometry(readers: dict, loc: Localizer, clock: Callable[[], float], malformed: dict) -> None:
+    """Give ``loc`` what each robot's odometry reader holds (and count the samples that did not decode)."""
+    for r, rd in readers.items():
+        for sample in rd.take():
+            loc.receive_odometry(r, sample, clock())
+        for _ in range(rd.malformed - malformed[r]):
+            loc.receive_odometry(r, None, clock())
+        malformed[r] = rd.malformed
 
 
 def _take(rd: Any, robot: str, loc: Localizer, clock: Callable[[], float]) -> None:
@@ -1039,6 +1152,10 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
     waitset = WaitSet(bus.participant)
     mask = SampleState.Any | ViewState.Any | InstanceState.Any
     conditions = [ReadCondition(rd.native, mask) for rd in readers.values()]
+    odo_readers = {} if loc.odometry is None else {
+        r: bus.reader(topic, T.Odometry, depth=READER_DEPTH) for r, topic in loc.odometry.topics.items()}
+    odo_malformed = {r: 0 for r in odo_readers}
+    conditions += [ReadCondition(rd.native, mask) for rd in odo_readers.values()]
     for cond in conditions:
         waitset.attach(cond)
     malformed = {r: 0 for r in readers}
@@ -1074,6 +1191,7 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
             wake = now  # (smoothing or clock offsets to do: only look for messages)
         waitset.wait(max(0, int((wake - now) * 1e9)))
         now = clock()
+        _take_odometry(odo_readers, loc, clock, odo_malformed)  # (first: the records may wait for it)
         for r, rd in readers.items():
             _take(rd, r, loc, clock)
             loc.malformed(r, rd.malformed - malformed[r], clock())

@@ -29,7 +29,7 @@ from ..core.team_filter import TeamFilter
 from ..core.team_smoother import TeamSmoother
 from ..errors import (InconsistentObservationsError, InputError, MutlocError, ObservationError, OdometryError,
                       positive_number)
-from ..team import TeamEstimate, localize_team, team_problem
+from ..team import TeamEstimate, in_rays, localize_team, team_problem
 from . import lifecycle
 from .lifecycle import PoseCov, Track, TrackState, UndoRequest, ties_to_one
 from .filtering import FilterOptions, lost_reason
@@ -86,6 +86,9 @@ class TeamTracker(Starts, Hindsight, Rows):
         #: the records' rows say so.
         self.rig_check = RigCheck()
         self._own = [0.0, 0]  # the record's (chi2, dof) so far: its filter updates'
+        #: The record's update's rows when they fit any rig on their own, and the velocities predicted before it.
+        self._alone: tuple[TeamProblem, np.ndarray] | None = None
+        self._names = names  # (rig order: a TeamProblem's robot indices)
         self._own_solve: Any = None  # the record's joint solve's test (covers all of it: preferred)
         self._solve_test: Any = None
 
@@ -116,7 +119,7 @@ class TeamTracker(Starts, Hindsight, Rows):
         rec = Record(float(t), observations, times, problems, rows)
         if not self.filtering:
             self.last_time = rec.t
-            self._own, self._own_solve = [0.0, 0], None
+            self._own, self._own_solve, self._alone = [0.0, 0], None, None
             self._per_record(observations, rows)
             self._rig_test(rows)
             self._input_problems(rec)
@@ -272,7 +275,7 @@ class TeamTracker(Starts, Hindsight, Rows):
 
     def _filtered(self, t: float, obs: ObservationSet | None, rows: dict[str, TrackRow]) -> UndoRequest | None:
         f = self.filter
-        self._own, self._own_solve = [0.0, 0], None
+        self._own, self._own_solve, self._alone = [0.0, 0], None, None
         if obs is None or len(obs) == 0:
             self._coast(rows, set())
             for r, row in rows.items():
@@ -389,6 +392,11 @@ class TeamTracker(Starts, Hindsight, Rows):
         through records that fit any rig), every row says so (and names the hint)."""
         c = self._own_solve
         chi2, dof = (float(c.chi2), int(c.dof)) if c is not None and c.dof > 0 else self._own
+        if dof <= 0 and self._alone is not None and self.filtering:
+            # (one camera's few observations: fitted with the next such records, see RigCheck.pooled)
+            f, (rows_alone, before) = self.filter, self._alone
+            chi2, dof = self.rig_check.pooled(self.last_time, in_rays(self.rig, self._names, rows_alone), before,
+                                              f.R, f.t, f.index(self.reference), self.pixel_sigma)
         test = self.rig_check.add(chi2, dof)
         if test is not None and test.disagrees:
             for row in rows.values():
@@ -435,8 +443,11 @@ class TeamTracker(Starts, Hindsight, Rows):
         none = np.empty(0, dtype=np.int64)
         if len(rows) == 0:
             return set(), None, "", none
+        before = f.velocities()  # (before the update: the rig check's motion, see _rig_test)
         upd = f.update(problem.take(rows))
         self._took(upd)
+        if upd is not None and upd.own[1] <= 0:
+            self._alone = (problem.take(rows), before)  # fits any rig on its own: pooled with the next such
         if upd.accepted:
             used[rows[upd.used]] = True
             return set(), upd.test, "", rows[upd.dropped]
