@@ -44,6 +44,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="falling behind: a message more than S seconds behind its capture is shed (not fused, "
                         "counted) when a newer one of the same camera is waiting; each camera's newest is always "
                         "fused (default 0.1)")
+    p.add_argument("--clock-offsets", choices=("estimate",), metavar="estimate",
+                   help="estimate each robot's clock offset to the reference's from the observations of moving "
+                        "robots (in the localizer's slack, over windows of recent observations), correct every "
+                        "stamp of that robot by it before fusing (and before --max-clock-skew), report it in "
+                        "/diagnostics (clock_offset_s, clock_offset_sigma_s) and, with --out, DIR/clock_offsets.json")
     p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
     return p
 
@@ -63,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
                                pixel_sigma=args.pixel_sigma, confidence=args.confidence, loopback=loopback_wanted(args),
                                duration=args.duration, ready=lambda loc: _started(loc, domain),
                                odometry=odometry, odometry_noise=noise,
+                               clock_offsets=args.clock_offsets == "estimate",
                                notify=lambda line: print(f"localizer: {line}", file=sys.stderr, flush=True))
     except KeyboardInterrupt as exc:
         done = exc.args[0] if exc.args else None

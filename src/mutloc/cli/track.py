@@ -52,8 +52,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "(the rig's base_from_camera of both robots)")
     p.add_argument("--clock-offsets", choices=("estimate",), metavar="estimate",
                    help="estimate each robot's clock offset to the reference's from the observations of moving "
-                        "robots (with --observations), correct every stamp of that robot (its odometry's too), "
-                        "print them and write DIR/clock_offsets.json")
+                        "robots (the whole log; with --stream, the streams' detections, a first pass over them), "
+                        "correct every stamp of that robot (its frames', its odometry's), print them and write "
+                        "DIR/clock_offsets.json")
     f = p.add_argument_group("filter (SPEC \"Filtered tracking\")")
     f.add_argument("--filter", choices=("cv", "none"), default="cv",
                    help="cv (default): constant-velocity filter on the relative pose, updated by every frame's "
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.filter import MotionNoise
     from ..errors import InputError, RigError
     from ..track.filtering import FilterOptions
-    from ..track.sources import open_streams, rig_with_bag_cameras
+    from ..track.sources import rig_with_bag_cameras
     from ..track.tracker import track, track_log
 
     out = check_outputs(args)  # before the work; folders are created by the writers
@@ -112,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         rig = rig_with_bag_cameras(rig, paths, infos)
 
     def work(sink):
-        return track(rig, open_streams(paths, fps=args.fps, topics=topics), args.source, args.target,
+        return track(rig, _open_streams(args, paths, topics), args.source, args.target,
                      tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence,
                      fps=args.fps, annotate=args.annotate, observations_out=args.observations_out,
                      progress=args.progress, filter=options, rerun=args.rerun, sink=sink)
@@ -120,33 +121,73 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _clock_offsets(args: argparse.Namespace, rig, log: "LogUpToBadLine | None", options, out: Path, team: bool):
-    """``--clock-offsets estimate``: each robot's offset estimated from the whole log (read here), printed and
+    """``--clock-offsets estimate``: each robot's offset estimated from the whole log (read here; with
+    ``--stream``, the streams' detections, a first pass over them: :func:`_stream_records`), printed and
     written to ``DIR/clock_offsets.json``; returns the records with every robot's stamps corrected and the
-    options with its odometry's (see :mod:`mutloc.track.clocks`)."""
-    import json
+    options with its odometry's (see :mod:`mutloc.track.clocks`); with ``--stream``, every robot's frames
+    are then read again with their stamps corrected (``args.clock_shift``, see :func:`_open_streams`)."""
     from dataclasses import replace
 
     from ..errors import InputError
-    from ..track.clocks import clock_offsets_json, estimate_clock_offsets, shift_records
+    from ..track.clocks import estimate_clock_offsets, shift_records, write_clock_offsets
     from ..track.frames import expanded_rig
 
-    if log is None:
-        raise InputError("--clock-offsets estimate needs an observation log (--observations LOG); with --stream, "
-                         "not yet")
     if args.filter != "cv":
         raise InputError("--clock-offsets estimate runs the filter: it needs --filter cv")
     reference = (args.reference if args.reference is not None else next(iter(rig.robots))) if team \
         else rig.default_pair(args.source, args.target)[1]
     full = expanded_rig(rig)
-    records = list(log)
+    records = list(log) if log is not None else _stream_records(args, rig, options, team)
     found = estimate_clock_offsets(full, records, reference, options=options, pixel_sigma=args.pixel_sigma,
                                    confidence=args.confidence)
     for robot, c in found.items():
         print(c.text(robot))
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "clock_offsets.json").write_text(json.dumps(clock_offsets_json(found), indent=1) + "\n", encoding="utf-8")
+    write_clock_offsets(out, found)
     offsets = {r: c.offset_s for r, c in found.items() if c.offset_s is not None}
+    args.clock_shift = offsets
     return iter(shift_records(full, records, offsets)), replace(options, clock_offsets=offsets)
+
+
+def _stream_records(args: argparse.Namespace, rig, options, team: bool) -> list:
+    """``--stream`` with ``--clock-offsets estimate``: the streams' detections, a pass over them as
+    ``--observations-out`` writes them (a temporary log, nothing else written), as records."""
+    import tempfile
+
+    from ..io.logs import iter_observation_log
+    from ..track.sources import rig_with_bag_cameras
+    from ..track.team import require_streams, track_team
+    from ..track.tracker import track
+
+    paths, topics, infos = _stream_options(args, rig)
+    if team:
+        require_streams(rig, paths)
+    if infos:
+        rig = rig_with_bag_cameras(rig, paths, infos)
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "detections.jsonl"
+        common = dict(tolerance=args.tolerance, pixel_sigma=args.pixel_sigma, confidence=args.confidence,
+                      fps=args.fps, observations_out=log, progress=args.progress, filter=options)
+        if team:
+            track_team(rig, _open_streams(args, paths, topics), args.reference, **common)
+        else:
+            track(rig, _open_streams(args, paths, topics), args.source, args.target, **common)
+        return list(iter_observation_log(log))
+
+
+def _open_streams(args: argparse.Namespace, paths: dict, topics: dict) -> dict:
+    """The streams of ``--stream``, each robot's frames' stamps corrected by ``args.clock_shift`` (its
+    estimated clock offset; absent: as recorded)."""
+    from dataclasses import replace
+
+    from ..track.sources import Stream, open_streams
+
+    def shifted(stream: Stream, off: float) -> Stream:
+        return Stream((replace(f, t=f.t + off) for f in stream), stream.fps, stream.name)
+
+    streams = open_streams(paths, fps=args.fps, topics=topics)
+    shift = getattr(args, "clock_shift", None) or {}
+    return {key: shifted(s, shift[key.split("/")[0]]) if shift.get(key.split("/")[0]) else s
+            for key, s in streams.items()}
 
 
 def _odometry(args: argparse.Namespace, rig, team: bool) -> dict:
@@ -328,7 +369,7 @@ def _run_team(args, rig, options, out, log: "LogUpToBadLine | None", records) ->
     import sys
 
     from ..track.outputs import TrackOutputs
-    from ..track.sources import open_streams, rig_with_bag_cameras
+    from ..track.sources import rig_with_bag_cameras
     from ..track.team import require_streams, track_team, track_team_log
     from ..track.tracker import BaseFrames
 
@@ -365,7 +406,7 @@ def _run_team(args, rig, options, out, log: "LogUpToBadLine | None", records) ->
                 require_streams(rig, paths)
                 if infos:
                     rig = rig_with_bag_cameras(rig, paths, infos)
-                traj = track_team(rig, open_streams(paths, fps=args.fps, topics=topics),
+                traj = track_team(rig, _open_streams(args, paths, topics),
                                   args.reference, tolerance=args.tolerance, pixel_sigma=args.pixel_sigma,
                                   confidence=args.confidence, fps=args.fps, observations_out=args.observations_out,
                                   progress=args.progress, filter=options, annotate=args.annotate, sink=sink)

@@ -120,6 +120,7 @@ from ..track.rows import TrackRow
 from ..track.status import FrameStatus
 from .messages import (ERROR, OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
                        rig_id as rig_id_of)
+from .clocks import LiveClocks
 from .ties import TieWindow
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
@@ -349,7 +350,8 @@ class Localizer:
                  max_clock_skew: float = MAX_CLOCK_SKEW, warn_after: float = WARN_AFTER,
                  reorder: float = REORDER_WINDOW, sink: Callable[[TrackRow, str], None] | None = None,
                  log: Any = None, tolerance: float = TOLERANCE, notify: Callable[[str], None] | None = None,
-                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED, odometry: Any = None) -> None:
+                 max_lag: float = MAX_LAG, max_deferred: int = MAX_DEFERRED, odometry: Any = None,
+                 clock_offsets: bool | dict[str, Any] = False) -> None:
         if rig_id is None:
             if not isinstance(rig, (str, Path)):
                 raise InputError("the localizer needs the rig's rig_id (or the rig file, whose bytes give it)")
@@ -390,6 +392,12 @@ class Localizer:
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
+        #: ``--clock-offsets estimate``: each robot's offset estimated in slack and its stamps corrected
+        #: by it (:mod:`mutloc.live.clocks`); None: the stamps as sent.  (From the observations alone:
+        #: the live odometry's stamps are not corrected by it yet.)
+        self.clocks = None if not clock_offsets else LiveClocks(
+            self.rig, self.reference, replace(self.engine.tracker.options, odometry={}), pixel_sigma, confidence,
+            **(clock_offsets if isinstance(clock_offsets, dict) else {}))
         self.counts = {r: RobotCounts() for r in names}
         #: The observations of the last ``max_coast`` s that tie robots to the reference.
         self.ties = TieWindow(self.reference, self.max_coast)
@@ -484,16 +492,25 @@ class Localizer:
         if got.rig_id != self.rig_id:
             return self._refuse(robot, "refused_rig_id", f"rig_id {_short(got.rig_id)} is not this rig's "
                                 f"({_short(self.rig_id)}): its node runs with another rig file", now)
-        if got.time > now + self.max_clock_skew:
-            return self._refuse(robot, "refused_clock", f"stamped {got.time - now:.3f} s in the future (beyond "
-                                f"--max-clock-skew {self.max_clock_skew:g} s): synchronize the clocks", now)
+        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        # its stamp on the reference's clock (--clock-offsets estimate: corrected by the robot's offset now)
+        t, ns_ref = (got.time, ns) if self.clocks is None else self.clocks.corrected(robot, got.time, ns)
+        if t > now + self.max_clock_skew:
+            if self.clocks is not None:  # the estimate learns from it (else such a robot is never taken)
+                try:
+                    self.clocks.add(got.time, _as_logged(got.observations.check(self.rig), got.time))
+                except MutlocError:
+                    pass  # (malformed too: refused for its stamp all the same)
+            return self._refuse(robot, "refused_clock", f"stamped {t - now:.3f} s in the future (beyond "
+                                f"--max-clock-skew {self.max_clock_skew:g} s): synchronize the clocks"
+                                + ("" if self.clocks is None else " (stamp corrected by its clock offset "
+                                   f"{self.clocks.offset(robot) * 1000:+.1f} ms)"), now)
         try:
             obs = _as_logged(got.observations.check(self.rig), got.time)
         except MutlocError as exc:
             return self._refuse(robot, "refused_malformed", str(exc), now)
         c.received += 1
         self._numbered(c, got.key, got.frame)
-        ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
         key = (got.key, got.frame, ns)
         if key in c.seen:
             c.duplicates += 1
@@ -502,15 +519,19 @@ class Localizer:
         c.order.append(key)
         if len(c.order) > _SEEN:
             c.seen.discard(c.order.popleft())
-        c.last_stamp = got.time if c.last_stamp is None else max(c.last_stamp, got.time)
-        self._stream_stamp[got.key] = max(self._stream_stamp.get(got.key, -math.inf), got.time)
-        if got.time < self.fused_until:
+        if self.clocks is not None:
+            self.clocks.add(got.time, obs)  # (as stamped: the estimate shifts it by each candidate)
+            if t != got.time:
+                obs = obs.with_time(t)
+        c.last_stamp = t if c.last_stamp is None else max(c.last_stamp, t)
+        self._stream_stamp[got.key] = max(self._stream_stamp.get(got.key, -math.inf), t)
+        if t < self.fused_until:
             c.dropped_late += 1
             return "late"
         self._seq += 1
         if self._first is None:
             self._first = now
-        heapq.heappush(self._held, _Held(got.time, self._seq, now, ns, robot, obs, got.key))
+        heapq.heappush(self._held, _Held(t, self._seq, now, ns_ref, robot, obs, got.key))
         self._waiting[got.key] = self._waiting.get(got.key, 0) + 1
         return "held"
 
@@ -539,6 +560,8 @@ class Localizer:
         c = self.counts.get(topic)
         if keys is None or c is None:
             return list(range(len(heads)))
+        if self.clocks is not None:
+            now -= self.clocks.offset(topic)  # (its stamps' lag on the reference's clock)
         newest: dict[str, int] = {}  # camera key -> its newest stamp among them
         for h in heads:
             if h is not None and h[0] in keys:
@@ -670,6 +693,16 @@ class Localizer:
                 keep.append(h)
         return keep
 
+    def clock_work(self, clock: Callable[[], float], until: float) -> int:
+        """``--clock-offsets estimate``: evaluate the pending window of observations (one tracker step at
+        a time) while ``clock()`` is before ``until`` (the localizer's slack); returns the steps taken
+        (0: nothing to do)."""
+        return 0 if self.clocks is None else self.clocks.work(clock, until)
+
+    def clock_pending(self) -> bool:
+        """Whether a window of observations waits to be evaluated for the clock offsets."""
+        return self.clocks is not None and self.clocks.pending()
+
     def deferred(self) -> int:
         """Records fused whose smoothing waits for slack (0 without ``--out``: no smoother)."""
         return self.engine.backlog()
@@ -793,6 +826,8 @@ class Localizer:
             return []
         out = self.flush()
         self.engine.finish()
+        if self.clocks is not None:
+            self.clocks.work()  # (the window collected last: one window's work at most)
         self._closed = True
         return out
 
@@ -873,6 +908,8 @@ class Localizer:
                       "not_received": c.not_received}
             if self.odometry is not None:
                 values.update(self.odometry.values(r, now))
+            if self.clocks is not None:
+                values.update(self.clocks.values(r))
             rig_test = self.engine.tracker.rig_check.last
             if rig_test is not None:
                 values.update(rig_chi2=f"{rig_test.chi2:.1f}", rig_dof=rig_test.dof,
@@ -894,7 +931,8 @@ class Localizer:
                 + f", shed {sum(c.shed for c in cs)}, not received {sum(c.not_received for c in cs)}"
                 + (f"; {self.records_unsmoothed} record{'s' if self.records_unsmoothed != 1 else ''} written "
                    "unsmoothed (behind)" if self.records_unsmoothed else "")
-                + (f"; {self.odometry.summary()}" if self.odometry is not None else ""))
+                + (f"; {self.odometry.summary()}" if self.odometry is not None else "")
+                + ("" if self.clocks is None else "; " + self.clocks.summary()))
 
 
 def _short(rig_id: str) -> str:
@@ -955,7 +993,7 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
                   confidence: float = DEFAULT_CONFIDENCE, loopback: bool = False, duration: float | None = None,
                   ready: Callable[[Localizer], None] | None = None, clock: Callable[[], float] = time.time,
                   notify: Callable[[str], None] | None = None, odometry: dict | None = None,
-                  odometry_noise: Any = None) -> LocalizerRun:
+                  odometry_noise: Any = None, clock_offsets: bool = False) -> LocalizerRun:
     """Run the localizer on DDS domain ``domain`` until ``duration`` seconds
     passed (None: until Ctrl-C, which ends it like the end of ``duration``
     and is raised on after the files are complete: ``KeyboardInterrupt`` with
@@ -972,7 +1010,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     :mod:`mutloc.live.odometry`, its noise ``odometry_noise`` where the
     messages carry no covariance; with ``out`` the samples used are written to
     ``DIR/odometry_NAME.tum``) or an :class:`~mutloc.core.odometry.Odometry`
-    known beforehand (a TUM file, for a replay)."""
+    known beforehand (a TUM file, for a replay).  ``clock_offsets``: ``--clock-offsets
+    estimate`` (:mod:`mutloc.live.clocks`; with ``out``, ``OUT/clock_offsets.json`` written at the end)."""
     from .dds import Bus
     from .messages import DIAGNOSTICS_TOPIC, TF_TOPIC, diagnostics_message, observations_topic, pose_topic, ros_types
 
@@ -996,12 +1035,13 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
                         max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
                         max_lag=max_lag, sink=None if out is None else (lambda row, robot: outputs.write(row, robot)), log=log,
-                        notify=notify, odometry=live_odo,
+                        notify=notify, odometry=live_odo, clock_offsets=clock_offsets,
                         filter=FilterOptions(smooth_lag=None if out is not None else 0, odometry=files)
                         if files else None)
         if out is not None:
             outputs = TrackOutputs(out, loc.tracked[0] if len(loc.names) == 2 else loc.tracked, loc.reference)
-        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path, *odo_paths])
+        run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path, *odo_paths]
+                           + ([Path(out) / "clock_offsets.json"] if out is not None and loc.clocks is not None else []))
         loc.warm_up()
         _serve(bus, loc, duration, ready, clock,
                (ros_types, observations_topic, pose_topic, TF_TOPIC, DIAGNOSTICS_TOPIC, diagnostics_message))
@@ -1013,6 +1053,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         try:
             if run is not None:
                 run.localizer.finish()
+                if out is not None and run.localizer.clocks is not None:
+                    run.localizer.clocks.write(out)
         finally:
             for w in (outputs, log, *odo_writers):
                 if w is not None:
@@ -1161,8 +1203,8 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
             break
         due = loc.next_due()
         wake = min(end, next_diag, due if due is not None else math.inf, now + 0.1)
-        if loc.deferred():
-            wake = now  # (smoothing to do: only look for messages)
+        if loc.deferred() or loc.clock_pending():
+            wake = now  # (smoothing or clock offsets to do: only look for messages)
         waitset.wait(max(0, int((wake - now) * 1e9)))
         now = clock()
         _take_odometry(odo_readers, loc, clock, odo_malformed)  # (first: the records may wait for it)
@@ -1178,6 +1220,9 @@ def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Lo
         if loc.deferred():  # slack: some of the smoothing deferred while behind, then new messages again
             due = loc.next_due()
             loc.catch_up(clock, min(clock() + SMOOTH_SLICE, due if due is not None else math.inf))
+        elif loc.clock_pending():  # slack with no smoothing waiting: the clock offsets' window, a slice of it
+            due = loc.next_due()
+            loc.clock_work(clock, min(clock() + SMOOTH_SLICE, due if due is not None else math.inf))
         if now >= next_diag:
             say(now)
             next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)

@@ -29,8 +29,10 @@ offset is None with the reason.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import numpy as np
@@ -42,7 +44,8 @@ from ..errors import InputError, MutlocError
 from .filtering import FilterOptions
 from .team_tracker import TeamTracker
 
-__all__ = ["ClockOffset", "shift_records", "estimate_clock_offsets", "clock_offsets_json", "DEFAULT_SEARCH",
+__all__ = ["ClockOffset", "shift_records", "estimate_clock_offsets", "clock_offsets_json", "write_clock_offsets",
+           "DEFAULT_SEARCH",
            "DEFAULT_MAX_SIGMA",
            "DEFAULT_MIN_MOTION"]
 
@@ -82,6 +85,14 @@ def clock_offsets_json(offsets: Mapping[str, ClockOffset]) -> dict[str, dict[str
     """``DIR/clock_offsets.json``'s content: ``{robot: {"offset_s": ..., "sigma_s": ...}}`` (null and a
     ``reason`` for a robot not determined)."""
     return {r: c.to_dict() for r, c in offsets.items()}
+
+
+def write_clock_offsets(out: str | Path, offsets: Mapping[str, ClockOffset]) -> Path:
+    """``OUT/clock_offsets.json`` (:func:`clock_offsets_json`), the folder made if need be; returns its path."""
+    path = Path(out) / "clock_offsets.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clock_offsets_json(offsets), indent=1) + "\n", encoding="utf-8")
+    return path
 
 
 def _robot_of(rig: Rig, key: str) -> str:
@@ -134,6 +145,16 @@ class _Cost:
         self.motion: dict[str, tuple[float, float]] = {}  #: the last run's (see _motion)
 
     def __call__(self, offsets: Mapping[str, float]) -> float:
+        steps = self.steps(offsets)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as done:
+                return done.value
+
+    def steps(self, offsets: Mapping[str, float]):
+        """The cost as a generator: yields after each record (so that a caller can do it in slices), returns
+        the cost (``total = yield from cost.steps(offsets)``)."""
         self.calls += 1
         tracker = TeamTracker(self.rig, self.reference, pixel_sigma=self.pixel_sigma, confidence=self.confidence,
                               options=replace(self.options, clock_offsets=dict(offsets)))
@@ -165,6 +186,7 @@ class _Cost:
             for r in tracker.tracks:
                 if f.is_tracked(r):
                     poses.setdefault(r, []).append(f.pose(r))
+            yield
         self.motion = {r: _motion(p) for r, p in poses.items()}
         return total[0]
 
