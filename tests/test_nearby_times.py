@@ -131,12 +131,13 @@ def _log(R):
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_two_ball_pair_with_markers_off_is_flagged_and_the_right_rig_is_not(seed):
     """Free-running cameras, every record one camera's two balls (none testable on its own): with every
-    marker 1-2 cm off the track's rows say so within 5 s; the right rig's never (8 s)."""
-    rig, recs = _two_ball_records(1.0, seed, duration=8.0)
+    marker 1-2 cm off the track's rows say so within 4 s; the right rig's never (5 s).  (The pooled test is
+    weak: the third log of bench/node_outages.py, seed 0, is flagged only after 12 s; docs/benchmarks.md.)"""
+    rig, recs = _two_ball_records(1.0, seed, duration=5.0)
     records = list(zip(recs.times, recs.frames))
     good = track_log(rig, records, progress=False)
     assert not any(RIG_HINT in r.reason for r in good.rows)
     wrong = expanded_rig(load_rig(perturb_rig(rig.to_dict(), np.random.default_rng([seed, 99]))))
-    bad = track_log(wrong, records, progress=False)
+    bad = track_log(wrong, [(t, f) for t, f in records if t - recs.times[0] < 4.0], progress=False)
     flagged = [r.t for r in bad.rows if RIG_HINT in r.reason]
-    assert flagged and flagged[0] - recs.times[0] < 5.0, flagged[:3]
+    assert flagged, "not flagged within 4 s"
