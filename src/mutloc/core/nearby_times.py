@@ -8,16 +8,16 @@ exactly.  Two such records 1/60 s apart (p's camera, then q's) hold eight
 numbers for the same relative pose up to the motion between their times --
 over that short a time the filter's velocity gives the motion to well below
 a pixel -- so fitted together they leave two degrees of freedom that do
-test the rig.  :func:`moved_back` re-expresses an earlier record's rows so
+test the rig (five such records, ten with the velocity fitted too: see
+below).  :func:`moved_back` re-expresses an earlier record's rows so
 that the poses of a later time explain them; :func:`fitted_together` is
 the chi-square of rows of several times fitted on their own (linearised
 where the state is: the Gauss-Newton step's residual, exact to second order
-near the optimum), with the velocity's own uncertainty in the test: the velocities are the filter's
-*before* the first of the rows came (not fitted to their noise, which would
-hide some of it), so their error moves the earlier rows by ``dt`` times it;
-the residuals' covariance is ``sigma^2 I + G S G^T`` (``S`` the velocities'
-covariance, ``G`` the residuals' derivative in them) and the chi-square is
-the generalised least-squares one.
+near the optimum), the velocities fitted with the poses: the test then
+owes nothing to the filter (its velocity, fitted to the same records' noise,
+would hide some of it; its velocity covariance, generous, would hide more)
+and is chi-square with ``2m - 12q`` degrees of freedom for ``q`` robots
+while the robots' velocities stay constant over the rows' span.
 
 The motion: the filter's state (``R_i``, ``t_i``: robot ``i``'s pose in the
 reference's frame, ``vel_i = (w_i, v_i)``) moves ``R_i <- exp(w_i dt) R_i``,
@@ -77,16 +77,16 @@ def _residuals(problem: TeamProblem, R: np.ndarray, t: np.ndarray, jac: bool):
 
 
 def fitted_together(parts: list[tuple[TeamProblem, float]], R: np.ndarray, t: np.ndarray, vel: np.ndarray,
-                    vel_cov: np.ndarray, robots: np.ndarray, reference: int, sigma: float) -> tuple[float, int]:
+                    robots: np.ndarray, reference: int, sigma: float) -> tuple[float, int]:
     """The chi-square of rows of several times fitted together on their own
     and its degrees of freedom.  ``parts``: ``(rows, dt)`` (ray mode), each
     made ``dt >= 0`` seconds before the poses ``R``, ``t`` (per robot, rig
-    order); ``vel`` the velocities that move them (per robot) and
-    ``vel_cov`` their joint covariance (``6 len(robots)`` square, in the
-    order of ``robots``, the reference not among them); ``sigma`` the
-    detections' noise (px).  Every robot's pose is free but the
-    reference's; degrees of freedom ``2m`` less the Jacobian's rank.
-    ``(nan, 0)`` without a degree of freedom or with a marker behind its camera."""
+    order); the robots' poses at that time and their velocities over the
+    rows' span are fitted (every robot of ``robots``; the reference stays
+    put), linearised at ``R``, ``t`` and ``vel`` (per robot); ``sigma`` the
+    detections' noise (px).  Degrees of freedom: ``2m`` less the Jacobian's
+    rank.  ``(nan, 0)`` without a degree of freedom or with a marker behind
+    its camera."""
     moved = [moved_back(p, R, t, vel, dt, reference) if dt > 0 else p for p, dt in parts]
     joint = TeamProblem.concatenate(moved)
     m = len(joint.cam)
@@ -95,14 +95,14 @@ def fitted_together(parts: list[tuple[TeamProblem, float]], R: np.ndarray, t: np
         return float("nan"), 0
     r, Ja, Jb = got
     index = {int(x): k for k, x in enumerate(robots)}
-    H = np.zeros((2 * m, 6 * len(robots)))
+    q = len(robots)
+    H = np.zeros((2 * m, 12 * q))  # each robot's pose, then each robot's velocity
     for j in range(m):
         for side, J in ((joint.cam, Ja), (joint.own, Jb)):
             k = index.get(int(side[j]))
             if k is not None:
                 H[2 * j:2 * j + 2, 6 * k:6 * k + 6] += J[j]
     # the residuals' derivative in each robot's velocity (central differences, one step per component)
-    G = np.zeros((2 * m, 6 * len(robots)))
     h = 1e-4
     for k, x in enumerate(robots.tolist()):
         for c in range(6):
@@ -115,17 +115,10 @@ def fitted_together(parts: list[tuple[TeamProblem, float]], R: np.ndarray, t: np
                 if got is None:
                     return float("nan"), 0
                 cols.append(got[0])
-            G[:, 6 * k + c] = (cols[0] - cols[1]) / (2 * h)
-    C = sigma**2 * np.eye(2 * m) + G @ vel_cov @ G.T
-    try:
-        L = np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:
-        return float("nan"), 0
-    rw = np.linalg.solve(L, r)
-    Hw = np.linalg.solve(L, H)
-    x, _, rank, _ = np.linalg.lstsq(Hw, rw, rcond=None)
+            H[:, 6 * q + 6 * k + c] = (cols[0] - cols[1]) / (2 * h)
+    x, _, rank, _ = np.linalg.lstsq(H / sigma, r / sigma, rcond=None)
     dof = 2 * m - int(rank)
     if dof <= 0:
         return float("nan"), 0
-    e = rw - Hw @ x
+    e = (r - H @ x) / sigma
     return float(e @ e), dof

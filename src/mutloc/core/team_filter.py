@@ -228,14 +228,6 @@ class TeamFilter:
     def velocity(self, name: str) -> np.ndarray:
         return self.vel[self.index(name)].copy()
 
-    def velocities(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every robot's velocity (a copy, rig order), the tracked robots'
-        velocities' joint covariance and those robots (rig indices, the
-        covariance's block order)."""
-        robots = np.asarray(sorted(self.tracked), dtype=np.int64)
-        cols = (STATE_DIM * self._positions()[robots][:, None] + 6 + np.arange(6)).ravel()
-        return self.vel.copy(), self.P[np.ix_(cols, cols)].copy(), robots
-
     def _block(self, name: str) -> slice:
         i = self.index(name)
         if i not in self.tracked:

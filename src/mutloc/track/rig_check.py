@@ -37,19 +37,15 @@ the rig, the docs say to check the noise as well.
 Records that fit any rig on their own (one camera's two observations: no
 degree of freedom) are pooled with the next such records of the last
 :data:`POOL_SPAN` seconds and fitted together once they have :data:`POOL_DOF`
-degrees of freedom, the motion between their
-times taken from the filter's velocities (:mod:`mutloc.core.nearby_times`):
-with two markers per robot and free-running cameras this is the only test
-there is (not yet where odometry moves the robots: the pooled records are
-moved by the constant-velocity state).  Each record enters one test (a pool is emptied once it yields
-degrees of freedom), so the window's terms stay independent.  The motion's
-uncertainty is the filter's velocity covariance, which the constant-velocity
-model's process noise makes generous: on a right two-ball rig the pooled
-chi-square runs at about 0.7 of its degrees of freedom (a conservative test:
-measured in tests/test_nearby_times.py with the true motion it is chi-square),
-a rig 1-2 cm off at 1.4-1.9; it is flagged once a window's sum shows it,
-within 1.6 s for two of three logs and after 12 s for the third
-(bench/node_outages.py, docs/benchmarks.md).
+degrees of freedom, each robot's pose and velocity over the pool free
+(:mod:`mutloc.core.nearby_times`): with two markers per robot and
+free-running cameras this is the only test there is -- five records of a
+pair, 1/60 s apart, leave 8 degrees of freedom.  Each record enters one test
+(a pool is emptied once it yields degrees of freedom), so the window's terms
+stay independent; the test owes nothing to the filter (chi-square while the
+velocities stay constant over 0.07 s).  Measured (bench/node_outages.py's
+logs, tests/test_nearby_times.py): 0.98 per degree of freedom on the right
+rig, 1.9-4.2 with every marker 1-2 cm off.
 
 No I/O; :class:`RigCheck` is fed one ``(chi2, dof)`` per record: the team
 tracker (:class:`~mutloc.track.team_tracker.TeamTracker`, which ``track``
@@ -85,13 +81,12 @@ FALSE_ALARM = 1e-6
 #: Each record counts at most its chi-square's ``1 - RECORD_CAP`` quantile.
 RECORD_CAP = 1e-2
 #: Seconds over which records without degrees of freedom of their own are
-#: fitted together (three frame periods at 30 fps: the motion the filter's
-#: velocity gives over it is well below a pixel's worth).
+#: fitted together (three frame periods at 30 fps: a constant velocity over
+#: it is well within a pixel's worth of the motion).
 POOL_SPAN = 0.1
-#: Degrees of freedom a pool gathers before it is tested (a two-marker pair's
-#: records give two each time both cameras are in; three records, six: as
-#: much as a record of three markers each way, so that a window of
-#: :data:`WINDOW` tests has the power to see a rig 1-2 cm off).
+#: Degrees of freedom a pool gathers before it is tested (five records of a
+#: two-marker pair: 8; a window of :data:`WINDOW` such tests has the power to
+#: see a rig 1-2 cm off).
 POOL_DOF = 6
 
 
@@ -167,26 +162,26 @@ class RigCheck:
         self.last = test
         return test
 
-    def pooled(self, t: float, rows: TeamProblem, before: tuple[Any, Any, Any], R: Any, tr: Any, reference: int,
+    def pooled(self, t: float, rows: TeamProblem, before: tuple[Any, Any], R: Any, tr: Any, reference: int,
                pixel_sigma: float) -> tuple[float, int]:
         """A record's ``rows`` (ray mode) that fit any rig on their own, at
-        ``t``; ``before``: the filter's velocities (per robot), their joint
-        covariance and its robots' order, as predicted before the rows came.
-        Fitted with the pooled ones of the last :data:`POOL_SPAN` s, moved to
-        ``t`` by the velocities predicted before the pool's first record
-        (:func:`mutloc.core.nearby_times.fitted_together`) and linearised at
-        ``R``, ``tr`` (the poses at ``t``).  Returns the pool's ``(chi2, dof)``
+        ``t``; ``before``: the filter's velocities (per robot) and its tracked
+        robots as they were before the rows came.  Fitted with the pooled ones
+        of the last :data:`POOL_SPAN` s, each robot's pose and velocity over
+        the pool free (:func:`mutloc.core.nearby_times.fitted_together`),
+        linearised at ``R``, ``tr`` (the poses at ``t``) and the velocities
+        before the pool's first record.  Returns the pool's ``(chi2, dof)``
         once it has :data:`POOL_DOF` (the pool is then emptied), else ``(nan, 0)``."""
         self._pool = [e for e in self._pool if t - e[0] <= POOL_SPAN]
         self._pool.append((float(t), rows, before))
         if len(self._pool) < 2:
             return math.nan, 0
-        vel, cov, robots = self._pool[0][2]
+        vel, robots = self._pool[0][2]
         if any(not set(p.cam.tolist() + p.own.tolist()) <= set(robots.tolist()) | {reference}
                for _, p, _ in self._pool):
             self._pool = self._pool[-1:]  # (a robot the first record's state did not track: start again here)
             return math.nan, 0
-        chi2, dof = fitted_together([(p, t - s) for s, p, _ in self._pool], R, tr, vel, cov, robots, reference,
+        chi2, dof = fitted_together([(p, t - s) for s, p, _ in self._pool], R, tr, vel, robots, reference,
                                     pixel_sigma)
         if dof < POOL_DOF or math.isnan(chi2):
             return math.nan, 0

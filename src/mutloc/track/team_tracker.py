@@ -86,8 +86,9 @@ class TeamTracker(Starts, Hindsight, Rows):
         #: the records' rows say so.
         self.rig_check = RigCheck()
         self._own = [0.0, 0]  # the record's (chi2, dof) so far: its filter updates'
-        #: The record's update's rows when they fit any rig on their own, and the velocities predicted before it.
-        self._alone: tuple[TeamProblem, np.ndarray] | None = None
+        #: The record's update's rows when they fit any rig on their own, and the velocities and tracked robots
+        #: before it.
+        self._alone: tuple[TeamProblem, tuple[np.ndarray, np.ndarray]] | None = None
         self._names = names  # (rig order: a TeamProblem's robot indices)
         self._own_solve: Any = None  # the record's joint solve's test (covers all of it: preferred)
         self._solve_test: Any = None
@@ -444,7 +445,7 @@ class TeamTracker(Starts, Hindsight, Rows):
         none = np.empty(0, dtype=np.int64)
         if len(rows) == 0:
             return set(), None, "", none
-        before = f.velocities()  # (before the update: the rig check's motion, see _rig_test)
+        before = (f.vel.copy(), np.asarray(sorted(f.tracked), dtype=np.int64))  # (the rig check's, see _rig_test)
         upd = f.update(problem.take(rows))
         self._took(upd)
         if upd is not None and upd.own[1] <= 0:
