@@ -77,10 +77,12 @@ def test_localize_images_cli_and_bad_inputs(tmp_path, capsys):
         assert err.count("\n") == 1 and err.startswith("mutloc: error:")
 
 
-# The longest run of each rendered sequence that tests ask for (here, test_track_trust.py, test_rerun.py):
+# The longest run of each rendered sequence that tests ask for (here, test_track_trust.py, test_rerun.py,
+# test_track_hindsight.py):
 # rendered once per test run (tests/_shared_inputs.py), shorter ones take its first frames.  Frame i depends
 # on i alone (both cameras at t = i / fps, noise seed seed + i), so those are the frames a shorter run renders.
-LONGEST = {("lights", 30.0, 0): 54, ("balls", 10.0, 7): 9, ("balls", 10.0, 3): 12}
+LONGEST = {("lights", 30.0, 0): 54, ("balls", 10.0, 7): 9, ("balls", 10.0, 3): 12,
+           ("lights", 30.0, 3): 41}  # test_track_hindsight: frame 30 + 1 + the smoother's lag (10)
 
 
 def _render_sequence(kind, n, fps, seed):
