@@ -94,11 +94,11 @@ def _render_sequence(kind, n, fps, seed):
 def _sequence(kind, n, fps, seed=0, store=None):
     """Both robots' first ``n`` frames of the standard ``kind`` rig in ``moving_world`` (seed ``seed``), and
     the true T_qp per frame.  With ``store`` (the tmp_path_factory) a sequence in LONGEST is rendered once per
-    run at its longest and shared (a fresh copy per call)."""
+    run at its longest and shared (a fresh copy per call); any other is rendered here."""
     rig = standard_rig(kind)
     world = moving_world(rig, distance=2.0, seed=seed)
-    m = LONGEST.get((kind, float(fps), seed), n)
-    if store is not None and m >= n:
+    m = LONGEST.get((kind, float(fps), seed), 0)
+    if store is not None and m >= n:  # a sequence other tests watch too
         frames = shared(store, f"sequence-{kind}-fps{fps}-seed{seed}-n{m}",
                         lambda: _render_sequence(kind, m, fps, seed))
         frames = {r: f[:n] for r, f in frames.items()}
