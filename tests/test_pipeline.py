@@ -16,6 +16,7 @@ from mutloc.track import localize_images
 from mutloc.track.sources import Frame, bag_frames
 from mutloc.track.tracker import track
 
+from _shared_inputs import shared
 from test_sources import write_bag
 
 
@@ -76,23 +77,40 @@ def test_localize_images_cli_and_bad_inputs(tmp_path, capsys):
         assert err.count("\n") == 1 and err.startswith("mutloc: error:")
 
 
-def _sequence(kind, n, fps, seed=0):
+# The longest run of each rendered sequence that tests ask for (here, test_track_trust.py, test_rerun.py,
+# test_track_hindsight.py):
+# rendered once per test run (tests/_shared_inputs.py), shorter ones take its first frames.  Frame i depends
+# on i alone (both cameras at t = i / fps, noise seed seed + i), so those are the frames a shorter run renders.
+LONGEST = {("lights", 30.0, 0): 54, ("balls", 10.0, 7): 9, ("balls", 10.0, 3): 12,
+           ("lights", 30.0, 3): 41}  # test_track_hindsight: frame 30 + 1 + the smoother's lag (10)
+
+
+def _render_sequence(kind, n, fps, seed):
+    world = moving_world(standard_rig(kind), distance=2.0, seed=seed)
+    return {r: [Frame(i, i / fps, render(world, r, i / fps, seed=seed + i, noise_sigma=1.0)) for i in range(n)]
+            for r in ("p", "q")}
+
+
+def _sequence(kind, n, fps, seed=0, store=None):
+    """Both robots' first ``n`` frames of the standard ``kind`` rig in ``moving_world`` (seed ``seed``), and
+    the true T_qp per frame.  With ``store`` (the tmp_path_factory) a sequence in LONGEST is rendered once per
+    run at its longest and shared (a fresh copy per call); any other is rendered here."""
     rig = standard_rig(kind)
     world = moving_world(rig, distance=2.0, seed=seed)
-    frames = {r: [] for r in ("p", "q")}
-    truth = []
-    for i in range(n):
-        t = i / fps
-        for r in ("p", "q"):
-            frames[r].append(Frame(i, t, render(world, r, t, seed=seed + i, noise_sigma=1.0)))
-        truth.append(relative_pose(world, "p", "q", t))
-    return rig, frames, truth
+    m = LONGEST.get((kind, float(fps), seed), 0)
+    if store is not None and m >= n:  # a sequence other tests watch too
+        frames = shared(store, f"sequence-{kind}-fps{fps}-seed{seed}-n{m}",
+                        lambda: _render_sequence(kind, m, fps, seed))
+        frames = {r: f[:n] for r, f in frames.items()}
+    else:
+        frames = _render_sequence(kind, n, fps, seed)
+    return rig, frames, [relative_pose(world, "p", "q", i / fps) for i in range(n)]
 
 
-def test_track_blinking_lights_in_memory(tmp_path):
+def test_track_blinking_lights_in_memory(tmp_path, tmp_path_factory):
     fps = 30.0
     n = 54
-    rig, frames, truth = _sequence("lights", n, fps)
+    rig, frames, truth = _sequence("lights", n, fps, store=tmp_path_factory)
     video = tmp_path / "annotated.mp4"
     traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=fps, progress=False, annotate=video)
     assert len(traj.rows) == n
@@ -142,9 +160,9 @@ def test_track_ros_bag_matches_truth(tmp_path, version, capsys):
     assert len(list(bag_frames(paths["p"], "/p/image_raw"))) == len(truth)
 
 
-def test_track_reports_bad_frames_and_keeps_the_rest(tmp_path):
+def test_track_reports_bad_frames_and_keeps_the_rest(tmp_path, tmp_path_factory):
     fps = 10.0
-    rig, frames, truth = _sequence("balls", 5, fps, seed=7)
+    rig, frames, truth = _sequence("balls", 5, fps, seed=7, store=tmp_path_factory)
     frames["q"][2] = Frame(2, frames["q"][2].t, None, "corrupt message: truncated")
     blank = np.zeros_like(frames["p"][3].image)
     frames["p"][3] = Frame(3, frames["p"][3].t, blank)

@@ -70,7 +70,7 @@ def test_rerun_from_a_log(tmp_path):
     np.testing.assert_allclose(strip, [r["pose"].t for r in with_pose], atol=1e-6)
 
 
-def test_rerun_from_images_has_the_images_and_labelled_detections(tmp_path):
+def test_rerun_from_images_has_the_images_and_labelled_detections(tmp_path, tmp_path_factory):
     """... the images as JPEG: the file is a fraction of the raw frames'
     size, and each image decodes to the frame that was tracked."""
     import cv2
@@ -78,7 +78,7 @@ def test_rerun_from_images_has_the_images_and_labelled_detections(tmp_path):
     from mutloc.track.tracker import track
     from test_pipeline import _sequence
 
-    rig, frames, truth = _sequence("balls", 2, 10.0, seed=3)
+    rig, frames, truth = _sequence("balls", 2, 10.0, seed=3, store=tmp_path_factory)
     rrd = tmp_path / "img.rrd"
     traj = track(rig, {r: iter(f) for r, f in frames.items()}, fps=10.0, progress=False, rerun=rrd)
     raw = sum(f.image.nbytes for fs in frames.values() for f in fs)

@@ -10,21 +10,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mutloc.sim.render import moving_world, project_markers, relative_pose, render
+from mutloc.sim.render import moving_world, project_markers, relative_pose
 from mutloc.sim.world import light_is_on, standard_rig
 from mutloc.track.filtering import DEFAULT_SMOOTH_LAG, FilterOptions
-from mutloc.track.sources import Frame, Stream
+from mutloc.track.sources import Stream
 from mutloc.track.tracker import track, track_log
 
 FPS = 30.0
 
 
-def _sequence(seed: int, n: int):
-    rig = standard_rig("lights")
-    world = moving_world(rig, distance=2.0, seed=seed)
-    frames = {r: [Frame(i, i / FPS, render(world, r, i / FPS, seed=seed + i, noise_sigma=1.0)) for i in range(n)]
-              for r in ("p", "q")}
-    return rig, world, frames
+def _sequence(seed: int, n: int, store):
+    """test_pipeline's lights sequence (both robots at 2 m in room ``seed``, noise seed seed + i), shared
+    through ``store`` with test_track_trust.py's run of the same seed."""
+    from test_pipeline import _sequence as lights_sequence
+
+    rig, frames, _ = lights_sequence("lights", n, FPS, seed, store=store)
+    return rig, moving_world(rig, distance=2.0, seed=seed), frames
 
 
 def _track(rig, frames, **kw):
@@ -51,9 +52,9 @@ def _lit_truth(world, rig, t):
     # 30 and seed 2 the four-light confirmation below, at frame 31.)
     (3, 30, False),
 ])
-def test_confirmed_tentative_track_reports_its_frames_in_hindsight(seed, frame, by_four):
+def test_confirmed_tentative_track_reports_its_frames_in_hindsight(seed, frame, by_four, tmp_path_factory):
     # The frames within the smoother's lag after it verify it (run backward).
-    rig, world, frames = _sequence(seed, frame + 1 + DEFAULT_SMOOTH_LAG)
+    rig, world, frames = _sequence(seed, frame + 1 + DEFAULT_SMOOTH_LAG, tmp_path_factory)
     t = frame / FPS
     lit = _lit_truth(world, rig, t)
     assert len(lit) == 3  # a perfect detector solves this frame with the track's prior

@@ -39,10 +39,10 @@ def test_swapped_streams_are_refused():
     # passed, pose 6 cm off). Such a frame is unverified, never solved.
     pytest.param("lights", 3, 30, 30.0, 0.0, True, marks=pytest.mark.slow),
 ])
-def test_no_solved_frame_is_far_off(kind, seed, n, fps, min_solved, flagged, tmp_path):
+def test_no_solved_frame_is_far_off(kind, seed, n, fps, min_solved, flagged, tmp_path, tmp_path_factory):
     """Rendered rooms with posters and clutter: every frame called solved is
     within 5 cm and 2 degrees of the truth, and most frames are solved."""
-    rig, frames, truth = _sequence(kind, n, fps, seed)
+    rig, frames, truth = _sequence(kind, n, fps, seed, store=tmp_path_factory)
     video = tmp_path / "sub" / "annotated.mp4"
     streams = {r: Stream(iter(f), fps, r) for r, f in frames.items()}
     traj = track(rig, streams, progress=False, annotate=video)
@@ -57,13 +57,13 @@ def test_no_solved_frame_is_far_off(kind, seed, n, fps, min_solved, flagged, tmp
     cap.release()
 
 
-def test_a_poster_taken_for_a_marker_is_rejected_or_dropped():
+def test_a_poster_taken_for_a_marker_is_rejected_or_dropped(tmp_path_factory):
     """A detection moved 40 px (a blob of another object) in every third frame:
     such frames are never solved with the wrong pixel in them."""
     from mutloc.detect.base import Detection
 
     fps = 10.0
-    rig, frames, truth = _sequence("balls", 9, fps, seed=7)
+    rig, frames, truth = _sequence("balls", 9, fps, seed=7, store=tmp_path_factory)
     import mutloc.track.tracker as tr
 
     real = tr.ObserverDetector.detect
