@@ -317,6 +317,19 @@ def as_points(a: Any, dim: int, what: str, allow_nonfinite: bool = False) -> tup
     return np.ascontiguousarray(arr), single
 
 
+def readonly(a: np.ndarray) -> np.ndarray:
+    """``a`` itself if read-only, else a read-only view of it (no copy).
+
+    Numba compiles a kernel once per argument type, and whether an array is
+    writable is part of its type: the solvers' camera arrays (``K``, ``dist``)
+    are always passed read-only, so that each kernel is compiled once."""
+    if not a.flags.writeable:
+        return a
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 def readonly_copy(a: np.ndarray) -> np.ndarray:
     """A read-only, C-contiguous float64 copy of ``a``."""
     a = np.ascontiguousarray(a, dtype=np.float64).copy()

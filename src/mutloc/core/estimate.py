@@ -19,10 +19,9 @@ from numba import njit
 
 from ..errors import DegenerateGeometryError, InputError, NoSolutionError, ObservationError, TooFewObservationsError
 from .pose import Pose
-from .camera import undistort_kernel
+from .camera import readonly, undistort_kernel
 from .generalized import GP3P_WORK_SIZE, generalized_p3p_kernel
 from .minimal import solve_minimal_kernel
-from .observations import unit_scales
 from .refine import MODE_BEARING, MODE_PIXEL, MODE_RAY, WS_SIZE, cost_into, information, lm_refine, tangent_bases
 
 __all__ = ["PairProblem", "Solution", "estimate", "minimal_subsets"]
@@ -35,6 +34,26 @@ MAX_SUBSETS = 60
 # Condition number of the (Jacobi-scaled) J^T J beyond which the pose is not
 # isolated: rounding level, so near-degenerate but valid poses still pass.
 _MAX_COND = 1e14
+
+
+# The camera arrays of a problem without pixels (read-only, see _camera_arrays).
+_EYE = readonly(np.eye(3))
+_NO_DIST = readonly(np.zeros(8))
+
+
+def _camera_arrays(K, dist):
+    """``K`` and ``dist`` (pairs of arrays, or None) as read-only C-contiguous float arrays.
+
+    Numba compiles each kernel once per argument type, and an array's type
+    includes whether it is writable: the pair kernels always get read-only
+    ``K``/``dist`` (as :class:`~mutloc.core.camera.Camera` keeps them, and as the
+    team solver's rows of its read-only ones are) and a writable ``wt``, so that
+    each is compiled once, not once per mix."""
+    if K is not None:
+        K = tuple(readonly(np.ascontiguousarray(k, dtype=float)) for k in K)
+    if dist is not None:
+        dist = tuple(readonly(np.ascontiguousarray(d, dtype=float)) for d in dist)
+    return K, dist
 
 
 @dataclass
@@ -82,6 +101,7 @@ class PairProblem:
             raise InputError("observations contain a zero-length bearing")
         b = self.bearings / big[:, None]
         self.bearings = b / np.linalg.norm(b, axis=1)[:, None]
+        self.K, self.dist = _camera_arrays(self.K, self.dist)
         scale = np.max(np.abs(self.points)) if n else 0.0
         if scale > 1e9:
             raise InputError(f"marker positions of magnitude {scale:.3g} m are not plausible")
@@ -104,16 +124,18 @@ class PairProblem:
         scales).  ``bearings`` may be None with pixels: the solver computes them."""
         obj = cls.__new__(cls)
         obj.side, obj.points, obj.bearings = side, points, bearings
-        obj.pixels, obj.K, obj.dist, obj.labels = pixels, K, dist, labels
+        obj.pixels, obj.labels = pixels, labels
+        obj.K, obj.dist = _camera_arrays(K, dist)
         obj.sigma_scale = sigma_scale
         obj.frames = frames
         return obj
 
     @property
     def wt(self) -> np.ndarray:
-        """Each row's weight in the objective: ``1 / sigma_scale`` (shared, read-only)."""
+        """Each row's weight in the objective: ``1 / sigma_scale`` (a new, writable array: the kernels
+        are compiled for a writable ``wt``, as the team solver passes them one, see :func:`_camera_arrays`)."""
         if self.sigma_scale is None:
-            return unit_scales(len(self.side))
+            return np.ones(len(self.side))
         return 1.0 / self.sigma_scale
 
     def ensure_bearings(self) -> np.ndarray:
@@ -158,8 +180,8 @@ class PairProblem:
             dp, dq = self.dist
         else:
             meas = np.zeros((len(self.side), 2))
-            Kp = Kq = np.eye(3)
-            dp = dq = np.zeros(8)
+            Kp = Kq = _EYE
+            dp = dq = _NO_DIST
         return (self.side, self.points, meas, basis, Kp, dp, Kq, dq, self.mode, self.wt)
 
 
@@ -516,7 +538,7 @@ def first_subset_kernel(side, points, meas, frames, Kp, dp, Kq, dq, mode, wt, ac
     sub = np.empty((1, 3), dtype=np.int64)
     if not first_subset(side, bearings, sub[0]):
         return _FALL_BACK, np.inf, 0
-    nc = minimal_candidates_kernel(side, points, bearings, origins, sub, False, Rc, tc)
+    nc = minimal_candidates_kernel(side, points, bearings, origins, sub, np.bool_(False), Rc, tc)  # not a literal: one compile
     if mode == MODE_RAY:
         basis = frames
     else:
@@ -591,8 +613,6 @@ def solve_kernel(side, points, meas, bearings, frames, Kp, dp, Kq, dq, mode, wt,
     return _OK, -1, nc, nd, best
 
 
-_EYE = np.eye(3)
-_NO_DIST = np.zeros(8)
 _NO_SUBSETS = np.empty((0, 3), dtype=np.int64)
 #: ``frames`` of a problem that is not in ray mode.
 NO_FRAMES = np.empty((0, 4, 3))

@@ -174,7 +174,8 @@ def residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, want
 @njit(cache=True)
 def cost_into(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, ws):
     """Sum of squared residuals with caller-provided buffers (see :func:`residuals`)."""
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, False, ws):
+    # np.bool_, not a literal False/True: Numba compiles a callee once more for each literal argument
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, np.bool_(False), ws):
         return np.inf
     c = 0.0
     for k in range(r.shape[0]):
@@ -315,7 +316,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, max_iter, 
     r2 = np.empty(2 * n)
     J2 = np.empty((2 * n, 6))
     ws = np.empty(WS_SIZE)
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, True, ws):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, np.bool_(True), ws):
         return np.inf, 0
     c = 0.0
     for k in range(2 * n):
@@ -354,7 +355,7 @@ def lm_refine(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, max_iter, 
             # The trial point's Jacobian comes with its residuals: a step is
             # accepted far more often than not, and then it is the next one's.
             cn = np.inf
-            if residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rn, tn, r2, J2, True, ws):
+            if residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, Rn, tn, r2, J2, np.bool_(True), ws):
                 cn = 0.0
                 for k in range(2 * n):
                     cn += r2[k] * r2[k]
@@ -389,7 +390,7 @@ def information(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, H):
     n = side.shape[0]
     r = np.empty(2 * n)
     J = np.empty((2 * n, 6))
-    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, True, np.empty(WS_SIZE)):
+    if not residuals(side, pts, meas, basis, Kp, dp, Kq, dq, mode, wt, R, t, r, J, np.bool_(True), np.empty(WS_SIZE)):
         return False
     g = np.empty(6)
     normal_equations(J, r, H, g)

@@ -62,7 +62,7 @@ import numpy as np
 from numba import njit
 
 from ..errors import DegenerateGeometryError, NoSolutionError
-from .camera import project_jac_kernel, project_kernel, undistort_kernel
+from .camera import project_jac_kernel, project_kernel, readonly, undistort_kernel
 from .consistency import DEFAULT_CONFIDENCE, chi2_quantile
 from .estimate import PER_SUBSET, minimal_subsets, solve_kernel
 from .geometry import matrix_from_quaternion_xyzw, so3_exp, so3_log
@@ -92,6 +92,12 @@ NO_FRAMES = np.empty((0, 4, 3))
 _MAX_COND = 1e14
 
 
+def _writable(a, dtype) -> np.ndarray:
+    """``a`` as a C-contiguous array of ``dtype``, copied if it is read-only."""
+    a = np.ascontiguousarray(a, dtype=dtype)
+    return a if a.flags.writeable else a.copy()
+
+
 @dataclass
 class TeamProblem:
     """Observations in solver form.  Robots are indices ``0..N-1``;
@@ -115,16 +121,19 @@ class TeamProblem:
     frames: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        self.cam = np.ascontiguousarray(self.cam, dtype=np.int64)
-        self.own = np.ascontiguousarray(self.own, dtype=np.int64)
-        self.points = np.ascontiguousarray(self.points, dtype=float).reshape(-1, 3)
-        self.uv = np.ascontiguousarray(self.uv, dtype=float).reshape(-1, 2)
-        self.K = np.ascontiguousarray(self.K, dtype=float).reshape(-1, 3, 3)
-        self.dist = np.ascontiguousarray(self.dist, dtype=float).reshape(-1, 8)
+        # The kernels get the same array types from here as from their compiled
+        # callers (rows they pick out: writable; the cameras: read-only, as the
+        # pair solver's), so that Numba compiles each once.
+        self.cam = _writable(self.cam, np.int64)
+        self.own = _writable(self.own, np.int64)
+        self.points = _writable(self.points, float).reshape(-1, 3)
+        self.uv = _writable(self.uv, float).reshape(-1, 2)
+        self.K = readonly(np.ascontiguousarray(self.K, dtype=float).reshape(-1, 3, 3))
+        self.dist = readonly(np.ascontiguousarray(self.dist, dtype=float).reshape(-1, 8))
         n = self.cam.shape[0]
-        self.wt = np.ones(n) if self.wt is None else np.ascontiguousarray(self.wt, dtype=float).reshape(n)
+        self.wt = np.ones(n) if self.wt is None else _writable(self.wt, float).reshape(n)
         if self.frames is not None:
-            self.frames = np.ascontiguousarray(self.frames, dtype=float).reshape(n, 4, 3)
+            self.frames = _writable(self.frames, float).reshape(n, 4, 3)
 
     @property
     def fr(self) -> np.ndarray:
@@ -266,7 +275,7 @@ def team_cost_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts):
     n = cam.shape[0]
     r = np.empty(2 * n)
     J = np.empty((1, 2, 6))
-    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, J, J, False):
+    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, J, J, np.bool_(False)):
         return np.inf
     c = 0.0
     for k in range(2 * n):
@@ -387,7 +396,7 @@ def team_lm(cam, own, pts, meas, wt, Ks, ds, frames, var, Rs, ts, max_iter, H):
     first = _envelope(cam, own, var, m)
     Rn = np.empty_like(Rs)
     tn = np.empty_like(ts)
-    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True):
+    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, np.bool_(True)):
         return np.inf, 0
     c = 0.0
     for k in range(2 * n):
@@ -443,10 +452,10 @@ def team_lm(cam, own, pts, meas, wt, Ks, ds, frames, var, Rs, ts, max_iter, H):
             lam *= 10.0
         if not improved or small:
             break
-        team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True)
+        team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, np.bool_(True))
         _accumulate(cam, own, var, r, Ja, Jb, H, g)
     if it > 0:
-        team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True)
+        team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, np.bool_(True))
         _accumulate(cam, own, var, r, Ja, Jb, H, g)
     return c, it
 
@@ -618,7 +627,7 @@ def _place_pass(cam, own, pts, uv, wt, Ks, ds, frames, Rs, ts, r, c, sees, seen,
             for k in range(3):
                 bearings[i, k] = fr[i, 2, k]
     status, _, _, nd, _ = solve_kernel(side, P, meas, bearings, fr, Ks[r], ds[r], Ks[c], ds[c],
-                                       mode, w, subsets, False, 0, 4, 50, Rc, tc, order, costs, Rbest, tbest,
+                                       mode, w, subsets, np.bool_(False), np.int64(0), np.int64(4), np.int64(50), Rc, tc, order, costs, Rbest, tbest,
                                        H6, Hinv)
     if status != 0:
         return np.inf
@@ -1684,7 +1693,7 @@ def _residual_norms(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, out):
         # (frames empty in pixel mode: so is its slice)
         if team_residuals_any(cam[j:j + 1], own[j:j + 1], pts[j:j + 1], meas[j:j + 1], wt[j:j + 1], Ks, ds,
                               frames[j:j + 1], Rs, ts,
-                              r, J, J, False):
+                              r, J, J, np.bool_(False)):
             out[j] = np.hypot(r[0], r[1])
 
 

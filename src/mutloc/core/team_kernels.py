@@ -223,7 +223,7 @@ def team_iekf(cam, own, pts, meas, wt, Ks, ds, frames, pos, ref, R0, t0, vel0, P
     chi2 = np.inf
     iters = max_iter if m >= 3 else 1
     for _ in range(iters):
-        if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, True):
+        if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, np.bool_(True)):
             return False, chi2
         _sparse_rows(cam, own, ref, slot, Ja, Jb, hv, hc)
         HP[:, :] = 0.0  # H Pcc
@@ -318,7 +318,7 @@ def team_iekf(cam, own, pts, meas, wt, Ks, ds, frames, pos, ref, R0, t0, vel0, P
             v = 0.5 * (P0[a, b] + P0[b, a]) - WW[a, b]
             P[a, b] = v
             P[b, a] = v
-    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, False):
+    if not team_residuals_any(cam, own, pts, meas, wt, Ks, ds, frames, Rs, ts, r, Ja, Jb, np.bool_(False)):
         return False, chi2
     for j in range(m):
         res[j] = np.hypot(r[2 * j], r[2 * j + 1])

@@ -170,7 +170,7 @@ def edges_kernel(img, lut, gain, cx, cy, ang, rexp, h, w2, step, e, valid, inner
         # that first edge: the colours next to the rim are the ones that
         # mix in its pixels (a background that changes a few pixels out, a
         # poster's border, must not count).
-        ok, ei, con = _unmix_edge(P, 0, K - 1, step, alpha, B, G)
+        ok, ei, con = _unmix_edge(P, np.int64(0), K - 1, step, alpha, B, G)
         if not ok:
             continue
         j0 = int(round((ei - w2) / step))
