@@ -342,7 +342,7 @@ def _bilinear(tex, tinfo, lut, e, x, y):
     return b, g, r
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _shade(pf, pi, gf, gi, rb, codes, tex, tinfo, lut, lp, k, t, ox, oy, oz, dx, dy, dz, pix_angle):
     """Linear BGR radiance, linear BGR emission and texture sub-key of a hit.
 
@@ -1191,6 +1191,7 @@ def render_linear(world: World, observer: str, t: float = 0.0) -> tuple[np.ndarr
         else:
             sub_b = np.empty((n * ss * ss, 3))
             _subpixel_bearings(idx, ss, w, camera.K, camera.dist, sub_b)
+        sub_b.flags.writeable = bool(bear.flags.writeable)  # (as the first pass's: one compiled _cast)
         sub_rgb = np.empty((n * ss * ss, 3))
         sub_emit = np.empty((n * ss * ss, 3))
         sub_key = np.empty(n * ss * ss, np.int64)
