@@ -43,7 +43,8 @@ free-running cameras this is the only test there is -- five records of a
 pair, 1/60 s apart, leave 8 degrees of freedom.  Each record enters one test
 (a pool is emptied once it yields degrees of freedom), so the window's terms
 stay independent; the test owes nothing to the filter (chi-square while the
-velocities stay constant over 0.07 s).  Measured (bench/node_outages.py's
+velocities stay constant over 0.07 s).  Not where odometry moves the robots
+(:class:`~mutloc.track.team_tracker.TeamTracker` leaves such records out).  Measured (bench/node_outages.py's
 logs, tests/test_nearby_times.py): 0.98 per degree of freedom on the right
 rig, 1.9-4.2 with every marker 1-2 cm off.
 
