@@ -44,7 +44,7 @@ from ..errors import InputError, MutlocError
 from .filtering import FilterOptions
 from .team_tracker import TeamTracker
 
-__all__ = ["ClockOffset", "shift_records", "estimate_clock_offsets", "clock_offsets_json", "write_clock_offsets",
+__all__ = ["ClockOffset", "OffsetCost", "shift_records", "estimate_clock_offsets", "clock_offsets_json", "write_clock_offsets",
            "DEFAULT_SEARCH",
            "DEFAULT_MAX_SIGMA",
            "DEFAULT_MIN_MOTION"]
@@ -132,7 +132,7 @@ def shift_records(rig: Rig, records: Iterable[tuple[float, ObservationSet | None
     return out
 
 
-class _Cost:
+class OffsetCost:
     """The -2 log-likelihood of the records under given offsets (see the module docstring)."""
 
     def __init__(self, rig: Rig, reference: str, records: list, options: FilterOptions, pixel_sigma: float,
@@ -233,7 +233,7 @@ def estimate_clock_offsets(rig: Rig, records: Iterable[tuple[float, ObservationS
         raise InputError("clock offsets: search, grid (>= 3), tol and step must be positive and tol, step < search")
     records = list(records)
     robots = [r for r in rig.robots if r != reference]
-    cost = _Cost(rig, reference, records, options or FilterOptions(), pixel_sigma, confidence)
+    cost = OffsetCost(rig, reference, records, options or FilterOptions(), pixel_sigma, confidence)
     offsets = {r: 0.0 for r in robots}
     edge: dict[str, bool] = {}
     for _ in range(passes or (1 if len(robots) == 1 else 2)):

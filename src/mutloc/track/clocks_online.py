@@ -9,7 +9,7 @@ slices of one record, when the caller has nothing else to do:
   ``window`` seconds (of stamps); a new window starts ``period`` seconds after the last one started
   and only once the last one is evaluated (messages in between are not kept: memory and work bounded);
 - a window is evaluated per robot (the others at their current offsets) with the offline cost
-  (:class:`~mutloc.track.clocks._Cost`, the causal team tracker's -2 log-likelihood): while no offset
+  (:class:`~mutloc.track.clocks.OffsetCost`, the causal team tracker's -2 log-likelihood): while no offset
   of the robot is known, first a coarse grid over ``+-search`` s; then three points ``step`` s apart
   around the best (or the current estimate) and the parabola through them, its vertex the window's
   offset and its curvature the window's sigma (``sigma^2 = 2 / cost''``, times :data:`SIGMA_SCALE`:
@@ -51,7 +51,7 @@ from .clocks import (
     DEFAULT_MIN_MOTION,
     DEFAULT_SEARCH,
     ClockOffset,
-    _Cost,
+    OffsetCost,
     shift_records,
 )
 from .filtering import FilterOptions
@@ -151,7 +151,7 @@ class OnlineClockOffsets:
         """Each robot's window offset, the others at their current offsets -- or, in a team with a robot
         not yet known, :data:`TEAM_PASSES` coordinate passes, each robot's at the others' of the pass
         before (as the offline estimator's passes: a robot's offset biases the others')."""
-        cost = _Cost(self.rig, self.reference, records, self.options, self.pixel_sigma, self.confidence)
+        cost = OffsetCost(self.rig, self.reference, records, self.options, self.pixel_sigma, self.confidence)
         trial = {o: self.offset(o) for o in self.robots}
         known = {o: bool(self.windows[o]) for o in self.robots}
         passes = TEAM_PASSES if len(self.robots) > 1 and not all(known.values()) else 1
@@ -169,7 +169,7 @@ class OnlineClockOffsets:
                 self.reasons[r] = ""
         self.evaluated += 1
 
-    def _robot(self, cost: _Cost, r: str, base: dict[str, float],
+    def _robot(self, cost: OffsetCost, r: str, base: dict[str, float],
                search: bool) -> Generator[None, None, tuple[float, float] | None]:
         """Robot ``r``'s offset in this window and its sigma, the others at ``base``; None (its reason
         set) when the window does not determine it.  ``search``: the coarse grid first."""
