@@ -1,23 +1,22 @@
-"""Observations of a few nearby times fitted together, the motion between
-them taken from a constant-velocity state: how a window of one-camera
-records still tests the rig (issue 38).
+"""Observations of a few nearby times fitted together, each robot moving
+at a constant velocity between them: how a window of one-camera records
+still tests the rig (issue 38).
 
 With two markers per robot and free-running cameras every record is one
 camera's two observations: four numbers for six unknowns, which any rig fits
-exactly.  Two such records 1/60 s apart (p's camera, then q's) hold eight
-numbers for the same relative pose up to the motion between their times --
-over that short a time the filter's velocity gives the motion to well below
-a pixel -- so fitted together they leave two degrees of freedom that do
-test the rig (five such records, ten with the velocity fitted too: see
-below).  :func:`moved_back` re-expresses an earlier record's rows so
-that the poses of a later time explain them; :func:`fitted_together` is
-the chi-square of rows of several times fitted on their own (linearised
-where the state is: the Gauss-Newton step's residual, exact to second order
-near the optimum), the velocities fitted with the poses: the test then
-owes nothing to the filter (its velocity, fitted to the same records' noise,
-would hide some of it; its velocity covariance, generous, would hide more)
-and is chi-square with ``2m - 12q`` degrees of freedom for ``q`` robots
-while the robots' velocities stay constant over the rows' span.
+exactly.  Five such records 1/60 s apart (p's camera, q's, p's, ...) hold
+twenty numbers for the relative pose and its velocity over their 0.07 s
+(twelve unknowns): fitted together they leave eight degrees of freedom that
+do test the rig.  :func:`moved_back` re-expresses an earlier record's rows
+so that the poses of a later time explain them (the motion from given
+velocities); :func:`fitted_together` is the chi-square of rows of several
+times fitted on their own, each robot's pose and velocity free, linearised
+where the state is (the Gauss-Newton step's residual, exact to second order
+near the optimum).  With the velocities fitted the test owes nothing to the
+filter (its velocity, fitted to the same records' noise, would hide some of
+it; its velocity covariance, generous, would hide more) and is chi-square
+with ``2m - 12q`` degrees of freedom for ``q`` robots while the velocities
+stay constant over the rows' span.
 
 The motion: the filter's state (``R_i``, ``t_i``: robot ``i``'s pose in the
 reference's frame, ``vel_i = (w_i, v_i)``) moves ``R_i <- exp(w_i dt) R_i``,
