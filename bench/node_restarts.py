@@ -56,7 +56,6 @@ import argparse
 import json
 import math
 import os
-import re
 import signal
 import subprocess
 import sys
