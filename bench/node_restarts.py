@@ -326,7 +326,9 @@ def analyse(out, L, events, truth, start_at, first_stamp, t_end, restarts, befor
     status = _status_of(out)
     # q silent (capture times): its last capture before the kill -> its first after the restart
     silent = [(e["last_q_stamp_before"] or e["kill"], e["q_back"][1] if e["q_back"] else t_end) for e in events]
-    kills = [(e["kill"], e["q_back"][0] if e["q_back"] else t_end) for e in events]
+    # q's node down: the kill -> q's first capture after the restart (the localizer may have it before this
+    # process does: a diagnostics message stamped after it may rightly say q is OK)
+    kills = [(e["kill"], e["q_back"][1] if e["q_back"] else t_end) for e in events]
 
     def q_silent(t: float) -> bool:
         return any(a < t < b for a, b in silent)
@@ -354,7 +356,9 @@ def analyse(out, L, events, truth, start_at, first_stamp, t_end, restarts, befor
     for r in rows:  # how long after q's node came back (None: before the first restart)
         r["after_q_back_s"] = min((r["stamp"] - b for b in backs if b <= r["stamp"]), default=None)
         r["q_silent_for_s"] = next((r["stamp"] - a for a, b in silent if a < r["stamp"] < b), None)
-    (out / "poses.json").write_text(json.dumps({"start_at": start_at, "events": events, "rows": rows}))
+    (out / "poses.json").write_text(json.dumps({"start_at": start_at, "events": events, "rows": rows, "q": L.q,
+                                                "diagnostics": [(a, s, {r: v[:2] for r, v in st.items()})
+                                                                for a, s, st in L.diags]}))
     beyond = [r for r in rows if r["nees"] > FIVE_SIGMA_NEES]
     # frame instants of the run (from the first pose to the end), q up / q silent
     instants = np.arange(math.ceil((first_stamp - start_at) * FPS), math.floor((t_end - 1.0 - start_at) * FPS))
