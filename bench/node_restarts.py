@@ -331,7 +331,7 @@ def analyse(out, L, events, truth, start_at, first_stamp, t_end, restarts, befor
     kills = [(e["kill"], e["q_back"][1] if e["q_back"] else t_end) for e in events]
 
     def q_silent(t: float) -> bool:
-        return any(a < t < b for a, b in silent)
+        return any(a + 1e-4 < t < b - 1e-4 for a, b in silent)
 
     rows, unmatched = [], 0
     for arrival, stamp, m in L.poses:
@@ -355,7 +355,7 @@ def analyse(out, L, events, truth, start_at, first_stamp, t_end, restarts, befor
     backs = sorted(e["q_back"][1] for e in events if e["q_back"])
     for r in rows:  # how long after q's node came back (None: before the first restart)
         r["after_q_back_s"] = min((r["stamp"] - b for b in backs if b <= r["stamp"]), default=None)
-        r["q_silent_for_s"] = next((r["stamp"] - a for a, b in silent if a < r["stamp"] < b), None)
+        r["q_silent_for_s"] = next((r["stamp"] - a for a, b in silent if a + 1e-4 < r["stamp"] < b - 1e-4), None)
     (out / "poses.json").write_text(json.dumps({"start_at": start_at, "events": events, "rows": rows, "q": L.q,
                                                 "diagnostics": [(a, s, {r: v[:2] for r, v in st.items()})
                                                                 for a, s, st in L.diags]}))
