@@ -325,7 +325,10 @@ def _status_of(out: Path):
 def analyse(out, L, events, truth, start_at, first_stamp, t_end, restarts, before, after, wrong, load) -> dict:
     status = _status_of(out)
     # q silent (capture times): its last capture before the kill -> its first after the restart
-    silent = [(e["last_q_stamp_before"] or e["kill"], e["q_back"][1] if e["q_back"] else t_end) for e in events]
+    # (its last capture: the newest stamp captured before the kill among all q's messages received, also after it)
+    q_stamps = np.sort([s for _, s in L.q])
+    silent = [(float(q_stamps[q_stamps < e["kill"]][-1]) if (q_stamps < e["kill"]).any() else e["kill"],
+               e["q_back"][1] if e["q_back"] else t_end) for e in events]
     # q's node down: the kill -> q's first capture after the restart (the localizer may have it before this
     # process does: a diagnostics message stamped after it may rightly say q is OK)
     kills = [(e["kill"], e["q_back"][1] if e["q_back"] else t_end) for e in events]
@@ -378,7 +381,7 @@ def analyse(out, L, events, truth, start_at, first_stamp, t_end, restarts, befor
         diag_p[f"{bucket}:{LEVELS[st['p'][0]]}"] += 1
         if bucket == "> 1 s" and st["q"][0] != M.STALE:
             unnamed.append(st["q"][:2])
-    gaps = [e["q_back"][1] - (e["last_q_stamp_before"] or e["kill"]) for e in events if e["q_back"]]
+    gaps = [b - a for (a, b), e in zip(silent, events) if e["q_back"]]
     lat = [r["latency"] for r in rows]
     loc_log = (out / "localizer.log").read_text(encoding="utf-8").strip().splitlines()
     summary = [ln for ln in loc_log if "records fused" in ln][-1:]
