@@ -424,6 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=1, help="runs per rig and load (medians reported)")
     ap.add_argument("--restarts", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0, help="runs use seeds from this one (down times, wrong rig)")
     ap.add_argument("--load", nargs="+", choices=("idle", "hog"), default=["idle", "hog"])
     ap.add_argument("--rig", nargs="+", choices=("right", "wrong"), default=["right", "wrong"])
     ap.add_argument("--work", help="keep the rendered sequence (and each run's logs) here")
@@ -439,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
             for load in args.load:
                 label = f"rig {which}, {load}"
                 runs = []
-                for seed in range(args.runs):
+                for seed in range(args.first_seed, args.first_seed + args.runs):
                     print(f"{label}, run {seed + 1}:", flush=True)
                     r = one(folder, work / f"run-{which}-{load}-{seed}-{int(time.time())}", which == "wrong", load,
                             seed, args.restarts)
