@@ -837,8 +837,18 @@ os.kill(os.getpid(), signal.SIGSTOP)
 
 def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
     """With a subscriber process that matched the localizer's writers and
-    then stopped, another subscriber still receives >= 90% of the poses (a
-    reliable keep-last writer does not wait for its slowest reader)."""
+    then stopped, another subscriber still receives >= 90% of the poses the
+    localizer published (a reliable keep-last writer does not wait for its
+    slowest reader), and none of its writes failed.
+
+    What the localizer published is its own count (``poses_published`` in
+    ``/diagnostics``, read once every message sent is accounted for: fused,
+    shed, late, duplicate or refused), not the messages sent: on a loaded
+    machine this process and the localizer are descheduled now and then, the
+    messages then arrive in bursts more than ``--max-lag`` behind their
+    capture and the localizer sheds some (as it should: counted, tested in
+    test_live_shedding.py) -- fewer poses, none of them held back by the
+    stalled reader.  Every wait is for an event, with a generous timeout."""
     import select
 
     from cyclonedds.core import Policy
@@ -847,7 +857,7 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
 
     domain = dds_domain
     cmd = [sys.executable, "-m", "mutloc", "localizer", "--rig", str(setup.path), "--domain", str(domain),
-           "--loopback", "--duration", "60"]
+           "--loopback", "--duration", "300"]
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     stalled = None
     bus = None
@@ -856,14 +866,16 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
         assert line.startswith("localizer: rig_id"), line + child.stderr.read()
         stalled = subprocess.Popen([sys.executable, "-c", STALLED_SUBSCRIBER, str(domain)], stdout=subprocess.PIPE,
                                    text=True, start_new_session=True)
-        assert select.select([stalled.stdout], [], [], 30)[0] and stalled.stdout.readline().strip() == "matched"
+        assert select.select([stalled.stdout], [], [], 60)[0] and stalled.stdout.readline().strip() == "matched"
         T = M.ros_types()
         bus = Bus(domain, loopback=True)
         reader = bus.reader("/mutloc/p_in_q", T.PoseWithCovarianceStamped, depth=100)
+        diagnostics = bus.reader(M.DIAGNOSTICS_TOPIC, T.DiagnosticArray, depth=100)
         writers = {r: bus.writer(M.observations_topic(r), T.Observations) for r in ("p", "q")}
-        deadline = time.time() + 10
-        while time.time() < deadline and not (reader.native.get_matched_publications()
-                                               and all(w.get_matched_subscriptions() for w in writers.values())):
+        deadline = time.monotonic() + 60
+        while not (reader.native.get_matched_publications()
+                   and all(w.get_matched_subscriptions() for w in writers.values())):
+            assert time.monotonic() < deadline, "the localizer and this process did not match in 60 s"
             time.sleep(0.02)
         assert Path(f"/proc/{stalled.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"  # stopped
         # the pose writer as discovered: ROS 2's default QoS (what ROS 2 subscriptions match); keep-last:
@@ -886,9 +898,28 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
                     time.sleep(0.002)
                 writers[c].write(M.observations_message(c, setup.rid, frames[c], start + t, obs))
                 sent.append(t)
-        end = time.time() + 0.6
-        while time.time() < end:
+
+        def accounted(st):  # every message sent received and fused, shed, late, duplicate or refused
+            kv = {v.key: int(v.value) for v in st.values if v.key in _ACCOUNTS}
+            return kv["received"] == frames[st.hardware_id] and kv["received"] == sum(
+                kv[k] for k in _ACCOUNTS if k != "received")
+
+        final, deadline = None, time.monotonic() + 120
+        while final is None:
+            assert time.monotonic() < deadline and child.poll() is None, "messages not accounted for in 120 s"
             got += reader.take()
+            for d in diagnostics.take():
+                if len(d.status) == 2 and all(accounted(s) for s in d.status):
+                    final = {s.hardware_id: {v.key: v.value for v in s.values} for s in d.status}
+            time.sleep(0.01)
+        published = int(final["p"]["poses_published"])
+        # the poses published, as they come (until all are here, or none came for 5 s)
+        last_new = time.monotonic()
+        while len({M.stamp_of(s.header) for s in got}) < published and time.monotonic() < last_new + 5.0:
+            new = reader.take()
+            if new:
+                got += new
+                last_new = time.monotonic()
             time.sleep(0.01)
         assert Path(f"/proc/{stalled.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"  # stalled throughout
     finally:
@@ -898,9 +929,14 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
                 proc.wait()
         if bus is not None:
             bus.close()
+    assert final["p"]["poses_unsent"] == "0" and final["q"]["poses_unsent"] == "0", final
     have = {round(M.stamp_of(s.header) - start, 4) for s in got}
-    expected = [t for t in sent if t > 0.2]
-    assert sum(1 for t in expected if round(t, 4) in have) >= 0.9 * len(expected), (len(have), len(expected))
+    assert published >= 10 and len(have) <= published, (len(have), final)
+    assert len(have) >= 0.9 * published, (len(have), len(sent), final)
+
+
+#: The diagnostics key-values that account for every message a robot's topic brought.
+_ACCOUNTS = ("received", "fused", "shed", "dropped_late", "duplicates", "refused")
 
 
 def test_sigterm_ends_the_localizer_as_ctrl_c_does(setup, tmp_path, dds_domain):
