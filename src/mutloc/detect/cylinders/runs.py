@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["Run", "stack_chains", "code_runs", "column_chains", "dark_mask", "dark_runs", "match"]
+__all__ = ["Run", "links", "stack_chains", "code_runs", "column_chains", "dark_mask", "dark_runs", "match", "placements",
+           "MAX_PLACEMENTS"]
 
 @dataclass
 class Run:
@@ -180,17 +181,27 @@ def column_chains(dark: np.ndarray, runs: list[Run], reach: float) -> list[list[
     return out
 
 
+def links(runs: list[Run]) -> tuple[list[Run], list[list[int]]]:
+    """``runs`` sorted top to bottom, and for each the runs that may come next below it in a stack: similar
+    width and centre, below it, at most six widths down."""
+    runs = sorted(runs, key=lambda r: r.top)
+    if not runs:
+        return runs, []
+    top = np.array([r.top for r in runs], float)
+    bot = np.array([r.bot for r in runs], float)
+    wid = np.array([r.width for r in runs])
+    xc = np.array([r.xc for r in runs])
+    wmax = np.maximum(wid[:, None], wid[None, :])
+    ok = ((top[None, :] > bot[:, None]) & (np.abs(xc[:, None] - xc[None, :]) < 0.25 * wmax + 1.0)
+          & (np.minimum(wid[:, None], wid[None, :]) > 0.7 * wmax - 1.0) & (top[None, :] - bot[:, None] < 6 * wmax))
+    ok &= np.triu(np.ones(ok.shape, bool), 1)  # j after i in the sorted order (as the pairwise loop took them)
+    nxt: list[list[int]] = [np.flatnonzero(row).tolist() for row in ok]
+    return runs, nxt
+
+
 def stack_chains(runs: list[Run]) -> list[list[Run]]:
     """Maximal top-to-bottom chains of runs of similar width and centre."""
-    runs = sorted(runs, key=lambda r: r.top)
-    nxt: dict[int, list[int]] = {i: [] for i in range(len(runs))}
-    for i, a in enumerate(runs):
-        for j in range(i + 1, len(runs)):
-            b = runs[j]
-            wmax = max(a.width, b.width)
-            if (b.top > a.bot and abs(a.xc - b.xc) < 0.25 * wmax + 1.0
-                    and min(a.width, b.width) > 0.7 * wmax - 1.0 and b.top - a.bot < 6 * wmax):
-                nxt[i].append(j)
+    runs, nxt = links(runs)
     out: list[list[Run]] = []
 
     def walk(path: list[int]) -> None:
@@ -201,11 +212,73 @@ def stack_chains(runs: list[Run]) -> list[list[Run]]:
         for j in ends:
             walk(path + [j])
 
-    has_prev = {j for v in nxt.values() for j in v}
+    has_prev = {j for v in nxt for j in v}
     for i in range(len(runs)):
         if i not in has_prev:
             walk([i])
     return out
+
+
+#: Placements of one code scored per image at most (:func:`placements`): a guard against pathological clutter
+#: (the rectified views of a cluttered room make a few thousand).
+MAX_PLACEMENTS = 200_000
+
+
+def placements(runs: list[Run], chains: list[list[Run]], code: np.ndarray, aspect: float,
+               linked: tuple[list[Run], list[list[int]]] | None = None) -> list[tuple[float, list[Run]]]:
+    """Every placement of ``code``'s dark runs that fits (see :func:`match`), each scored once: on runs
+    stacked one below the other (paths through the links :func:`stack_chains` follows -- every part of
+    a chain, without walking the chains, which in clutter share their runs thousands of times over) and
+    on consecutive runs of each of ``chains`` (:func:`column_chains`).  Returns ``(cost, runs)``, the
+    code's missing dark run (if any) placed from the code as in :func:`match`.  ``linked``: ``links(runs)``
+    if the caller has it (one per image, whatever the code).
+    """
+    cr = code_runs(code)
+    if cr is None:
+        return []
+    first, last, druns = cr
+    m = len(druns)
+    srt, nxt = links(runs) if linked is None else linked
+    subsets = [list(range(m))] + ([[k for k in range(m) if k != skip] for skip in range(m)] if m >= 2 else [])
+    out: list[tuple[float, list[Run]]] = []
+    scored = 0
+    for sub in subsets:
+        ms = len(sub)
+        full = ms == m
+        parts: list[list[Run]] = []
+        # Paths of ms linked runs (iterative, depth-first).
+        stack = [[i] for i in range(len(srt))]
+        while stack and scored + len(parts) < MAX_PLACEMENTS:
+            path = stack.pop()
+            if len(path) == ms:
+                parts.append([srt[k] for k in path])
+                continue
+            stack.extend(path + [j] for j in nxt[path[-1]])
+        for chain in chains:
+            parts.extend(chain[off:off + ms] for off in range(len(chain) - ms + 1))
+        scored += len(parts)
+        for part in parts:
+            got = _score(part, druns, sub, full, first, last, aspect)
+            if got:
+                cost, o, unit = got
+                out.append((cost if full else cost + 0.5, _placed(part, druns, sub, o, unit)))
+    return out
+
+
+def _placed(part: list[Run], druns: list[tuple[int, int]], sub: list[int], o: float, unit: float) -> list[Run]:
+    """One run per dark run of the code: ``part``'s for those in ``sub``, the others placed from the code
+    (offset ``o``, band height ``unit``) with ``part``'s median extent, marked ``synthetic``."""
+    if len(sub) == len(druns):
+        return list(part)
+    runs, it = [], iter(part)
+    left = statistics.median(r.left for r in part)
+    right = statistics.median(r.right for r in part)
+    for k, (s0, e0) in enumerate(druns):
+        if k in sub:
+            runs.append(next(it))
+        else:
+            runs.append(Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right, synthetic=True))
+    return runs
 
 
 def code_runs(code: np.ndarray) -> tuple[int, int, list[tuple[int, int]]] | None:
@@ -275,16 +348,7 @@ def match(chain: list[Run], code: np.ndarray, aspect: float, memo: dict | None =
                 cost += 0.5
             if best is not None and not cost < best[0]:
                 continue
-            runs, it = [], iter(part)
-            left = statistics.median(r.left for r in part)
-            right = statistics.median(r.right for r in part)
-            for k, (s0, e0) in enumerate(druns):
-                if k in sub:
-                    runs.append(next(it))
-                else:
-                    runs.append(Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right,
-                                     synthetic=True))
-            best = (cost, runs)
+            best = (cost, _placed(part, druns, sub, o, unit))
     return best
 
 
