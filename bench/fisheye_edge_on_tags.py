@@ -122,8 +122,10 @@ def main() -> None:
                         e = float(np.linalg.norm(np.asarray(d.corners) - truth, axis=1).max())
                         found[s].append(e)
             box = np.median(np.array(boxes), axis=0)
-            row = {"off_deg": off, "tilt_deg": tilt, "side_px_min_max": [float(box[0]), float(box[1])],
-                   "cell_px_min": float(box[0]) / 8.0}
+            fin = bool(np.all(np.isfinite(box)))  # else corners past the lens's field
+            row = {"off_deg": off, "tilt_deg": tilt,
+                   "side_px_min_max": [float(box[0]), float(box[1])] if fin else None,
+                   "cell_px_min": float(box[0]) / 8.0 if fin else None}
             cells = []
             for s in settings:
                 e = np.array(found[s])
