@@ -55,6 +55,14 @@ Detector (:func:`detect_cylinders`), per image:
    where clutter touches a band's end).  The band centres and the cylinder
    centre are on the fitted line ``v0(j)``, at the centre line's ``u``.
 
+Candidates are the placements of each code on the runs (each scored once,
+:func:`~.runs.placements`), best first; one whose bands do not even read as
+its code where it puts them (:func:`~.edges.reads_code`) is not refined; at
+most :data:`MAX_REFINES` are tried per marker.  Through a wide-angle lens
+(:func:`mutloc.detect.detect_image`), :func:`detect_cylinders_in_views`
+ranks the candidates of all the lens's rectified views together: that many
+per marker and frame, not per view.
+
 With a ``camera`` the across position is moved from the silhouette's
 middle to the axis's image (they differ by up to 0.3 px at 1.2 m near the
 image's side, for the standard 3 cm radius).
