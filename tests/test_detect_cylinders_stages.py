@@ -7,7 +7,7 @@ import pytest
 
 from mutloc.core.camera import Camera
 from mutloc.detect.cylinders.edges import axis_u
-from mutloc.detect.cylinders.runs import Run, code_runs, dark_mask, dark_runs, match, stack_chains
+from mutloc.detect.cylinders.runs import Run, code_runs, dark_mask, dark_runs, match, placements, stack_chains
 
 CODE = np.array([1, 0, 1, 1, 0, 1])
 
@@ -102,3 +102,38 @@ def test_match_scores_shared_placements_once_with_the_same_result():
                         [(r.top, r.bot, r.left, r.right, r.synthetic) for r in alone[1]]
     print(f"{found} chains matched")
     assert found > 50
+
+
+def test_placements_hold_every_chains_best_match():
+    """:func:`placements` scores each placement of a code once on the links between runs (no chains walked):
+    whatever the best match on any chain through those runs is (:func:`match`, chain by chain), it is one of
+    the placements, at the same cost; and no placement fits that no chain's part would."""
+    rng = np.random.default_rng(11)
+    codes = [CODE, np.array([1, 0, 1, 0, 0, 1]), np.array([1, 1, 0, 1, 0, 1]), np.array([1, 0, 0, 1, 1, 1])]
+    checked = 0
+    for trial in range(3):
+        runs, v = [], 0
+        for _ in range(8):
+            v += int(rng.integers(3, 14))
+            h = int(rng.integers(6, 22))
+            x = 100 + float(rng.normal(0.0, 0.6))
+            runs.append(Run(v, v + h - 1, x, x + 23 + float(rng.normal(0.0, 0.6))))
+            if rng.uniform() < 0.5:
+                runs.append(Run(v + 1, v + h - 2, x + 1, x + 24))
+            v += h
+        chains = stack_chains(runs)
+        for code in codes:
+            got = {tuple((r.top, r.bot, r.left, r.right, r.synthetic) for r in part): cost
+                   for cost, part in placements(runs, [], code, 24 / 10)}
+            for chain in chains:
+                best = match(chain, code, 24 / 10)
+                if best is not None:
+                    key = tuple((r.top, r.bot, r.left, r.right, r.synthetic) for r in best[1])
+                    assert got.get(key) == pytest.approx(best[0])
+                    checked += 1
+            for key, cost in got.items():
+                part = [Run(*k) for k in key]
+                seen = [r for r in part if not r.synthetic]
+                # a placement fits a chain made of its own runs
+                assert match(seen, code, 24 / 10) is not None
+    assert checked > 50

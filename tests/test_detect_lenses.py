@@ -13,6 +13,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel.
 from __future__ import annotations
 
 import math
+import sys
 
 import cv2
 import numpy as np
@@ -285,3 +286,32 @@ def test_pinhole_path_unchanged():
     b = detect_tags(img, _tag_marker(), camera=cam)
     assert np.array_equal(a.detections["T"].corners, b.detections["T"].corners)
     assert "view" not in a.detections["T"].info
+
+
+def test_edge_on_side_tag_at_the_rim_and_its_limit(monkeypatch):
+    """A 20 cm tag on a robot's side, 1.2 m away, 85 degrees off the axis of the simulator's fisheye
+    (1280x800, f = 261 px) and turned 60 degrees off facing it: 16 px across in the raw image (cells of
+    2 px).  The views at quad decimation 2 miss it; ``params={"quad_decimate": 1.0}``, passed through to
+    every view, finds it, corners within 0.3 px of the truth.  Turned 70 degrees its cells are under 1.5
+    raw pixels: not decoded even in a view centred on it at twice the raw density (the raw image's
+    resolution is the limit, bench/fisheye_edge_on_tags.py)."""
+    from mutloc.detect.views import detection_to_raw, view_towards
+    from mutloc.sim.body_scenes import FISHEYE_DIST, FISHEYE_FOCAL, FISHEYE_SIZE
+
+    cam = FisheyeCamera([[FISHEYE_FOCAL, 0, 639.5], [0, FISHEYE_FOCAL, 399.5], [0, 0, 1]], FISHEYE_DIST,
+                        FISHEYE_SIZE)
+    monkeypatch.setattr(sys.modules[__name__], "TAG_SIZE", 0.20)
+    C = 1.2 * _direction(85.0, 183.0)
+    img, truth = render_tag(cam, C, _facing(C, 60.0), seed=2)
+    assert np.linalg.norm(truth - np.roll(truth, 1, axis=0), axis=1).min() < 17.0
+    assert "T" not in detect_image(MarkerKind.TAG, img, _tag_marker(), cam).detections
+    res = detect_image(MarkerKind.TAG, img, _tag_marker(), cam, params={"quad_decimate": 1.0})
+    err = np.linalg.norm(res.detections["T"].corners - truth, axis=1)
+    print(f"85 deg off the axis, turned 60: worst corner {err.max():.3f} px")
+    assert err.max() < 0.3
+    img, truth = render_tag(cam, C, _facing(C, 70.0), seed=3)
+    assert np.linalg.norm(truth - np.roll(truth, 1, axis=0), axis=1).min() / 8 < 1.5
+    view = view_towards(cam, C, half_fov_deg=20.0, density=2.0)
+    d = detect_tags(view.rectify(img), _tag_marker(), camera=view.camera,
+                    params={"quad_decimate": 1.0}).detections.get("T")
+    assert d is None or np.linalg.norm(detection_to_raw(d, view).corners - truth, axis=1).max() > 1.0

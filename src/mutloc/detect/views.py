@@ -59,8 +59,8 @@ from ..core.camera import Camera
 from ..errors import InputError
 from .base import Detection, DetectionResult, as_bgr
 
-__all__ = ["View", "ViewSet", "needs_views", "views_for", "view_towards", "detection_to_raw", "detect_in_views",
-           "HALF_FOV_DEG"]
+__all__ = ["View", "ViewSet", "linearized", "needs_views", "views_for", "view_towards", "detection_to_raw",
+           "detect_in_views", "HALF_FOV_DEG"]
 
 #: Half the field of view of a virtual view (degrees; the views are square).
 HALF_FOV_DEG = 50.0
@@ -88,6 +88,11 @@ def _lut_tables() -> tuple[np.ndarray, np.ndarray]:
 
 #: sRGB level -> linear light (16 bits), and back (IEC 61966-2-1).
 _TO_LINEAR16, _TO_SRGB8 = _lut_tables()
+
+
+def linearized(image: np.ndarray) -> np.ndarray:
+    """An sRGB uint8 image in linear light, 16 bits (what :meth:`View.rectify` resamples)."""
+    return _TO_LINEAR16[image]
 
 
 def needs_views(camera: Any) -> bool:
@@ -128,15 +133,17 @@ class View:
     def axis(self) -> np.ndarray:
         return self.R[:, 2]
 
-    def rectify(self, image: np.ndarray, srgb: bool = True) -> np.ndarray:
+    def rectify(self, image: np.ndarray, srgb: bool = True, *, linear: np.ndarray | None = None) -> np.ndarray:
         """The view's image, resampled (bilinear) from the raw ``image`` (uint8).  With ``srgb`` (what
         cameras and image files deliver) the interpolation mixes light, not its encoded levels: the image
         is linearized (16 bits), resampled, encoded again.  (Mixing sRGB levels moves every edge towards
-        its bright side after the detectors linearize: a tag 0.2-0.3 px too large on each side.)"""
+        its bright side after the detectors linearize: a tag 0.2-0.3 px too large on each side.)
+        ``linear``: :func:`linearized` ``(image)``, when the caller resamples one image into several
+        views (linearized once, not once per view)."""
         if not srgb:
             out = cv2.remap(image, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         else:
-            lin = _TO_LINEAR16[image]
+            lin = linearized(image) if linear is None else linear
             out = _TO_SRGB8[cv2.remap(lin, self.maps[0], self.maps[1], cv2.INTER_LINEAR,
                                       borderMode=cv2.BORDER_REPLICATE)]
         if self.blank is not None and self.shown is not None:
@@ -399,7 +406,8 @@ def detect_in_views(detector: Callable[..., DetectionResult], image: Any, marker
     ``info["view"]`` says which view and where in it (``uv``: view pixels; other pixel figures the
     detector put in ``info`` -- ``radius_px``, ``side_px``, ``ellipse`` -- are in the view's pixels).
     A marker no view found is missing, with the most telling reason any view gave (a quality
-    rejection before ``"not_found"``).
+    rejection before ``"not_found"``).  A detector with an ``in_views`` attribute (``detect_cylinders``)
+    searches the views itself: ``detector.in_views(image, markers, camera, views, **options)``.
     """
     img = as_bgr(image, "image")
     if views is None:
@@ -408,13 +416,18 @@ def detect_in_views(detector: Callable[..., DetectionResult], image: Any, marker
     if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
         raise InputError(f"image is {img.shape[1]}x{img.shape[0]} but the camera's calibration is "
                          f"{size[0]}x{size[1]}")
+    in_views = getattr(detector, "in_views", None)
+    if in_views is not None:
+        # A detector that searches all the views at once (cylinders: one ranking of candidates per frame).
+        return in_views(img, markers, camera, views, **options)
     best: dict[str, tuple[float, View, DetectionResult]] = {}
     reasons: dict[str, str] = {}
     missing: list[str] = []
     # Resample in linear light unless the detector is told the levels are linear already.
     srgb = options.get("gamma", "srgb") == "srgb" and getattr(options.get("params"), "srgb", True) is not False
+    lin = linearized(img) if srgb else None
     for view in views:
-        res = detector(view.rectify(img, srgb), markers, camera=view.camera, **options)
+        res = detector(view.rectify(img, srgb, linear=lin), markers, camera=view.camera, **options)
         for name, det in res.detections.items():
             g = _group(det)
             if g != name and g in res.detections:

@@ -8,9 +8,11 @@ import statistics
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
-__all__ = ["Run", "stack_chains", "code_runs", "column_chains", "dark_mask", "dark_runs", "match"]
+__all__ = ["Run", "links", "stack_chains", "code_runs", "column_chains", "dark_mask", "dark_runs", "match", "placements",
+           "MAX_PLACEMENTS"]
 
 @dataclass
 class Run:
@@ -121,58 +123,30 @@ def column_chains(dark: np.ndarray, runs: list[Run], reach: float) -> list[list[
     widest aspect).  Each run proposes one chain, of runs with its extent.
     """
     H, W = dark.shape
-    out: list[list[Run]] = []
-    seen: set[tuple] = set()
-    covered: list[tuple[int, int, int, int]] = []  # (top, bot, c0, c1) of bands already read
-    for run in runs:
+    n = len(runs)
+    top = np.array([r.top for r in runs], np.int64)
+    bot = np.array([r.bot for r in runs], np.int64)
+    par = np.zeros((n, 8), np.int64)  # valid, c0, c1, r0, r1, xl, xr, span
+    for i, run in enumerate(runs):
         w = run.width
-        if w < 5 or run.bot - run.top < 1:
-            continue
         c0 = int(math.ceil(run.left + 0.25 * w))
         c1 = int(math.floor(run.right - 0.25 * w))
-        if c1 < c0 or c0 < 0 or c1 >= W:
-            continue
-        # A run inside a band already read down a column like its own would
-        # read the same chain again.
-        if any(t <= run.top and run.bot <= b and a0 - 2 <= c0 and c1 <= a1 + 2 for t, b, a0, a1 in covered):
-            continue
-        r0 = max(0, int(run.top - reach * w))
-        r1 = min(H, int(run.bot + reach * w) + 1)
-        full = dark[r0:r1, c0:c1 + 1].min(axis=1) > 0
-        edges = np.diff(np.concatenate([[0], full.view(np.int8), [0]]))
-        starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
-        # Beside a band, on one side at least, the silhouette's edge: not dark
-        # just outside its extent (a wide dark area is not a band).
-        xl = int(round(run.left)) - 1
-        xr = int(round(run.right)) + 1
-        span = int(math.ceil(2 * w))  # how far out a band's own extent is looked for
+        valid = w >= 5 and run.bot - run.top >= 1 and not (c1 < c0 or c0 < 0 or c1 >= W)
+        par[i] = (valid, c0, c1, max(0, int(run.top - reach * w)), min(H, int(run.bot + reach * w) + 1),
+                  int(round(run.left)) - 1, int(round(run.right)) + 1, int(math.ceil(2 * w)))
+    idx, ext, sides = _column_kernel(np.ascontiguousarray(dark, np.uint8), top, bot, par)
+    out: list[list[Run]] = []
+    seen: set[tuple] = set()
+    k = 0
+    while k < len(idx):
+        i = idx[k]
         chain = []
-        for a, b in zip(starts.tolist(), ends.tolist()):
-            if b - a < 2 or a == 0 or b == r1 - r0:
-                continue  # too thin, or running out of the range: extent unknown
-            rows = slice(r0 + a, r0 + b)
-            free = 0.0
-            if xl - 2 >= 0:
-                free = max(free, float(np.mean(dark[rows, xl - 2:xl + 1].min(axis=1) == 0)))
-            if xr + 2 < W:
-                free = max(free, float(np.mean(dark[rows, xr:xr + 3].min(axis=1) == 0)))
-            if free < 0.5:
-                continue
-            # Its own extent: the dark segment through the middle, row by row
-            # (clutter beside the band widens only some rows, or one side).
-            lo = max(0, c0 - span)
-            left_part = dark[rows, lo:c0][:, ::-1] == 0  # outward from the middle
-            hit = left_part.any(axis=1)
-            lefts = np.where(hit, c0 - np.argmax(left_part, axis=1), lo)
-            hi = min(W, c1 + 1 + span)
-            right_part = dark[rows, c1 + 1:hi] == 0
-            hit = right_part.any(axis=1)
-            rights = np.where(hit, c1 + np.argmax(right_part, axis=1), hi - 1)
-            chain.append(Run(r0 + a, r0 + b - 1, float(np.median(lefts)), float(np.median(rights))))
-            covered.append((r0 + a, r0 + b - 1, c0, c1))
+        while k < len(idx) and idx[k] == i:
+            chain.append(Run(int(ext[k, 0]), int(ext[k, 1]), float(sides[k, 0]), float(sides[k, 1])))
+            k += 1
         if len(chain) < 2:
             continue
-        key = (round(run.left), round(run.right), tuple((r.top, r.bot) for r in chain))
+        key = (round(runs[i].left), round(runs[i].right), tuple((r.top, r.bot) for r in chain))
         if key in seen:
             continue
         seen.add(key)
@@ -180,17 +154,126 @@ def column_chains(dark: np.ndarray, runs: list[Run], reach: float) -> list[list[
     return out
 
 
+@numba.njit(cache=True)
+def _column_kernel(dark: np.ndarray, top: np.ndarray, bot: np.ndarray, par: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`column_chains`' reading, run by run (``par``: valid, c0, c1, r0, r1, xl, xr, span): the bands
+    read down each run's middle columns, as (run index, (top, bot), (left, right))."""
+    H, W = dark.shape
+    n = len(top)
+    cov = np.zeros((max(16, 4 * n), 4), np.int64)  # (top, bot, c0, c1) of bands already read
+    nc = 0
+    o_idx = np.zeros(cov.shape[0], np.int64)
+    o_ext = np.zeros((cov.shape[0], 2), np.int64)
+    o_sid = np.zeros((cov.shape[0], 2), np.float64)
+    for i in range(n):
+        valid, c0, c1, r0, r1, xl, xr, span = par[i]
+        if not valid:
+            continue
+        # A run inside a band already read down a column like its own would read the same chain again.
+        inside = False
+        for k in range(nc):
+            if cov[k, 0] <= top[i] and bot[i] <= cov[k, 1] and cov[k, 2] - 2 <= c0 and c1 <= cov[k, 3] + 2:
+                inside = True
+                break
+        if inside:
+            continue
+        L = r1 - r0
+        full = np.zeros(L, np.bool_)
+        for rr in range(L):
+            allk = True
+            for cc in range(c0, c1 + 1):
+                if dark[r0 + rr, cc] == 0:
+                    allk = False
+                    break
+            full[rr] = allk
+        a = 0
+        while a < L:
+            if not full[a]:
+                a += 1
+                continue
+            b = a
+            while b < L and full[b]:
+                b += 1
+            lo_a, hi_b = a, b
+            a = b
+            if hi_b - lo_a < 2 or lo_a == 0 or hi_b == L:
+                continue  # too thin, or running out of the range: extent unknown
+            nr = hi_b - lo_a
+            # Beside a band, on one side at least, the silhouette's edge: not dark just outside its extent.
+            free = 0.0
+            if xl - 2 >= 0:
+                cnt = 0
+                for rr in range(r0 + lo_a, r0 + hi_b):
+                    if dark[rr, xl - 2] == 0 or dark[rr, xl - 1] == 0 or dark[rr, xl] == 0:
+                        cnt += 1
+                free = max(free, cnt / nr)
+            if xr + 2 < W:
+                cnt = 0
+                for rr in range(r0 + lo_a, r0 + hi_b):
+                    if dark[rr, xr] == 0 or dark[rr, xr + 1] == 0 or dark[rr, xr + 2] == 0:
+                        cnt += 1
+                free = max(free, cnt / nr)
+            if free < 0.5:
+                continue
+            # Its own extent: the dark segment through the middle, row by row.
+            lo = max(0, c0 - span)
+            hi = min(W, c1 + 1 + span)
+            lefts = np.empty(nr, np.float64)
+            rights = np.empty(nr, np.float64)
+            for j in range(nr):
+                rr = r0 + lo_a + j
+                lv = lo
+                for cc in range(c0 - 1, lo - 1, -1):
+                    if dark[rr, cc] == 0:
+                        lv = cc + 1
+                        break
+                rv = hi - 1
+                for cc in range(c1 + 1, hi):
+                    if dark[rr, cc] == 0:
+                        rv = cc - 1
+                        break
+                lefts[j] = lv
+                rights[j] = rv
+            if nc == cov.shape[0]:
+                cov = np.concatenate((cov, np.zeros_like(cov)))
+                o_idx = np.concatenate((o_idx, np.zeros_like(o_idx)))
+                o_ext = np.concatenate((o_ext, np.zeros_like(o_ext)))
+                o_sid = np.concatenate((o_sid, np.zeros_like(o_sid)))
+            o_idx[nc] = i
+            o_ext[nc, 0] = r0 + lo_a
+            o_ext[nc, 1] = r0 + hi_b - 1
+            o_sid[nc, 0] = np.median(lefts)
+            o_sid[nc, 1] = np.median(rights)
+            cov[nc, 0] = r0 + lo_a
+            cov[nc, 1] = r0 + hi_b - 1
+            cov[nc, 2] = c0
+            cov[nc, 3] = c1
+            nc += 1
+    return o_idx[:nc], o_ext[:nc], o_sid[:nc]
+
+
+def links(runs: list[Run]) -> tuple[list[Run], list[list[int]]]:
+    """``runs`` sorted top to bottom, and for each the runs that may come next below it in a stack: similar
+    width and centre, below it, at most six widths down."""
+    runs = sorted(runs, key=lambda r: r.top)
+    if not runs:
+        return runs, []
+    top = np.array([r.top for r in runs], float)
+    bot = np.array([r.bot for r in runs], float)
+    wid = np.array([r.width for r in runs])
+    xc = np.array([r.xc for r in runs])
+    wmax = np.maximum(wid[:, None], wid[None, :])
+    ok = ((top[None, :] > bot[:, None]) & (np.abs(xc[:, None] - xc[None, :]) < 0.25 * wmax + 1.0)
+          & (np.minimum(wid[:, None], wid[None, :]) > 0.7 * wmax - 1.0) & (top[None, :] - bot[:, None] < 6 * wmax))
+    ok &= np.triu(np.ones(ok.shape, bool), 1)  # j after i in the sorted order (as the pairwise loop took them)
+    nxt: list[list[int]] = [np.flatnonzero(row).tolist() for row in ok]
+    return runs, nxt
+
+
 def stack_chains(runs: list[Run]) -> list[list[Run]]:
     """Maximal top-to-bottom chains of runs of similar width and centre."""
-    runs = sorted(runs, key=lambda r: r.top)
-    nxt: dict[int, list[int]] = {i: [] for i in range(len(runs))}
-    for i, a in enumerate(runs):
-        for j in range(i + 1, len(runs)):
-            b = runs[j]
-            wmax = max(a.width, b.width)
-            if (b.top > a.bot and abs(a.xc - b.xc) < 0.25 * wmax + 1.0
-                    and min(a.width, b.width) > 0.7 * wmax - 1.0 and b.top - a.bot < 6 * wmax):
-                nxt[i].append(j)
+    runs, nxt = links(runs)
     out: list[list[Run]] = []
 
     def walk(path: list[int]) -> None:
@@ -201,11 +284,73 @@ def stack_chains(runs: list[Run]) -> list[list[Run]]:
         for j in ends:
             walk(path + [j])
 
-    has_prev = {j for v in nxt.values() for j in v}
+    has_prev = {j for v in nxt for j in v}
     for i in range(len(runs)):
         if i not in has_prev:
             walk([i])
     return out
+
+
+#: Placements of one code scored per image at most (:func:`placements`): a guard against pathological clutter
+#: (the rectified views of a cluttered room make a few thousand).
+MAX_PLACEMENTS = 200_000
+
+
+def placements(runs: list[Run], chains: list[list[Run]], code: np.ndarray, aspect: float,
+               linked: tuple[list[Run], list[list[int]]] | None = None) -> list[tuple[float, list[Run]]]:
+    """Every placement of ``code``'s dark runs that fits (see :func:`match`), each scored once: on runs
+    stacked one below the other (paths through the links :func:`stack_chains` follows -- every part of
+    a chain, without walking the chains, which in clutter share their runs thousands of times over) and
+    on consecutive runs of each of ``chains`` (:func:`column_chains`).  Returns ``(cost, runs)``, the
+    code's missing dark run (if any) placed from the code as in :func:`match`.  ``linked``: ``links(runs)``
+    if the caller has it (one per image, whatever the code).
+    """
+    cr = code_runs(code)
+    if cr is None:
+        return []
+    first, last, druns = cr
+    m = len(druns)
+    srt, nxt = links(runs) if linked is None else linked
+    subsets = [list(range(m))] + ([[k for k in range(m) if k != skip] for skip in range(m)] if m >= 2 else [])
+    out: list[tuple[float, list[Run]]] = []
+    scored = 0
+    for sub in subsets:
+        ms = len(sub)
+        full = ms == m
+        parts: list[list[Run]] = []
+        # Paths of ms linked runs (iterative, depth-first).
+        stack = [[i] for i in range(len(srt))]
+        while stack and scored + len(parts) < MAX_PLACEMENTS:
+            path = stack.pop()
+            if len(path) == ms:
+                parts.append([srt[k] for k in path])
+                continue
+            stack.extend(path + [j] for j in nxt[path[-1]])
+        for chain in chains:
+            parts.extend(chain[off:off + ms] for off in range(len(chain) - ms + 1))
+        scored += len(parts)
+        for part in parts:
+            got = _score(part, druns, sub, full, first, last, aspect)
+            if got:
+                cost, o, unit = got
+                out.append((cost if full else cost + 0.5, _placed(part, druns, sub, o, unit)))
+    return out
+
+
+def _placed(part: list[Run], druns: list[tuple[int, int]], sub: list[int], o: float, unit: float) -> list[Run]:
+    """One run per dark run of the code: ``part``'s for those in ``sub``, the others placed from the code
+    (offset ``o``, band height ``unit``) with ``part``'s median extent, marked ``synthetic``."""
+    if len(sub) == len(druns):
+        return list(part)
+    runs, it = [], iter(part)
+    left = statistics.median(r.left for r in part)
+    right = statistics.median(r.right for r in part)
+    for k, (s0, e0) in enumerate(druns):
+        if k in sub:
+            runs.append(next(it))
+        else:
+            runs.append(Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right, synthetic=True))
+    return runs
 
 
 def code_runs(code: np.ndarray) -> tuple[int, int, list[tuple[int, int]]] | None:
@@ -275,16 +420,7 @@ def match(chain: list[Run], code: np.ndarray, aspect: float, memo: dict | None =
                 cost += 0.5
             if best is not None and not cost < best[0]:
                 continue
-            runs, it = [], iter(part)
-            left = statistics.median(r.left for r in part)
-            right = statistics.median(r.right for r in part)
-            for k, (s0, e0) in enumerate(druns):
-                if k in sub:
-                    runs.append(next(it))
-                else:
-                    runs.append(Run(int(round(o + s0 * unit)), int(round(o + e0 * unit)) - 1, left, right,
-                                     synthetic=True))
-            best = (cost, runs)
+            best = (cost, _placed(part, druns, sub, o, unit))
     return best
 
 
