@@ -499,6 +499,8 @@ class Localizer:
         behind = now is not None and now - t > self.max_lag
         if self.odometry is not None:
             self.odometry.fused(self._record_t, t)
+        check = self.engine.tracker.rig_check
+        tests = check.records
         try:
             rows = self.engine.step(t, obs, smooth=not behind)
         except (MutlocError, ArithmeticError, ValueError):
@@ -511,7 +513,7 @@ class Localizer:
             self.log.write(t, obs)
         self.fused_until = max(h.t for h in group)
         self.records += 1
-        if self.rig_gate.update(t, self.engine.tracker.rig_check.last):
+        if self.rig_gate.update(t, check.last, tested=check.records > tests):
             self._notice(("rig",), self.rig_gate.flag[1].words(), t, once=True)
         self.records_deferred += behind
         over = self.engine.backlog() - self.max_deferred
@@ -528,7 +530,8 @@ class Localizer:
         self.ties.forget_before(t)
         counts = self.ties.counts(t)  # (once per record: every robot's ties below)
         tied = self.ties.tied(t, counts)
-        out = []
+        out: list[LivePose] = []
+        waited = False  # (a pose held back by the wait for the rig check alone)
         for robot, row in rows.items():
             rc = self.counts[robot]
             rc.status = str(row.status)
@@ -549,8 +552,12 @@ class Localizer:
                 rc.untied += 1
                 continue
             if self.rig_gate.withholding:
-                # the records keep disagreeing with the rig: its poses would be confident and wrong
-                rc.rig_withheld += 1
+                # the rig not tested yet, or the records keep disagreeing with it: its poses may be confident and wrong
+                if self.rig_gate.waiting:
+                    rc.rig_waiting += 1
+                    waited = True
+                else:
+                    rc.rig_withheld += 1
                 continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
             body: list = []  # (their bytes but the stamp: made once)
@@ -560,6 +567,10 @@ class Localizer:
                 if tf:
                     rc.last_tf_ns = h.ns
                 out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns, body, tf=tf))
+        if waited and self.rig_gate.held_back(t):
+            self._notice(("rig", "not running"), f"the rig check got no test in {self.rig_gate.untested_limit} "
+                         "records in a row: poses are published with each record's own gate as the only test "
+                         "of the rig", t, once=True)
         return out
 
     def finish(self) -> list[LivePose]:

@@ -61,6 +61,8 @@ class RobotCounts:
     untied: int = 0
     #: Its rows not published because the records kept disagreeing with the rig (see ``Localizer.rig_withheld``).
     rig_withheld: int = 0
+    #: Its rows not published because the rig had not been tested yet (see :mod:`mutloc.live.rig_gate`).
+    rig_waiting: int = 0
     #: Frame numbers of its cameras' messages that never came (skipped between two that did: frames its
     #: node dropped, or messages DDS lost, e.g. overwritten in a full reader); a node restarting (its numbers
     #: going back) is not counted.
@@ -168,6 +170,9 @@ def _level_and_message(loc: Any, r: str, now: float) -> tuple[int, str]:
     if lv == OK and r != loc.reference and gate.withheld is not None and gate.flag is not None:
         lv = ERROR
         message = f"not published since {max(0.0, now - gate.withheld):.2f} s ago: " + gate.flag[1].words()
+    elif lv == OK and r != loc.reference and gate.waiting:
+        lv = WARN
+        message = "not published yet: " + gate.words(loc.engine.tracker.rig_check.window)
     return lv, message
 
 
@@ -184,7 +189,8 @@ def _values(loc: Any, r: str, now: float) -> dict[str, Any]:
         "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates, "shed": c.shed,
         "refused": c.refused, "refused_rig_id": c.refused_rig_id, "refused_malformed": c.refused_malformed,
         "refused_clock": c.refused_clock, "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
-        "untied_not_published": c.untied, "rig_withheld": c.rig_withheld, "not_received": c.not_received}
+        "untied_not_published": c.untied, "rig_withheld": c.rig_withheld, "rig_waiting": c.rig_waiting,
+        "rig_check": loc.rig_gate.state, "not_received": c.not_received}
     if loc.odometry is not None:
         values.update(loc.odometry.values(r, now))
     if loc.clocks is not None:
@@ -198,19 +204,23 @@ def _values(loc: Any, r: str, now: float) -> dict[str, Any]:
 
 def summary(loc: Any) -> str:
     """``612 records fused; 598 poses published; refused 3, late 0, duplicates 1, shed 0`` (of a
-    :class:`~mutloc.live.localizer.Localizer`)."""
+    :class:`~mutloc.live.localizer.Localizer`), then what else there is to say (``poses not published:
+    150 waiting for the rig check, ...``)."""
     cs = loc.counts.values()
     refused = sum(c.refused for c in cs) + loc.unattributed
     kinds = [f"{what} {n}" for what, n in (
         ("rig_id", sum(c.refused_rig_id for c in cs)), ("malformed", sum(c.refused_malformed for c in cs)
                                                         + loc.unattributed),
         ("clock", sum(c.refused_clock for c in cs))) if n]
+    held = [f"{n} {what}" for what, n in (("waiting for the rig check", sum(c.rig_waiting for c in cs)),
+                                           ("while the rig disagreed", sum(c.rig_withheld for c in cs))) if n]
     return (f"{loc.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
             + (f" ({', '.join(kinds)})" if kinds else "")
             + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}"
             + f", shed {sum(c.shed for c in cs)}, not received {sum(c.not_received for c in cs)}"
             + (f"; {loc.records_unsmoothed} record{'s' if loc.records_unsmoothed != 1 else ''} written "
                "unsmoothed (behind)" if loc.records_unsmoothed else "")
+            + (f"; poses not published: {', '.join(held)}" if held else "")
             + (f"; {loc.odometry.summary()}" if loc.odometry is not None else "")
             + ("" if loc.clocks is None else "; " + loc.clocks.summary()))
 
