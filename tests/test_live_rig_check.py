@@ -19,6 +19,7 @@ from mutloc.live import messages as M
 from mutloc.live.localizer import NOTICE_HOLD, Localizer
 from mutloc.sim.calibration import perturb_rig
 from mutloc.sim.team import random_team, team_camera_records
+from mutloc.core.consistency import chi2_quantile
 from mutloc.track.rig_check import RIG_HINT
 
 pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
@@ -39,7 +40,7 @@ def _run(tmp_path, seed, wrong, again=None):
     loc = Localizer(path, notify=said.append)
     loc.published = []  # (the poses returned for publishing, kept for the tests)
     loc.batches = []  # (the rig check's last test when poses were returned, how many)
-    loc.waiting_diag = None  # (the diagnostics while a pose was held back waiting for the rig check)
+    loc.waiting_diag = {}  # (each robot's diagnostics when a pose of it was first held back waiting for the rig check)
 
     def took(poses):
         if poses:
@@ -53,8 +54,9 @@ def _run(tmp_path, seed, wrong, again=None):
         while loc.next_due() is not None and loc.next_due() <= now:
             took(loc.poll(loc.next_due()))
         took(loc.feed(M.observations_message(a, rid, k, T0 + t, obs), now, a))
-        if loc.waiting_diag is None and any(c.rig_waiting for c in loc.counts.values()):
-            loc.waiting_diag = loc.diagnostics(now)
+        for r, c in loc.counts.items():
+            if r not in loc.waiting_diag and c.rig_waiting:
+                loc.waiting_diag[r] = {s.robot: s for s in loc.diagnostics(now)}[r]
     end = T0 + recs[-1][0] + LATENCY
     took(loc.poll(end + 0.05))
     return loc, said, end
@@ -104,7 +106,7 @@ def test_no_pose_is_published_with_the_rig_off(tmp_path, seed):
 def test_the_right_rig_is_published_once_a_full_window_agreed(tmp_path, seed):
     """The rig file the simulator drew with: poses are returned only after a
     full window of the rig check has agreed (the test at each return: full,
-    chi-square within its threshold); before, they were held back, counted,
+    chi-square within its threshold; the first within its 0.99 quantile); before, they were held back, counted,
     and ``/diagnostics`` said so (WARN, waiting for the rig check, N of 30
     tests), and the summary counts them."""
     loc, _, _ = _run(tmp_path, seed, wrong=False)
@@ -113,14 +115,15 @@ def test_the_right_rig_is_published_once_a_full_window_agreed(tmp_path, seed):
         assert test is not None and test.full and test.chi2 <= test.threshold, (test, n)
     held = sum(c.rig_waiting for c in loc.counts.values())
     assert held > 0
+    first, _ = loc.batches[0]
+    assert first.chi2 <= chi2_quantile(0.99, first.dof)
     assert min(p.t for p in loc.published) >= loc.rig_gate.agreed - loc.tolerance
-    diag = {s.robot: s for s in loc.waiting_diag}
-    for r, s in diag.items():
+    assert loc.waiting_diag and loc.reference not in loc.waiting_diag
+    for r, s in loc.waiting_diag.items():  # (when its first pose was held back)
         assert s.values["rig_check"] == "waiting", (r, s.values)
-        if r != loc.reference and loc.counts[r].rig_waiting:
-            assert s.level == M.WARN and "waiting for the rig check:" in s.message, (r, s.message)
-            n, m = map(int, s.message.split("waiting for the rig check: ")[1].split(" tests")[0].split(" of "))
-            assert 0 <= n < m == loc.engine.tracker.rig_check.window, s.message
+        assert s.level == M.WARN and "waiting for the rig check:" in s.message, (r, s.message)
+        n, m = map(int, s.message.split("waiting for the rig check: ")[1].split(" tests")[0].split(" of "))
+        assert 0 <= n < m == loc.engine.tracker.rig_check.window, s.message
     assert f"poses not published: {held} waiting for the rig check" in loc.summary()
 
 

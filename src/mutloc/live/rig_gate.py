@@ -10,8 +10,14 @@ says whether the poses are withheld, in one of four states
 (:attr:`RigGate.state`, the ``rig_check`` key-value in ``/diagnostics``):
 
 ``waiting``
-    From the start until the window has been full once and agreed (its
-    chi-square at most its threshold): a rig file 1-2 cm off bends every
+    From the start until the window has been full once and agreed: its
+    chi-square at most the ``1 -`` :data:`AGREE_LEVEL` quantile (0.99) of
+    chi-square with its degrees of freedom -- a right rig's full window
+    passes it 99 times in 100, where the window's own threshold (its
+    ``1 - 1e-6`` quantile) let the first window of a rig 1-2 cm off pass
+    (a team of three, 60 degrees of freedom: 2.09 per degree, the
+    threshold 2.12; the 0.99 quantile 1.47, right rigs 0.6-1.24, wrong ones
+    1.84-2.8: tests/test_live_rig_check.py's logs).  A rig file 1-2 cm off bends every
     record the same way, and the filter turns the first records into
     confident wrong poses before any window could say so.  With two
     markers per robot and free-running cameras the window is full after
@@ -39,10 +45,13 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..core.consistency import chi2_quantile
 from ..track.rig_check import WINDOW
 
-__all__ = ["RigGate", "UNTESTED", "WAITING", "AGREES", "DISAGREES", "NOT_RUNNING"]
+__all__ = ["RigGate", "UNTESTED", "AGREE_LEVEL", "WAITING", "AGREES", "DISAGREES", "NOT_RUNNING"]
 
+#: The wait ends at the first full window whose chi-square is at most its ``1 - AGREE_LEVEL`` quantile.
+AGREE_LEVEL = 0.01
 #: Records in a row, each with a pose held back by the wait, that gave the rig check no test: it does not run.
 UNTESTED = WINDOW
 #: The gate's states (:attr:`RigGate.state`).
@@ -84,7 +93,8 @@ class RigGate:
                 self.withheld = t
             self._fits = 0
             return True
-        if test is not None and test.full and self.agreed is None:
+        if (test is not None and test.full and self.agreed is None
+                and test.chi2 <= chi2_quantile(1.0 - AGREE_LEVEL, test.dof)):
             self.agreed = t
         if self.withheld is not None and test is not None and test.full:
             self._fits = self._fits + 1 if test.chi2 <= test.dof else 0
