@@ -21,7 +21,8 @@ Counted over every pose the localizer returns for publishing: poses beyond
 5-sigma quantile, 39.5), by status; the error and sigma of the poses published
 while q's node is down; what ``/diagnostics`` said for q then (OK / WARN /
 STALE), and for the wrong rig, whether anything said so (a status, a
-diagnostics message).  A new log (seed) per run.  Beside it, in the same run,
+diagnostics message); the rows held back waiting for the rig check's first
+window (mutloc.live.rig_gate) and when the first pose was published.  A new log (seed) per run.  Beside it, in the same run,
 the rule switched off (every measured row published, as before the rule:
 ``TieWindow.tied`` made to tie every robot).
 
