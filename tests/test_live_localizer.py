@@ -928,7 +928,10 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
     # machine later than READY)
     expected = [t for t in sent if have and t >= min(have)]
     assert len(expected) >= 30, (sorted(have)[:3], summary)
-    assert sum(1 for t in expected if round(t, 4) in have) >= 0.9 * len(expected), (len(have), len(expected), summary)
+    # (a loaded machine makes the localizer shed messages, counted in its summary: no pose for those)
+    shed = int(re.findall(r", shed (\d+)", summary[0])[-1]) if summary else 0
+    assert sum(1 for t in expected if round(t, 4) in have) >= 0.9 * (len(expected) - shed), \
+        (len(have), len(expected), summary)
 
 
 def test_sigterm_ends_the_localizer_as_ctrl_c_does(setup, tmp_path, dds_domain):
