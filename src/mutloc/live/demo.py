@@ -278,9 +278,11 @@ def _process_counts(out: Path, robots: list[str]) -> dict[str, Any]:
                      if path.exists() else "")
     # (the poses not published before the rig check's first window agreed: mutloc.live.rig_gate)
     waiting = last("localizer", r"poses not published: (\d+) waiting for the rig check")
+    withheld = last("localizer", r"poses not published: .*?(\d+) while the rig disagreed")
     nodes = {r: last(r, r"(\d+) frames captured from .*?, (\d+) processed .*?, (\d+) dropped") for r in robots}
     return {"localizer": None if loc is None else {"records_fused": loc[0], "poses_published": loc[1],
-                                                   "shed": loc[2], "rig_waiting": waiting[0] if waiting else 0},
+                                                   "shed": loc[2], "rig_waiting": waiting[0] if waiting else 0,
+                                                   "rig_withheld": withheld[0] if withheld else 0},
             "nodes": {r: None if n is None else {"captured": n[0], "processed": n[1], "dropped": n[2]}
                       for r, n in nodes.items()},
             "odometry": {r: {"used": int(n), "note": note} for r, n, note in odo}}
