@@ -21,7 +21,8 @@ Counted over every pose the localizer returns for publishing: poses beyond
 5-sigma quantile, 39.5), by status; the error and sigma of the poses published
 while q's node is down; what ``/diagnostics`` said for q then (OK / WARN /
 STALE), and for the wrong rig, whether anything said so (a status, a
-diagnostics message).  A new log (seed) per run.  Beside it, in the same run,
+diagnostics message); the rows held back waiting for the rig check's first
+window (mutloc.live.rig_gate) and when the first pose was published.  A new log (seed) per run.  Beside it, in the same run,
 the rule switched off (every measured row published, as before the rule:
 ``TieWindow.tied`` made to tie every robot).
 
@@ -125,6 +126,10 @@ def one(wrong: bool, seed: int, seconds: float, folder: Path, rule: bool = True)
         rows.append({"t": t, "status": str(p.status), "nees": nees(p.estimate, T), "err_m": err,
                      "sigma_m": float(np.sqrt(np.trace(p.estimate.covariance[3:, 3:]))), "down": is_down(t)})
     beyond = [r for r in rows if r["nees"] > FIVE_SIGMA_NEES]
+    gate = loc.rig_gate
+    # the wait for the rig check (mutloc.live.rig_gate): from the first pose it held back to the first published
+    first_held = None if gate.first_held is None else gate.first_held - T0
+    first_pose = min((r["t"] for r in rows), default=None)
     during = [r for r in rows if r["down"]]
     statuses = Counter(r["status"] for r in rows)
     return {"poses": len(rows), "statuses": dict(statuses), "beyond_5_sigma": len(beyond),
@@ -134,10 +139,20 @@ def one(wrong: bool, seed: int, seconds: float, folder: Path, rule: bool = True)
             "down_err_m_median": float(np.median([r["err_m"] for r in during])) if during else None,
             "down_err_m_max": max((r["err_m"] for r in during), default=None),
             "down_sigma_m_median": float(np.median([r["sigma_m"] for r in during])) if during else None,
-            "up_err_m_median": float(np.median([r["err_m"] for r in rows if not r["down"]])),
+            "up_err_m_median": float(np.median([r["err_m"] for r in rows if not r["down"]]))
+            if any(not r["down"] for r in rows) else None,
             "q_diagnostics": {f"{k[0]}:{LEVELS[k[1]]}": v for k, v in sorted(q_levels.items())},
             "p_diagnostics": {f"{k[0]}:{LEVELS[k[1]]}": v for k, v in sorted(p_levels.items())},
-            "outage_seconds": float(sum(b - a for a, b in down))}
+            "outage_seconds": float(sum(b - a for a, b in down)),
+            "rig_waiting": sum(c.rig_waiting for c in loc.counts.values()), "rig_state": gate.state,
+            "first_held_s": first_held, "first_pose_s": first_pose,
+            "wait_s": None if first_held is None or first_pose is None else first_pose - first_held}
+
+
+def _cm_median(values: list) -> float:
+    """The median of the values given (metres) in centimetres (nan: none given: no pose published)."""
+    values = [v for v in values if v is not None]
+    return 100 * float(np.median(values)) if values else float("nan")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -156,21 +171,24 @@ def main(argv: list[str] | None = None) -> int:
                  "beyond_by_status": dict(sum((Counter(r["beyond_by_status"]) for r in runs), Counter())),
                  "statuses": dict(sum((Counter(r["statuses"]) for r in runs), Counter())),
                  "down_poses": sum(r["down_poses"] for r in runs),
-                 "down_err_cm_median": 100 * float(np.median([r["down_err_m_median"] for r in runs
-                                                              if r["down_err_m_median"] is not None])),
+                 "down_err_cm_median": _cm_median([r["down_err_m_median"] for r in runs]),
                  "down_err_cm_max": 100 * max(r["down_err_m_max"] or 0.0 for r in runs),
-                 "down_sigma_cm_median": 100 * float(np.median([r["down_sigma_m_median"] for r in runs
-                                                                if r["down_sigma_m_median"] is not None])),
-                 "up_err_cm_median": 100 * float(np.median([r["up_err_m_median"] for r in runs])),
+                 "down_sigma_cm_median": _cm_median([r["down_sigma_m_median"] for r in runs]),
+                 "up_err_cm_median": _cm_median([r["up_err_m_median"] for r in runs]),
                  "q_diagnostics": dict(sum((Counter(r["q_diagnostics"]) for r in runs), Counter())),
                  "p_diagnostics": dict(sum((Counter(r["p_diagnostics"]) for r in runs), Counter())),
+                 "rig_waiting": sum(r["rig_waiting"] for r in runs),
+                 "first_pose_s": [r["first_pose_s"] for r in runs], "wait_s": [r["wait_s"] for r in runs],
                  "per_run": runs}
             results[label] = s
             print(f"{label}: {s['beyond_5_sigma']} of {s['poses']} published poses beyond 5 sigma "
                   f"{s['beyond_by_status']}; statuses {s['statuses']}; while q's node is down: "
                   f"{s['down_poses']} poses, error median {s['down_err_cm_median']:.2f} cm (max "
                   f"{s['down_err_cm_max']:.1f} cm), sigma median {s['down_sigma_cm_median']:.2f} cm; "
-                  f"diagnostics once a second: q {s['q_diagnostics']}, p {s['p_diagnostics']}", flush=True)
+                  f"diagnostics once a second: q {s['q_diagnostics']}, p {s['p_diagnostics']}; waiting for the "
+                  f"rig check: {s['rig_waiting']} rows held back, first pose at "
+                  f"{[None if x is None else round(x, 2) for x in s['first_pose_s']]} s "
+                  f"(waited {[None if x is None else round(x, 2) for x in s['wait_s']]} s)", flush=True)
     Path(args.out).write_text(json.dumps(results, indent=2))
     print(f"wrote {args.out}")
     return 0

@@ -34,7 +34,7 @@ def setup(tmp_path_factory):
     rig = standard_rig()
     path = d / "rig.yaml"
     save_rig(rig, path)
-    recs = camera_records(rig, duration=2.5, offsets={"q": 1 / 60}, pixel_sigma=1.0, seed=5)
+    recs = camera_records(rig, duration=4.5, offsets={"q": 1 / 60}, pixel_sigma=1.0, seed=5)
     return SimpleNamespace(rig=rig, path=path, rid=M.rig_id(path), recs=recs)
 
 
@@ -175,7 +175,7 @@ def test_over_dds_a_second_localizer_is_detected_and_named(setup, dds_domain):
     try:
         for child in children:
             _ready(child)
-        got, errs = _run(setup, children, dds_domain, {"p": setup.rid, "q": setup.rid}, until=2.0)
+        got, errs = _run(setup, children, dds_domain, {"p": setup.rid, "q": setup.rid}, until=4.0)
     finally:
         for child in children:
             if child.poll() is None:

@@ -329,15 +329,19 @@ def _process_counts(out: Path, robots: list[str]) -> dict[str, Any]:
         path = out / f"{name}.log"
         text = path.read_text(encoding="utf-8") if path.exists() else ""
         found = re.findall(pattern, text)
-        return tuple(int(x) for x in found[-1]) if found else None
+        return tuple(int(x) for x in found[-1] if x.isdigit()) if found else None
 
     loc = last("localizer", r"(\d+) records fused; (\d+) poses published;.*?, shed (\d+)")
     path = out / "localizer.log"
     odo = re.findall(r"odometry (\w+) (\d+) used(?: \(([^)]*)\))?", path.read_text(encoding="utf-8")
                      if path.exists() else "")
+    # (the poses not published before the rig check's first window agreed: mutloc.live.rig_gate)
+    waiting = last("localizer", r"poses not published: (\d+) waiting for the rig check(,?)")
+    withheld = last("localizer", r"poses not published: .*?(\d+) while the rig disagreed(;?)")
     nodes = {r: _node_counts(out / f"{r}.log") for r in robots}
     return {"localizer": None if loc is None else {"records_fused": loc[0], "poses_published": loc[1],
-                                                   "shed": loc[2]},
+                                                   "shed": loc[2], "rig_waiting": waiting[0] if waiting else 0,
+                                                   "rig_withheld": withheld[0] if withheld else 0},
             "nodes": {r: None if not n else {k: sum(c[k] for c in n.values()) for k in next(iter(n.values()))}
                       for r, n in nodes.items()},
             "cameras": {k: c for n in nodes.values() for k, c in (n or {}).items()},

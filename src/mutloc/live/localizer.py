@@ -95,32 +95,39 @@ track is current: the row of the fused record ``solved``, ``unverified``,
 ``partial``, or ``predicted`` no longer than ``max_coast`` after its last
 measured row -- never a stale pose as current.  A robot that comes back is
 re-acquired by its track (the tracker restarts a track it lost).
+
+The parts: :class:`Localizer` takes the messages, fuses the records and
+decides which poses go out; :mod:`mutloc.live.reorder` is the reorder
+buffer, :mod:`mutloc.live.team_engine` the team tracker it runs,
+:mod:`mutloc.live.rig_gate` the rule that withholds the poses for the rig
+check, :mod:`mutloc.live.localizer_status` the counts, the ``/diagnostics``
+statuses, the lines said and the summary, and
+:mod:`mutloc.live.localizer_wire` the loop on DDS (:func:`run_localizer`).
 """
 
 from __future__ import annotations
 
-import heapq
 import math
 import time
-from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Sequence
 
-from .._extras import require
 from ..api import Estimate, load_rig
 from ..core.consistency import DEFAULT_CONFIDENCE
 from ..core.observations import ObservationSet
-from ..core.pose import Pose
-from ..core.rig import Rig
 from ..errors import InputError, MutlocError, positive_number
 from ..track.filtering import FilterOptions
 from ..track.frames import expanded_rig
 from ..track.rows import TrackRow
 from ..track.status import FrameStatus
-from .messages import (ERROR, OK, STALE, WARN, MessageError, RobotStatus, observations_from_message, observer_frame_ids,
-                       rig_id as rig_id_of)
+from .messages import MessageError, RobotStatus, observations_from_message, observer_frame_ids, rig_id as rig_id_of
 from .clocks import LiveClocks
+from .localizer_status import NOTICE_HOLD, NOTICE_PERIOD, RobotCounts, Tally, level, robot_statuses, summary
+from .localizer_wire import (DIAGNOSTICS_PERIOD, odometry_inputs, serve, take_observations as _take)  # noqa: F401
+from .reorder import Held, ReorderBuffer
+from .rig_gate import RigGate
+from .team_engine import TeamEngine, warm_up
 from .ties import TieWindow
 
 __all__ = ["Localizer", "LivePose", "RobotCounts", "run_localizer", "LocalizerRun", "MAX_COAST", "MAX_CLOCK_SKEW",
@@ -139,22 +146,9 @@ REORDER_WINDOW = 0.03
 #: Messages of different robots stamped within this many seconds make one
 #: record, at their mean time (as ``track`` pairs the frames of two cameras).
 TOLERANCE = 0.005
-#: Seconds between two ``/diagnostics`` messages (SPEC: at least once a second).
-DIAGNOSTICS_PERIOD = 0.5
-#: Seconds a robot stays WARN after its last refused message (or another localizer's pose of it).
-NOTICE_HOLD = 5.0
-#: Seconds between two looks for poses another localizer published on this one's topics.
-FOREIGN_PERIOD = 0.25
-#: Seconds between two printed lines of one cause (robot and kind of refusal): the first is printed at once.
-NOTICE_PERIOD = 10.0
 
 #: Records whose smoothing may wait for slack (``--out``); beyond them the oldest are written unsmoothed.
 MAX_DEFERRED = 60
-#: Seconds of smoothing done at a time when there is slack (then new messages are taken).
-SMOOTH_SLICE = 0.01
-
-#: Observation messages a robot's reader keeps until taken (a second at 100 Hz).
-READER_DEPTH = 100
 #: Track statuses whose pose is published (``predicted`` only within ``max_coast``).
 MEASURED = (FrameStatus.SOLVED, FrameStatus.UNVERIFIED, FrameStatus.PARTIAL)
 #: Messages remembered per robot to recognise a duplicate.
@@ -203,129 +197,6 @@ class LivePose:
             self._body[:] = [key, pose_cdr_body(self.estimate.pose, self.estimate.covariance, self.robot,
                                                 self.reference)]
         return pose_cdr(ns, None, None, self.robot, self.reference, self._body[1])
-
-
-@dataclass
-class RobotCounts:
-    """What one robot's observation topic brought (the diagnostics' key-values)."""
-
-    received: int = 0
-    fused: int = 0
-    dropped_late: int = 0
-    #: Messages not fused because a newer one of the same camera waited while the localizer was behind.
-    shed: int = 0
-    duplicates: int = 0
-    refused_rig_id: int = 0
-    refused_malformed: int = 0
-    refused_clock: int = 0
-    poses: int = 0
-    #: Its poses (or their /tf) that DDS did not take (``write`` failed).
-    unsent: int = 0
-    #: Newest capture time among its messages taken (None: none yet).
-    last_stamp: float | None = None
-    #: Stamp (ns) of its last pose on ``/tf`` (see :attr:`LivePose.tf`).
-    last_tf_ns: int | None = None
-    #: Its track's status at the last record (robots whose pose is published).
-    status: str = ""
-    #: Time of its track's last measured row (solved, unverified or partial).
-    last_measured: float | None = None
-    #: Whether the observations of the last ``max_coast`` s tied it to the reference at the last record
-    #: (see :mod:`mutloc.live.ties`; its pose is published only then), and since when they do not.
-    tied: bool = False
-    untied_since: float | None = None
-    #: Distinct observations tying it to other robots within the last ``max_coast`` s, at the last record.
-    ties: int = 0
-    #: Its rows not published because the observations of the last ``max_coast`` s did not tie it.
-    untied: int = 0
-    #: Its rows not published because the records kept disagreeing with the rig (see ``Localizer.rig_withheld``).
-    rig_withheld: int = 0
-    #: Frame numbers of its cameras' messages that never came (skipped between two that did: frames its
-    #: node dropped, or messages DDS lost, e.g. overwritten in a full reader); a node restarting (its numbers
-    #: going back) is not counted.
-    not_received: int = 0
-    #: Arrival time of its last refused message, and why it was refused (None: none refused).
-    last_refused_at: float | None = None
-    last_refusal: str = ""
-    #: Clock time at which a message of it was last shed (None: none shed).
-    last_shed_at: float | None = None
-    #: Arrival time of the last pose of it that another localizer published, and who that is.
-    foreign_at: float | None = None
-    foreign: str = ""
-    seen: set = field(default_factory=set, repr=False)
-    order: deque = field(default_factory=deque, repr=False)
-
-    @property
-    def refused(self) -> int:
-        return self.refused_rig_id + self.refused_malformed + self.refused_clock
-
-
-@dataclass(order=True)
-class _Held:
-    t: float
-    seq: int
-    arrival: float = field(compare=False)
-    ns: int = field(compare=False)
-    robot: str = field(compare=False)
-    observations: ObservationSet = field(compare=False)
-    #: The observing camera's key (``ROBOT`` or ``ROBOT/CAMERA``): one stream of messages, delivered in order.
-    key: str = field(compare=False, default="")
-
-
-class _TeamEngine:
-    """The team tracker (two robots: a team of two), each record one row per robot (as ``track_team_log``)."""
-
-    def __init__(self, rig: Rig, reference: str, pixel_sigma: float, confidence: float, options: FilterOptions,
-                 sink: Callable[[TrackRow, str], None] | None) -> None:
-        from ..track.team import TeamTracker
-        from ..track.team import RowEmitter
-
-        self.tracker = TeamTracker(rig, reference, pixel_sigma=pixel_sigma, confidence=confidence, options=options)
-        self.robots, self.reference = list(self.tracker.robots), reference
-
-        def final(record: dict[str, TrackRow], _: Any) -> None:
-            if sink is not None:
-                for r, row in record.items():
-                    sink(row, r)
-
-        # rows handed to ``sink`` once final (after the smoother's lag), as track_team_log does
-        self._emitter = RowEmitter(self.tracker, final)
-
-    def step(self, t: float, obs: ObservationSet, smooth: bool = True) -> dict[str, TrackRow]:
-        """The record's rows, their poses the causal filter's (published at once).  ``smooth``: the
-        smoother makes final up to two of the records it may (this one's turn and one deferred);
-        False: none (deferred, see :meth:`backlog`)."""
-        rows = self.tracker.step(t, obs)
-        live = {r: replace(row) for r, row in rows.items()}  # the smoother may revise the rows later
-        self._emitter.add(rows, True)
-        if smooth or self.tracker.history is None:
-            self.smooth(2)
-        return live
-
-    def backlog(self) -> int:
-        """Records past the smoother's lag not yet made final: their smoothing deferred (0 without it)."""
-        sm = self.tracker.history
-        return 0 if sm is None else max(0, len(sm) - sm.first - sm.lag - 1)
-
-    def smooth(self, most: int, smooth: bool = True) -> int:
-        """Make final at most ``most`` records, smoothed (``smooth`` False: as the causal filter gave
-        them); returns how many were."""
-        sm = self.tracker.history
-        if sm is None:
-            self._emitter.emit()
-            return 0
-        first = sm.first
-        self._emitter.emit(most=most, smooth=smooth)
-        return sm.first - first
-
-    def involved(self, observer: str, obs: ObservationSet) -> list[str]:
-        """The robots a record is about: its observer and the robots whose markers it saw."""
-        owner = self.tracker.rig.owner
-        seen = {observer, *(owner(m) for m in set(obs.marker) if m is not None)}
-        return [r for r in self.robots if r in seen]
-
-    def finish(self) -> None:
-        self._emitter.emit(end=True)
-
 
 class Localizer:
     """Fuses every robot's observation messages (see the module docstring).
@@ -388,7 +259,7 @@ class Localizer:
         if odometry is not None:
             options = replace(options, odometry={**options.odometry, **odometry.streams})
         self._record_t: float | None = None  # (the last record's time: the odometry's interval)
-        self.engine: Any = _TeamEngine(self.rig, reference, pixel_sigma, confidence, options, sink)
+        self.engine: Any = TeamEngine(self.rig, reference, pixel_sigma, confidence, options, sink)
         #: The robots whose poses are published, and the frame they are in.
         self.tracked: list[str] = list(self.engine.robots)
         self.reference: str = self.engine.reference
@@ -398,79 +269,23 @@ class Localizer:
         self.clocks = None if not clock_offsets else LiveClocks(
             self.rig, self.reference, replace(self.engine.tracker.options, odometry={}), pixel_sigma, confidence,
             **(clock_offsets if isinstance(clock_offsets, dict) else {}))
-        self.counts = {r: RobotCounts() for r in names}
+        #: What each robot's topics brought (``counts``: robot -> :class:`RobotCounts`), what was refused
+        #: naming no robot, and the lines said about it (:mod:`mutloc.live.localizer_status`).
+        self.tally = Tally(names, notify)
+        self.counts = self.tally.robots
         #: The observations of the last ``max_coast`` s that tie robots to the reference.
         self.ties = TieWindow(self.reference, self.max_coast)
-        self.unattributed = 0  #: refused messages that named no robot of the rig
         self.records = 0  #: records fused
         self.records_deferred = 0  #: records fused while behind (their smoothing deferred)
         self.records_unsmoothed = 0  #: records written as the causal filter gave them (see the module docstring)
         self.fused_until = -math.inf  #: capture time of the last record fused
         self.log = log
-        self._held: list[_Held] = []
-        self._waiting: dict[str, int] = {}  # camera key -> its messages held
-        self._stream_stamp: dict[str, float] = {}  # newest capture time of each camera's messages
-        self._seq = 0
-        self._first: float | None = None  # arrival of the first message held
+        #: The accepted messages waiting to be fused in time order (:mod:`mutloc.live.reorder`).
+        self.buffer = ReorderBuffer(self.keys, self.reorder, self.tolerance, self.warn_after, odometry)
+        self._held = self.buffer.held  # (the same heap)
         self._closed = False
-        #: Where a line saying what is wrong goes (the CLI: stderr); each cause once, then rate-limited.
-        self.notify = notify
-        self._notices: dict[tuple, list] = {}  # cause -> [time printed, refused since]
-        #: The last record whose rig check window disagreed: (its capture time, the test), else None.
-        self.rig_flag: tuple[float, Any] | None = None
-        #: Since when the poses are withheld because the records keep disagreeing with the rig (None: not):
-        #: from a window that disagrees until the windows fit no worse than their mean for a window's length.
-        self.rig_withheld: float | None = None
-        self._rig_fits = 0  # tests in a row, while withheld, whose window fitted no worse than its mean
-        self._frame_numbers: dict[str, int] = {}  # camera key -> the last frame number of its messages
-
-    def warm_up(self) -> None:
-        """Run throwaway trackers on synthetic records (the first two robots
-        2 m apart, facing each other): each camera's frames at its own time
-        (a start from several records), and both cameras' frames together (a
-        start from one record's joint solve), so that the compiled kernels
-        are loaded before the first message rather than while messages wait
-        (about a second in a new process; the joint solve's alone 90 ms).
-        The chi-square quantiles' library (scipy.stats) is imported here too:
-        a team's first joint solve of three robots or more needs it, and its
-        import took 4 s of a loaded machine inside a record, every message
-        waiting."""
-        from ..core.consistency import chi2_quantile
-
-        chi2_quantile(DEFAULT_CONFIDENCE, 6)
-        a, b = self.names[0], self.names[1]
-        if self.rig.robot(a).is_body or self.rig.robot(b).is_body:
-            T = Pose.from_rotvec([0.0, 0.0, math.pi], [2.0, 0.0, 0.0])  # bodies (z up): a ahead of b, facing it
-        else:
-            T = Pose.from_rotvec([0.0, math.pi, 0.0], [0.0, 0.0, 2.0])  # T_ba: a in front of b, facing it
-        seen = {}
-        for observer, other, to_obs in ((a, b, T.inverse()), (b, a, T)):
-            robot, markers = self.rig.robot(other), list(self.rig.robot(other).markers)
-            # the observer's camera that looks most towards the other robot
-            cam, mount = max(self.rig.robot(observer).mounts.items(),
-                             key=lambda cm: float(cm[1].pose.R[:, 2] @ to_obs.t))
-            X = mount.pose.inverse().apply(to_obs.apply(robot.marker_positions(markers)))
-            key = self.rig.robot(observer).observer_key(cam)
-            try:
-                uv = mount.camera.project(X)
-                seen[observer] = ObservationSet([key] * len(markers), markers, uv)
-            except (MutlocError, ValueError, FloatingPointError):
-                return  # a rig this pose does not suit: the first messages pay instead
-        both = ObservationSet.concatenate([seen[a], seen[b]])
-        for first in (False, True):
-            engine = _TeamEngine(self.rig, self.engine.reference, 1.0, DEFAULT_CONFIDENCE, FilterOptions(), None)
-            try:
-                if first:
-                    engine.step(-1 / 60, both.with_time(-1 / 60))
-                for k in range(12):
-                    observer = (a, b)[k % 2]
-                    engine.step(k / 60, ObservationSet.from_dict(seen[observer].to_dict(), time=k / 60))
-                engine.step(0.25, both.with_time(0.25))
-                engine.finish()
-            except (MutlocError, ValueError, FloatingPointError):
-                pass  # a rig this pose does not suit: the first messages pay instead
-
-    # -- messages in ----------------------------------------------------------
+        #: Whether the poses are withheld for the rig check (:mod:`mutloc.live.rig_gate`).
+        self.rig_gate = RigGate()
 
     def receive(self, msg: Any, now: float, topic: str | None = None) -> str:
         """Take one ``Observations`` message arrived at ``now`` on robot
@@ -510,7 +325,7 @@ class Localizer:
         except MutlocError as exc:
             return self._refuse(robot, "refused_malformed", str(exc), now)
         c.received += 1
-        self._numbered(c, got.key, got.frame)
+        self.tally.numbered(c, got.key, got.frame)
         key = (got.key, got.frame, ns)
         if key in c.seen:
             c.duplicates += 1
@@ -524,15 +339,11 @@ class Localizer:
             if t != got.time:
                 obs = obs.with_time(t)
         c.last_stamp = t if c.last_stamp is None else max(c.last_stamp, t)
-        self._stream_stamp[got.key] = max(self._stream_stamp.get(got.key, -math.inf), t)
+        self.buffer.saw(got.key, t)
         if t < self.fused_until:
             c.dropped_late += 1
             return "late"
-        self._seq += 1
-        if self._first is None:
-            self._first = now
-        heapq.heappush(self._held, _Held(t, self._seq, now, ns_ref, robot, obs, got.key))
-        self._waiting[got.key] = self._waiting.get(got.key, 0) + 1
+        self.buffer.push(t, now, ns_ref, robot, obs, got.key)
         return "held"
 
     def receive_odometry(self, robot: str, msg: Any, now: float) -> str:
@@ -567,7 +378,7 @@ class Localizer:
             if h is not None and h[0] in keys:
                 k = keys[h[0]]
                 newest[k] = max(newest.get(k, h[1]), h[1])
-                self._numbered(c, k, h[2])
+                self.tally.numbered(c, k, h[2])
         keep = []
         for i, h in enumerate(heads):
             if h is not None and h[0] in keys and h[1] < newest[keys[h[0]]] and now - h[1] * 1e-9 > self.max_lag:
@@ -577,14 +388,6 @@ class Localizer:
             else:
                 keep.append(i)
         return keep
-
-    def _numbered(self, c: "RobotCounts", key: str, frame: int) -> None:
-        """Camera ``key`` (of the robot counted by ``c``) sent frame number ``frame``: the numbers skipped since
-        its last one are counted as not received (seen again, or going back -- a node restarted: not counted)."""
-        last = self._frame_numbers.get(key)
-        if last is not None and frame > last + 1:
-            c.not_received += frame - last - 1
-        self._frame_numbers[key] = frame
 
     def malformed(self, robot: str, n: int = 1, now: float | None = None) -> None:
         """Count ``n`` samples of ``robot``'s topic that could not even be decoded (arrived at ``now``)."""
@@ -597,72 +400,21 @@ class Localizer:
         self.counts[robot].unsent += n
 
     def _refuse(self, robot: str | None, what: str, why: str, now: float | None = None) -> str:
-        why = " ".join(why.split())
-        if robot is None:
-            self.unattributed += 1
-        else:
-            c = self.counts[robot]
-            c.received += 1
-            setattr(c, what, getattr(c, what) + 1)
-            if now is not None:
-                c.last_refused_at, c.last_refusal = now, why
-        if now is not None:
-            self._notice((robot, what), f"{'robot ' + robot if robot else 'a message naming no robot of the rig'}: "
-                         f"refused observations ({what[len('refused_'):]}): {why}", now)
-        return "refused: " + why
+        return self.tally.refuse(robot, what, why, now)
 
     def _notice(self, cause: tuple, line: str, now: float, once: bool = False) -> None:
-        """Print ``line`` (to :attr:`notify`) the first time of ``cause``, then at most every
-        :data:`NOTICE_PERIOD` s with how many more there were (``once``: only the first time)."""
-        state = self._notices.get(cause)
-        if state is None:
-            self._notices[cause] = [now, 0]
-            if self.notify is not None:
-                self.notify(line)
-            return
-        state[1] += 1
-        if not once and now - state[0] >= NOTICE_PERIOD:
-            if self.notify is not None:
-                self.notify(f"{line} ({state[1]} more in the last {now - state[0]:.0f} s)")
-            state[:] = [now, 0]
+        self.tally.notices.say(cause, line, now, once)
 
     def foreign(self, robot: str, topic: str, publisher: str, now: float) -> None:
         """Another localizer (``publisher``: how it names itself) published a pose of ``robot`` on ``topic``
         at ``now``: WARN in the diagnostics, a line to :attr:`notify` once per publisher."""
-        c = self.counts[robot]
-        c.foreign_at, c.foreign = now, f"{topic} by {publisher}"
-        self._notice(("foreign", publisher), f"another localizer publishes on this domain: {c.foreign} (two "
-                     "localizers double every pose: stop one, or give each its own --domain)", now, once=True)
+        self.tally.foreign(robot, topic, publisher, now)
 
     # -- records fused, poses out ------------------------------------------
 
-    def _due(self, h: _Held, now: float) -> bool:
-        if self.odometry is not None and not self.odometry.ready(h.t, h.arrival, now):
-            return False  # (waits for the robots' odometry to pass its stamp, a while at most)
-        if now >= h.arrival + self.reorder:  # (the same sum as next_due: no rounding between them)
-            return True
-        for key in self.keys:  # each camera's messages (one node's) come in order
-            if key == h.key:
-                continue
-            last = self._stream_stamp.get(key)
-            if last is None:
-                if now - self._first > self.warn_after:
-                    continue  # a camera not heard since the start is not waited for
-                return False
-            if now - last <= self.warn_after and last < h.t:
-                return False  # (a camera gone quiet is not waited for)
-        return True
-
     def next_due(self) -> float | None:
         """The arrival-clock time at which the oldest held message leaves the buffer at the latest."""
-        if not self._held:
-            return None
-        due = self._held[0].arrival + self.reorder
-        if self.odometry is not None:
-            from .odometry import ODOMETRY_WAIT
-
-            due = max(due, self._held[0].arrival + ODOMETRY_WAIT)
-        return due
+        return self.buffer.next_due()
 
     def poll(self, now: float, clock: Callable[[], float] | None = None) -> list[LivePose]:
         """Fuse the held messages that are due, oldest first; the poses to
@@ -671,21 +423,21 @@ class Localizer:
         record more than ``max_lag`` behind the clock is shed when a newer
         message of its camera waits (see the module docstring)."""
         out: list[LivePose] = []
-        while self._held:
+        while self.buffer:
             if clock is not None:
                 now = clock()
-            if not self._due(self._held[0], now):
+            if not self.buffer.due(now):
                 break
-            out += self._fuse(self._shed(self._group(), now), now)
+            out += self._fuse(self._shed(self.buffer.group(), now), now)
         return out
 
-    def _shed(self, group: list[_Held], now: float) -> list[_Held]:
+    def _shed(self, group: list[Held], now: float) -> list[Held]:
         """``group`` without the messages shed at ``now``: those more than
         ``max_lag`` behind with a newer message of their camera waiting (every
         message held is as new as the group's: a held one of the same camera is newer)."""
         keep = []
         for h in group:
-            if now - h.t > self.max_lag and self._waiting.get(h.key, 0) > 0:
+            if now - h.t > self.max_lag and self.buffer.waiting(h.key) > 0:
                 c = self.counts[h.robot]
                 c.shed += 1
                 c.last_shed_at = now
@@ -727,22 +479,11 @@ class Localizer:
     def flush(self) -> list[LivePose]:
         """Fuse every held message now (the input ends)."""
         out: list[LivePose] = []
-        while self._held:
-            out += self._fuse(self._group(), None)
+        while self.buffer:
+            out += self._fuse(self.buffer.group(), None)
         return out
 
-    def _group(self) -> list[_Held]:
-        """The oldest held message and the held messages of other cameras
-        stamped within ``tolerance`` of it: one record."""
-        group = [heapq.heappop(self._held)]
-        while (self._held and self._held[0].t - group[0].t <= self.tolerance
-               and self._held[0].key not in {h.key for h in group}):
-            group.append(heapq.heappop(self._held))
-        for h in group:
-            self._waiting[h.key] -= 1
-        return group
-
-    def _fuse(self, group: list[_Held], now: float | None) -> list[LivePose]:
+    def _fuse(self, group: list[Held], now: float | None) -> list[LivePose]:
         """Fuse one record (``now``: the clock, None at the end of the input: never behind)."""
         late = [h for h in group if h.t < self.fused_until]  # (let through too early for them)
         for h in late:
@@ -758,6 +499,8 @@ class Localizer:
         behind = now is not None and now - t > self.max_lag
         if self.odometry is not None:
             self.odometry.fused(self._record_t, t)
+        check = self.engine.tracker.rig_check
+        tests = check.records
         try:
             rows = self.engine.step(t, obs, smooth=not behind)
         except (MutlocError, ArithmeticError, ValueError):
@@ -770,7 +513,8 @@ class Localizer:
             self.log.write(t, obs)
         self.fused_until = max(h.t for h in group)
         self.records += 1
-        self._rig_said(t)
+        if self.rig_gate.update(t, check.last, tested=check.records > tests):
+            self._notice(("rig",), self.rig_gate.flag[1].words(), t, once=True)
         self.records_deferred += behind
         over = self.engine.backlog() - self.max_deferred
         if over > 0:  # (the smoother too far behind: the oldest deferred written as the filter gave them)
@@ -786,7 +530,8 @@ class Localizer:
         self.ties.forget_before(t)
         counts = self.ties.counts(t)  # (once per record: every robot's ties below)
         tied = self.ties.tied(t, counts)
-        out = []
+        out: list[LivePose] = []
+        waited = False  # (a pose held back by the wait for the rig check alone)
         for robot, row in rows.items():
             rc = self.counts[robot]
             rc.status = str(row.status)
@@ -806,9 +551,13 @@ class Localizer:
                 # the observations of the last max_coast s do not fix it (any more, or yet): not published
                 rc.untied += 1
                 continue
-            if self.rig_withheld is not None:
-                # the records keep disagreeing with the rig: its poses would be confident and wrong
-                rc.rig_withheld += 1
+            if self.rig_gate.withholding:
+                # the rig not tested yet, or the records keep disagreeing with it: its poses may be confident and wrong
+                if self.rig_gate.waiting:
+                    rc.rig_waiting += 1
+                    waited = True
+                else:
+                    rc.rig_withheld += 1
                 continue
             # one pose per message fused, stamped with its capture time (messages of one stamp: one pose)
             body: list = []  # (their bytes but the stamp: made once)
@@ -818,6 +567,10 @@ class Localizer:
                 if tf:
                     rc.last_tf_ns = h.ns
                 out.append(LivePose(robot, self.reference, h.t, row.status, e, h.ns, body, tf=tf))
+        if waited and self.rig_gate.held_back(t):
+            self._notice(("rig", "not running"), f"the rig check got no test in {self.rig_gate.untested_limit} "
+                         "records in a row: poses are published with each record's own gate as the only test "
+                         "of the rig", t, once=True)
         return out
 
     def finish(self) -> list[LivePose]:
@@ -831,108 +584,45 @@ class Localizer:
         self._closed = True
         return out
 
+    def warm_up(self) -> None:
+        """Load the compiled kernels before the first message (:func:`mutloc.live.team_engine.warm_up`)."""
+        warm_up(self.rig, self.names, self.engine.reference)
+
     # -- diagnostics ----------------------------------------------------------
 
-    def _rig_said(self, t: float) -> None:
-        """After the record at ``t``: if the rig check's window disagrees, remember it and say the hint once."""
-        test = self.engine.tracker.rig_check.last
-        if test is not None and test.disagrees:
-            self.rig_flag = (t, test)
-            self._notice(("rig",), test.words(), t, once=True)
-            if self.rig_withheld is None:
-                self.rig_withheld = t
-            self._rig_fits = 0
-        elif self.rig_withheld is not None and test is not None and test.full:
-            # published again once the window has fitted no worse than a right rig's mean (chi2 <= dof) for a
-            # whole window's worth of tests in a row (a right rig's false alarm passes; a wrong rig's windows
-            # dip below that now and then, not for long)
-            self._rig_fits = self._rig_fits + 1 if test.chi2 <= test.dof else 0
-            if self._rig_fits >= test.records:
-                self.rig_withheld = None
+    @property
+    def notify(self) -> Callable[[str], None] | None:
+        """Where a line saying what is wrong goes (the CLI: stderr); each cause once, then rate-limited."""
+        return self.tally.notices.notify
+
+    @property
+    def unattributed(self) -> int:
+        """Refused messages that named no robot of the rig."""
+        return self.tally.unattributed
+
+    @property
+    def rig_flag(self) -> tuple[float, Any] | None:
+        """The last record whose rig check window disagreed: (its capture time, the test), else None."""
+        return self.rig_gate.flag
+
+    @property
+    def rig_withheld(self) -> float | None:
+        """Since when the poses are withheld because the records keep disagreeing with the rig (None: not)."""
+        return self.rig_gate.withheld
 
     def level(self, robot: str, now: float) -> int:
         """OK, WARN (last observation older than ``warn_after``) or STALE (older than ``max_coast``, or none)."""
-        c = self.counts[robot]
-        if c.last_stamp is None:
-            return STALE
-        age = now - c.last_stamp
-        return OK if age <= self.warn_after else WARN if age <= self.max_coast else STALE
+        return level(self.counts[robot], now, self.warn_after, self.max_coast)
 
     def diagnostics(self, now: float) -> list[RobotStatus]:
-        """One :class:`~mutloc.live.messages.RobotStatus` per robot of the rig, in rig order."""
-        out = []
-        for r in self.names:
-            c = self.counts[r]
-            level = self.level(r, now)
-            age = None if c.last_stamp is None else now - c.last_stamp
-            track = "reference" if r == self.reference else (c.status or "none")
-            if age is None:
-                message = "no observations received"
-            elif level == OK:
-                message = f"observations {age:.2f} s old" + ("" if r == self.reference else f"; track {track}")
-            elif level == WARN:
-                message = f"no observations for {age:.2f} s"
-            else:
-                message = f"dropped: no observations for {age:.2f} s"
-            if level == OK and r != self.reference and not c.tied and c.untied_since is not None:
-                # observations come, but too few of them (over the last max_coast s) to fix its pose
-                level = STALE
-                message = (f"not published: tied by {c.ties} distinct observation(s) in the last {self.max_coast:g} s "
-                           f"(three fix a pose), for {max(0.0, now - c.untied_since):.2f} s")
-            if level == OK and r != self.reference and self.rig_withheld is not None and self.rig_flag is not None:
-                level = ERROR
-                message = (f"not published since {max(0.0, now - self.rig_withheld):.2f} s ago: "
-                           + self.rig_flag[1].words())
-            said = []
-            if c.last_refused_at is not None and now - c.last_refused_at <= NOTICE_HOLD:
-                said.append(f"refused {c.refused} observations: {c.last_refusal}")
-            if c.last_shed_at is not None and now - c.last_shed_at <= NOTICE_HOLD:
-                said.append(f"falling behind: shed {c.shed} of {c.received}")
-            if c.foreign_at is not None and now - c.foreign_at <= NOTICE_HOLD:
-                said.append(f"another localizer publishes on this domain: {c.foreign}")
-            if (self.rig_flag is not None and now - self.rig_flag[0] <= NOTICE_HOLD
-                    and not message.startswith("not published since")):
-                said.append(self.rig_flag[1].words())
-            if self.odometry is not None:
-                said += self.odometry.said(r, now, NOTICE_HOLD)
-            if said:
-                # (none received: what was refused is the news; a robot not stale is WARN)
-                message = "; ".join(said if age is None else [message, *said])
-                level = WARN if age is None or level == OK else level
-            values = {"status": track, "age_s": "none" if age is None else f"{age:.3f}", "received": c.received,
-                      "fused": c.fused, "dropped_late": c.dropped_late, "duplicates": c.duplicates, "shed": c.shed,
-                      "refused": c.refused, "refused_rig_id": c.refused_rig_id,
-                      "refused_malformed": c.refused_malformed, "refused_clock": c.refused_clock,
-                      "poses_published": c.poses, "poses_unsent": c.unsent, "ties": c.ties,
-                      "untied_not_published": c.untied, "rig_withheld": c.rig_withheld,
-                      "not_received": c.not_received}
-            if self.odometry is not None:
-                values.update(self.odometry.values(r, now))
-            if self.clocks is not None:
-                values.update(self.clocks.values(r))
-            rig_test = self.engine.tracker.rig_check.last
-            if rig_test is not None:
-                values.update(rig_chi2=f"{rig_test.chi2:.1f}", rig_dof=rig_test.dof,
-                              rig_threshold=f"{rig_test.threshold:.1f}")
-            out.append(RobotStatus(r, level, message, values))
-        return out
+        """One :class:`~mutloc.live.messages.RobotStatus` per robot of the rig, in rig order
+        (:mod:`mutloc.live.localizer_status`)."""
+        return robot_statuses(self, now)
 
     def summary(self) -> str:
         """``612 records fused; 598 poses published; refused 3, late 0, duplicates 1, shed 0``."""
-        cs = self.counts.values()
-        refused = sum(c.refused for c in cs) + self.unattributed
-        kinds = [f"{what} {n}" for what, n in (
-            ("rig_id", sum(c.refused_rig_id for c in cs)), ("malformed", sum(c.refused_malformed for c in cs)
-                                                            + self.unattributed),
-            ("clock", sum(c.refused_clock for c in cs))) if n]
-        return (f"{self.records} records fused; {sum(c.poses for c in cs)} poses published; refused {refused}"
-                + (f" ({', '.join(kinds)})" if kinds else "")
-                + f", late {sum(c.dropped_late for c in cs)}, duplicates {sum(c.duplicates for c in cs)}"
-                + f", shed {sum(c.shed for c in cs)}, not received {sum(c.not_received for c in cs)}"
-                + (f"; {self.records_unsmoothed} record{'s' if self.records_unsmoothed != 1 else ''} written "
-                   "unsmoothed (behind)" if self.records_unsmoothed else "")
-                + (f"; {self.odometry.summary()}" if self.odometry is not None else "")
-                + ("" if self.clocks is None else "; " + self.clocks.summary()))
+        return summary(self)
+
 
 
 def _short(rig_id: str) -> str:
@@ -1030,7 +720,7 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     try:
         if out is not None:
             log = ObservationLogWriter(Path(out) / "log.jsonl")
-        live_odo, files, odo_writers = _odometry_inputs(odometry, odometry_noise, out, max_clock_skew)
+        live_odo, files, odo_writers = odometry_inputs(odometry, odometry_noise, out, max_clock_skew)
         odo_paths = [w.path for w in odo_writers]
         loc = Localizer(rig, reference=reference, pixel_sigma=pixel_sigma, confidence=confidence,
                         max_coast=max_coast, max_clock_skew=max_clock_skew, reorder=reorder, tolerance=tolerance,
@@ -1043,8 +733,8 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
         run = LocalizerRun(loc, [] if outputs is None else [*outputs.paths, log.path, *odo_paths]
                            + ([Path(out) / "clock_offsets.json"] if out is not None and loc.clocks is not None else []))
         loc.warm_up()
-        _serve(bus, loc, duration, ready, clock,
-               (ros_types, observations_topic, pose_topic, TF_TOPIC, DIAGNOSTICS_TOPIC, diagnostics_message))
+        serve(bus, loc, duration, ready, clock,
+              (ros_types, observations_topic, pose_topic, TF_TOPIC, DIAGNOSTICS_TOPIC, diagnostics_message))
     except KeyboardInterrupt:
         if run is None:
             raise
@@ -1063,168 +753,3 @@ def run_localizer(rig: str | Path, *, reference: str | None = None, domain: int 
     if run.interrupted:
         raise KeyboardInterrupt(run)
     return run
-
-
-def _odometry_inputs(odometry: dict | None, noise: Any, out: Any, max_clock_skew: float) -> tuple[Any, dict, list]:
-    """``(LiveOdometry or None, {robot: Odometry known beforehand}, the TUM files' writers)`` of ``odometry``."""
-    from ..core.odometry import Odometry
-
-    files = {r: s for r, s in (odometry or {}).items() if isinstance(s, Odometry)}
-    topics = {r: s for r, s in (odometry or {}).items() if isinstance(s, str)}
-    writers: list = []
-    if not topics:
-        return None, files, writers
-    from ..io.streaming import LineFile
-    from .odometry import LiveOdometry
-
-    def tum(robot: str) -> Any:
-        if out is None:
-            return None
-        w = LineFile(Path(out) / f"odometry_{robot}.tum",
-                     f"# timestamp tx ty tz qx qy qz qw  (the odometry of {robot} the localizer used, from "
-                     f"{topics[robot]}: replay with track --odometry {robot}=THIS_FILE)\n")
-        writers.append(w)
-        return w
-
-    return LiveOdometry(topics, noise=noise, tum=tum, max_clock_skew=max_clock_skew), files, writers
-
-
-def _take_odometry(readers: dict, loc: Localizer, clock: Callable[[], float], malformed: dict) -> None:
-    """Give ``loc`` what each robot's odometry reader holds (and count the samples that did not decode)."""
-    for r, rd in readers.items():
-        for sample in rd.take():
-            loc.receive_odometry(r, sample, clock())
-        for _ in range(rd.malformed - malformed[r]):
-            loc.receive_odometry(r, None, clock())
-        malformed[r] = rd.malformed
-
-
-def _take(rd: Any, robot: str, loc: Localizer, clock: Callable[[], float]) -> None:
-    """Give ``loc`` what robot ``robot``'s reader holds: taken as bytes, the samples shed
-    (:meth:`Localizer.select`) never decoded; each kept one decoded and received at its own time."""
-    from .messages import observations_peek
-
-    if not rd.raw:  # (a binding that decodes as it takes)
-        for sample in rd.take():
-            loc.receive(sample, clock(), robot)
-        return
-    got = rd.take_bytes()
-    if not got:
-        return
-    for i in loc.select(robot, [observations_peek(data) for data, _ in got], clock()):
-        sample = rd.decode(*got[i])
-        if sample is not None:
-            loc.receive(sample, clock(), robot)  # (its own arrival: taking many may take a while)
-
-
-def _foreign(bus: Any, loc: Localizer, others: dict, now: float) -> None:
-    """Tell ``loc`` of the poses someone else published on its topics (``others``: topic -> (robot, reader
-    of the others' samples)): on a pose topic any, on ``/tf`` a transform of a tracked robot in the
-    reference's frame (other nodes' transforms are /tf's everyday traffic)."""
-    for topic, (robot, rd) in others.items():
-        for sample in rd.take(64):  # (keep-last 10: what is left is older)
-            if robot is not None:
-                loc.foreign(robot, topic, bus.publisher_name(rd, sample), now)
-                continue
-            for tr in getattr(sample, "transforms", ()):
-                child, parent = tr.child_frame_id.strip("/"), tr.header.frame_id.strip("/")
-                if child in loc.tracked and parent == loc.reference:
-                    loc.foreign(child, f"{topic} ({child} in {parent})", bus.publisher_name(rd, sample), now)
-
-
-def _serve(bus: Any, loc: Localizer, duration: float | None, ready: Callable[[Localizer], None] | None,
-           clock: Callable[[], float], names: Sequence[Any]) -> None:
-    require("cyclonedds", "the localizer over DDS")
-    from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
-
-    ros_types, observations_topic, pose_topic, tf_topic, diag_topic, diagnostics_message = names
-    from .messages import raw_sample
-
-    T = ros_types()
-    import os
-    import socket
-
-    # who publishes the poses, as other localizers see it in discovery (each names itself; see _foreign)
-    me = f"mutloc localizer pid {os.getpid()} on {socket.gethostname()} (rig_id {loc.rig_id})".encode()
-    # A second of messages kept per robot (ROS 2's default keeps 10) until the loop takes them.
-    readers = {r: bus.reader(observations_topic(r), T.Observations, depth=READER_DEPTH) for r in loc.names}
-    poses = {r: bus.writer(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped, userdata=me)
-             for r in loc.tracked}
-    tf = bus.writer(tf_topic, T.TFMessage, userdata=me)
-    # what others publish where this one does: another localizer's poses
-    others = {pose_topic(r, loc.reference): (r, bus.reader(pose_topic(r, loc.reference), T.PoseWithCovarianceStamped,
-                                                            others_only=True)) for r in loc.tracked}
-    others[tf_topic] = (None, bus.reader(tf_topic, T.TFMessage, others_only=True))
-    diag = bus.writer(diag_topic, T.DiagnosticArray)
-    from .messages import TF_STATIC_TOPIC, static_transforms_message
-
-    mounts = static_transforms_message(loc.rig, clock())
-    static = None
-    if mounts.transforms:
-        # each camera's pose on its robot, once: transient-local (tf2's static QoS), so late joiners get it too
-        static = bus.static_writer(TF_STATIC_TOPIC, T.TFMessage)
-        static.write(mounts)
-    from cyclonedds.core import DDSException
-    waitset = WaitSet(bus.participant)
-    mask = SampleState.Any | ViewState.Any | InstanceState.Any
-    conditions = [ReadCondition(rd.native, mask) for rd in readers.values()]
-    odo_readers = {} if loc.odometry is None else {
-        r: bus.reader(topic, T.Odometry, depth=READER_DEPTH) for r, topic in loc.odometry.topics.items()}
-    odo_malformed = {r: 0 for r in odo_readers}
-    conditions += [ReadCondition(rd.native, mask) for rd in odo_readers.values()]
-    for cond in conditions:
-        waitset.attach(cond)
-    malformed = {r: 0 for r in readers}
-    start = clock()
-    end = math.inf if duration is None else start + duration
-    next_diag = next_foreign = start
-    if ready is not None:
-        ready(loc)
-
-    def publish(out: Iterable[LivePose]) -> None:
-        for p in out:
-            pm, tfm = p.cdr()
-            for w, sample in ((poses[p.robot], raw_sample(T.PoseWithCovarianceStamped, pm)),
-                              *(((tf, raw_sample(T.TFMessage, tfm)),) if p.tf else ())):
-                try:
-                    w.write(sample)
-                except DDSException:  # (DDS refused it or timed out: counted, the loop goes on)
-                    loc.unsent(p.robot)
-
-    def say(now: float) -> None:
-        try:
-            diag.write(diagnostics_message(now, loc.diagnostics(now)))
-        except DDSException:
-            pass  # (the next one says the same, half a second later)
-
-    while True:
-        now = clock()
-        if now >= end:
-            break
-        due = loc.next_due()
-        wake = min(end, next_diag, due if due is not None else math.inf, now + 0.1)
-        if loc.deferred() or loc.clock_pending():
-            wake = now  # (smoothing or clock offsets to do: only look for messages)
-        waitset.wait(max(0, int((wake - now) * 1e9)))
-        now = clock()
-        _take_odometry(odo_readers, loc, clock, odo_malformed)  # (first: the records may wait for it)
-        for r, rd in readers.items():
-            _take(rd, r, loc, clock)
-            loc.malformed(r, rd.malformed - malformed[r], clock())
-            malformed[r] = rd.malformed
-        if now >= next_foreign:  # (four times a second: what others publish needs no hurry)
-            _foreign(bus, loc, others, now)
-            next_foreign = now + FOREIGN_PERIOD
-        now = clock()
-        publish(loc.poll(now, clock))
-        if loc.deferred():  # slack: some of the smoothing deferred while behind, then new messages again
-            due = loc.next_due()
-            loc.catch_up(clock, min(clock() + SMOOTH_SLICE, due if due is not None else math.inf))
-        elif loc.clock_pending():  # slack with no smoothing waiting: the clock offsets' window, a slice of it
-            due = loc.next_due()
-            loc.clock_work(clock, min(clock() + SMOOTH_SLICE, due if due is not None else math.inf))
-        if now >= next_diag:
-            say(now)
-            next_diag = max(next_diag + DIAGNOSTICS_PERIOD, now)
-    publish(loc.finish())
-    say(clock())
