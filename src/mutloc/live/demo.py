@@ -172,7 +172,7 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
                             truth=lambda t: relative_pose(world, SOURCE, TARGET, t), domain=domain,
                             odometry=odo_files)
     summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s, warm_up_seconds=warm_s,
-                   cameras=cameras)
+                   camera_set=cameras)
     (out / "live_summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     return summary
 
@@ -425,7 +425,7 @@ def format_live_summary(s: dict[str, Any]) -> str:
         f"live: two nodes (p, q) replaying {s['seconds']:g} s of camera at {s['fps']:g} fps and a localizer, "
         f"DDS domain {s['dds_domain']} on the loopback interface",
         *(["  robots with back-to-back fisheyes standing back to back: each node runs both cameras, only the "
-           "back cameras see the other robot"] if s.get("cameras") == "back-to-back-fisheye" else []),
+           "back cameras see the other robot"] if s.get("camera_set") == "back-to-back-fisheye" else []),
         f"  observation messages received: {s['observation_messages']}; poses of p in q received: "
         f"{s['poses_received']} ({s['poses_per_second']:.1f}/s)",
         f"  error against the truth: median {f(s['translation_error_cm']['median'], '.2f')} cm, "
