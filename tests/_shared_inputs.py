@@ -43,3 +43,20 @@ def shared(tmp_path_factory: Any, key: str, make: Callable[[], Any]) -> Any:
             pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(part, path)
         return value
+
+
+def clock_offset_pair(tmp_path_factory: Any) -> Path:
+    """The folder of ``write_simulation(frames=60, fps=30, seed=0, size=(480, 270), focal=400, clock_offset={"p":
+    0.04})``: two seconds of the balls pair, p stamping its frames 40 ms behind q (``p/frames.csv``; q's
+    ``q/frames.csv`` holds the true times), made once per run for tests/test_track_stream_clocks.py and
+    tests/test_live_end_to_end.py (its images are those of the same scene without the offset: a clock offset
+    changes only the stamps).  Read it, never write into it: copy it first."""
+
+    def make() -> Path:
+        from mutloc.sim.scenario import write_simulation
+
+        out = _folder(tmp_path_factory) / "clock-offset-pair"
+        write_simulation(out, frames=60, fps=30.0, seed=0, size=(480, 270), focal=400.0, clock_offset={"p": 0.04})
+        return out
+
+    return shared(tmp_path_factory, "clock-offset-pair-balls-60f-30fps-seed0-480x270-f400-p40ms", make)

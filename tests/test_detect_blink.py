@@ -501,7 +501,7 @@ def rendered_sequence(size: tuple[int, int], f: float, distance: float, n: int):
 @pytest.mark.parametrize(
     "size, f, distance, n, first",
     [((960, 540), 800.0, 1.4, 75, 30),  # light radius ~11 px (+ glow), ~190 px/s
-     ((1920, 1080), 1600.0, 1.6, 40, 24)],  # radius ~20 px, ~380 px/s; identified by 0.8 s
+     ((1920, 1080), 1600.0, 1.6, 32, 24)],  # radius ~20 px, ~380 px/s; identified by 0.8 s (then 8 frames)
     ids=["960x540", "1920x1080"],
 )
 def test_rendered_close_lights(size, f, distance, n, first) -> None:

@@ -13,6 +13,7 @@ import json
 import math
 
 import pytest
+from _shared_inputs import shared
 
 from mutloc.cli.main import main
 from mutloc.experiments.noise import METHODS, QUICK, run_noise
@@ -20,9 +21,15 @@ from mutloc.experiments.noise import METHODS, QUICK, run_noise
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("exp")
-    status = main(["experiment", "noise", "--out", str(out), "--seed", "3", "--quick", "--no-progress"])
-    return status, out / "noise"
+    """Run once per test run, also when ``pytest -n`` hands this module's tests to both workers
+    (tests/_shared_inputs.py): the workers read the same output folder."""
+
+    def run():
+        out = tmp_path_factory.mktemp("exp")
+        status = main(["experiment", "noise", "--out", str(out), "--seed", "3", "--quick", "--no-progress"])
+        return status, out / "noise"
+
+    return shared(tmp_path_factory, "experiment-noise-quick-seed3", run)
 
 
 def _blocks(res):

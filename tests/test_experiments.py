@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from _shared_inputs import shared
 
 from mutloc.cli.main import main
 from mutloc.experiments.localization import FOOT, METHODS, QUICK
@@ -18,9 +19,15 @@ from mutloc.io.pointcloud import read_ply
 
 @pytest.fixture(scope="module")
 def quick_all(tmp_path_factory):
-    out = tmp_path_factory.mktemp("all")
-    status = main(["experiment", "all", "--out", str(out), "--seed", "1", "--quick", "--no-progress"])
-    return status, out
+    """Run once per test run, also when ``pytest -n`` hands this module's tests to both workers
+    (tests/_shared_inputs.py): the workers read the same output folder."""
+
+    def run():
+        out = tmp_path_factory.mktemp("all")
+        status = main(["experiment", "all", "--out", str(out), "--seed", "1", "--quick", "--no-progress"])
+        return status, out
+
+    return shared(tmp_path_factory, "experiment-all-quick-seed1", run)
 
 
 def test_all_writes_one_report_with_every_experiment(quick_all):

@@ -7,12 +7,14 @@ those of offline ``track`` on the same images (the filter without the
 smoother's lag, as a live pose is published at once)."""
 
 import os
+import shutil
 import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from _shared_inputs import clock_offset_pair
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import Domain, DomainParticipant
@@ -24,13 +26,12 @@ from cyclonedds.topic import Topic
 from mutloc.core.geometry import matrix_from_quaternion_xyzw, rotation_error_deg
 from mutloc.live.dds import LOOPBACK_CONFIG
 from mutloc.live.demo import run_live_pair
-from mutloc.sim.scenario import write_simulation
 from mutloc.track.filtering import FilterOptions
 from mutloc.track.sources import open_streams
 from mutloc.track.tracker import track
 
 FPS = 30.0
-FRAMES = 75  # 2.5 s
+FRAMES = 60  # 2 s (tests/_shared_inputs.py's clock_offset_pair)
 
 
 # The subscriber's own definitions of the ROS 2 types it listens to.
@@ -91,12 +92,14 @@ def _listen(domain, stop, got):
         time.sleep(0.005)
 
 
-def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path, dds_domain):
+def test_two_nodes_and_a_localizer_deliver_the_poses_to_any_subscriber(tmp_path, tmp_path_factory, dds_domain):
+    # The rendered pair of tests/test_track_stream_clocks.py (rendered once per run), both cameras on the
+    # true clock here: q's frames.csv (the reference's, the true times) for both.
     sim = tmp_path / "sim"
-    write_simulation(sim, frames=FRAMES, fps=FPS, size=(480, 270), focal=400.0)
-    times = [float(line.split(",")[1]) for line in (sim / "frames.csv").read_text().splitlines()[1:]]
-    for r in ("p", "q"):
-        (sim / r / "frames.csv").write_text((sim / "frames.csv").read_text())
+    shutil.copytree(clock_offset_pair(tmp_path_factory), sim)
+    assert len(list((sim / "p").glob("*.png"))) == len(list((sim / "q").glob("*.png"))) == FRAMES
+    (sim / "p" / "frames.csv").write_text((sim / "q" / "frames.csv").read_text())
+    times = [float(line.split(",")[1]) for line in (sim / "q" / "frames.csv").read_text().splitlines()[1:]]
     truth = _truth(sim / "truth.tum")
 
     # offline, the same images

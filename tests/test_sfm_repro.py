@@ -32,31 +32,6 @@ def _bundler_rows(out):
                 for r in csv.DictReader(f)]
 
 
-@pytest.mark.slow
-def test_same_seed_gives_the_same_sfm_result_twice(tmp_path):
-    """Two runs of the localization experiment on a small grid: the SfM baseline
-    registers the same images with bit-identical errors, and those errors are
-    small against the rendered truth."""
-    kw = dict(seed=2, grid_x_ft=(0,), grid_z_ft=(5, 6), walkaround_views=10, progress=False)
-    a, b = (run_localization(tmp_path / name, **kw) for name in ("a", "b"))
-    ba, bb = a["methods"]["bundler"], b["methods"]["bundler"]
-    for key in ("registered_images", "sfm_points", "solved", "matched_pairs", "median_translation_m",
-                "median_rotation_deg", "mean_reprojection_px"):
-        assert ba[key] == bb[key], key
-    assert _bundler_rows(tmp_path / "a") == _bundler_rows(tmp_path / "b")
-    # Independent ground truth: the rendered poses.  Measured (seed 2): 14 of 14 images, both positions.
-    assert ba["solved"] == 2 and ba["registered_images"] == ba["images"] == 14
-    assert ba["median_translation_m"] < 0.05 and ba["median_rotation_deg"] < 1.0
-    # Fewer pairs than all of them: the two robots' frames face each other and share nothing.
-    assert ba["matched_pairs"] < ba["all_pairs"] == 14 * 13 // 2
-    # The run time by stage reaches results.json and the report.
-    timing = json.loads((tmp_path / "a" / "localization" / "results.json").read_text())["timing"]
-    for stage in ("render robot frames", "SfM: feature extraction", "SfM: matching and verification",
-                  "SfM: incremental mapping"):
-        assert timing["stages"][stage]["cpu_s"] > 0 and timing["stages"][stage]["wall_s"] > 0
-    assert "| SfM: incremental mapping |" in (tmp_path / "a" / "localization" / "report.md").read_text()
-
-
 def _database(path):
     """Every image's id, keypoints and descriptors, and every verified pair, from a COLMAP database."""
     con = sqlite3.connect(path)
@@ -68,29 +43,57 @@ def _database(path):
 
 
 @pytest.mark.slow
-def test_sfm_database_and_model_are_identical_run_to_run(tmp_path):
-    """With matching on two threads, two runs write the same database (the
-    same image numbering, features and verified matches) and build the same
-    model.  Before extraction ran on one thread, COLMAP numbered the images
-    in the order their features finished, and the model changed run to run."""
-    from mutloc.sim.walkaround import render_view, walkaround_poses
-    from mutloc.sim.world import Light, World
+def test_same_seed_gives_the_same_sfm_result_twice(tmp_path, monkeypatch):
+    """Two runs of the localization experiment on a small grid: the SfM baseline
+    registers the same images with bit-identical errors, and those errors are
+    small against the rendered truth.  Underneath, with matching on two
+    threads, the two runs wrote the same COLMAP database (the same image
+    numbering, features and verified matches) and built the same model, pose
+    for pose.  Before extraction ran on one thread, COLMAP numbered the images
+    in the order their features finished, and the model changed run to run.
+    (The experiment's own SfmScene, kept in a folder of the test's to be read.)"""
+    import mutloc.baselines.sfm as sfm_module
 
-    room = Room(center=(0.0, 0.0), size=(6.0, 6.0), seed=5, floor_decals=1.5)
-    world = World(robots={}, room=room, light=Light(position=(0.5, -0.5, 2.4)))
-    images = {f"v{j:02d}": render_view(world, CAM, T, seed=j, noise_sigma=2.0)
-              for j, T in enumerate(walkaround_poses((0.0, 0.0), 10, radius=1.6, height=0.9, room=room))}
-    runs = []
-    for name in ("a", "b"):
-        with SfmScene(images, CAM, seed=1, num_threads=2, workdir=tmp_path / name) as scene:
-            res = scene.reconstruct()
-            runs.append((_database(scene.database), res))
-    (db_a, res_a), (db_b, res_b) = runs
-    assert db_a == db_b
-    assert sorted(res_a.poses) == sorted(res_b.poses) and len(res_a.poses) >= 9
+    scenes = []
+
+    class KeptScene(sfm_module.SfmScene):
+        def __init__(self, *args, **kwargs):
+            kwargs["workdir"] = tmp_path / f"sfm{len(scenes)}"
+            super().__init__(*args, **kwargs)
+            self.result = None
+            scenes.append(self)
+
+        def reconstruct(self, *args, **kwargs):
+            self.result = super().reconstruct(*args, **kwargs)
+            return self.result
+
+    monkeypatch.setattr(sfm_module, "SfmScene", KeptScene)
+    kw = dict(seed=2, grid_x_ft=(0,), grid_z_ft=(5, 6), walkaround_views=10, progress=False)
+    a, b = (run_localization(tmp_path / name, **kw) for name in ("a", "b"))
+    ba, bb = a["methods"]["bundler"], b["methods"]["bundler"]
+    for key in ("registered_images", "sfm_points", "solved", "matched_pairs", "median_translation_m",
+                "median_rotation_deg", "mean_reprojection_px"):
+        assert ba[key] == bb[key], key
+    assert _bundler_rows(tmp_path / "a") == _bundler_rows(tmp_path / "b")
+    # The same database and model, run to run.
+    assert len(scenes) == 2 and all(s.result is not None for s in scenes)
+    assert _database(scenes[0].database) == _database(scenes[1].database)
+    res_a, res_b = scenes[0].result, scenes[1].result
+    assert sorted(res_a.poses) == sorted(res_b.poses)
     for n in res_a.poses:
         np.testing.assert_array_equal(res_a.poses[n].as_matrix(), res_b.poses[n].as_matrix())
     assert res_a.points == res_b.points and res_a.mean_reprojection_px == res_b.mean_reprojection_px
+    # Independent ground truth: the rendered poses.  Measured (seed 2): 14 of 14 images, both positions.
+    assert ba["solved"] == 2 and ba["registered_images"] == ba["images"] == 14
+    assert ba["median_translation_m"] < 0.05 and ba["median_rotation_deg"] < 1.0
+    # Fewer pairs than all of them: the two robots' frames face each other and share nothing.
+    assert ba["matched_pairs"] < ba["all_pairs"] == 14 * 13 // 2
+    # The run time by stage reaches results.json and the report.
+    timing = json.loads((tmp_path / "a" / "localization" / "results.json").read_text())["timing"]
+    for stage in ("render robot frames", "SfM: feature extraction", "SfM: matching and verification",
+                  "SfM: incremental mapping"):
+        assert timing["stages"][stage]["cpu_s"] > 0 and timing["stages"][stage]["wall_s"] > 0
+    assert "| SfM: incremental mapping |" in (tmp_path / "a" / "localization" / "report.md").read_text()
 
 
 def _facing(pos, yaw_deg):

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from _shared_inputs import shared
 
 from mutloc.cli.main import main
 from mutloc.core.geometry import so3_exp, so3_log
@@ -258,10 +259,15 @@ def test_cli_team_in_base_frames(team_log, tmp_path, capsys):
 @pytest.fixture(scope="module")
 def tag_team_sim(tmp_path_factory):
     """Three robots carrying AprilTags, rendered by ``mutloc simulate`` (480x270, 8 frames at 10 fps)."""
-    sim = tmp_path_factory.mktemp("tag_team") / "sim"
-    assert main(["simulate", "--robots", "3", "--markers", "tags", "--frames", "8", "--fps", "10", "--size",
-                 "480x270", "--focal", "400", "--seed", "2", "--out", str(sim), "--no-progress"]) == 0
-    return sim
+    # once per test run, also when pytest -n hands this module's tests to both workers (tests/_shared_inputs.py)
+
+    def make():
+        sim = tmp_path_factory.mktemp("tag_team") / "sim"
+        assert main(["simulate", "--robots", "3", "--markers", "tags", "--frames", "8", "--fps", "10", "--size",
+                     "480x270", "--focal", "400", "--seed", "2", "--out", str(sim), "--no-progress"]) == 0
+        return sim
+
+    return shared(tmp_path_factory, "team-track-tag-team-sim-seed2", make)
 
 
 @pytest.mark.slow

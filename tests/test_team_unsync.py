@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pytest
+from _shared_inputs import shared
 
 from mutloc.cli.main import main
 from mutloc.core.filter import MotionNoise
@@ -32,18 +33,24 @@ def fast_team(tmp_path_factory):
     """2 s of the fast team (480x270, f = 400 px), tracked from its image
     folders with the default --tolerance (5 ms: 130 frames make 120
     records) and with 1 ms (every frame a record of its own; the log it wrote)."""
-    d = tmp_path_factory.mktemp("unsync_team")
-    sim, out, apart = d / "sim", d / "track", d / "apart"
-    assert main(["simulate", "--robots", "3", "--markers", "tags", "--frames", "60", "--fps", "30",
-                 "--camera-fps", "r1=20", "--camera-fps", "r2=15", "--camera-offset", "r1=0.011",
-                 "--camera-offset", "r2=0.023", "--speed", "1.25", "--turn-rate", "75", "--size", "480x270",
-                 "--focal", "400", "--seed", "2", "--out", str(sim), "--no-progress"]) == 0
-    assert main(["track", "--rig", str(sim / "rig.yaml"), *[a for r in ROBOTS for a in ("--stream", f"{r}={sim / r}")],
-                 "--pixel-sigma", "0.3", *AGILE, "--out", str(out), "--no-progress"]) == 0
-    assert main(["track", "--rig", str(sim / "rig.yaml"), *[a for r in ROBOTS for a in ("--stream", f"{r}={sim / r}")],
-                 "--pixel-sigma", "0.3", *AGILE, "--tolerance", "0.001", "--observations-out", str(apart / "log.jsonl"),
-                 "--out", str(apart), "--no-progress"]) == 0
-    return sim, out, apart
+    # once per test run, also when pytest -n hands this module's tests to both workers (tests/_shared_inputs.py)
+
+    def make():
+        d = tmp_path_factory.mktemp("unsync_team")
+        sim, out, apart = d / "sim", d / "track", d / "apart"
+        assert main(["simulate", "--robots", "3", "--markers", "tags", "--frames", "60", "--fps", "30",
+                     "--camera-fps", "r1=20", "--camera-fps", "r2=15", "--camera-offset", "r1=0.011",
+                     "--camera-offset", "r2=0.023", "--speed", "1.25", "--turn-rate", "75", "--size", "480x270",
+                     "--focal", "400", "--seed", "2", "--out", str(sim), "--no-progress"]) == 0
+        streams = [a for r in ROBOTS for a in ("--stream", f"{r}={sim / r}")]
+        assert main(["track", "--rig", str(sim / "rig.yaml"), *streams,
+                     "--pixel-sigma", "0.3", *AGILE, "--out", str(out), "--no-progress"]) == 0
+        assert main(["track", "--rig", str(sim / "rig.yaml"), *streams,
+                     "--pixel-sigma", "0.3", *AGILE, "--tolerance", "0.001",
+                     "--observations-out", str(apart / "log.jsonl"), "--out", str(apart), "--no-progress"]) == 0
+        return sim, out, apart
+
+    return shared(tmp_path_factory, "team-unsync-fast-team-seed2", make)
 
 
 def _truth(sim):

@@ -10,6 +10,7 @@ import json
 
 import numpy as np
 import pytest
+from _shared_inputs import shared
 
 from mutloc.cli.main import main
 from mutloc.core.geometry import so3_exp, so3_log
@@ -173,9 +174,14 @@ def test_cli_log_keyed_by_camera_and_bad_keys(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """One short rendered sequence (small images, no room), robots back to back."""
-    d = tmp_path_factory.mktemp("sim")
-    write_cameras_simulation(d, facing="away", frames=5, size=(480, 300), room=False, seed=2)
-    return d
+    # once per test run, also when pytest -n hands this module's tests to both workers (tests/_shared_inputs.py)
+
+    def make():
+        d = tmp_path_factory.mktemp("sim")
+        write_cameras_simulation(d, facing="away", frames=5, size=(480, 300), room=False, seed=2)
+        return d
+
+    return shared(tmp_path_factory, "track-bodies-rendered-away-seed2", make)
 
 
 def test_rendered_streams_per_camera_facing_away(rendered, tmp_path, capsys):

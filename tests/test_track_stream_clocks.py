@@ -1,21 +1,21 @@
 """``track --stream ... --clock-offsets estimate`` (SPEC "The robots' own motion and clocks"): the offsets
 estimated from the streams' detections (a first pass over them) exactly as from the observation log of
 those detections, and every frame of a robot then fused at its stamp plus its offset.  A rendered pair
-(:func:`mutloc.sim.scenario.write_simulation`) whose p stamps its frames 40 ms behind q (its own
+(:func:`mutloc.sim.scenario.write_simulation`, rendered once per run for this test and
+tests/test_live_end_to_end.py: tests/_shared_inputs.py) whose p stamps its frames 40 ms behind q (its own
 ``frames.csv``); the estimate's accuracy against the truth is tests/test_clock_offsets.py's (on logs)."""
 
 import json
 
 import numpy as np
+from _shared_inputs import clock_offset_pair
 
 from mutloc.cli.main import main
 from mutloc.io.trajectory import read_trajectory_csv
-from mutloc.sim.scenario import write_simulation
 
 
-def test_track_stream_estimates_as_from_the_log_and_shifts_the_robots_frames(tmp_path, capsys):
-    sim = tmp_path / "sim"
-    write_simulation(sim, frames=60, fps=30.0, seed=0, size=(480, 270), focal=400.0, clock_offset={"p": 0.04})
+def test_track_stream_estimates_as_from_the_log_and_shifts_the_robots_frames(tmp_path, tmp_path_factory, capsys):
+    sim = clock_offset_pair(tmp_path_factory)  # 60 frames at 30 fps, p 40 ms behind (rendered once per run)
     base = ["track", "--rig", str(sim / "rig.yaml"), "--no-progress", "--clock-offsets", "estimate"]
     streams = ["--stream", f"p={sim / 'p'}", "--stream", f"q={sim / 'q'}"]
     log = tmp_path / "log.jsonl"
