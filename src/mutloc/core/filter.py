@@ -85,10 +85,28 @@ class MotionNoise:
     linear: float = 1.0
     initial_angular: float = 1.0
     initial_linear: float = 1.0
+    #: The reference robot's own white-noise angular acceleration (rad
+    #: s^-2 Hz^-1/2; None: ``angular``, the reference is a robot like the
+    #: others; 0: not modelled).  Every pose is in the reference's frame: when
+    #: the reference turns, every other robot's relative pose turns the other
+    #: way and its position swings through its lever arm -- a robot ``r``
+    #: metres away moves by ``r`` times the reference's unforeseen turn.  The
+    #: team filter adds this noise to every robot's prediction with that
+    #: coupling (rotation ``-dphi``, translation ``t x dphi``), one noise for
+    #: all robots (their predictions move together, correlated).
+    reference_angular: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("angular", "linear", "initial_angular", "initial_linear"):
             positive_number(getattr(self, name), f"MotionNoise.{name}")
+        ra = self.reference_angular
+        if ra is not None and not (isinstance(ra, (int, float)) and math.isfinite(ra) and ra >= 0.0):
+            raise InputError(f"MotionNoise.reference_angular must be a number >= 0 or None, got {ra!r}")
+
+    @property
+    def reference_turn(self) -> float:
+        """The reference's angular acceleration noise in use (``reference_angular``, else ``angular``)."""
+        return self.angular if self.reference_angular is None else float(self.reference_angular)
 
 
 @dataclass(frozen=True)
