@@ -79,6 +79,17 @@ class MotionNoise:
     noisier detections, raise them for agile robots.  ``initial_angular`` (rad/s) and
     ``initial_linear`` (m/s) are the velocity's sigma when the track starts
     or restarts (from rest, as far as the filter knows).
+
+    Each robot's noise is its own; the poses are relative to the reference,
+    which moves too: its turning (``reference_angular``, by default the same
+    ``angular``) swings every other robot through its lever arm -- at 3 m, a
+    reference turning at 75 deg/s moves a robot's relative position at 4 m/s
+    -- and the team filter adds it to every prediction and to a started
+    track's velocity prior (:mod:`mutloc.core.team_filter`).  At speed
+    (robots at 1-1.5 m/s turning at 70-80 deg/s) the walking-pace defaults
+    are overconfident: ``angular=2, linear=2`` (``--angular-noise 2
+    --linear-noise 2``) keep coasted poses within their sigma (docs/benchmarks.md,
+    "The motion model at speed").
     """
 
     angular: float = 0.5

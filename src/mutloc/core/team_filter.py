@@ -13,7 +13,11 @@ each is known in the reference's frame, and an observation of one moves the
 other.
 
 Motion: each robot's constant-velocity model, independent white-noise
-accelerations (:class:`~mutloc.core.filter.MotionNoise`); where robots
+accelerations (:class:`~mutloc.core.filter.MotionNoise`), plus the
+reference's own turning, one white angular acceleration shared by all: it
+turns every robot's relative pose the other way and moves its position
+through its lever arm (``t_i x phi``), so far robots' predictions grow
+faster and all of them move together (correlated); where robots
 have odometry (:meth:`TeamFilter.set_odometry`), their increments between
 the two times move the poses instead (:mod:`mutloc.core.team_odometry`).
 
