@@ -284,7 +284,6 @@ class TeamFilter:
             raise InputError("the reference's pose is the identity: it is not tracked")
         if i in self.tracked:
             self.drop(name)
-        n = self.noise
         B = np.zeros((STATE_DIM, STATE_DIM))
         B[:6, :6] = np.asarray(covariance, float)
         B[6:, 6:] = (np.asarray(velocity_covariance, float) if velocity_covariance is not None else
