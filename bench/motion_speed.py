@@ -26,9 +26,9 @@ own covariance (NEES over the 6 pose dimensions above chi2_6's two-sided
 5 cm; the error and sigma (largest translation 1-sigma) of the coasted rows
 at the end of the dark stretch; mean NEES / 6 of coasted and of solved and
 partial rows.  ``--noise`` runs the old walking-pace defaults, the tests'
-agile values (``--angular-noise 2 --linear-noise 2``), each also with the
-reference's turning left out of the model (``-old``: as before
-2026-12-03) -- all in one run, for comparison.
+agile values (``--angular-noise 2 --linear-noise 2``), each with the
+reference's turning modelled (``MotionNoise.reference_angular`` equal to
+``angular``) and without it (``-old``: the default) -- all in one run.
 
     python bench/motion_speed.py [--seeds 5,6,7] [--dark 0.6] [--cache DIR]
 
@@ -163,15 +163,16 @@ def main_() -> None:
     ap.add_argument("--cache", default="/tmp/mutloc-motion-speed")
     ap.add_argument("--noise", default="walking-old,walking,agile-old,agile",
                     help="comma-separated: walking (--angular-noise 0.5 --linear-noise 1, the defaults), agile "
-                         "(2 / 2, the tests'), each with '-old': the reference's turning not modelled "
-                         "(MotionNoise.reference_angular 0, as before 2026-12-03); default: FilterOptions()'s")
+                         "(2 / 2, the tests'), the reference's turning modelled (MotionNoise.reference_angular = "
+                         "angular); '-old': not modelled (the default); default: FilterOptions()'s")
     ap.add_argument("--out", default=result_file("motion_speed.json"))
     args = ap.parse_args()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
-    noises = {"walking": MotionNoise(angular=0.5, linear=1.0), "agile": MotionNoise(angular=2.0, linear=2.0),
-              "walking-old": MotionNoise(angular=0.5, linear=1.0, reference_angular=0.0),
-              "agile-old": MotionNoise(angular=2.0, linear=2.0, reference_angular=0.0), "default": None}
+    noises = {"walking": MotionNoise(angular=0.5, linear=1.0, reference_angular=0.5),
+              "agile": MotionNoise(angular=2.0, linear=2.0, reference_angular=2.0),
+              "walking-old": MotionNoise(angular=0.5, linear=1.0),
+              "agile-old": MotionNoise(angular=2.0, linear=2.0), "default": None}
     seeds = [int(s) for s in args.seeds.split(",")]
     res = {"machine": machine(), "seeds": seeds, "dark_s": args.dark, "noise": {}}
     logs = {}

@@ -51,9 +51,9 @@ def test_the_references_turning_moves_every_robot_through_its_lever_arm():
 
 
 def test_reference_angular_is_checked():
-    assert MotionNoise(angular=0.3).reference_turn == 0.3
-    assert MotionNoise(reference_angular=0).reference_turn == 0.0
-    for bad in (-1.0, float("nan"), "1"):
+    assert MotionNoise(angular=0.3).reference_turn == 0.0  # off by default
+    assert MotionNoise(reference_angular=1).reference_turn == 1.0
+    for bad in (-1.0, float("nan"), "1", None):
         with pytest.raises(InputError, match="reference_angular"):
             MotionNoise(reference_angular=bad)
 
@@ -90,15 +90,17 @@ def _fast_team_coasts(seed: int, noise: MotionNoise, dark: float = 0.6):
 
 def test_coasting_at_speed_is_honest():
     """Against the simulator's truth, two seeds of the fast team with the
-    agile noise the fast tests use (--angular-noise 2 --linear-noise 2):
+    agile noise the fast tests use (--angular-noise 2 --linear-noise 2) and
+    the reference's turning modelled as well (reference_angular 2):
     the robots coasted in the dark (0.6 s, up to a metre and more off) have
     a mean NEES / 6 between 0.3 and 2.5 and none is beyond 5 sigma; no pose
     of any status is beyond 5 sigma.  (Measured, seeds 0-1: 85 coasted rows,
     mean NEES / 6 1.07, largest error 1.6 m; none of 962 poses beyond 5
     sigma.  With the reference's turning left out -- reference_angular 0,
-    as before -- the coasted mean NEES / 6 is 5.0 and 22 of them, and 134 of
+    the default -- the coasted mean NEES / 6 is 5.0 and 22 of them, and 134 of
     978 poses, are beyond 5 sigma.)"""
-    rows = [x for seed in (0, 1) for x in _fast_team_coasts(seed, MotionNoise(angular=2.0, linear=2.0))]
+    agile = MotionNoise(angular=2.0, linear=2.0, reference_angular=2.0)
+    rows = [x for seed in (0, 1) for x in _fast_team_coasts(seed, agile)]
     coasted = np.array([n for s, dark, n in rows if dark and s == "predicted"])
     assert len(coasted) > 40
     assert 0.3 <= coasted.mean() / 6 <= 2.5 and coasted.max() < NEES_5_SIGMA, (coasted.mean() / 6, coasted.max())

@@ -13,8 +13,9 @@ each is known in the reference's frame, and an observation of one moves the
 other.
 
 Motion: each robot's constant-velocity model, independent white-noise
-accelerations (:class:`~mutloc.core.filter.MotionNoise`), plus the
-reference's own turning, one white angular acceleration shared by all: it
+accelerations (:class:`~mutloc.core.filter.MotionNoise`), plus (with
+``MotionNoise.reference_angular``) the reference's own turning, one white
+angular acceleration shared by all: it
 turns every robot's relative pose the other way and moves its position
 through its lever arm (``t_i x phi``), so far robots' predictions grow
 faster and all of them move together (correlated); where robots
@@ -311,8 +312,8 @@ class TeamFilter:
         """The 6x6 covariance of a robot's velocity ``(w, v)`` in the
         reference's frame when its track starts at ``pose`` knowing nothing of
         it: its own (the noise's ``initial_angular`` / ``initial_linear``
-        sigmas) and the reference's unknown turning (``initial_angular`` too,
-        unless :attr:`MotionNoise.reference_angular` is 0), which turns the
+        sigmas) and, with :attr:`MotionNoise.reference_angular`, the
+        reference's unknown turning (``initial_angular`` too), which turns the
         robot the other way and sweeps it sideways at ``|t|`` times that rate."""
         n = self.noise
         C = np.diag([n.initial_angular**2] * 3 + [n.initial_linear**2] * 3)
