@@ -38,7 +38,7 @@ def _van_loan(dt: float, q_ang: float, q_lin: float) -> np.ndarray:
 def _predicted(pose: Pose, vel: np.ndarray, P: np.ndarray, dt: float, q_ang: float, q_lin: float) -> TeamFilter:
     """A team filter whose one robot is at ``pose`` with velocity ``vel`` and
     12x12 covariance ``P`` at time 0, predicted to ``dt``."""
-    f = TeamFilter(["r0", "r1"], "r0", MotionNoise(angular=np.sqrt(q_ang), linear=np.sqrt(q_lin)))
+    f = TeamFilter(["r0", "r1"], "r0", MotionNoise(angular=np.sqrt(q_ang), linear=np.sqrt(q_lin), reference_angular=0.0))
     f.time = 0.0
     f.add("r1", pose, P[:6, :6], velocity=vel, state_covariance=P)
     f.predict(dt)

@@ -79,16 +79,47 @@ class MotionNoise:
     noisier detections, raise them for agile robots.  ``initial_angular`` (rad/s) and
     ``initial_linear`` (m/s) are the velocity's sigma when the track starts
     or restarts (from rest, as far as the filter knows).
+
+    The poses are relative to the reference, which moves too: its turning
+    swings every other robot through its lever arm -- at 3 m, a reference
+    turning at 75 deg/s moves a robot's relative position at 4 m/s.
+    ``reference_angular`` (off by default) adds that to every prediction and
+    to a started track's velocity prior (:mod:`mutloc.core.team_filter`).
+    At speed (robots at 1-1.5 m/s turning at 70-80 deg/s) the walking-pace
+    defaults are overconfident: ``angular=2, linear=2, reference_angular=2``
+    keep coasted poses within their sigma (docs/benchmarks.md,
+    "The motion model at speed").
     """
 
     angular: float = 0.5
     linear: float = 1.0
     initial_angular: float = 1.0
     initial_linear: float = 1.0
+    #: The reference robot's own white-noise angular acceleration (rad
+    #: s^-2 Hz^-1/2; 0, the default: not modelled, the relative noise above
+    #: covers it).  Every pose is in the reference's frame: when the
+    #: reference turns, every other robot's relative pose turns the other way
+    #: and its position swings through its lever arm -- a robot ``r`` metres
+    #: away moves by ``r`` times the reference's unforeseen turn.  The team
+    #: filter adds this noise to every robot's prediction with that coupling
+    #: (rotation ``-dphi``, translation ``t x dphi``), one noise for all
+    #: robots (their predictions move together, correlated), and to a
+    #: started track's velocity prior.  Off by default: on the node-outage
+    #: benchmark (a static reference, one camera's two markers for seconds)
+    #: it doubled the poses beyond 5 sigma (docs/benchmarks.md).
+    reference_angular: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("angular", "linear", "initial_angular", "initial_linear"):
             positive_number(getattr(self, name), f"MotionNoise.{name}")
+        ra = self.reference_angular
+        if isinstance(ra, bool) or not (isinstance(ra, (int, float)) and math.isfinite(ra) and ra >= 0.0):
+            raise InputError(f"MotionNoise.reference_angular must be a number >= 0, got {ra!r}")
+
+    @property
+    def reference_turn(self) -> float:
+        """The reference's angular acceleration noise in use (0: not modelled)."""
+        return float(self.reference_angular)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,12 @@ each is known in the reference's frame, and an observation of one moves the
 other.
 
 Motion: each robot's constant-velocity model, independent white-noise
-accelerations (:class:`~mutloc.core.filter.MotionNoise`); where robots
+accelerations (:class:`~mutloc.core.filter.MotionNoise`), plus (with
+``MotionNoise.reference_angular``) the reference's own turning, one white
+angular acceleration shared by all: it
+turns every robot's relative pose the other way and moves its position
+through its lever arm (``t_i x phi``), so far robots' predictions grow
+faster and all of them move together (correlated); where robots
 have odometry (:meth:`TeamFilter.set_odometry`), their increments between
 the two times move the poses instead (:mod:`mutloc.core.team_odometry`).
 
@@ -55,6 +60,7 @@ import numpy as np
 from ..errors import InputError, confidence_level, positive_number
 from .consistency import DEFAULT_CONFIDENCE, Consistency, chi2_quantile
 from .filter import NOISE_WINDOW, STATE_DIM, MotionNoise, measured_noise, single_outlier
+from .geometry import skew
 from .odometry import Odometry, OdometryIncrement
 from .pose import Pose
 from .team import TeamProblem
@@ -271,7 +277,7 @@ class TeamFilter:
     def add(self, name: str, pose: Pose, covariance: np.ndarray, velocity: np.ndarray | None = None,
             velocity_covariance: np.ndarray | None = None, state_covariance: np.ndarray | None = None) -> None:
         """Start tracking ``name`` at ``pose`` (6x6 ``covariance``; velocity
-        zero with the noise's initial sigmas unless given), uncorrelated with
+        zero with :meth:`start_velocity_covariance` unless given), uncorrelated with
         the robots already tracked; ``state_covariance``: instead, the full
         12x12 covariance of pose and velocity (with their correlation)."""
         i = self.index(name)
@@ -279,11 +285,10 @@ class TeamFilter:
             raise InputError("the reference's pose is the identity: it is not tracked")
         if i in self.tracked:
             self.drop(name)
-        n = self.noise
         B = np.zeros((STATE_DIM, STATE_DIM))
         B[:6, :6] = np.asarray(covariance, float)
         B[6:, 6:] = (np.asarray(velocity_covariance, float) if velocity_covariance is not None else
-                     np.diag([n.initial_angular**2] * 3 + [n.initial_linear**2] * 3))
+                     self.start_velocity_covariance(pose))
         # The start's own covariance, were the noise the measured one: the
         # measured part scaled (the pose's; all of a full state's).
         scale = (self.gain_sigma / self.pixel_sigma) ** 2
@@ -302,6 +307,20 @@ class TeamFilter:
         self.serial[i] = self._serials
         self.R[i], self.t[i] = pose.R, pose.t
         self.vel[i] = 0.0 if velocity is None else np.asarray(velocity, float)
+
+    def start_velocity_covariance(self, pose: Pose) -> np.ndarray:
+        """The 6x6 covariance of a robot's velocity ``(w, v)`` in the
+        reference's frame when its track starts at ``pose`` knowing nothing of
+        it: its own (the noise's ``initial_angular`` / ``initial_linear``
+        sigmas) and, with :attr:`MotionNoise.reference_angular`, the
+        reference's unknown turning (``initial_angular`` too), which turns the
+        robot the other way and sweeps it sideways at ``|t|`` times that rate."""
+        n = self.noise
+        C = np.diag([n.initial_angular**2] * 3 + [n.initial_linear**2] * 3)
+        if n.reference_turn > 0.0:
+            B = np.vstack([-np.eye(3), skew(np.asarray(pose.t, float))])
+            C = C + n.initial_angular**2 * (B @ B.T)
+        return C
 
     @staticmethod
     def _grown(P: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -391,6 +410,8 @@ class TeamFilter:
                 self.P = out[0]
                 if self.Pg is not None:
                     self.Pg = out[1]
+                if ref is None:
+                    self._reference_turn(dt)
                 return
         if self.Pg is not None:  # (the poses move once: with the stated covariance below)
             Pg = np.array(self.Pg, dtype=float, order="C")
@@ -399,6 +420,34 @@ class TeamFilter:
         P = np.array(self.P, dtype=float, order="C")  # a new array: results handed out before stay as they were
         team_predict(tracked, self.R, self.t, self.vel, P, dt, qa, ql)
         self.P = P
+        self._reference_turn(dt)
+
+    def _reference_turn(self, dt: float) -> None:
+        """Add the reference's own unforeseen turning over ``dt`` to the
+        predicted covariances (:attr:`MotionNoise.reference_angular`): its
+        rotation ``phi`` (white angular acceleration, integrated twice) moves
+        robot ``i``'s error state by ``(-phi, t_i x phi)`` and its velocity by
+        the rate of that -- the same ``phi`` for every robot, so the added
+        noise ``L L^T`` (``L``: ``12k x 6``) correlates them."""
+        q = self.noise.reference_turn
+        if q == 0.0 or not self.tracked:
+            return
+        d3, d2 = dt**3 / 3.0, dt**2 / 2.0
+        c00 = math.sqrt(d3)  # the Cholesky factor of q [[dt^3/3, dt^2/2], [dt^2/2, dt]]
+        c10 = d2 / c00
+        c11 = math.sqrt(max(dt - c10 * c10, 0.0))
+        L = np.zeros((STATE_DIM * len(self.tracked), 6))
+        for x, i in enumerate(self.tracked):
+            o = STATE_DIM * x
+            B = np.vstack([-np.eye(3), skew(self.t[i])])  # (dtheta, dt) of robot i per unit phi
+            L[o:o + 6, :3] = c00 * B
+            L[o + 6:o + 12, :3] = c10 * B
+            L[o + 6:o + 12, 3:] = c11 * B
+        L *= q
+        Q = L @ L.T
+        self.P = self.P + Q
+        if self.Pg is not None:
+            self.Pg = self.Pg + Q
 
     # -- observations -------------------------------------------------------
 

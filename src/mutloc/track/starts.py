@@ -31,7 +31,9 @@ from .status import FrameStatus
 #: correlations with the robots already tracked come from those
 #: observations (the prior adds about 1e-3 of their information).
 #: Its velocity starts at zero with the motion noise's ``initial_angular`` /
-#: ``initial_linear`` sigmas (:class:`~mutloc.core.filter.MotionNoise`): one
+#: ``initial_linear`` sigmas (:class:`~mutloc.core.filter.MotionNoise`), the
+#: reference's unknown turning swept through its lever arm added
+#: (:meth:`~mutloc.core.team_filter.TeamFilter.start_velocity_covariance`): one
 #: record says nothing of it; its next records measure it.
 START_SIGMA_R, START_SIGMA_T = 0.3, 0.5
 
@@ -137,9 +139,7 @@ class Starts:
         for r, (pose, three) in guesses.items():
             if r in self.tracks:
                 self._drop(r)
-            f.add(r, pose, np.diag([START_SIGMA_R**2] * 3 + [START_SIGMA_T**2] * 3),
-                  velocity_covariance=np.diag([self.options.noise.initial_angular**2] * 3
-                                              + [self.options.noise.initial_linear**2] * 3))
+            f.add(r, pose, np.diag([START_SIGMA_R**2] * 3 + [START_SIGMA_T**2] * 3))
         new = set(guesses)
         rows = np.flatnonzero(np.any([touch[r] for r in new], axis=0) & ~used)
         known = np.ones(len(problem.cam), dtype=bool)
