@@ -32,10 +32,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                       help="with --live: each moving robot's odometry too, simulated with drift (1 %% of the "
                            "distance, 0.3 deg/m, 50 Hz) and published as nav_msgs/msg/Odometry on /NAME/odom by a "
                            "separate process; the localizer subscribes to it (--odometry NAME=ros:/NAME/odom)")
-    live.add_argument("--cameras", choices=("single", "back-to-back-fisheye"), default="single",
-                      help="with --live: one pinhole camera per robot (single, the default) or robots with two "
-                           "fisheyes of about 200 degrees back to back, standing back to back so that only the "
-                           "back cameras see the other robot (one node per robot runs both cameras)")
     live.add_argument("--domain", type=int, default=None, metavar="N",
                       help="with --live: the DDS domain id (default: one from 100-199 chosen by the process id)")
     return p
@@ -43,16 +39,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo and print its summary."""
-    for given, flag in ((args.odometry, "--odometry"), (args.cameras != "single", "--cameras")):
-        if given and not args.live:
-            from ..errors import InputError
+    if args.odometry and not args.live:
+        from ..errors import InputError
 
-            raise InputError(f"{flag} is for the live demo: add --live")
+        raise InputError("--odometry is for the live demo: add --live")
     if args.live:
         from ..live.demo import format_live_summary, run_live_demo
 
         summary = run_live_demo(args.out, seconds=args.seconds, fps=args.fps, seed=args.seed, domain=args.domain,
-                                progress=args.progress, odometry=args.odometry, cameras=args.cameras)
+                                progress=args.progress, odometry=args.odometry)
         print(format_live_summary(summary))
         return 0
     from ..sim.demo import format_summary, run_demo

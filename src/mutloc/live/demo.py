@@ -39,74 +39,45 @@ NODE_START_FACTOR = 2.5
 READY_TIMEOUT = 60.0
 
 
-def _scene(cameras: str, seed: int) -> tuple[Any, Any]:
-    """The live demo's rig and moving world for ``cameras`` (``single`` or ``back-to-back-fisheye``)."""
-    from ..sim.render import moving_world
-    from ..sim.world import standard_rig
-
-    if cameras == "single":
-        rig = standard_rig("balls")
-        return rig, moving_world(rig, seed=seed, source=SOURCE, target=TARGET)
-    from ..sim.body_scenes import fisheye_pair_rig, moving_body_world
-
-    rig = fisheye_pair_rig("balls", size=BODIES_SIZE)
-    return rig, moving_body_world(rig, distance=BODIES_DISTANCE, facing="away", seed=seed)
-
-
 def _render_frame(args: tuple) -> tuple[str, int]:
     import cv2
 
     from ..sim.demo import SEQUENCE_RENDER
-    from ..sim.render import render
+    from ..sim.render import moving_world, render
+    from ..sim.world import standard_rig
 
-    folder, cameras, key, i, t, seed = args
-    world = _scene(cameras, seed)[1]
-    path = Path(folder) / key.replace("/", "_") / f"{i:06d}.png"
-    if not cv2.imwrite(str(path), render(world, key, t, seed=seed, **SEQUENCE_RENDER)):
+    folder, robot, i, t, seed = args
+    world = moving_world(standard_rig("balls"), seed=seed, source=SOURCE, target=TARGET)
+    path = Path(folder) / robot / f"{i:06d}.png"
+    if not cv2.imwrite(str(path), render(world, robot, t, seed=seed, **SEQUENCE_RENDER)):
         raise OSError(f"{path}: cannot write image")
-    return key, i
+    return robot, i
 
 
-def _render(folder: Path, cameras: str, seconds: float, fps: float, seed: int,
-            progress: bool) -> tuple[Any, Any, dict[str, Any], list[float]]:
-    """Render ``seconds`` at ``fps`` of the scene of ``cameras`` into ``folder``, one folder of images and
-    ``frames.csv`` per camera (``p/``, or ``p_front/`` ...), several processes at once.  Returns the rig, the
-    world (the truth) and :func:`run_live_pair`'s ``folders`` (``{robot: folder}``, or ``{robot: {camera:
-    folder}}`` for robots with several cameras) and the frame times."""
+def _render(folder: Path, seconds: float, fps: float, seed: int, progress: bool) -> list[float]:
     from tqdm import tqdm
 
-    rig, world = _scene(cameras, seed)
-    keys = rig.observer_keys()
     times = [i / fps for i in range(int(round(seconds * fps)))]
-    for k in keys:
-        sub = folder / k.replace("/", "_")
-        sub.mkdir(parents=True, exist_ok=True)
-        for old in sub.glob("*.png"):
+    for r in (SOURCE, TARGET):
+        (folder / r).mkdir(parents=True, exist_ok=True)
+        for old in (folder / r).glob("*.png"):
             old.unlink()
-        (sub / "frames.csv").write_text(
+        (folder / r / "frames.csv").write_text(
             "frame,timestamp\n" + "".join(f"{i},{t:.9f}\n" for i, t in enumerate(times)), encoding="utf-8")
-    jobs = [(str(folder), cameras, k, i, t, seed) for i, t in enumerate(times) for k in keys]
+    jobs = [(str(folder), r, i, t, seed) for i, t in enumerate(times) for r in (SOURCE, TARGET)]
     with ProcessPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
         for _ in tqdm(pool.map(_render_frame, jobs, chunksize=8), total=len(jobs), desc="render", unit="image",
                       disable=not progress):
             pass
-    folders: dict[str, Any] = {}
-    for k in keys:
-        robot, _, camera = k.partition("/")
-        if camera:
-            folders.setdefault(robot, {})[camera] = folder / k.replace("/", "_")
-        else:
-            folders[robot] = folder / k
-    return rig, world, folders, times
+    return times
 
 
 def warm_up_kernels(rig: Any, folders: dict[str, Path], fps: float, progress: bool = False) -> None:
     """Compile (on a cold cache: a fresh install) or load the numerical
     kernels the nodes and the localizer will use, here, before they start:
-    each camera's detector on drawn markers
+    each robot's detector on drawn markers
     (:func:`~mutloc.live.node.warm_up_detector`) and the team tracker on the
-    first frames of ``folders`` (``{key: folder}``, one per camera, keyed
-    ``ROBOT`` or ``ROBOT/CAMERA``).  The processes then load them from the
+    first frames of ``folders``.  The processes then load them from the
     cache within their lead-in instead of compiling them while the replays
     run (and a stop during a compilation is never what ends them)."""
     from itertools import islice
@@ -119,15 +90,13 @@ def warm_up_kernels(rig: Any, folders: dict[str, Path], fps: float, progress: bo
     rig = expanded_rig(rig)
     if progress:
         print("loading the numerical kernels (compiled once on a fresh install: up to a few minutes)", flush=True)
-    robots = {k.split("/")[0] for k in folders}
-    for k in folders:
-        warm_up_detector(rig, k, sorted(robots - {k.split("/")[0]}), fps)
+    for r in folders:
+        warm_up_detector(rig, r, [o for o in folders if o != r], fps)
     track_team(rig, {r: islice(folder_frames(f), 6) for r, f in folders.items()}, progress=False)
 
 
 def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fps: float = 10.0, seed: int = 0,
-                  domain: int | None = None, progress: bool = False, odometry: bool = False,
-                  cameras: str = "single") -> dict[str, Any]:
+                  domain: int | None = None, progress: bool = False, odometry: bool = False) -> dict[str, Any]:
     """Render ``seconds`` of the demo sequence at ``fps``, run two nodes and a
     localizer on it in real time (DDS on the loopback interface, domain
     ``domain``, default one chosen from this process's id) and return what a
@@ -137,15 +106,9 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
     odometry too, simulated with drift (:func:`mutloc.sim.odometry.write_odometry`,
     ``out_dir/live/odometry/``) and published by a separate process as a
     robot's driver would (:mod:`mutloc.live.odometry_replay`); the localizer
-    subscribes to it (``--odometry NAME=ros:/NAME/odom``).
-
-    ``cameras``: ``"single"`` (one pinhole camera per robot, p driving in
-    front of q) or ``"back-to-back-fisheye"`` (robots with two fisheyes of
-    about 200 degrees each, ``front`` and ``back``, standing back to back so
-    that only the back cameras see the other robot; one node per robot runs
-    both cameras, ``--camera front=DIR --camera back=DIR``; 640x400 images)."""
-    from ..sim.body_scenes import CAMERA_SETS
-    from ..sim.render import relative_pose
+    subscribes to it (``--odometry NAME=ros:/NAME/odom``)."""
+    from ..sim.render import moving_world, relative_pose
+    from ..sim.world import standard_rig
 
     seconds = positive_number(seconds, "seconds")
     fps = positive_number(fps, "fps")
@@ -155,44 +118,25 @@ def run_live_demo(out_dir: str | Path = "demo-out", *, seconds: float = 10.0, fp
 
     if domain is not None:
         domain = check_domain(domain)  # before the rendering, not after
-    if cameras not in CAMERA_SETS:
-        raise InputError(f"cameras must be one of {', '.join(CAMERA_SETS)}, got {cameras!r}")
     out = Path(out_dir).expanduser() / "live"
     out.mkdir(parents=True, exist_ok=True)
+    rig = standard_rig("balls")
     rig_file = out / "rig.yaml"
-    t0 = time.perf_counter()
-    rig, world, folders, times = _render(out / "cameras", cameras, seconds, fps, seed, progress)
     save_rig(rig, rig_file)
-    render_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    warm_up_kernels(rig, _camera_folders(folders), fps, progress)
+    times = _render(out / "cameras", seconds, fps, seed, progress)
+    render_s = time.perf_counter() - t0
+    world = moving_world(rig, seed=seed, source=SOURCE, target=TARGET)
+    t0 = time.perf_counter()
+    warm_up_kernels(rig, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, fps, progress)
     warm_s = time.perf_counter() - t0
     odo_files = _simulated_odometry(out / "odometry", world, seconds, seed) if odometry else None
-    summary = run_live_pair(rig_file, folders, out, seconds=seconds,
+    summary = run_live_pair(rig_file, {r: out / "cameras" / r for r in (SOURCE, TARGET)}, out, seconds=seconds,
                             truth=lambda t: relative_pose(world, SOURCE, TARGET, t), domain=domain,
                             odometry=odo_files)
-    summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s, warm_up_seconds=warm_s,
-                   camera_set=cameras)
+    summary.update(fps=fps, frames_per_camera=len(times), render_seconds=render_s, warm_up_seconds=warm_s)
     (out / "live_summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
     return summary
-
-
-#: The live demo's robots with back-to-back fisheyes: image size, distance between the robots' origins.
-BODIES_SIZE = (640, 400)
-BODIES_DISTANCE = 2.0
-
-
-def _camera_folders(folders: dict[str, Any]) -> dict[str, Path]:
-    """``{key: folder}`` per camera (``ROBOT`` or ``ROBOT/CAMERA``) of :func:`run_live_pair`'s ``folders``."""
-    return {(f"{r}/{c}" if isinstance(f, dict) else r): p
-            for r, f in folders.items() for c, p in (f.items() if isinstance(f, dict) else [(None, f)])}
-
-
-def _camera_arguments(source: Any) -> list[str]:
-    """``mutloc node``'s ``--camera`` arguments for one robot's entry of :func:`run_live_pair`'s ``folders``."""
-    if isinstance(source, dict):
-        return [a for c, f in source.items() for a in ("--camera", f"{c}={f}")]
-    return ["--camera", str(source)]
 
 
 def _simulated_odometry(folder: Path, world: Any, seconds: float, seed: int) -> dict[str, Path]:
@@ -205,14 +149,13 @@ def _simulated_odometry(folder: Path, world: Any, seconds: float, seed: int) -> 
     return {n[len("odometry_"):-len(".tum")]: folder / n for n in names}
 
 
-def run_live_pair(rig_file: Path, folders: dict[str, Any], out: Path, *, seconds: float,
+def run_live_pair(rig_file: Path, folders: dict[str, Path], out: Path, *, seconds: float,
                   truth: Callable[[float], Any] | None = None, domain: int | None = None,
                   lead_in: float = LEAD_IN, odometry: dict[str, Path] | None = None) -> dict[str, Any]:
     """Run a ``mutloc localizer`` and one ``mutloc node`` per robot of
     ``folders`` (replaying that recording in real time, all released in step
     ``lead_in`` s from now) as separate processes on loopback DDS for
-    ``seconds`` (a robot with several cameras: ``{camera: folder}``, one
-    node running them all); listen to the pose of the rig's first robot in its second's
+    ``seconds``; listen to the pose of the rig's first robot in its second's
     frame like any subscriber.  Returns the poses received, their latency
     (capture -> arrival here) and, with ``truth`` (time in the recording ->
     the true pose), their error.  Each process's output goes to
@@ -267,7 +210,7 @@ def run_live_pair(rig_file: Path, folders: dict[str, Any], out: Path, *, seconds
         start_at = time.time() + lead_in
         run_for = lead_in + seconds + 2.0
         for r, f in folders.items():
-            launch(r, exe + ["node", *common, "--robot", r, *_camera_arguments(f), "--realtime", "--start-at",
+            launch(r, exe + ["node", *common, "--robot", r, "--camera", str(f), "--realtime", "--start-at",
                              f"{start_at:.6f}", "--duration", f"{run_for:g}", "--no-progress"])
         if odometry:
             launch("odometry", [sys.executable, "-m", "mutloc.live.odometry_replay", "--domain", str(domain),
@@ -319,10 +262,8 @@ def run_live_pair(rig_file: Path, folders: dict[str, Any], out: Path, *, seconds
 
 def _process_counts(out: Path, robots: list[str]) -> dict[str, Any]:
     """What the processes' last lines say they did: the localizer's records
-    fused, poses published and messages shed; each node's frames captured,
-    processed and dropped, summed over its cameras (``nodes``), and each
-    camera's (``cameras``, keyed ``ROBOT`` or ``ROBOT/CAMERA``); None where a
-    log has no such line: a process that did not finish."""
+    fused, poses published and messages shed; each node's frames captured and
+    dropped (None where a log has no such line: a process that did not finish)."""
     import re
 
     def last(name: str, pattern: str) -> tuple[int, ...] | None:
@@ -338,24 +279,13 @@ def _process_counts(out: Path, robots: list[str]) -> dict[str, Any]:
     # (the poses not published before the rig check's first window agreed: mutloc.live.rig_gate)
     waiting = last("localizer", r"poses not published: (\d+) waiting for the rig check(,?)")
     withheld = last("localizer", r"poses not published: .*?(\d+) while the rig disagreed(;?)")
-    nodes = {r: _node_counts(out / f"{r}.log") for r in robots}
+    nodes = {r: last(r, r"(\d+) frames captured from .*?, (\d+) processed .*?, (\d+) dropped") for r in robots}
     return {"localizer": None if loc is None else {"records_fused": loc[0], "poses_published": loc[1],
                                                    "shed": loc[2], "rig_waiting": waiting[0] if waiting else 0,
                                                    "rig_withheld": withheld[0] if withheld else 0},
-            "nodes": {r: None if not n else {k: sum(c[k] for c in n.values()) for k in next(iter(n.values()))}
+            "nodes": {r: None if n is None else {"captured": n[0], "processed": n[1], "dropped": n[2]}
                       for r, n in nodes.items()},
-            "cameras": {k: c for n in nodes.values() for k, c in (n or {}).items()},
             "odometry": {r: {"used": int(n), "note": note} for r, n, note in odo}}
-
-
-def _node_counts(path: Path) -> dict[str, dict[str, int]]:
-    """``{key: {captured, processed, dropped}}`` of each camera a node's log
-    ``path`` ends with a summary line for (one per camera it ran)."""
-    import re
-
-    text = path.read_text(encoding="utf-8") if path.exists() else ""
-    found = re.findall(r"node (\S+): (\d+) frames captured from .*?, (\d+) processed .*?, (\d+) dropped", text)
-    return {k: {"captured": int(a), "processed": int(b), "dropped": int(c)} for k, a, b, c in found}
 
 
 def _ns(t: float) -> int:
@@ -424,8 +354,6 @@ def format_live_summary(s: dict[str, Any]) -> str:
     return "\n".join([
         f"live: two nodes (p, q) replaying {s['seconds']:g} s of camera at {s['fps']:g} fps and a localizer, "
         f"DDS domain {s['dds_domain']} on the loopback interface",
-        *(["  robots with back-to-back fisheyes standing back to back: each node runs both cameras, only the "
-           "back cameras see the other robot"] if s.get("camera_set") == "back-to-back-fisheye" else []),
         f"  observation messages received: {s['observation_messages']}; poses of p in q received: "
         f"{s['poses_received']} ({s['poses_per_second']:.1f}/s)",
         f"  error against the truth: median {f(s['translation_error_cm']['median'], '.2f')} cm, "
