@@ -945,8 +945,6 @@ def test_a_stalled_subscriber_does_not_hold_the_poses_back(setup, dds_domain):
                 last_new = time.monotonic()
             time.sleep(0.01)
         assert Path(f"/proc/{stalled.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"  # stalled throughout
-        child.send_signal(signal.SIGINT)
-        summary = child.communicate(timeout=30)[1].strip().splitlines()[-1:]  # (its summary line)
     finally:
         for proc in (stalled, child):
             if proc is not None and proc.poll() is None:
