@@ -56,7 +56,6 @@ import argparse
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -83,6 +82,7 @@ from mutloc.live.dds import Bus  # noqa: E402
 from mutloc.signals import stop_process_group  # noqa: E402
 from mutloc.sim.calibration import perturb_rig  # noqa: E402
 from mutloc.sim.scenario import write_simulation  # noqa: E402
+from mutloc.signals import kill_process_group  # noqa: E402
 
 FPS = 30.0
 PERIOD = 16.0  # the default figure repeats every 16 s (8 s sway and pan, 4 s in-out, 16/3 s wobble)
@@ -212,15 +212,6 @@ def _launch(procs: list, name: str, cmd: list[str], out: Path) -> subprocess.Pop
     return p
 
 
-def _kill_group(p: subprocess.Popen) -> None:
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-    p.wait()
-
-
 def one(folder: Path, out: Path, wrong: bool, load: str, seed: int, restarts: int, pixel_sigma: float) -> dict:
     """One run (see the module docstring)."""
     rng = np.random.default_rng([seed, 38])
@@ -264,7 +255,7 @@ def one(folder: Path, out: Path, wrong: bool, load: str, seed: int, restarts: in
                 time.sleep(float(rng.uniform(1.0, 2.0)))  # up 1-2 s after a pose came again (a wrong rig: after q came back)
                 last_before = listener.last_q_stamp()
                 t_kill = time.time()
-                _kill_group(q)
+                kill_process_group(q)
                 down = float(rng.uniform(0.5, 4.0))
                 time.sleep(max(0.0, t_kill + down - time.time()))
                 # the frame due when the new node should be ready (the start-ups measured so far, and a margin),
@@ -297,7 +288,7 @@ def one(folder: Path, out: Path, wrong: bool, load: str, seed: int, restarts: in
             stop_process_group([p for p in procs if p.poll() is None], timeout=20.0)
         finally:
             for p in procs:
-                _kill_group(p)
+                kill_process_group(p)
             if listener is not None:
                 listener.close()
     after = load_now()

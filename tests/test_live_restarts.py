@@ -26,8 +26,6 @@ timeout.
 """
 
 import math
-import os
-import signal
 import subprocess
 import sys
 import time
@@ -44,6 +42,7 @@ from mutloc.live import messages as M
 from mutloc.sim.render import moving_world, relative_pose, render
 from mutloc.sim.synthetic import looking_pose
 from mutloc.sim.world import standard_rig
+from mutloc.signals import kill_process_group
 
 pytest.importorskip("cyclonedds", reason="the live extra (cyclonedds) is part of make test's install")
 
@@ -128,15 +127,6 @@ def _launch(procs, cmd, log):
     return p
 
 
-def _kill(p):
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-    p.wait()
-
-
 def test_a_killed_node_restarted_is_picked_up_named_stale_while_down_and_never_confidently_wrong(
         loop, tmp_path, dds_domain):
     folder, world = loop
@@ -166,7 +156,7 @@ def test_a_killed_node_restarted_is_picked_up_named_stale_while_down_and_never_c
         for k in range(RESTARTS):
             # up for a while: ten poses after q's node came back
             sub.until(lambda: True if sum(s >= back for s, _ in sub.poses) >= 10 else None, "poses")
-            _kill(q)
+            kill_process_group(q)
             killed = time.time()
             time.sleep(0.5)  # down (not a measurement: the outage is what the assertions below look at)
             relaunch = time.time()
@@ -179,7 +169,7 @@ def test_a_killed_node_restarted_is_picked_up_named_stale_while_down_and_never_c
             outages.append((killed, back))
     finally:
         for p in procs:
-            _kill(p)
+            kill_process_group(p)
         sub.bus.close()
 
     q_stamps = np.sort(np.array(sub.q))

@@ -29,7 +29,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterable, Iterator
 
-__all__ = ["STOP_SIGNALS", "sigterm_as_interrupt", "deferred_interrupt", "exit_on_stop", "stop_process_group",
+__all__ = ["STOP_SIGNALS", "sigterm_as_interrupt", "deferred_interrupt", "exit_on_stop", "stop_process_group", "kill_process_group",
            "STOP_TIMEOUT"]
 
 #: The signals that stop a run as Ctrl-C does.
@@ -113,6 +113,13 @@ def _signal_group(p: subprocess.Popen, sig: int) -> None:
             os.killpg(p.pid, sig)
         except ProcessLookupError:
             pass
+
+
+def kill_process_group(p: subprocess.Popen) -> None:
+    """SIGKILL the process group ``p`` leads (started with ``start_new_session=True``), as a crash would end
+    it, and reap ``p``.  Nothing happens to a group whose leader has already ended."""
+    _signal_group(p, signal.SIGKILL)
+    p.wait()
 
 
 def stop_process_group(procs: subprocess.Popen | Iterable[subprocess.Popen], timeout: float = STOP_TIMEOUT) -> None:
