@@ -54,10 +54,10 @@ from _machine import machine, result_file  # noqa: E402
 from mutloc.api import load_rig  # noqa: E402
 from mutloc.cli.main import main  # noqa: E402
 from mutloc.core.filter import MotionNoise  # noqa: E402
-from mutloc.core.geometry import so3_exp, so3_log  # noqa: E402
+from mutloc.core.geometry import so3_log  # noqa: E402
 from mutloc.core.observations import ObservationSet  # noqa: E402
-from mutloc.core.pose import Pose  # noqa: E402
 from mutloc.io.logs import iter_observation_log  # noqa: E402
+from mutloc.sim.truth_log import truth_pose_at  # noqa: E402
 from mutloc.track.filtering import FilterOptions  # noqa: E402
 from mutloc.track.frames import expanded_rig  # noqa: E402
 from mutloc.track.team import TeamTracker  # noqa: E402
@@ -86,17 +86,7 @@ def scene(folder: Path, seed: int) -> Path:
 
 def truth_at(sim: Path):
     """``T_r0_r(t)`` interpolated between the capture instants of truth.json."""
-    frames = json.loads((sim / "truth.json").read_text())["frames"]
-    times = np.array([f["timestamp"] for f in frames])
-
-    def at(r, t):
-        i = int(np.clip(np.searchsorted(times, t), 1, len(times) - 1))
-        a, b = frames[i - 1], frames[i]
-        w = float(np.clip((t - a["timestamp"]) / (b["timestamp"] - a["timestamp"]), 0.0, 1.0))
-        A, B = (Pose(np.array(f["robots"][r]["R"]), np.array(f["robots"][r]["t"])) for f in (a, b))
-        return Pose(so3_exp(w * so3_log(B.R @ A.R.T)) @ A.R, (1 - w) * A.t + w * B.t)
-
-    return at
+    return truth_pose_at(sim / "truth.json")
 
 
 def dark(obs: ObservationSet, t: float, span: float) -> ObservationSet:

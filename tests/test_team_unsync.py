@@ -13,11 +13,11 @@ from _shared_inputs import shared
 
 from mutloc.cli.main import main
 from mutloc.core.filter import MotionNoise
-from mutloc.core.geometry import so3_exp, so3_log
+from mutloc.core.geometry import so3_log
 from mutloc.core.observations import ObservationSet
-from mutloc.core.pose import Pose
 from mutloc.io.logs import iter_observation_log
 from mutloc.io.trajectory import read_trajectory_csv
+from mutloc.sim.truth_log import truth_pose_at
 from mutloc.track.filtering import FilterOptions
 from mutloc.track.frames import expanded_rig
 from mutloc.api import load_rig
@@ -54,19 +54,8 @@ def fast_team(tmp_path_factory):
 
 
 def _truth(sim):
-    """``T_r0_r(t)`` of r1 and r2, interpolated between capture instants
-    (a record of frames within --tolerance is stamped with their mean time)."""
-    frames = json.loads((sim / "truth.json").read_text())["frames"]
-    times = np.array([f["timestamp"] for f in frames])
-
-    def at(r, t):
-        i = int(np.clip(np.searchsorted(times, t), 1, len(times) - 1))
-        a, b = frames[i - 1], frames[i]
-        w = float(np.clip((t - a["timestamp"]) / (b["timestamp"] - a["timestamp"]), 0.0, 1.0))
-        A, B = (Pose(np.array(f["robots"][r]["R"]), np.array(f["robots"][r]["t"])) for f in (a, b))
-        return Pose(so3_exp(w * so3_log(B.R @ A.R.T)) @ A.R, (1 - w) * A.t + w * B.t)
-
-    return at
+    """``T_r0_r(t)`` interpolated between the capture instants of truth.json."""
+    return truth_pose_at(sim / "truth.json")
 
 
 def _cameras(sim):

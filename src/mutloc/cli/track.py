@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import (NOISE, ODOMETRY, PAIR, PROGRESS, RIG, TEAM, int_in_range, positive_float, robot_map,
-                      robot_value, team_mode)
+from ._common import (NOISE, ODOMETRY, PAIR, PROGRESS, RIG, TEAM, int_in_range, nonnegative_float, positive_float,
+                      robot_map, robot_value, team_mode)
 
 ORDER = 30
 
@@ -66,6 +66,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="white-noise acceleration of the relative translation, m/s^2/sqrt(Hz) (default 1.0)")
     f.add_argument("--angular-noise", type=positive_float, default=0.5, metavar="A",
                    help="white-noise angular acceleration, rad/s^2/sqrt(Hz) (default 0.5)")
+    f.add_argument("--reference-angular-noise", type=nonnegative_float, default=0.0, metavar="A",
+                   help="the reference robot's own white-noise angular acceleration, rad/s^2/sqrt(Hz), carried to "
+                        "every robot through its distance from the reference (default 0: not modelled). For fast-"
+                        "turning teams: --angular-noise 2 --linear-noise 2 --reference-angular-noise 2 keep coasted "
+                        "poses within their sigma at 1-1.5 m/s and 70-80 deg/s (docs/benchmarks.md)")
     return p
 
 
@@ -91,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--observations-out writes what is detected in images: with --observations the log "
                          "is already there")
     team = team_mode(rig, args)
-    options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise),
+    options = FilterOptions(args.filter, MotionNoise(angular=args.angular_noise, linear=args.linear_noise,
+                                                         reference_angular=args.reference_angular_noise),
                             smooth_lag=args.smooth_lag, odometry=_odometry(args, rig, team))
     if args.observations and args.annotate:
         raise InputError("--annotate draws on the images: it needs --stream, not an observation log")

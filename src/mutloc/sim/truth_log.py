@@ -6,20 +6,46 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
+from ..core.geometry import so3_exp, so3_log
 from ..core.observations import ObservationSet
+from ..core.pose import Pose
 
-__all__ = ["truth_log"]
+__all__ = ["truth_log", "truth_pose_at"]
+
+
+def _load(truth: str | Path | dict[str, Any]) -> dict[str, Any]:
+    return truth if isinstance(truth, dict) else json.loads(Path(truth).read_text(encoding="utf-8"))
+
+
+def truth_pose_at(truth: str | Path | dict[str, Any]) -> Callable[[str, float], Pose]:
+    """``at(robot, t)``: the robot's true pose in the reference robot's frame (``T_r0_r``) at time ``t``,
+    interpolated between the capture instants of ``truth.json`` (rotation along the geodesic, translation
+    linearly; held at the first and last instants outside them)."""
+    frames = _load(truth)["frames"]
+    times = np.array([f["timestamp"] for f in frames], float)
+    if len(times) < 2:
+        raise ValueError("truth: at least two frames are needed to interpolate")
+
+    def at(robot: str, t: float) -> Pose:
+        i = int(np.clip(np.searchsorted(times, t), 1, len(times) - 1))
+        a, b = frames[i - 1], frames[i]
+        w = float(np.clip((t - a["timestamp"]) / (b["timestamp"] - a["timestamp"]), 0.0, 1.0))
+        A, B = (Pose(np.array(f["robots"][robot]["R"], float), np.array(f["robots"][robot]["t"], float))
+                for f in (a, b))
+        return Pose(so3_exp(w * so3_log(B.R @ A.R.T)) @ A.R, (1 - w) * A.t + w * B.t)
+
+    return at
 
 
 def truth_log(truth: str | Path | dict[str, Any], noise: float = 1.0, seed: int = 0,
               clocks: bool = True) -> list[tuple[float, ObservationSet]]:
     """``(time, observations)`` records in time order: per frame one record per observer robot at its own
     stamp (``clocks`` False: every robot on the true time, one record per frame)."""
-    data = truth if isinstance(truth, dict) else json.loads(Path(truth).read_text(encoding="utf-8"))
+    data = _load(truth)
     offsets = data.get("clock_offsets", {}) if clocks else {}
     rng = np.random.default_rng([int(seed), 3737])
     pieces = []
